@@ -1,0 +1,123 @@
+"""The one stepping contract every model shares, and the bookkeeping they have in common.
+
+A model is built from parameters and a fixed step `dt_s`; `step(state, torque, load)`
+returns the next state and the step's outputs and never mutates anything (SciPy's
+OdeSolver habit: the counters live in `Simulator`). `run` advances through input arrays and
+returns a columnar `Trajectory`; models with a faster batch form override it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .outputs import OUTPUT_FIELDS, InternalLayout, Outputs, State, Trajectory
+from .params import Params
+
+
+class Model:
+    """Base class: subclasses set `name`, `layout` and implement `_advance`."""
+
+    name = "base"
+
+    def __init__(self, params: Params, dt_s: float) -> None:
+        if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.1):
+            raise ValueError(f"dt_s = {dt_s!r}: the step must be a finite number in (0, 0.1] s")
+        self.params = params
+        self.geo = params.geometry
+        self.dt_s = float(dt_s)
+        self.layout = InternalLayout(blocks=())
+
+    def initial_state(self, nut_position_m: float = 0.0) -> State:
+        """At rest, nut at `nut_position_m` (x_nut = (L/2π) θ_S fixes the screw angle)."""
+        return State(screw_angle_rad=nut_position_m / self.geo.lead_per_rad_m)
+
+    def step(self, state: State, torque_nm: float, load_n: float) -> tuple[State, Outputs]:
+        """Advance one fixed step with screw torque and nut load held over the step."""
+        return self._advance(state, float(torque_nm), float(load_n))
+
+    def _advance(self, state: State, torque_nm: float, load_n: float) -> tuple[State, Outputs]:
+        raise NotImplementedError
+
+    def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
+        """Advance len(torque_nm) steps; input k is held over step k, output k is at its end."""
+        torque_nm, load_n = _inputs(torque_nm, load_n)
+        rows = []
+        for tau, f in zip(torque_nm.tolist(), load_n.tolist()):
+            state, out = self._advance(state, tau, f)
+            rows.append(out)
+        return trajectory_from_rows(rows, self.layout, state)
+
+    # -- shared bookkeeping -------------------------------------------------------------
+    def finish_step(self, before: State, after: State, torque_nm: float, load_n: float, *,
+                    dissipated_j: float, slip_speed_m_s: float, internal: np.ndarray,
+                    nut_force_n: float | None = None) -> tuple[State, Outputs]:
+        """Energy ledger and the common outputs from the state before and after a step.
+
+        Work over the step is exact for inputs held over it: W_in = τ Δθ_S, W_out = F (L/2π) Δθ_S.
+        """
+        h = self.dt_s
+        p = self.geo.lead_per_rad_m
+        dtheta = after.screw_angle_rad - before.screw_angle_rad
+        w_in = torque_nm * dtheta
+        w_out = load_n * p * dtheta
+        state = State(time_s=before.time_s + h, screw_angle_rad=after.screw_angle_rad,
+                      screw_speed_rad_s=after.screw_speed_rad_s, carrier_angle_rad=after.carrier_angle_rad,
+                      carrier_speed_rad_s=after.carrier_speed_rad_s, work_in_j=before.work_in_j + w_in,
+                      work_out_j=before.work_out_j + w_out, dissipated_j=before.dissipated_j + dissipated_j)
+        if nut_force_n is None:
+            m = self.params.mass.moved_mass_kg
+            nut_force_n = load_n + m * p * (after.screw_speed_rad_s - before.screw_speed_rad_s) / h
+        p_in, p_out = w_in / h, w_out / h
+        w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
+        out = Outputs(
+            time_s=state.time_s,
+            screw_angle_rad=state.screw_angle_rad,
+            screw_speed_rad_s=w_s,
+            screw_torque_nm=torque_nm,
+            carrier_angle_rad=state.carrier_angle_rad,
+            carrier_speed_rad_s=w_c,
+            roller_spin_rad_s=-self.geo.gear_ratio * w_c,
+            nut_position_m=p * state.screw_angle_rad,
+            nut_velocity_m_s=p * w_s,
+            nut_force_n=nut_force_n,
+            load_force_n=load_n,
+            slip_speed_m_s=slip_speed_m_s,
+            power_in_w=p_in,
+            power_out_w=p_out,
+            power_dissipated_w=dissipated_j / h,
+            efficiency=efficiency(p_in, p_out),
+            speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
+            internal=internal,
+        )
+        return state, out
+
+
+def efficiency(power_in_w: float, power_out_w: float) -> float:
+    """Forward (screw drives load): P_out / P_in; backward (load drives screw): P_in / P_out.
+
+    Both in the sign convention of `outputs`: power_in = τ ω_S, power_out = F v_nut. NaN when
+    no power flows through the screw in a definite direction.
+    """
+    if power_in_w > 0.0 and power_out_w > 0.0:
+        return power_out_w / power_in_w
+    if power_in_w < 0.0 and power_out_w < 0.0:
+        return power_in_w / power_out_w
+    return math.nan
+
+
+def _inputs(torque_nm, load_n) -> tuple[np.ndarray, np.ndarray]:
+    tau = np.asarray(torque_nm, dtype=float).ravel()
+    f = np.broadcast_to(np.asarray(load_n, dtype=float), tau.shape).ravel()
+    for name, arr in (("torque_nm", tau), ("load_n", f)):
+        if not np.all(np.isfinite(arr)):
+            k = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise ValueError(f"{name}[{k}] = {arr[k]!r}: inputs must be finite numbers")
+    return tau, f
+
+
+def trajectory_from_rows(rows: list[Outputs], layout: InternalLayout, final: State) -> Trajectory:
+    cols = {n: np.fromiter((getattr(r, n) for r in rows), dtype=float, count=len(rows)) for n, _ in OUTPUT_FIELDS}
+    internal = np.array([r.internal for r in rows], dtype=float).reshape(len(rows), layout.size)
+    return Trajectory(columns=cols, internal=internal, layout=layout, final_state=final)

@@ -1,0 +1,188 @@
+"""What a model step returns: the state, the outputs, and the labelled internal loads.
+
+Every model fills the same `Outputs` record, so the ROS node, the MCAP recorder and the
+Rerun sink are written once for all models. Internal loads differ by model (the rigid
+`jones2016` model has no normal forces; `fu2018` has per-tooth loads), so they travel as a
+flat float vector with a model-specific `InternalLayout` that labels every element.
+
+Sign convention (the one place it is stated; see README "Sign convention"):
+right-hand threads, z along the screw axis. Screw angle, speed and torque are positive
+right-handed about +z. The nut position `nut_position_m` is measured along the direction a
+positive screw rotation drives the nut: x_nut = (L / 2π) θ_S (for right-hand threads this
+is the −z direction of the body frame). The external load force `load_force_n` is positive
+when it resists positive nut motion (a compressive working load on an extending actuator).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """Generalised coordinates and velocities plus the energy ledger (pure data).
+
+    Carrier angle/speed are kinematic for the `ideal` model. The energy accumulators make the
+    balance `work_in = work_out + ΔT + dissipated` checkable over any run.
+    """
+
+    time_s: float = 0.0
+    screw_angle_rad: float = 0.0
+    screw_speed_rad_s: float = 0.0
+    carrier_angle_rad: float = 0.0
+    carrier_speed_rad_s: float = 0.0
+    work_in_j: float = 0.0
+    work_out_j: float = 0.0
+    dissipated_j: float = 0.0
+
+
+# Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun
+# layers iterate this table instead of hard-coding field names.
+OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
+    ("time_s", "s"),
+    ("screw_angle_rad", "rad"),
+    ("screw_speed_rad_s", "rad/s"),
+    ("screw_torque_nm", "N·m"),
+    ("carrier_angle_rad", "rad"),
+    ("carrier_speed_rad_s", "rad/s"),
+    ("roller_spin_rad_s", "rad/s"),
+    ("nut_position_m", "m"),
+    ("nut_velocity_m_s", "m/s"),
+    ("nut_force_n", "N"),
+    ("load_force_n", "N"),
+    ("slip_speed_m_s", "m/s"),
+    ("power_in_w", "W"),
+    ("power_out_w", "W"),
+    ("power_dissipated_w", "W"),
+    ("efficiency", "1"),
+    ("speed_ratio", "1"),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Outputs:
+    """One step's outputs, SI units, averaged over the step where a rate is meant.
+
+    - `screw_torque_nm`: the applied screw torque held over the step (the input).
+    - `roller_spin_rad_s`: roller spin relative to the carrier (ω_r = −g ω_C).
+    - `nut_force_n`: axial force the threads deliver to the nut, positive in +x_nut
+      (load force plus the moved mass times its acceleration).
+    - `slip_speed_m_s`: magnitude of the screw–roller sliding velocity at the contact.
+    - `power_in_w` = screw torque × screw speed, `power_out_w` = load force × nut velocity,
+      `power_dissipated_w` = friction power; step averages, so their sum balances with ΔT/Δt.
+    - `efficiency`: power_out / power_in when the screw drives the load (forward),
+      power_in / power_out when the load drives the screw (backward), NaN when either
+      power is zero (no power flows, efficiency undefined). Consumers must treat NaN
+      here as "undefined", not as a fault.
+    - `speed_ratio`: ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
+    - `internal`: flat internal-load vector described by the model's `InternalLayout`.
+    """
+
+    time_s: float
+    screw_angle_rad: float
+    screw_speed_rad_s: float
+    screw_torque_nm: float
+    carrier_angle_rad: float
+    carrier_speed_rad_s: float
+    roller_spin_rad_s: float
+    nut_position_m: float
+    nut_velocity_m_s: float
+    nut_force_n: float
+    load_force_n: float
+    slip_speed_m_s: float
+    power_in_w: float
+    power_out_w: float
+    power_dissipated_w: float
+    efficiency: float
+    speed_ratio: float
+    internal: np.ndarray
+
+    def scalars(self) -> dict[str, float]:
+        """The scalar outputs by name, in OUTPUT_FIELDS order."""
+        return {name: getattr(self, name) for name, _ in OUTPUT_FIELDS}
+
+
+assert tuple(f.name for f in fields(Outputs))[:-1] == tuple(n for n, _ in OUTPUT_FIELDS)
+
+
+@dataclass(frozen=True)
+class InternalBlock:
+    """A named block of the internal-load vector: an array of `shape` with named axes.
+
+    The last axis is `quantity`: one entry per (name, unit) in `quantities`. Example: the
+    per-roller block of fu2018 has dims ("roller", "quantity") and shape (N_R, 14).
+    """
+
+    name: str
+    dims: tuple[str, ...]
+    shape: tuple[int, ...]
+    quantities: tuple[tuple[str, str], ...]
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape))
+
+
+@dataclass(frozen=True)
+class InternalLayout:
+    """Labels every element of a model's flat internal-load vector (blocks concatenated, C order)."""
+
+    blocks: tuple[InternalBlock, ...]
+
+    @property
+    def size(self) -> int:
+        return sum(b.size for b in self.blocks)
+
+    def offsets(self) -> dict[str, int]:
+        out, at = {}, 0
+        for b in self.blocks:
+            out[b.name] = at
+            at += b.size
+        return out
+
+    def view(self, flat: np.ndarray, block: str) -> np.ndarray:
+        """The named block of `flat` reshaped to its shape (a view, no copy)."""
+        at = self.offsets()[block]
+        b = next(b for b in self.blocks if b.name == block)
+        return flat[at : at + b.size].reshape(b.shape)
+
+    def labels(self) -> list[str]:
+        """One label per element, e.g. "per_roller[2].screw_normal_force_n [N]"."""
+        out: list[str] = []
+        for b in self.blocks:
+            for idx in np.ndindex(*b.shape):
+                qname, unit = b.quantities[idx[-1]]
+                where = ",".join(str(i) for i in idx[:-1])
+                out.append(f"{b.name}[{where}].{qname} [{unit}]" if where else f"{b.name}.{qname} [{unit}]")
+        return out
+
+    def to_dict(self) -> dict:
+        """A plain description (for the ROS labels topic and MCAP metadata)."""
+        return {
+            "blocks": [
+                {"name": b.name, "dims": list(b.dims), "shape": list(b.shape),
+                 "quantities": [{"name": q, "unit": u} for q, u in b.quantities]}
+                for b in self.blocks
+            ]
+        }
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Columnar results of a batch run: each OUTPUT_FIELDS name → 1-D array, plus `internal` (steps × layout.size)."""
+
+    columns: dict[str, np.ndarray]
+    internal: np.ndarray
+    layout: InternalLayout
+    final_state: State
+
+    def __len__(self) -> int:
+        return len(self.columns["time_s"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    def row(self, k: int) -> Outputs:
+        return Outputs(**{n: float(self.columns[n][k]) for n, _ in OUTPUT_FIELDS}, internal=self.internal[k])

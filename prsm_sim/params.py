@@ -1,0 +1,341 @@
+"""Frozen, validated parameter records (MODEL.md §1), SI units, unit in the name.
+
+Each group validates itself where it is built and names the field, the value and what is
+allowed. Optional quantities (nut radius, gear ratio, masses and inertias) are derived from
+the geometry and density when left as None, and stored resolved, so a saved parameter set
+reproduces the run exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+from typing import Any
+
+
+class ParamError(ValueError):
+    """A parameter value, name or file was refused; the message says which and what is allowed."""
+
+
+def _check(group: str, name: str, value: Any, ok: bool, allowed: str) -> None:
+    if not ok:
+        raise ParamError(f"{group}.{name} = {value!r}: {allowed}")
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _positive(group: str, obj: Any, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        _check(group, n, v, _finite(v) and v > 0, "must be a finite number > 0")
+
+
+def _non_negative(group: str, obj: Any, *names: str) -> None:
+    for n in names:
+        v = getattr(obj, n)
+        _check(group, n, v, _finite(v) and v >= 0, "must be a finite number >= 0")
+
+
+def _set(obj: Any, name: str, value: Any) -> None:
+    object.__setattr__(obj, name, value)
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Thread and carrier geometry (MODEL.md §1). Radii are pitch (nominal) radii."""
+
+    screw_radius_m: float
+    roller_radius_m: float
+    starts: int
+    pitch_m: float
+    n_rollers: int
+    n_teeth: int
+    flank_angle_deg: float = 45.0
+    nut_radius_m: float | None = None  # default r_S + 2 r_R (planetary fit)
+    gear_ratio: float | None = None  # ring/spur tooth ratio g; default r_N / r_R (no migration)
+    screw_length_m: float | None = None  # default 4 × the threaded roller length
+    pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
+
+    def __post_init__(self) -> None:
+        g = "geometry"
+        _positive(g, self, "screw_radius_m", "roller_radius_m", "pitch_m")
+        for n, lo in (("starts", 1), ("n_rollers", 3), ("n_teeth", 1)):
+            v = getattr(self, n)
+            _check(g, n, v, isinstance(v, int) and not isinstance(v, bool) and v >= lo,
+                   f"must be a whole number >= {lo}")
+        fa = self.flank_angle_deg
+        _check(g, "flank_angle_deg", fa, _finite(fa) and 0 < fa < 90, "must lie in (0, 90) degrees")
+        if self.nut_radius_m is None:
+            _set(self, "nut_radius_m", self.screw_radius_m + 2 * self.roller_radius_m)
+        _positive(g, self, "nut_radius_m")
+        _check(g, "nut_radius_m", self.nut_radius_m, self.nut_radius_m > self.screw_radius_m + self.roller_radius_m,
+               f"must exceed screw + roller radius ({self.screw_radius_m + self.roller_radius_m:g} m)")
+        if self.gear_ratio is None:
+            _set(self, "gear_ratio", self.nut_radius_m / self.roller_radius_m)
+        _positive(g, self, "gear_ratio")
+        if self.screw_length_m is None:
+            _set(self, "screw_length_m", 4 * self.n_teeth * self.pitch_m)
+        if self.pin_radius_m is None:
+            _set(self, "pin_radius_m", self.roller_radius_m / 2)
+        _positive(g, self, "screw_length_m", "pin_radius_m")
+        n_max = math.floor(math.pi / math.asin(min(1.0, self.roller_radius_m / self.carrier_radius_m)))
+        _check(g, "n_rollers", self.n_rollers, self.n_rollers <= n_max,
+               f"at most {n_max} rollers of radius {self.roller_radius_m:g} m fit on the {self.carrier_radius_m:g} m pin circle")
+
+    @property
+    def flank_angle_rad(self) -> float:
+        return math.radians(self.flank_angle_deg)
+
+    @property
+    def lead_m(self) -> float:
+        """Screw (= nut) lead L = n P."""
+        return self.starts * self.pitch_m
+
+    @property
+    def lead_per_rad_m(self) -> float:
+        """L / 2π: nut travel per radian of screw rotation."""
+        return self.lead_m / (2 * math.pi)
+
+    @property
+    def carrier_radius_m(self) -> float:
+        """Roller centre distance a = r_S + r_R (carrier pin circle)."""
+        return self.screw_radius_m + self.roller_radius_m
+
+    @property
+    def screw_lead_angle_rad(self) -> float:
+        return math.atan(self.lead_m / (2 * math.pi * self.screw_radius_m))
+
+    @property
+    def roller_lead_angle_rad(self) -> float:
+        return math.atan(self.pitch_m / (2 * math.pi * self.roller_radius_m))
+
+    @property
+    def nut_lead_angle_rad(self) -> float:
+        return math.atan(self.lead_m / (2 * math.pi * self.nut_radius_m))
+
+    @property
+    def roller_length_m(self) -> float:
+        """Threaded roller length: one pitch per engaged tooth."""
+        return self.n_teeth * self.pitch_m
+
+
+@dataclass(frozen=True)
+class MassProperties:
+    """Masses and inertias; None means derived from geometry and density (MODEL.md §1, Jones 2016 eq. 14)."""
+
+    moved_mass_kg: float  # nut plus everything attached to it
+    density_kg_m3: float = 7850.0
+    screw_inertia_kgm2: float | None = None  # solid cylinder r_S over screw_length_m
+    roller_mass_kg: float | None = None  # solid cylinder r_R over roller_length_m
+    roller_inertia_kgm2: float | None = None  # m_R r_R² / 2 (Jones eq. 14)
+    carrier_inertia_kgm2: float | None = None  # both carrier plates: annuli r_S..a+r_R/2, 2 mm thick
+
+    def __post_init__(self) -> None:
+        _positive("mass", self, "moved_mass_kg", "density_kg_m3")
+        _non_negative("mass", self, *(n for n in ("screw_inertia_kgm2", "roller_mass_kg", "roller_inertia_kgm2",
+                                                   "carrier_inertia_kgm2") if getattr(self, n) is not None))
+
+    def resolved(self, geo: Geometry) -> MassProperties:
+        """Fill every None from the geometry (the Params constructor calls this)."""
+        rho = self.density_kg_m3
+        js = self.screw_inertia_kgm2
+        if js is None:
+            ms = rho * math.pi * geo.screw_radius_m**2 * geo.screw_length_m
+            js = ms * geo.screw_radius_m**2 / 2
+        mr = self.roller_mass_kg
+        if mr is None:
+            mr = rho * math.pi * geo.roller_radius_m**2 * geo.roller_length_m
+        jr = self.roller_inertia_kgm2 if self.roller_inertia_kgm2 is not None else mr * geo.roller_radius_m**2 / 2
+        jc = self.carrier_inertia_kgm2
+        if jc is None:
+            r_in, r_out, t = geo.screw_radius_m, geo.carrier_radius_m + geo.roller_radius_m / 2, 2e-3
+            jc = 2 * rho * math.pi * t * (r_out**4 - r_in**4) / 2
+        return replace(self, screw_inertia_kgm2=js, roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+
+
+CONTACT_EVALUATIONS = ("exact", "line_of_centres")
+
+
+@dataclass(frozen=True)
+class Friction:
+    """Friction and lubrication parameters of the `jones2016` and `fu2018` models.
+
+    `viscous_n_s_m` is Jones 2016's c, per screw–roller thread contact. `contact_evaluation`
+    selects where the screw–roller slip is evaluated: at the exact tangency point (MODEL.md §3)
+    or on the line of centres as the seed's equations (20), (28) do.
+    """
+
+    viscous_n_s_m: float = 25.0
+    contact_evaluation: str = "exact"
+    mu_screw_roller: float = 0.05
+    coulomb_regularisation_m_s: float = 1e-4  # ε in f = −μN v/√(|v|²+ε²), MODEL.md §4.2
+    screw_roller_law: str = "coulomb"  # fu2018: "coulomb" (Fu 2018) or "viscous" (Jones limit)
+    mu_nut_roller_rolling: float = 0.002
+    mu_pin: float = 0.05
+    lubricant_viscosity_m2_s: float = 55e-6
+    lubricant_density_kg_m3: float = 900.0
+    drag_radius_m: float | None = None  # ring gear–carrier gap radius; default r_N
+    drag_width_m: float = 5e-3
+    drag_gap_m: float = 1e-4
+    load_distribution: str = "uniform"  # ζ_T profile over the teeth: "uniform" or "exponential"
+    load_distribution_decay: float = 0.05  # per-tooth decay rate of the "exponential" profile
+
+    def __post_init__(self) -> None:
+        f = "friction"
+        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin",
+                      "lubricant_viscosity_m2_s", "lubricant_density_kg_m3", "load_distribution_decay")
+        _positive(f, self, "coulomb_regularisation_m_s", "drag_width_m", "drag_gap_m")
+        if self.drag_radius_m is not None:
+            _positive(f, self, "drag_radius_m")
+        _check(f, "contact_evaluation", self.contact_evaluation, self.contact_evaluation in CONTACT_EVALUATIONS,
+               f"must be one of {', '.join(CONTACT_EVALUATIONS)}")
+        _check(f, "screw_roller_law", self.screw_roller_law, self.screw_roller_law in ("coulomb", "viscous"),
+               "must be one of coulomb, viscous")
+        _check(f, "load_distribution", self.load_distribution, self.load_distribution in ("uniform", "exponential"),
+               "must be one of uniform, exponential")
+        _check(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
+
+
+@dataclass(frozen=True)
+class IdealLoss:
+    """Loss parameters of the `ideal` model: Simscape Leadscrew / Modelica LossyGear set.
+
+    `efficiency_backward <= 0` makes the screw self-locking: a load alone cannot back-drive it.
+    """
+
+    efficiency_forward: float = 0.85  # screw → nut power transfer
+    efficiency_backward: float = 0.80  # nut → screw power transfer
+    power_threshold_w: float = 1.0  # below it the efficiency blends between the two directions
+    viscous_nm_s_rad: float = 0.0  # screw bearing viscous torque per rad/s
+
+    def __post_init__(self) -> None:
+        g = "ideal"
+        ef, eb = self.efficiency_forward, self.efficiency_backward
+        _check(g, "efficiency_forward", ef, _finite(ef) and 0 < ef <= 1, "must lie in (0, 1]")
+        _check(g, "efficiency_backward", eb, _finite(eb) and -1 <= eb <= 1, "must lie in [-1, 1] (<= 0: self-locking)")
+        _check(g, "efficiency_backward", eb, eb <= ef, f"must not exceed efficiency_forward ({ef})")
+        _positive(g, self, "power_threshold_w")
+        _non_negative(g, self, "viscous_nm_s_rad")
+
+
+@dataclass(frozen=True)
+class Loads:
+    """Nominal operating point used by presets, scenarios and the steady-state command."""
+
+    nut_load_n: float = 100.0
+    screw_speed_rad_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        for n in ("nut_load_n", "screw_speed_rad_s"):
+            v = getattr(self, n)
+            _check("loads", n, v, _finite(v), "must be a finite number")
+
+
+_GROUPS: dict[str, type] = {
+    "geometry": Geometry,
+    "mass": MassProperties,
+    "friction": Friction,
+    "ideal": IdealLoss,
+    "loads": Loads,
+}
+
+
+@dataclass(frozen=True)
+class Params:
+    """A complete, validated parameter set. `mass` is stored resolved (no None left)."""
+
+    geometry: Geometry
+    mass: MassProperties
+    friction: Friction = field(default_factory=Friction)
+    ideal: IdealLoss = field(default_factory=IdealLoss)
+    loads: Loads = field(default_factory=Loads)
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        for gname, cls in _GROUPS.items():
+            v = getattr(self, gname)
+            if not isinstance(v, cls):
+                raise ParamError(f"{gname}: expected a {cls.__name__}, got {type(v).__name__}")
+        _set(self, "mass", self.mass.resolved(self.geometry))
+        if self.friction.drag_radius_m is None:
+            _set(self, "friction", replace(self.friction, drag_radius_m=self.geometry.nut_radius_m))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""
+        out: dict[str, Any] = {"name": self.name}
+        for gname in _GROUPS:
+            out[gname] = asdict(getattr(self, gname))
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any, *, base: Params | None = None) -> Params:
+        """Build from a nested dict, refusing unknown keys; values missing fall back to `base`."""
+        if not isinstance(data, dict):
+            raise ParamError(f"parameters: expected a mapping of groups ({', '.join(_GROUPS)}), got {type(data).__name__}")
+        unknown = set(data) - set(_GROUPS) - {"name"}
+        if unknown:
+            raise ParamError(f"unknown parameter group(s) {', '.join(sorted(map(str, unknown)))}; "
+                             f"allowed: name, {', '.join(_GROUPS)}")
+        groups = {}
+        for gname, gcls in _GROUPS.items():
+            section = data.get(gname, {})
+            if section is None:
+                section = {}
+            if not isinstance(section, dict):
+                raise ParamError(f"{gname}: expected a mapping, got {type(section).__name__}")
+            allowed = {f.name for f in fields(gcls)}
+            bad = set(section) - allowed
+            if bad:
+                raise ParamError(f"unknown parameter {gname}.{sorted(map(str, bad))[0]}; "
+                                 f"allowed in {gname}: {', '.join(sorted(allowed))}")
+            values = asdict(getattr(base, gname)) if base is not None else {}
+            values.update(section)
+            missing = [f.name for f in fields(gcls) if f.name not in values and f.default is MISSING
+                       and f.default_factory is MISSING]  # type: ignore[misc]
+            if missing:
+                raise ParamError(f"{gname}.{missing[0]} is required (no preset to take it from)")
+            values = {k: _coerce(gcls, k, v, gname) for k, v in values.items()}
+            try:
+                groups[gname] = gcls(**values)
+            except TypeError as e:  # a wrong type that the checks did not name
+                raise ParamError(f"{gname}: {e}") from None
+        name = data.get("name", base.name if base is not None else "custom")
+        return cls(name=str(name), **groups)
+
+    def with_overrides(self, overrides: dict[str, Any]) -> Params:
+        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}."""
+        nested: dict[str, Any] = {}
+        for key, value in overrides.items():
+            parts = key.split(".")
+            if len(parts) != 2:
+                raise ParamError(f"parameter override {key!r}: expected group.name, e.g. friction.mu_screw_roller")
+            nested.setdefault(parts[0], {})[parts[1]] = value
+        return Params.from_dict(nested, base=self)
+
+    @staticmethod
+    def override_keys() -> list[str]:
+        """Every dotted key `with_overrides` accepts."""
+        return [f"{g}.{f.name}" for g, cls in _GROUPS.items() for f in fields(cls)]
+
+
+_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth")}
+_STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution")}
+
+
+def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
+    """Accept YAML's ints for floats and integral floats for counts; refuse anything else by name."""
+    if value is None:
+        return None
+    if (gname, key) in _STR_FIELDS:
+        if not isinstance(value, str):
+            raise ParamError(f"{gname}.{key} = {value!r}: must be a string")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParamError(f"{gname}.{key} = {value!r}: must be a number")
+    if (gname, key) in _INT_FIELDS:
+        if not math.isfinite(value) or float(value) != int(value):
+            raise ParamError(f"{gname}.{key} = {value!r}: must be a whole number")
+        return int(value)
+    return float(value)
