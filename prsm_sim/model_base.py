@@ -9,6 +9,7 @@ returns a columnar `Trajectory`; models with a faster batch form override it.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -62,10 +63,8 @@ class Model:
         dtheta = after.screw_angle_rad - before.screw_angle_rad
         w_in = torque_nm * dtheta
         w_out = load_n * p * dtheta
-        state = State(time_s=before.time_s + h, screw_angle_rad=after.screw_angle_rad,
-                      screw_speed_rad_s=after.screw_speed_rad_s, carrier_angle_rad=after.carrier_angle_rad,
-                      carrier_speed_rad_s=after.carrier_speed_rad_s, work_in_j=before.work_in_j + w_in,
-                      work_out_j=before.work_out_j + w_out, dissipated_j=before.dissipated_j + dissipated_j)
+        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
+                        work_out_j=before.work_out_j + w_out, dissipated_j=before.dissipated_j + dissipated_j)
         if nut_force_n is None:
             m = self.params.mass.moved_mass_kg
             nut_force_n = load_n + m * p * (after.screw_speed_rad_s - before.screw_speed_rad_s) / h
@@ -121,3 +120,36 @@ def trajectory_from_rows(rows: list[Outputs], layout: InternalLayout, final: Sta
     cols = {n: np.fromiter((getattr(r, n) for r in rows), dtype=float, count=len(rows)) for n, _ in OUTPUT_FIELDS}
     internal = np.array([r.internal for r in rows], dtype=float).reshape(len(rows), layout.size)
     return Trajectory(columns=cols, internal=internal, layout=layout, final_state=final)
+
+
+def columns_to_trajectory(model: Model, tau: np.ndarray, load: np.ndarray, cols: np.ndarray, internal: np.ndarray,
+                          final: State, initial_screw_speed_rad_s: float = 0.0) -> Trajectory:
+    """The common output columns of a batch run, vectorised (the batch twin of `finish_step`).
+
+    `cols` rows: ω_S, ω_C, θ_S, θ_C at the end of each step, Δθ_S over it, dissipated work,
+    slip speed, nut force (NaN: derive it from the load and the moved mass's acceleration).
+    """
+    h = model.dt_s
+    geo = model.geo
+    p = geo.lead_per_rad_m
+    n = len(tau)
+    w_s, w_c, th_s, th_c, dth, diss, slip, nut_force = (cols[:, i] for i in range(8))
+    w_prev = np.concatenate([[initial_screw_speed_rad_s], w_s[:-1]])
+    w_in, w_out = tau * dth, load * p * dth
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p_in, p_out = w_in / h, w_out / h
+        eff = np.where((p_in > 0) & (p_out > 0), p_out / p_in,
+                       np.where((p_in < 0) & (p_out < 0), p_in / p_out, np.nan))
+        ratio = np.where(w_s != 0, w_c / w_s, np.nan)
+    if np.isnan(nut_force).any():
+        nut_force = np.where(np.isnan(nut_force), load + model.params.mass.moved_mass_kg * p * (w_s - w_prev) / h,
+                             nut_force)
+    columns = {
+        "time_s": final.time_s - h * np.arange(n - 1, -1, -1),
+        "screw_angle_rad": th_s, "screw_speed_rad_s": w_s, "screw_torque_nm": tau.copy(),
+        "carrier_angle_rad": th_c, "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -geo.gear_ratio * w_c,
+        "nut_position_m": p * th_s, "nut_velocity_m_s": p * w_s, "nut_force_n": nut_force,
+        "load_force_n": load.copy(), "slip_speed_m_s": slip, "power_in_w": p_in, "power_out_w": p_out,
+        "power_dissipated_w": diss / h, "efficiency": eff, "speed_ratio": ratio,
+    }
+    return Trajectory(columns=columns, internal=internal, layout=model.layout, final_state=final)

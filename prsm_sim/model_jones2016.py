@@ -20,8 +20,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .contact import ContactPoint, contact_for
-from .model_base import Model, _inputs
-from .outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, State, Trajectory
+from .model_base import Model, _inputs, columns_to_trajectory
+from .outputs import InternalBlock, InternalLayout, State, Trajectory
 from .linear_step import discretise
 from .params import Params
 
@@ -115,35 +115,20 @@ class Jones2016(Model):
         q = q0[:, None] + np.cumsum(dq, axis=1)
         zz = np.vstack([w_prev, u])
         diss = np.einsum("ik,ij,jk->k", zz, lin.W, zz)
-        h = self.dt_s
         p = self.geo.lead_per_rad_m
         dtheta = dq[0]
-        w_in, w_out = tau * dtheta, f * p * dtheta
-        t = state.time_s + h * np.arange(1, n + 1)
         v_s = self.G @ w  # 3 × n
-        m = self.params.mass.moved_mass_kg
-        with np.errstate(divide="ignore", invalid="ignore"):
-            p_in, p_out = w_in / h, w_out / h
-            eff = np.where((p_in > 0) & (p_out > 0), p_out / p_in,
-                           np.where((p_in < 0) & (p_out < 0), p_in / p_out, np.nan))
-            ratio = np.where(w[0] != 0, w[1] / w[0], np.nan)
-        cols = {
-            "time_s": t, "screw_angle_rad": q[0], "screw_speed_rad_s": w[0], "screw_torque_nm": tau,
-            "carrier_angle_rad": q[1], "carrier_speed_rad_s": w[1], "roller_spin_rad_s": -self.geo.gear_ratio * w[1],
-            "nut_position_m": p * q[0], "nut_velocity_m_s": p * w[0],
-            "nut_force_n": f + m * p * (w[0] - w_prev[0]) / h, "load_force_n": f.copy(),
-            "slip_speed_m_s": np.linalg.norm(v_s, axis=0), "power_in_w": p_in, "power_out_w": p_out,
-            "power_dissipated_w": diss / h, "efficiency": eff, "speed_ratio": ratio,
-        }
-        assert set(cols) == {k for k, _ in OUTPUT_FIELDS}
         fr = -self.params.friction.viscous_n_s_m * self.geo.n_teeth * v_s
         internal = np.tile(np.vstack([v_s, fr]).T, (1, self.geo.n_rollers))
-        final = State(time_s=t[-1] if n else state.time_s, screw_angle_rad=q[0, -1] if n else q0[0],
+        final = State(time_s=state.time_s + self.dt_s * n, screw_angle_rad=q[0, -1] if n else q0[0],
                       screw_speed_rad_s=w[0, -1] if n else w0[0], carrier_angle_rad=q[1, -1] if n else q0[1],
                       carrier_speed_rad_s=w[1, -1] if n else w0[1],
-                      work_in_j=state.work_in_j + w_in.sum(), work_out_j=state.work_out_j + w_out.sum(),
+                      work_in_j=state.work_in_j + float(tau @ dtheta),
+                      work_out_j=state.work_out_j + float(f @ dtheta) * p,
                       dissipated_j=state.dissipated_j + diss.sum())
-        return Trajectory(columns=cols, internal=internal, layout=self.layout, final_state=final)
+        cols = np.column_stack([w[0], w[1], q[0], q[1], dtheta, diss, np.linalg.norm(v_s, axis=0),
+                                np.full(n, np.nan)])
+        return columns_to_trajectory(self, tau, f, cols, internal, final, float(w0[0]))
 
 
 def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torque_nm: float | None = None,

@@ -26,6 +26,7 @@ class State:
 
     Carrier angle/speed are kinematic for the `ideal` model. The energy accumulators make the
     balance `work_in = work_out + ΔT + dissipated` checkable over any run.
+    (`time_s` and the accumulators are filled by `Model.finish_step`.)
     """
 
     time_s: float = 0.0
@@ -36,6 +37,14 @@ class State:
     work_in_j: float = 0.0
     work_out_j: float = 0.0
     dissipated_j: float = 0.0
+    # lagged algebraic quantities of `fu2018` (the loaded flank pair and the pin/gear forces
+    # entering its friction laws); other models leave the defaults
+    flank_sign: int = 1
+    pin_force_n: float = 0.0
+    gear_force_n: float = 0.0
+    # integrator memory (fu2018: its frozen Jacobian and the steps since it was formed), kept in
+    # the state so that a step stays a pure function of (state, inputs)
+    solver: tuple[float, ...] = ()
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun

@@ -15,12 +15,13 @@ import math
 import numpy as np
 
 from .model_base import Model
+from .model_fu2018 import Fu2018
 from .model_ideal import Ideal
 from .model_jones2016 import Jones2016
 from .outputs import Outputs, State, Trajectory
 from .params import Params
 
-MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016}
+MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018}
 
 
 def register_model(cls: type[Model]) -> None:
