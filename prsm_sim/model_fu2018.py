@@ -250,7 +250,7 @@ class Fu2018(Model):
         b1 = f0z + esz * beta_s + nnz * beta_n
         # roller spin (6) with F_gt from (5) and F_pt from (7)
         cs = r_r * esy - spin_s
-        cn = r_r * nny - (c.spin_n + mu_rr)
+        cn = r_r * nny - (c.spin_n - mu_rr)  # M_rr = −mu_rr N_N moved to the left-hand side
         a21 = cs * alpha_s + cn * alpha_n
         a22 = self._j_spin
         b2 = spin_f0 + m_pin - r_r * f0y - r_r * rhs7 / (nr * a) - cs * beta_s - cn * beta_n

@@ -61,7 +61,8 @@ class Geometry:
     def __post_init__(self) -> None:
         g = "geometry"
         _positive(g, self, "screw_radius_m", "roller_radius_m", "pitch_m")
-        for n, lo in (("starts", 1), ("n_rollers", 3), ("n_teeth", 1)):
+        # starts >= 3: the planetary fit r_S = (n − 2) r_R needs it (MODEL.md §1)
+        for n, lo in (("starts", 3), ("n_rollers", 3), ("n_teeth", 1)):
             v = getattr(self, n)
             _check(g, n, v, isinstance(v, int) and not isinstance(v, bool) and v >= lo,
                    f"must be a whole number >= {lo}")

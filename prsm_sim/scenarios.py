@@ -1,0 +1,171 @@
+"""Named input scenarios for offline runs, and the summary figures a run is judged by.
+
+Open-loop scenarios drive the screw with a torque profile (`step`, `ramp`, `sine`). The
+Coulomb-friction models have no steady speed under a constant torque (their loss does not
+grow with speed), so the load cases run speed-controlled: a PI loop with feed-forward of
+the load torque tracks a screw-speed reference, as a test rig would (`heavy`, `light`,
+`sine-motion`, the Fu 2018 cases).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model_base import trajectory_from_rows
+from .model_ideal import reflected_inertia
+from .model_jones2016 import steady_state
+from .outputs import Trajectory
+from .params import Params
+from .simulator import Simulator
+
+SCENARIOS = ("step", "ramp", "sine", "heavy", "light", "sine-motion")
+HEAVY_LOAD_N = 20_000.0  # Fu 2018 heavy-load case, MODEL.md §4.2 ("e.g. 20 kN")
+LIGHT_LOAD_N = 100.0  # Fu 2018 light-load case ("e.g. 100 N")
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """What a scenario applies: a torque profile, or a speed reference under PI control."""
+
+    name: str
+    load_n: float
+    torque_nm: float | None = None  # open-loop amplitude
+    speed_rad_s: float | None = None  # closed-loop reference amplitude
+    frequency_hz: float = 1.0
+
+
+def default_spec(params: Params, name: str, *, load_n: float | None = None, torque_nm: float | None = None,
+                 speed_rad_s: float | None = None, frequency_hz: float = 1.0) -> ScenarioSpec:
+    """A scenario's defaults from the preset's operating point (`params.loads`)."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; known scenarios: {', '.join(SCENARIOS)}")
+    if not (math.isfinite(frequency_hz) and frequency_hz > 0):
+        raise ValueError(f"frequency_hz = {frequency_hz!r}: must be a finite number > 0")
+    speed = params.loads.screw_speed_rad_s if speed_rad_s is None else speed_rad_s
+    if name in ("heavy", "light", "sine-motion"):
+        load = {"heavy": HEAVY_LOAD_N, "light": LIGHT_LOAD_N}.get(name, params.loads.nut_load_n)
+        return ScenarioSpec(name, load if load_n is None else load_n, speed_rad_s=speed, frequency_hz=frequency_hz)
+    load = params.loads.nut_load_n if load_n is None else load_n
+    if torque_nm is None:
+        # the torque that holds the preset's speed in the jones2016 steady state (seed example)
+        torque_nm = steady_state(params, screw_speed_rad_s=speed, load_n=load)["torque_nm"]
+    return ScenarioSpec(name, load, torque_nm=torque_nm, frequency_hz=frequency_hz)
+
+
+def torque_profile(spec: ScenarioSpec, n_steps: int, dt_s: float) -> np.ndarray:
+    """Open-loop torque held over each step k (t = k dt)."""
+    t = dt_s * np.arange(n_steps)
+    if spec.name == "step":
+        return np.full(n_steps, spec.torque_nm)
+    if spec.name == "ramp":
+        return spec.torque_nm * t / max(t[-1], dt_s) if n_steps else t
+    if spec.name == "sine":
+        return spec.torque_nm * np.sin(2 * math.pi * spec.frequency_hz * t)
+    raise ValueError(f"scenario {spec.name!r} is speed-controlled, not a torque profile")
+
+
+def speed_reference(spec: ScenarioSpec, t_s: float) -> float:
+    """Screw-speed reference: a 0.1 s ramp to the speed (heavy, light) or a sine (motion reversals)."""
+    if spec.name == "sine-motion":
+        return spec.speed_rad_s * math.sin(2 * math.pi * spec.frequency_hz * t_s)
+    return spec.speed_rad_s * min(1.0, t_s / 0.1)
+
+
+def run_scenario(sim: Simulator, spec: ScenarioSpec, duration_s: float, progress=None) -> Trajectory:
+    """Run `spec` for `duration_s`; `progress(steps_done)` is called now and then on long runs."""
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise ValueError(f"duration_s = {duration_s!r}: must be a finite number > 0")
+    n = int(round(duration_s / sim.dt_s))
+    if n < 1:
+        raise ValueError(f"duration_s = {duration_s} is shorter than one step ({sim.dt_s} s)")
+    chunk = 5000
+    if spec.torque_nm is not None:
+        tau = torque_profile(spec, n, sim.dt_s)
+        parts = []
+        for k in range(0, n, chunk):
+            parts.append(sim.run(tau[k:k + chunk], spec.load_n))
+            if progress:
+                progress(min(n, k + chunk))
+        return concatenate(parts)
+    return _closed_loop(sim, spec, n, progress)
+
+
+def _closed_loop(sim: Simulator, spec: ScenarioSpec, n: int, progress) -> Trajectory:
+    """PI speed loop with load feed-forward, sampled every step (1 kHz at the default step).
+
+    Gains place the loop at min(100 rad/s, 1/(20 dt)) on the reflected screw inertia, well
+    inside the sampling limit, so the controller does not colour the mechanism's response.
+    """
+    params = sim.params
+    j = reflected_inertia(params)
+    bw = min(100.0, 1.0 / (20.0 * sim.dt_s))
+    kp, ki = 2.0 * j * bw, j * bw * bw
+    ff = spec.load_n * params.geometry.lead_per_rad_m
+    integ = 0.0
+    rows = []
+    for k in range(n):
+        t = sim.time_s
+        err = speed_reference(spec, t) - sim.state.screw_speed_rad_s
+        integ += err * sim.dt_s
+        rows.append(sim.step(ff + kp * err + ki * integ, spec.load_n))
+        if progress and (k + 1) % 5000 == 0:
+            progress(k + 1)
+    if progress:
+        progress(n)
+    return trajectory_from_rows(rows, sim.layout, sim.state)
+
+
+def concatenate(parts: list[Trajectory]) -> Trajectory:
+    """Join consecutive batch runs into one trajectory."""
+    cols = {k: np.concatenate([p.columns[k] for p in parts]) for k in parts[0].columns}
+    return Trajectory(columns=cols, internal=np.concatenate([p.internal for p in parts]), layout=parts[0].layout,
+                      final_state=parts[-1].final_state)
+
+
+def summarise(traj: Trajectory, tail_fraction: float = 0.1) -> dict:
+    """Figures of a run: final state, tail means (last `tail_fraction`), peaks of the internal loads.
+
+    Tail efficiency is the ratio of the tail's mean powers (not the mean of step ratios,
+    which NaN and reversals would bias).
+    """
+    n = len(traj)
+    tail = slice(max(0, n - max(1, int(n * tail_fraction))), n)
+    c = traj.columns
+    p_in, p_out = float(np.mean(c["power_in_w"][tail])), float(np.mean(c["power_out_w"][tail]))
+    if p_in > 0 and p_out > 0:
+        eff = p_out / p_in
+    elif p_in < 0 and p_out < 0:
+        eff = p_in / p_out
+    else:
+        eff = math.nan
+    w_s, w_c = c["screw_speed_rad_s"][tail], c["carrier_speed_rad_s"][tail]
+    moving = np.abs(w_s) > 1e-9
+    out = {
+        "steps": n,
+        "duration_s": float(c["time_s"][-1] - c["time_s"][0] + (c["time_s"][1] - c["time_s"][0] if n > 1 else 0.0)),
+        "final": {k: float(v[-1]) for k, v in c.items()},
+        "tail_mean_speed_ratio": float(np.mean(w_c[moving] / w_s[moving])) if moving.any() else math.nan,
+        "tail_efficiency": eff,
+        "tail_mean_slip_speed_m_s": float(np.mean(c["slip_speed_m_s"][tail])),
+        "peak_nut_force_n": float(np.max(np.abs(c["nut_force_n"]))),
+        "peak_screw_speed_rad_s": float(np.max(np.abs(c["screw_speed_rad_s"]))),
+        "energy": {"work_in_j": traj.final_state.work_in_j, "work_out_j": traj.final_state.work_out_j,
+                   "dissipated_j": traj.final_state.dissipated_j},
+    }
+    names = {b.name for b in traj.layout.blocks}
+    if "per_tooth" in names:
+        blk = next(b for b in traj.layout.blocks if b.name == "per_tooth")
+        start = traj.layout.offsets()["per_tooth"]
+        out["peak_tooth_normal_force_n"] = float(np.max(np.abs(traj.internal[:, start:start + blk.size])))
+    if "per_roller" in names:
+        blk = next(b for b in traj.layout.blocks if b.name == "per_roller")
+        q = [n for n, _ in blk.quantities]
+        start = traj.layout.offsets()["per_roller"]
+        rows = traj.internal[:, start:start + blk.size].reshape(n, *blk.shape)
+        for name in ("screw_normal_force_n", "nut_normal_force_n"):
+            if name in q:
+                out[f"peak_roller_{name}"] = float(np.max(np.abs(rows[:, :, q.index(name)])))
+    return out

@@ -1,0 +1,63 @@
+"""`ideal`: the Simscape Leadscrew / Modelica LossyGear parameter set returns what it is given."""
+
+import numpy as np
+import pytest
+
+from prsm_sim import Simulator, preset
+
+
+def _params(**ideal):
+    return preset("s30").with_overrides({f"ideal.{k}": v for k, v in ideal.items()})
+
+
+def test_forward_efficiency_is_returned_when_the_screw_drives():
+    # screw drives against a resisting load at constant speed: P_out / P_in = η_f (plus the viscous loss)
+    b = 2e-3  # bearing loss: sets the speed, J/b ≈ 0.1 s
+    p = _params(efficiency_forward=0.8, efficiency_backward=0.6, viscous_nm_s_rad=b, power_threshold_w=0.1)
+    f = 2000.0
+    tau = f * p.geometry.lead_per_rad_m / 0.8 + b * 100.0  # the torque that holds 100 rad/s
+    sim = Simulator(p, "ideal", 1e-3)
+    tr = sim.run(np.full(3000, tau), f)
+    assert tr["screw_speed_rad_s"][-1] == pytest.approx(100.0, rel=1e-3)
+    mech = tr["power_out_w"][-1] / (tr["power_in_w"][-1] - b * tr["screw_speed_rad_s"][-1] ** 2)
+    assert mech == pytest.approx(0.8, rel=1e-4)
+
+
+def test_backward_efficiency_is_returned_when_the_load_drives():
+    # an assisting load back-drives the screw against a braking torque: P_in / P_out = η_b
+    p = _params(efficiency_forward=0.8, efficiency_backward=0.6, power_threshold_w=0.1)
+    f = -2000.0  # pushes the nut the positive way
+    tau_l = f * p.geometry.lead_per_rad_m
+    sim = Simulator(p, "ideal", 1e-3)
+    sim.run(np.full(200, 0.0), f)  # let it start moving
+    tr = sim.run(np.full(2000, tau_l * 0.6), f)  # brake with what backward rolling delivers: constant speed
+    assert tr["efficiency"][-1] == pytest.approx(0.6, rel=1e-4)
+    assert tr["power_in_w"][-1] < 0 and tr["power_out_w"][-1] < 0
+
+
+def test_self_locking_screw_holds_a_back_driving_load():
+    # η_b ≤ 0: a load alone cannot turn the screw (MODEL.md §4 `ideal`)
+    p = _params(efficiency_forward=0.4, efficiency_backward=-0.2)
+    sim = Simulator(p, "ideal", 1e-3)
+    tr = sim.run(np.zeros(2000), 5000.0)
+    assert np.all(tr["screw_speed_rad_s"] == 0.0) and np.all(tr["nut_position_m"] == 0.0)
+    # ...but the motor can still drive it either way
+    tr = sim.run(np.full(500, -5.0), 5000.0)
+    assert tr["screw_speed_rad_s"][-1] < 0
+
+
+def test_backdrivable_screw_runs_back_under_load():
+    p = _params(efficiency_forward=0.9, efficiency_backward=0.8)
+    tr = Simulator(p, "ideal", 1e-3).run(np.zeros(500), 5000.0)
+    assert tr["nut_velocity_m_s"][-1] < 0
+
+
+def test_energy_balance():
+    # input work = output work + ΔT + dissipated, exactly for this integrator (trapezoidal angles)
+    p = _params(efficiency_forward=0.85, efficiency_backward=0.7, viscous_nm_s_rad=1e-4)
+    sim = Simulator(p, "ideal", 1e-3)
+    tr = sim.run(2.0 * np.sin(np.linspace(0, 30, 5000)), 1000.0)
+    s = tr.final_state
+    kinetic = 0.5 * sim.model.J * s.screw_speed_rad_s**2
+    assert s.work_in_j == pytest.approx(s.work_out_j + s.dissipated_j + kinetic, rel=1e-9)
+    assert s.dissipated_j > 0
