@@ -170,6 +170,9 @@ def cmd_run(args) -> None:
     p = _params(args)
     spec = default_spec(p, args.scenario, load_n=args.load, torque_nm=args.torque, speed_rad_s=args.speed,
                         frequency_hz=args.frequency)
+    for name, v in (("duration_s", args.duration), ("dt_s", args.dt)):
+        if not (math.isfinite(v) and v > 0):
+            raise CliError(f"{name} = {v!r}: must be a finite number > 0")
     sim = Simulator(p, args.model, args.dt)
     n = int(round(args.duration / args.dt))
     bar = None
