@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -120,15 +121,24 @@ class _SideConsts:
                            g20=float(G[2, 0]), g21=float(G[2, 1]))
 
 
-@dataclass
-class Forces:
-    """Accelerations and internal forces of one evaluation (per roller where it applies)."""
+class Forces(NamedTuple):
+    """Accelerations and internal forces of one evaluation, per roller where it applies.
 
-    accel: np.ndarray  # (ω̇_S, ω̇_C)
+    A tuple on purpose (cheap on the hot path); fields from `n_s` on are the compact
+    per-step record in layout order: PER_ROLLER_QUANTITIES, then CARRIER_QUANTITIES.
+    """
+
+    acc_s: float
+    acc_c: float
+    dissipated_w: float
     n_s: float
     n_n: float
-    friction_s: np.ndarray  # friction force of the screw on the roller (3,)
-    slip: np.ndarray  # sliding velocity roller rel. screw (3,)
+    fx: float  # friction of the screw on the roller, carrier frame (radial, tangential, axial)
+    fy: float
+    fz: float
+    vx: float  # sliding velocity of the roller relative to the screw
+    vy: float
+    vz: float
     m_rr: float
     f_gt: float
     f_gr: float
@@ -136,8 +146,15 @@ class Forces:
     f_pt: float
     m_pin: float
     m_drag: float
-    sign: int
-    dissipated_w: float
+    axial: float  # axial thread force on the nut, all rollers, along +x_nut
+    sign: float
+
+    @property
+    def compact(self) -> tuple:
+        return self[3:]
+
+
+COMPACT_START = 3
 
 
 class Fu2018(Model):
@@ -186,7 +203,7 @@ class Fu2018(Model):
         return _Side(sign=sign, screw=s, nut=n, G=s.sliding_matrix(self.geo))
 
     # -- the force system ---------------------------------------------------------------
-    def solve_forces(self, u: np.ndarray, torque_nm: float, load_n: float, sign: int = 1,
+    def solve_forces(self, u, torque_nm: float, load_n: float, sign: int = 1,
                      pin_abs: float = 0.0, gear_sign: float = 1.0) -> Forces:
         """Solve equations 1–7 (module doc) at speeds u for accelerations and internal forces.
 
@@ -196,9 +213,9 @@ class Fu2018(Model):
         linear; they only scale the small pin-friction term and the gear's radial part.
         """
         f = self._solve(u, torque_nm, load_n, sign, pin_abs, gear_sign)
-        if f.n_n < 0.0 or f.n_s < 0.0:
+        if f[3] < 0.0 or f[4] < 0.0:  # a normal force in tension: the other flank pair carries the load
             g = self._solve(u, torque_nm, load_n, -sign, pin_abs, gear_sign)
-            if g.n_n >= 0.0 and g.n_s >= 0.0:
+            if g[3] >= 0.0 and g[4] >= 0.0:
                 f = g
         return f
 
@@ -270,26 +287,22 @@ class Fu2018(Model):
         g = self._g
         # power lost: screw friction on the slip, pin and rolling moments on their spins, drag
         diss = nr * (-(fx * vx + fy * vy + fz * vz) - m_pin * (-g * w_c) - m_rr * ((1.0 - g) * w_c)) - m_drag * w_c
-        return Forces(accel=np.array([acc_s, acc_c]), n_s=n_s, n_n=n_n, friction_s=np.array([fx, fy, fz]),
-                      slip=np.array([vx, vy, vz]), m_rr=m_rr, f_gt=f_gt, f_gr=-tan_g * f_gt, f_pr=f_pr, f_pt=f_pt,
-                      m_pin=m_pin, m_drag=m_drag, sign=sign, dissipated_w=float(diss))
+        return Forces(acc_s, acc_c, diss, n_s, n_n, fx, fy, fz, vx, vy, vz, m_rr, f_gt, -tan_g * f_gt, f_pr, f_pt,
+                      m_pin, m_drag, nr * n_n * nnz, float(sign))
 
     # -- time stepping ------------------------------------------------------------------
-    def _rosenbrock(self, state: State, tau: float, load: float):
-        """One ROS2 step (module doc) in scalars; returns (ω_S, ω_C, end forces, start forces, solver memory).
+    def _rosenbrock(self, ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load):
+        """One ROS2 step (module doc) in scalars: returns (ω_S, ω_C, end forces, start forces, solver memory).
 
         ROS2 is a W-method: second order with any Jacobian approximation (Verwer et al. 1999),
         so the finite-difference Jacobian is formed every `JACOBIAN_REFRESH_STEPS` steps, on a
         flank change, or when the state carries none, and kept in the state in between.
         """
         h = self.dt_s
-        ws, wc = state.screw_speed_rad_s, state.carrier_speed_rad_s
-        pin_abs = state.pin_force_n
-        gsign = 1.0 if state.gear_force_n >= 0.0 else -1.0
-        f0 = self.solve_forces((ws, wc), tau, load, state.flank_sign, pin_abs, gsign)
-        sign = f0.sign
-        fs, fc = float(f0.accel[0]), float(f0.accel[1])
-        mem = state.solver
+        gsign = 1.0 if gear_force >= 0.0 else -1.0
+        f0 = self.solve_forces((ws, wc), tau, load, flank_sign, pin_abs, gsign)
+        sign = int(f0.sign)
+        fs, fc = f0.acc_s, f0.acc_c
         if len(mem) == 6 and mem[4] == sign and mem[5] < JACOBIAN_REFRESH_STEPS:
             j00, j01, j10, j11 = mem[:4]
             age = mem[5] + 1
@@ -316,52 +329,52 @@ class Fu2018(Model):
         return ws1, wc1, f1, f0, (j00, j01, j10, j11, float(sign), float(age))
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
-        ws1, wc1, f1, f0, mem = self._rosenbrock(state, torque_nm, load_n)
+        s = state
+        ws1, wc1, f1, f0, mem = self._rosenbrock(s.screw_speed_rad_s, s.carrier_speed_rad_s, s.flank_sign,
+                                                 s.pin_force_n, s.gear_force_n, s.solver, torque_nm, load_n)
         h = self.dt_s
-        after = State(screw_angle_rad=state.screw_angle_rad + 0.5 * h * (state.screw_speed_rad_s + ws1),
+        after = State(screw_angle_rad=s.screw_angle_rad + 0.5 * h * (s.screw_speed_rad_s + ws1),
                       screw_speed_rad_s=ws1,
-                      carrier_angle_rad=state.carrier_angle_rad + 0.5 * h * (state.carrier_speed_rad_s + wc1),
-                      carrier_speed_rad_s=wc1, flank_sign=f1.sign, pin_force_n=math.hypot(f1.f_pr, f1.f_pt),
+                      carrier_angle_rad=s.carrier_angle_rad + 0.5 * h * (s.carrier_speed_rad_s + wc1),
+                      carrier_speed_rad_s=wc1, flank_sign=int(f1.sign), pin_force_n=math.hypot(f1.f_pr, f1.f_pt),
                       gear_force_n=f1.f_gt, solver=mem)
-        dissipated = 0.5 * h * (f0.dissipated_w + f1.dissipated_w)
-        compact = self.compact(f1)
-        return self.finish_step(state, after, torque_nm, load_n, dissipated_j=dissipated,
-                                slip_speed_m_s=float(np.linalg.norm(f1.slip)),
-                                internal=self.expand(compact[None, :])[0], nut_force_n=float(compact[-2]))
+        internal = self.expand(np.array([f1.compact]))[0]
+        return self.finish_step(s, after, torque_nm, load_n, dissipated_j=0.5 * h * (f0.dissipated_w + f1.dissipated_w),
+                                slip_speed_m_s=math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), internal=internal,
+                                nut_force_n=f1.axial)
 
     def run(self, state: State, torque_nm, load_n) -> Trajectory:
-        """Batch form of `step`: the same arithmetic, with the per-tooth expansion done once at the end."""
+        """Batch form of `step`: the same arithmetic on local scalars, per-tooth expansion once at the end."""
         tau_a, load_a = _inputs(torque_nm, load_n)
-        n = len(tau_a)
-        h = self.dt_s
-        w0 = state.screw_speed_rad_s
-        cols = np.empty((n, 8))  # ω_S, ω_C, θ_S, θ_C, Δθ_S, dissipated, slip, nut force
-        comp = np.empty((n, self._compact_size))
-        for k, (tau, load) in enumerate(zip(tau_a.tolist(), load_a.tolist())):
-            ws1, wc1, f1, f0, mem = self._rosenbrock(state, tau, load)
-            dth_s = 0.5 * h * (state.screw_speed_rad_s + ws1)
-            c = self.compact(f1)
-            state = State(time_s=state.time_s + h, screw_angle_rad=state.screw_angle_rad + dth_s,
-                          screw_speed_rad_s=ws1,
-                          carrier_angle_rad=state.carrier_angle_rad + 0.5 * h * (state.carrier_speed_rad_s + wc1),
-                          carrier_speed_rad_s=wc1, work_in_j=state.work_in_j + tau * dth_s,
-                          work_out_j=state.work_out_j + load * self.p * dth_s,
-                          dissipated_j=state.dissipated_j + 0.5 * h * (f0.dissipated_w + f1.dissipated_w),
-                          flank_sign=f1.sign, pin_force_n=math.hypot(f1.f_pr, f1.f_pt), gear_force_n=f1.f_gt,
-                          solver=mem)
-            cols[k] = (ws1, wc1, state.screw_angle_rad, state.carrier_angle_rad, dth_s,
-                       0.5 * h * (f0.dissipated_w + f1.dissipated_w), math.sqrt(c[5] ** 2 + c[6] ** 2 + c[7] ** 2),
-                       c[-2])
-            comp[k] = c
-        return columns_to_trajectory(self, tau_a, load_a, cols, self.expand(comp), state, w0)
+        h, p = self.dt_s, self.p
+        s = state
+        ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
+        sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
+        w_in = w_out = diss = 0.0
+        rows, comp = [], []
+        for tau, load in zip(tau_a.tolist(), load_a.tolist()):
+            ws1, wc1, f1, f0, mem = self._rosenbrock(ws, wc, sign, pin_abs, gear, mem, tau, load)
+            dth = 0.5 * h * (ws + ws1)
+            th_s += dth
+            th_c += 0.5 * h * (wc + wc1)
+            d = 0.5 * h * (f0.dissipated_w + f1.dissipated_w)
+            w_in += tau * dth
+            w_out += load * p * dth
+            diss += d
+            ws, wc = ws1, wc1
+            sign, pin_abs, gear = int(f1.sign), math.hypot(f1.f_pr, f1.f_pt), f1.f_gt
+            rows.append((ws1, wc1, th_s, th_c, dth, d, math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f1.axial))
+            comp.append(f1.compact)
+        n = len(rows)
+        final = State(time_s=s.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c,
+                      carrier_speed_rad_s=wc, work_in_j=s.work_in_j + w_in, work_out_j=s.work_out_j + w_out,
+                      dissipated_j=s.dissipated_j + diss, flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear,
+                      solver=mem)
+        cols = np.array(rows, dtype=float).reshape(n, 8)
+        compact = np.array(comp, dtype=float).reshape(n, self._compact_size)
+        return columns_to_trajectory(self, tau_a, load_a, cols, self.expand(compact), final, state.screw_speed_rad_s)
 
     _compact_size = len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)
-
-    def compact(self, f: Forces) -> np.ndarray:
-        """One roller's quantities (PER_ROLLER_QUANTITIES order) then the carrier block."""
-        axial = self._nr * f.n_n * self._consts[f.sign].n_n[2]
-        return np.array([f.n_s, f.n_n, *f.friction_s, *f.slip, f.m_rr, f.f_gt, f.f_gr, f.f_pr, f.f_pt, f.m_pin,
-                         f.m_drag, axial, float(f.sign)])
 
     def expand(self, compact: np.ndarray) -> np.ndarray:
         """Compact rows (steps × 17) → the full labelled internal vectors (steps × layout.size).
@@ -371,12 +384,15 @@ class Fu2018(Model):
         """
         geo = self.geo
         steps = compact.shape[0]
-        nq = len(PER_ROLLER_QUANTITIES)
-        per_roller = np.broadcast_to(compact[:, None, :nq], (steps, geo.n_rollers, nq)).reshape(steps, -1)
-        share = self.zeta / geo.n_teeth
-        one = share[None, :, None] * compact[:, None, :2]  # steps × teeth × (screw, nut)
-        per_tooth = np.broadcast_to(one[:, None], (steps, geo.n_rollers, geo.n_teeth, 2)).reshape(steps, -1)
-        return np.concatenate([per_roller, per_tooth, compact[:, nq:]], axis=1)
+        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        out = np.empty((steps, self.layout.size))
+        # written in place, one copy per block: this is the only part that grows with the tooth count
+        out[:, :nr * nq].reshape(steps, nr, nq)[:] = compact[:, None, :nq]
+        start = nr * nq
+        teeth = out[:, start:start + nr * nt * 2].reshape(steps, nr, nt, 2)
+        np.multiply((self.zeta / nt)[None, None, :, None], compact[:, None, None, :2], out=teeth)
+        out[:, start + nr * nt * 2:] = compact[:, nq:]
+        return out
 
 
 JACOBIAN_REFRESH_STEPS = 2  # 10 lost stability in the stiff carrier mode at μ = 0.1 under 20 kN
