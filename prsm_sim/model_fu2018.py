@@ -372,7 +372,8 @@ class Fu2018(Model):
                       solver=mem)
         cols = np.array(rows, dtype=float).reshape(n, 8)
         compact = np.array(comp, dtype=float).reshape(n, self._compact_size)
-        return columns_to_trajectory(self, tau_a, load_a, cols, self.expand(compact), final, state.screw_speed_rad_s)
+        return columns_to_trajectory(self, tau_a, load_a, cols, lambda: self.expand(compact), final,
+                                     state.screw_speed_rad_s)
 
     _compact_size = len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)
 

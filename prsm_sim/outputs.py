@@ -178,14 +178,27 @@ class InternalLayout:
         }
 
 
-@dataclass(frozen=True)
 class Trajectory:
-    """Columnar results of a batch run: each OUTPUT_FIELDS name → 1-D array, plus `internal` (steps × layout.size)."""
+    """Columnar results of a batch run: each OUTPUT_FIELDS name → 1-D array, plus `internal` (steps × layout.size).
 
-    columns: dict[str, np.ndarray]
-    internal: np.ndarray
-    layout: InternalLayout
-    final_state: State
+    `internal` may be given as a zero-argument callable: a model whose internal vector is a
+    cheap expansion of a compact per-step record (fu2018's per-tooth loads) builds the full
+    array only when someone reads it.
+    """
+
+    __slots__ = ("columns", "layout", "final_state", "_internal")
+
+    def __init__(self, columns: dict[str, np.ndarray], internal, layout: InternalLayout, final_state: State):
+        self.columns = columns
+        self.layout = layout
+        self.final_state = final_state
+        self._internal = internal
+
+    @property
+    def internal(self) -> np.ndarray:
+        if callable(self._internal):
+            self._internal = self._internal()
+        return self._internal
 
     def __len__(self) -> int:
         return len(self.columns["time_s"])
