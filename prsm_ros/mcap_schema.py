@@ -1,0 +1,252 @@
+"""ROS 2 MCAP profile pieces: `ros2msg` schema text and the `offered_qos_profiles` channel metadata.
+
+What rosbag2's MCAP storage plugin writes, and what every reader of the profile (rosbag2, Foxglove,
+Rerun, mcap_ros2, rosbags) expects (MCAP spec, "ROS 2" profile; rosbag2_storage_mcap):
+
+- schema name `pkg/msg/Type`, encoding `ros2msg`, data = the type's .msg text followed by every type
+  it depends on, each after a line of 80 `=` and `MSG: pkg/Type`, each type once;
+- channel metadata `offered_qos_profiles`: a YAML list of QoS profiles with integer enums (history
+  1 = keep last, 2 = keep all; reliability 1 = reliable, 2 = best effort; durability 1 = transient
+  local, 2 = volatile; liveliness 1 = automatic), durations as {sec, nsec}. rosbag2 metadata
+  version 9 switched to enum names, but every distro still reads the integers (rosbag2 reads
+  integers when the file carries no serialized rosbag2 metadata; see `rosbag2_metadata()`);
+- channel metadata `topic_type_hash`: the RIHS01 type hash (Iron and later), read from the
+  package's generated type description.
+
+Message definitions are read at run time from the installed packages' share directories
+(ament index, else `<prefix>/share/<pkg>/msg/`), never copied into this code.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+SCHEMA_ENCODING = "ros2msg"
+MESSAGE_ENCODING = "cdr"
+PROFILE = "ros2"
+DELIMITER = "=" * 80
+
+# Primitive field types of the ROS 2 .msg language (rosidl); anything else names a message type.
+_PRIMITIVES = frozenset({
+    "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
+    "int32", "uint32", "int64", "uint64", "string", "wstring",
+})
+# A field or constant line: type (with optional array/bound suffix) then a name.
+_FIELD_TYPE = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_/]*)(?:<=\d+)?(?:\[[^\]]*\])?\s+\S")
+
+# What DDS reports for a policy left at "default": rosbag2 records the reported offer, so an
+# unspecified duration appears as RMW_DURATION_INFINITE and the system-default liveliness as automatic.
+_DURATION_INFINITE = {"sec": 9223372036, "nsec": 854775807}
+_LIVELINESS_AUTOMATIC = 1
+_HISTORY_KEEP_LAST = 1
+
+
+class SchemaError(LookupError):
+    """A message definition could not be found or understood; the message names the type and where it looked."""
+
+
+def type_name(msg_class) -> str:
+    """`pkg/msg/Type` for a generated rclpy message class (e.g. std_msgs.msg.Float64 → std_msgs/msg/Float64)."""
+    module = msg_class.__module__  # e.g. "std_msgs.msg._float64"
+    parts = module.split(".")
+    if len(parts) < 2 or parts[1] != "msg":
+        raise SchemaError(f"{msg_class!r} is not a generated ROS 2 message class (module {module})")
+    return f"{parts[0]}/msg/{msg_class.__name__}"
+
+
+def _split_type(name: str) -> tuple[str, str]:
+    """(package, Type) from `pkg/msg/Type` or `pkg/Type`."""
+    parts = name.split("/")
+    if len(parts) == 3 and parts[1] == "msg":
+        return parts[0], parts[2]
+    if len(parts) == 2:
+        return parts[0], parts[1]
+    raise SchemaError(f"message type {name!r}: expected pkg/msg/Type or pkg/Type")
+
+
+def share_dirs(package: str) -> list[Path]:
+    """Candidate share directories of `package`: the ament index first, then this interpreter's prefixes."""
+    out: list[Path] = []
+    if os.environ.get("AMENT_PREFIX_PATH"):
+        try:
+            from ament_index_python.packages import get_package_share_directory
+            out.append(Path(get_package_share_directory(package)))
+        except Exception:  # not indexed there: fall through to the prefixes
+            pass
+    for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
+        out.append(Path(prefix) / "share" / package)
+    return out
+
+
+def _definition_file(package: str, type_: str, suffix: str) -> Path:
+    for d in share_dirs(package):
+        f = d / "msg" / f"{type_}{suffix}"
+        if f.is_file():
+            return f
+    looked = ", ".join(str(d / "msg") for d in share_dirs(package))
+    raise SchemaError(f"no {type_}{suffix} for message type {package}/msg/{type_} (looked in {looked})")
+
+
+@lru_cache(maxsize=None)
+def msg_text(package: str, type_: str) -> str:
+    """The .msg text of `package/Type` exactly as installed."""
+    return _definition_file(package, type_, ".msg").read_text(encoding="utf-8")
+
+
+def dependencies(text: str, package: str) -> list[str]:
+    """Message types (`pkg/Type`) that the fields of a .msg text refer to, sorted, comments ignored.
+
+    A bare `Type` means a type of the same package (rosidl's rule); `Header` without a package is
+    the ROS 1 spelling of std_msgs/Header and does not occur in ROS 2 definitions.
+    """
+    deps: set[str] = set()
+    for line in text.splitlines():
+        line = line.split("#", 1)[0]
+        m = _FIELD_TYPE.match(line)
+        if not m:
+            continue
+        t = m.group(1)
+        if t in _PRIMITIVES:
+            continue
+        deps.add(t if "/" in t else f"{package}/{t}")
+    return sorted(deps)
+
+
+@lru_cache(maxsize=None)
+def full_definition(name: str) -> str:
+    """The `ros2msg` schema text of a type: its .msg text then each dependency once, depth first.
+
+    Each dependency follows a newline, a line of 80 `=`, and `MSG: pkg/Type` (the layout rosbag2
+    writes and mcap_ros2 / rosbags / Foxglove parse).
+    """
+    seen: set[str] = set()
+
+    def expand(pkg_type: str, depth: int) -> str:
+        if depth > 50:
+            raise SchemaError(f"message type {name}: dependency chain deeper than 50 types")
+        package, type_ = _split_type(pkg_type)
+        text = msg_text(package, type_)
+        for dep in dependencies(text, package):
+            if dep not in seen:
+                seen.add(dep)
+                text += f"\n{DELIMITER}\nMSG: {dep}\n" + expand(dep, depth + 1)
+        return text
+
+    return expand(name, 0)
+
+
+@lru_cache(maxsize=None)
+def type_hash(name: str) -> str:
+    """The RIHS01 type hash of `pkg/msg/Type` from its generated type description, "" when absent."""
+    package, type_ = _split_type(name)
+    try:
+        desc = json.loads(_definition_file(package, type_, ".json").read_text(encoding="utf-8"))
+    except (SchemaError, OSError, ValueError):
+        return ""
+    full = f"{package}/msg/{type_}"
+    for entry in desc.get("type_hashes", []):
+        if entry.get("type_name") == full:
+            return str(entry.get("hash_string", ""))
+    return ""
+
+
+def _duration(d) -> dict[str, int]:
+    ns = int(d.nanoseconds)
+    if ns <= 0:  # 0 = "default": the middleware offers infinity
+        return dict(_DURATION_INFINITE)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def qos_dict(qos) -> dict:
+    """One rclpy QoSProfile as rosbag2 records an offer (integer enums, {sec, nsec} durations)."""
+    history = int(qos.history) or _HISTORY_KEEP_LAST  # 0 = system default, which is keep last
+    return {
+        "history": history,
+        "depth": int(qos.depth),
+        "reliability": int(qos.reliability),
+        "durability": int(qos.durability),
+        "deadline": _duration(qos.deadline),
+        "lifespan": _duration(qos.lifespan),
+        "liveliness": int(qos.liveliness) or _LIVELINESS_AUTOMATIC,
+        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+    }
+
+
+def offered_qos_profiles_yaml(*profiles) -> str:
+    """The `offered_qos_profiles` channel metadata value: a YAML list, one entry per offered profile."""
+    import yaml
+    return yaml.safe_dump([qos_dict(q) for q in profiles], sort_keys=False, default_flow_style=False).rstrip("\n")
+
+
+def qos_from_yaml(text: str):
+    """The first offered profile of an `offered_qos_profiles` value as an rclpy QoSProfile.
+
+    Accepts the integer form and the enum-name form of rosbag2 metadata version 9; an empty or
+    unreadable value gives rclpy's default (reliable, volatile, keep last 10).
+    """
+    import yaml
+    from rclpy.duration import Duration
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    try:
+        items = yaml.safe_load(text) if text else None
+    except yaml.YAMLError:
+        items = None
+    if not items or not isinstance(items, list) or not isinstance(items[0], dict):
+        return QoSProfile(depth=10)
+    p = items[0]
+
+    def enum(policy, value, default):
+        if isinstance(value, int):
+            try:
+                return policy(value)
+            except ValueError:
+                return default
+        if isinstance(value, str):
+            return policy.__members__.get(value.upper(), default)
+        return default
+
+    history = enum(HistoryPolicy, p.get("history"), HistoryPolicy.KEEP_LAST)
+    if history not in (HistoryPolicy.KEEP_LAST, HistoryPolicy.KEEP_ALL):
+        history = HistoryPolicy.KEEP_LAST
+    depth = int(p.get("depth") or 0) or 10
+    kw = {}
+    for key in ("deadline", "lifespan"):
+        d = p.get(key)
+        if isinstance(d, dict) and {"sec": d.get("sec"), "nsec": d.get("nsec")} != _DURATION_INFINITE:
+            ns = int(d.get("sec", 0)) * 1_000_000_000 + int(d.get("nsec", 0))
+            if 0 < ns < 2**62:
+                kw[key] = Duration(nanoseconds=ns)
+    return QoSProfile(
+        history=history, depth=depth,
+        reliability=enum(ReliabilityPolicy, p.get("reliability"), ReliabilityPolicy.RELIABLE),
+        durability=enum(DurabilityPolicy, p.get("durability"), DurabilityPolicy.VOLATILE),
+        **kw,
+    )
+
+
+def rosbag2_metadata(ros_distro: str | None = None) -> dict[str, str]:
+    """The `rosbag2` metadata record in its pre-Jazzy form: the ROS distribution and nothing else.
+
+    rosbag2 (Jazzy and later) reads a `rosbag2` record without `serialized_metadata` as metadata
+    version 8 and therefore parses `offered_qos_profiles` in the integer form written here; without
+    any `rosbag2` record it would assume its newest version and expect enum names. Humble and Iron
+    wrote exactly this record.
+    """
+    return {"ROS_DISTRO": ros_distro or os.environ.get("ROS_DISTRO") or _distro_of_rclpy()}
+
+
+def _distro_of_rclpy() -> str:
+    """The ROS 2 distribution of the installed rclpy (major version → distro), "" if unknown."""
+    try:
+        from importlib.metadata import version
+        major = int(version("rclpy").split(".")[0])
+    except Exception:
+        return ""
+    return {3: "humble", 4: "iron", 7: "jazzy", 9: "kilted", 10: "rolling"}.get(major, "")

@@ -1,0 +1,195 @@
+"""Shared helpers for tests that run real ROS 2 processes talking over DDS on this machine.
+
+- `ros_test_env(salt)`: an environment isolated per test module and per pytest process: a unique
+  ROS_DOMAIN_ID (from the pid and a salt, in 100..199), localhost-only discovery, RERUN=off
+  (`prsm_ros.ros_env.isolated_env`, ignoring whatever the developer's shell has set).
+- `NodeProcess`: `prsm-node` in its own OS process with `-p name:=value` parameters; stop it with
+  SIGINT/SIGTERM and get its exit code and output.
+- `RosClient`: an rclpy node in the test process (its own context on the same domain) that
+  publishes commands, collects messages per topic, calls services and sets parameters.
+
+MCAP and Rerun tests may import these; nothing here knows about the node's internals.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from prsm_ros.ros_env import isolated_env, ros_args, start_module
+
+
+
+def domain_id(salt: str = "") -> int:
+    """A ROS_DOMAIN_ID in 100..199 that differs between concurrent pytest processes and modules."""
+    return 100 + (os.getpid() + zlib.crc32(salt.encode())) % 100
+
+
+def ros_test_env(salt: str = "", **extra: str) -> dict[str, str]:
+    """os.environ with the isolation this project's ROS tests use (see module docstring)."""
+    env = isolated_env(domain_id(salt), respect_user=False, RERUN="off", **extra)
+    env.pop("ROS_STATIC_PEERS", None)
+    return env
+
+
+class NodeProcess:
+    """`prsm-node` as a child process (python -m prsm_ros.node), output captured to files."""
+
+    def __init__(self, env: dict[str, str], params: dict[str, Any] | None = None, *, workdir: Path,
+                 extra_args: list[str] | None = None, module: str = "prsm_ros.node") -> None:
+        self.workdir = Path(workdir)
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.stdout_path = self.workdir / "node.stdout"
+        self.stderr_path = self.workdir / "node.stderr"
+        args = (extra_args or []) + (ros_args(params) if params else [])
+        with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
+            self.proc = start_module(module, args, env, cwd=self.workdir, stdout=out, stderr=err)
+
+    def wait(self, timeout: float = 20.0) -> int:
+        return self.proc.wait(timeout=timeout)
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 20.0) -> int:
+        """Send `sig` and wait for the exit code (kills after `timeout` s and fails loudly)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                return self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                raise AssertionError(f"node did not exit within {timeout} s of signal {sig}; stderr:\n{self.stderr}")
+        return self.proc.returncode
+
+    @property
+    def stdout(self) -> str:
+        return self.stdout_path.read_text(errors="replace")
+
+    @property
+    def stderr(self) -> str:
+        return self.stderr_path.read_text(errors="replace")
+
+    def __enter__(self) -> NodeProcess:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+class RosClient:
+    """An rclpy node in the test process on `env`'s domain: publish, collect, call, set parameters."""
+
+    def __init__(self, env: dict[str, str], name: str = "prsm_test_client", node_name: str = "prsm_actuator") -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.node_path = f"/{node_name}"
+        self.context = rclpy.Context()
+        # The domain is the env's: the context reads it at init; localhost discovery comes from the env too.
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
+        rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]),
+                   signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.received: dict[str, list] = {}
+        self._pubs: dict[str, Any] = {}
+
+    # -- topics --------------------------------------------------------------------------
+    def subscribe(self, topic: str, msg_class, qos=None) -> list:
+        """Collect every message on `topic` into the returned list (the same list every call)."""
+        from prsm_ros.messages import TOPICS
+        if topic not in self.received:
+            spec = next((t for t in TOPICS.values() if t.resolved() == topic), None)
+            qos = qos or (spec.qos if spec else 10)
+            if hasattr(qos, "depth"):
+                from rclpy.qos import QoSProfile
+                qos = QoSProfile(history=qos.history, depth=max(qos.depth, 10000), reliability=qos.reliability,
+                                 durability=qos.durability)
+            self.received[topic] = []
+            self.node.create_subscription(msg_class, topic, self.received[topic].append, qos)
+        return self.received[topic]
+
+    def publisher(self, topic: str, msg_class):
+        from prsm_ros.messages import TOPICS
+        if topic not in self._pubs:
+            spec = next((t for t in TOPICS.values() if t.resolved() == topic), None)
+            self._pubs[topic] = self.node.create_publisher(msg_class, topic, spec.qos if spec else 10)
+        return self._pubs[topic]
+
+    def publish(self, topic: str, msg) -> None:
+        self.publisher(topic, type(msg)).publish(msg)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float = 10.0, what: str = "condition") -> None:
+        """Spin the client until `done()` is true; AssertionError naming `what` after `timeout` s."""
+        end = time.monotonic() + timeout
+        while not done():
+            if time.monotonic() > end:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def wait_for_node(self, proc: NodeProcess | None = None, timeout: float = 20.0) -> None:
+        """Until the node's ~/screw_torque subscription and every publisher we created are matched."""
+        def ready() -> bool:
+            if proc is not None and proc.proc.poll() is not None:
+                raise AssertionError(f"node exited with {proc.proc.returncode}:\n{proc.stderr}")
+            if self.node.count_subscribers(f"{self.node_path}/screw_torque") == 0:
+                return False
+            return all(p.get_subscription_count() > 0 for p in self._pubs.values())
+        self.spin_until(ready, timeout, "the node to appear on the graph")
+
+    # -- services and parameters -----------------------------------------------------------
+    def call(self, service: str, srv_class, request=None, timeout: float = 10.0):
+        client = self.node.create_client(srv_class, service)
+        try:
+            self.spin_until(client.service_is_ready, timeout, f"service {service}")
+            future = client.call_async(request if request is not None else srv_class.Request())
+            self.spin_until(future.done, timeout, f"the response of {service}")
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def set_parameters(self, values: dict[str, Any], timeout: float = 10.0):
+        """Set the node's parameters atomically (SetParametersAtomically); returns its SetParametersResult."""
+        from rcl_interfaces.srv import SetParametersAtomically
+        from rclpy.parameter import Parameter
+        req = SetParametersAtomically.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
+                                                          for k, v in values.items()])
+        return self.call(f"{self.node_path}/set_parameters_atomically", SetParametersAtomically, req, timeout).result
+
+    def get_parameters(self, names: list[str], timeout: float = 10.0) -> dict[str, Any]:
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.parameter import parameter_value_to_python
+        res = self.call(f"{self.node_path}/get_parameters", GetParameters, GetParameters.Request(names=names), timeout)
+        return {n: parameter_value_to_python(v) for n, v in zip(names, res.values)}
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self) -> RosClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def diagnostics_of(msg) -> tuple[int, str, dict[str, str]]:
+    """(level, message, values) of the first status in a DiagnosticArray."""
+    st = msg.status[0]
+    return int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level), st.message, \
+        {kv.key: kv.value for kv in st.values}

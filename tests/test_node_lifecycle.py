@@ -1,0 +1,120 @@
+"""Realtime and fast runs, the pause/step/reset services, and clean shutdown on SIGINT and SIGTERM.
+
+The MCAP file each run leaves is read back with `rosbags` (an independent reader with its own
+ROS 2 type store): it must be closed (summary present) and hold one /clock per step.
+"""
+
+from __future__ import annotations
+
+import signal
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
+
+ENV = ros_test_env("test_node_lifecycle")
+
+
+def clock_ns(msg) -> int:
+    return msg.clock.sec * 10**9 + msg.clock.nanosec
+
+
+def read_bag(path):
+    """topic → [(log_time_ns, message)] in file (write) order, decoded with rosbags' own type store.
+
+    Also checks the file was closed (summary present) and that rosbags' reader opens it.
+    """
+    from mcap.reader import make_reader
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_KILTED)
+    with Reader(path) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        n_rosbags = sum(1 for _ in reader.messages())
+    out: dict[str, list] = {}
+    with open(path, "rb") as f:
+        r = make_reader(f)
+        summary = r.get_summary()
+        assert summary is not None and summary.statistics is not None, "MCAP has no summary: not closed"
+        for _, channel, m in r.iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append((m.log_time, store.deserialize_cdr(m.data, types[channel.topic])))
+    assert sum(len(v) for v in out.values()) == n_rosbags
+    return out
+
+
+def test_realtime_run_services_and_sigint(tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_srvs.srv import SetBool, Trigger
+    bag = tmp_path / "rt.mcap"
+    params = {"time_mode": "realtime", "diagnostics_rate": 20.0, "record_path": str(bag), "step_count": 5}
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        clock = cli.subscribe("/clock", Clock)
+        js = cli.subscribe("/joint_states", JointState)
+        diag = cli.subscribe("/diagnostics", DiagnosticArray)
+        cli.wait_for_node(proc)
+        cli.spin_until(lambda: len(clock) > 50, 10.0, "clock")
+        n0, t0 = len(clock), clock_ns(clock[-1])
+        cli.spin_for(0.5)
+        sim_advance = (clock_ns(clock[-1]) - t0) * 1e-9
+        assert 0.35 < sim_advance < 0.65, sim_advance  # 1 kHz paced on wall time (loose: a loaded CI box)
+        assert len(clock) > n0
+
+        assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True)).success
+        cli.spin_for(0.1)
+        paused_at, n_js = clock_ns(clock[-1]), len(js)
+        cli.spin_for(0.3)
+        assert clock_ns(clock[-1]) == paused_at and len(js) == n_js  # nothing steps while paused
+
+        res = cli.call("/prsm_actuator/step", Trigger)
+        assert res.success, res.message
+        cli.spin_until(lambda: len(js) == n_js + 5, 5.0, "5 stepped states")
+        assert clock_ns(clock[-1]) == paused_at + 5_000_000
+        assert [m.header.stamp.nanosec for m in js[n_js:]] == [(paused_at + k * 1_000_000) % 10**9 for k in range(1, 6)]
+
+        assert cli.call("/prsm_actuator/reset", Trigger).success
+        assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=False)).success
+        res = cli.call("/prsm_actuator/step", Trigger)
+        assert not res.success and "not paused" in res.message
+        n1 = len(clock)
+        cli.spin_until(lambda: len(clock) > n1 + 10, 5.0, "clock after reset")
+        assert clock_ns(clock[n1]) < 100_000_000  # restarted from zero
+
+        m = len(diag)
+        cli.spin_until(lambda: len(diag) > m + 1, 5.0, "diagnostics")
+        level, text, v = diagnostics_of(diag[-1])
+        assert level == 0 and text == "running"
+        assert 0.8 < float(v["achieved_real_time_factor"]) < 1.2
+        assert int(v["record_written"]) > 0 and v["record_error"] == ""
+        assert proc.stop(signal.SIGINT) == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    topics = read_bag(bag)
+    clocks = [clock_ns(m) for _, m in topics["/clock"]]
+    assert len(clocks) == len(topics["/joint_states"]) == len(topics["/prsm_actuator/internal_loads"])
+    # one /clock per step, each 1 ms after the previous, except back to 1 ms after the reset
+    restarts = [k for k in range(1, len(clocks)) if clocks[k] != clocks[k - 1] + 1_000_000]
+    assert len(restarts) == 1 and clocks[restarts[0]] == 1_000_000 and clocks[0] == 1_000_000
+    assert [ts for ts, _ in topics["/clock"]] == clocks  # log time = simulation time
+    assert len(topics["/prsm_actuator/internal_loads/labels"]) == 1 and "/diagnostics" in topics
+
+
+def test_fast_mode_and_sigterm(tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+    bag = tmp_path / "fast.mcap"
+    params = {"time_mode": "fast", "diagnostics_rate": 10.0, "record_path": str(bag), "model": "ideal",
+              "joint_states_rate": 100.0, "internal_loads_rate": 10.0}
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        diag = cli.subscribe("/diagnostics", DiagnosticArray)
+        cli.wait_for_node(proc)
+        cli.spin_until(lambda: len(diag) >= 3, 10.0, "diagnostics")
+        assert float(diagnostics_of(diag[-1])[2]["achieved_real_time_factor"]) > 1.0
+        assert proc.stop(signal.SIGTERM) == 0, proc.stderr
+    topics = read_bag(bag)
+    clocks = [clock_ns(m) for _, m in topics["/clock"]]
+    assert clocks == [1_000_000 * (k + 1) for k in range(len(clocks))] and len(clocks) > 1000
+    # decimated: joint_states every 10th step, internal loads every 100th
+    assert len(topics["/joint_states"]) == len(clocks) // 10
+    assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks) // 100

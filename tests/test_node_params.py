@@ -1,0 +1,120 @@
+"""Node parameters (issue 4 item 1): start-up validation, ros__parameters files, runtime changes.
+
+A bad value at start-up: exit code 2 and exactly one line on stderr naming the parameter and
+what is allowed, no traceback. A bad value at runtime: the set is refused with that reason and
+nothing changes (checked against the core run offline, as in test_node_lockstep).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+from prsm_sim import Simulator, preset  # noqa: E402
+from prsm_ros.node_params import NodeConfig, params_template  # noqa: E402
+from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402
+
+ENV = ros_test_env("test_node_params")
+
+
+BAD_STARTS = [
+    ({"preset": "nope"}, "parameter preset = 'nope': must be one of jones2016, jones2016_literal, s30"),
+    ({"model": "nope"}, "parameter model = 'nope': must be one of ideal, jones2016"),
+    ({"physics.friction.mu_screw_roller": 2.0}, "physics.friction.mu_screw_roller = 2.0: must be < 1"),
+    ({"physics.geometry.starts": 2.5}, "physics.geometry.starts = 2.5: must be a whole number"),
+    ({"physics.friction.mu_typo": 0.1}, "unknown parameter physics.friction.mu_typo; allowed: physics.friction."),
+    ({"update_rate": 0}, "parameter update_rate = 0: must be a whole number in [1, 100000] (Hz)"),
+    ({"cmd_timeout": -0.5}, "parameter cmd_timeout = -0.5: must be a finite number in [0, 1e+06] (s)"),
+    ({"time_mode": 5}, "parameter time_mode = 5: must be one of realtime, fast, lockstep"),
+    ({"record": True, "record_path": "/nonexistent/dir/run.mcap"}, "parameter record_path = '/nonexistent/dir/run.mcap'"),
+]
+
+
+@pytest.fixture(scope="module")
+def bad_starts(tmp_path_factory):
+    """All the refused start-ups, launched at once (each is a separate node process)."""
+    procs = [NodeProcess(ENV, {"record": False, **params}, workdir=tmp_path_factory.mktemp(f"bad{k}"))
+             for k, (params, _) in enumerate(BAD_STARTS)]
+    yield procs
+    for p in procs:
+        p.__exit__()
+
+
+@pytest.mark.parametrize("k", range(len(BAD_STARTS)), ids=[next(iter(p)) for p, _ in BAD_STARTS])
+def test_invalid_parameter_stops_startup_with_one_clear_line(bad_starts, k):
+    proc, expected = bad_starts[k], BAD_STARTS[k][1]
+    assert proc.wait(60) == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("prsm-node: error: " + expected), proc.stderr
+    assert list(proc.workdir.glob("*.mcap")) == []
+
+
+def test_params_template_loads_back_into_a_valid_config():
+    import yaml
+    doc = yaml.safe_load(params_template("jones2016"))
+    values = doc["prsm_actuator"]["ros__parameters"]
+    cfg = NodeConfig.from_values(values)
+    assert cfg.params == preset("jones2016") and cfg.preset == "jones2016"
+
+
+def lockstep_states(cli, js, torques, start_count):
+    from std_msgs.msg import Float64
+    for k, tau in enumerate(torques):
+        cli.publish("/prsm_actuator/screw_torque", Float64(data=tau))
+        cli.spin_until(lambda: len(js) >= start_count + k + 1, 10.0, f"step {start_count + k + 1}")
+    return js[start_count:]
+
+
+def assert_same(msgs, outs):
+    assert [(tuple(m.position), tuple(m.velocity), tuple(m.effort)) for m in msgs] == \
+        [((o.screw_angle_rad, o.nut_position_m), (o.screw_speed_rad_s, o.nut_velocity_m_s),
+          (o.screw_torque_nm, o.nut_force_n)) for o in outs]
+
+
+def test_params_file_and_runtime_changes(tmp_path):
+    """Start from a ros__parameters file; a valid runtime change takes effect at once, invalid ones change nothing."""
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    pfile = tmp_path / "node.yaml"
+    pfile.write_text(
+        "prsm_actuator:\n  ros__parameters:\n    time_mode: lockstep\n    preset: jones2016\n"
+        "    load_force: 250\n    cmd_timeout: 0\n    record: false\n"
+        "    physics:\n      friction:\n        viscous_n_s_m: 40.0\n")
+    with NodeProcess(ENV, workdir=tmp_path, extra_args=["--ros-args", "--params-file", str(pfile)]) as proc, \
+            RosClient(ENV) as cli:
+        js = cli.subscribe("/joint_states", JointState)
+        cli.publisher("/prsm_actuator/screw_torque", Float64)
+        cli.wait_for_node(proc)
+        got = cli.get_parameters(["load_force", "physics.friction.viscous_n_s_m", "time_mode", "max_effort"])
+        assert got == {"load_force": 250, "physics.friction.viscous_n_s_m": 40.0, "time_mode": "lockstep",
+                       "max_effort": 50.0}
+
+        p0 = preset("jones2016").with_overrides({"friction.viscous_n_s_m": 40.0})
+        sim = Simulator(p0, "jones2016", 1e-3)
+        want = [sim.step(1.0, 250.0) for _ in range(4)]
+        assert_same(lockstep_states(cli, js, [1.0] * 4, 0), want)
+
+        res = cli.set_parameters({"load_force": 500, "physics.friction.viscous_n_s_m": 10})
+        assert res.successful, res.reason
+        p1 = p0.with_overrides({"friction.viscous_n_s_m": 10.0})
+        sim2 = Simulator(p1, "jones2016", 1e-3)
+        sim2.state = sim.state  # the node keeps the state across a physics change
+        want = [sim2.step(1.0, 500.0) for _ in range(4)]
+        assert_same(lockstep_states(cli, js, [1.0] * 4, 4), want)
+
+        for bad, reason in [({"max_effort": -1.0}, "max_effort out of range"),  # rclpy checks the declared range first
+                            ({"physics.friction.viscous_n_s_m": -3.0}, "friction.viscous_n_s_m = -3.0: must be"),
+                            ({"physics.geometry.n_rollers": 8}, "changes the internal-load layout"),
+                            ({"timeout_behaviour": "explode"}, "must be one of zero, hold"),
+                            ({"load_force": 1.0, "max_effort": "big"}, "parameter max_effort = 'big'"),
+                            ({"update_rate": 500}, "read-only")]:
+            res = cli.set_parameters(bad)
+            assert not res.successful and reason in res.reason, (bad, res.reason)
+        after = cli.get_parameters(["load_force", "max_effort", "physics.friction.viscous_n_s_m", "update_rate",
+                                    "physics.geometry.n_rollers"])
+        assert after == {"load_force": 500, "max_effort": 50.0, "physics.friction.viscous_n_s_m": 10,
+                         "update_rate": 1000, "physics.geometry.n_rollers": 10}
+        want = [sim2.step(1.0, 500.0) for _ in range(3)]  # nothing changed: same dynamics, same load
+        assert_same(lockstep_states(cli, js, [1.0] * 3, 8), want)
+        assert proc.stop() == 0

@@ -1,0 +1,170 @@
+"""The node's pure pieces without DDS: command gate, deadline pacer, stepper, message mapping, parameters."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from prsm_sim import MODELS, OUTPUT_FIELDS, Simulator, preset
+from prsm_ros.command_gate import CommandGate
+from prsm_ros.node_params import ConfigError, NodeConfig, runtime_change
+from prsm_ros.stepping import DeadlinePacer, SimStepper, every_n_steps
+
+
+def test_gate_rejects_non_finite_keeps_last_and_saturates():
+    g = CommandGate(max_effort_nm=2.0)
+    assert g.torque(0.0) == 0.0  # nothing received yet
+    assert g.offer_torque(1.5, 0.0) is None and g.torque(0.001) == 1.5
+    for bad in (math.nan, math.inf, -math.inf, "x"):
+        assert "not a finite number" in g.offer_torque(bad, 0.001)
+    assert g.torque(0.002) == 1.5
+    assert g.offer_torque(3.0, 0.002) is None and g.torque(0.002) == 2.0
+    assert g.offer_torque(-9.0, 0.002) is None and g.torque(0.002) == -2.0
+    c = g.counters
+    assert (c.received, c.accepted, c.rejected_non_finite, c.saturated) == (7, 3, 4, 2)
+
+
+@pytest.mark.parametrize("names, effort, position, velocity, problem", [
+    (["a"], [1.0], [], [], "has no 'screw_joint'"),
+    (["screw_joint", "b"], [1.0], [], [], "2 names but 1 efforts"),
+    (["screw_joint"], [], [], [], "1 names but 0 efforts"),
+    (["screw_joint"], [1.0], [0.0, 0.0], [], "position must be empty or match name"),
+    (["screw_joint"], [1.0], [], [1.0, 2.0], "velocity must be empty or match name"),
+])
+def test_gate_rejects_malformed_joint_commands_by_name(names, effort, position, velocity, problem):
+    g = CommandGate(5.0)
+    g.offer_torque(1.0, 0.0)
+    assert problem in g.offer_joint_command(names, effort, position, velocity, 0.0)
+    assert g.torque(0.0) == 1.0 and g.counters.rejected_malformed == 1
+    assert g.offer_joint_command(["b", "screw_joint"], [7.0, -0.5], [0.0, 0.0], [], 0.0) is None
+    assert g.torque(0.0) == -0.5
+
+
+@pytest.mark.parametrize("behaviour, after", [("zero", 0.0), ("hold", 1.0)])
+def test_gate_watchdog_on_simulation_time(behaviour, after):
+    g = CommandGate(5.0, cmd_timeout_s=0.01, timeout_behaviour=behaviour)
+    g.offer_torque(1.0, 0.1)
+    assert g.torque(0.11) == 1.0 and not g.timed_out  # exactly cmd_timeout old: still valid
+    assert g.torque(0.1101) == after and g.timed_out
+    g.torque(0.2)
+    assert g.counters.timeouts == 1  # one entry into the timed-out state, however long it lasts
+    g.offer_torque(0.5, 0.3)
+    assert g.torque(0.3) == 0.5 and not g.timed_out
+    g.configure(5.0, 0.0, behaviour)  # 0 disables
+    assert g.torque(100.0) == 0.5
+
+
+def test_gate_refuses_bad_limits():
+    with pytest.raises(ValueError, match="max_effort"):
+        CommandGate(0.0)
+    with pytest.raises(ValueError, match="timeout_behaviour"):
+        CommandGate(1.0, 0.1, "coast")
+
+
+class FakeTime:
+    """A wall clock the test moves: sleep advances it by the request plus a scripted delay."""
+
+    def __init__(self):
+        self.now, self.extra = 0.0, []
+
+    def clock(self):
+        return self.now
+
+    def sleep(self, dt):
+        self.now += dt + (self.extra.pop(0) if self.extra else 0.0)
+
+
+def test_pacer_absolute_deadlines_do_not_drift_after_a_late_step():
+    ft = FakeTime()
+    p = DeadlinePacer(1e-3, clock=ft.clock, sleep=ft.sleep)
+    ft.extra = [0.0, 0.0025]  # the second wake-up comes 2.5 ms late
+    late = [p.wait() for _ in range(6)]
+    assert late[0] == 0.0 and late[1] == pytest.approx(0.0025)
+    # the late step is followed by catch-up steps without sleeping, then the original schedule
+    assert late[2] == pytest.approx(0.0015) and late[3] == pytest.approx(0.0005) and late[4] == 0.0
+    assert ft.now == pytest.approx(0.006) and p.stats.overruns == 2  # started > 1 period late: 2.5, 1.5 ms
+    for _ in range(994):
+        p.wait()
+    assert ft.now == pytest.approx(1.0, abs=1e-12)  # 1000 steps end exactly at 1 s: no drift
+    assert p.achieved_rtf(1e-3) == pytest.approx(1.0)
+
+
+def test_pacer_skips_ahead_when_too_far_behind_and_follows_the_real_time_factor():
+    ft = FakeTime()
+    p = DeadlinePacer(1e-3, real_time_factor=2.0, max_catchup_periods=10, clock=ft.clock, sleep=ft.sleep)
+    assert p.period_s == 5e-4
+    ft.extra = [0.1]  # 200 periods late
+    p.wait()
+    assert p.stats.skipped_periods == 200
+    before = ft.now
+    p.wait()
+    assert ft.now - before == pytest.approx(5e-4)  # back on a schedule, no burst of 200 steps
+
+
+def test_every_n_steps():
+    assert [every_n_steps(r, 1000) for r in (0, 1000, 5000, 100, 300, 0.5)] == [1, 1, 1, 10, 3, 2000]
+
+
+def test_stepper_equals_simulator_and_rebuild_keeps_state():
+    p = preset("s30")
+    st = SimStepper(p, "jones2016", 1e-3, CommandGate(10.0), load_n=100.0)
+    st.gate.offer_torque(1.0, 0.0)
+    sim = Simulator(p, "jones2016", 1e-3)
+    for _ in range(5):
+        a, b = st.step(), sim.step(1.0, 100.0)
+        np.testing.assert_array_equal(list(a.scalars().values()), list(b.scalars().values()))  # NaN == NaN here
+        np.testing.assert_array_equal(a.internal, b.internal)
+    assert st.sim.state == sim.state
+    p2 = p.with_overrides({"friction.viscous_n_s_m": 50.0})
+    st.rebuild(p2)
+    assert st.sim.state == sim.state and st.nstep == 5 and st.sim.params == p2
+
+
+@pytest.mark.skipif("fu2018" not in MODELS, reason="needs fu2018")
+def test_stepper_faults_on_non_finite_state_and_reset_clears_it():
+    p = preset("s30").with_overrides({"mass.moved_mass_kg": 1e-300, "mass.screw_inertia_kgm2": 0.0,
+                                      "mass.roller_mass_kg": 0.0, "mass.roller_inertia_kgm2": 0.0})
+    st = SimStepper(p, "fu2018", 1e-3, CommandGate(10.0))
+    st.gate.offer_torque(1.0, 0.0)
+    assert st.step() is None and "non-finite state" in st.fault
+    assert st.nstep == 0 and st.time_s == 0.0  # the last finite state is kept
+    assert st.step() is None  # stays stopped
+    st.reset()
+    assert st.fault is None and st.gate.command_nm == 0.0
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_internal_loads_message_round_trips_through_the_labels(model):
+    pytest.importorskip("rclpy")
+    from prsm_ros.messages import MessageMapper, parse_labels, unpack_internal
+    sim = Simulator(preset("s30"), model, 1e-3)
+    outs = [sim.step(2.0, 100.0) for _ in range(3)]
+    mapper = MessageMapper(sim.layout, model)
+    labels = parse_labels(mapper.labels().data)
+    assert labels["model"] == model and labels["layout_obj"] == sim.layout
+    assert len(labels["elements"]) == mapper.size == len(OUTPUT_FIELDS) + sim.layout.size
+    msg = mapper.internal_loads(outs[-1])
+    assert [d.label for d in msg.layout.dim] == ["scalars"] + [b.name for b in sim.layout.blocks]
+    one = unpack_internal(msg, labels)
+    assert one["nut_force_n"] == outs[-1].nut_force_n and one["time_s"] == outs[-1].time_s
+    for b in sim.layout.blocks:
+        np.testing.assert_array_equal(one[b.name], sim.layout.view(outs[-1].internal, b.name))
+    rows = np.array([mapper.internal_loads(o).data for o in outs])
+    many = unpack_internal(rows, labels)
+    assert many["time_s"].tolist() == [o.time_s for o in outs]
+    topics = [t for t, _ in mapper.messages(outs[0])]
+    assert topics == ["/joint_states", "/prsm_actuator/nut/wrench", "/prsm_actuator/internal_loads", "/clock"]
+
+
+def test_config_defaults_and_runtime_change_rules():
+    cfg = NodeConfig.from_values({})
+    assert cfg.params == preset("s30") and cfg.dt_s == 1e-3 and cfg.time_mode == "realtime"
+    new = runtime_change(cfg, {"load_force": 10, "physics.friction.mu_screw_roller": 0.2})
+    assert new.load_force == 10.0 and isinstance(new.load_force, float)
+    assert new.params.friction.mu_screw_roller == 0.2 and cfg.params.friction.mu_screw_roller == 0.05
+    with pytest.raises(ConfigError, match="changes the internal-load layout"):
+        runtime_change(cfg, {"physics.geometry.n_rollers": 8})
+    with pytest.raises(ConfigError, match=r"parameter lockstep_steps = 0: must be a whole number in \[1"):
+        runtime_change(cfg, {"lockstep_steps": 0})

@@ -1,0 +1,348 @@
+"""MCAP recorder: ROS 2 profile as rosbag2 writes it, read back by independent readers, and faults.
+
+Oracles: the values published (a real simulation mapped by `messages.MessageMapper`) must come
+back bit for bit through two readers that share no code with ours — mcap_ros2's CDR decoder
+(driven by the schema text in the file) and the `rosbags` library (its own ROS 2 type store,
+and separately the schema text in the file); `rerun mcap check` must find no issue.
+Faults run in real processes: SIGKILL mid-recording, a full disk (a tiny tmpfs in a user
+namespace, and /dev/full), an unwritable path.
+"""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from prsm_sim import Simulator, preset
+from prsm_ros import mcap_schema
+from prsm_ros.bag_reader import open_bag, scan_records
+from prsm_ros.messages import TOPICS, MessageMapper, STEP_TOPICS, time_ns
+from prsm_ros.offline_record import write_trajectory_mcap
+from prsm_ros.recorder import McapRecorder, run_metadata
+
+RERUN = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+CHILD_ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1"}
+
+
+def _run_child(code: str, *args: str, timeout: float = 60.0, prefix: list[str] | None = None):
+    return subprocess.run([*(prefix or []), sys.executable, "-c", textwrap.dedent(code), *args],
+                          capture_output=True, text=True, timeout=timeout, env=CHILD_ENV)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A recording of 200 jones2016 steps through McapRecorder, with what was published."""
+    from std_msgs.msg import Float64
+
+    p = preset("jones2016")
+    sim = Simulator(p, "jones2016", 1e-3)
+    mapper = MessageMapper(sim.layout, "jones2016")
+    path = tmp_path_factory.mktemp("rec") / "run.mcap"
+    rec = McapRecorder(path, metadata=run_metadata(p, preset="jones2016", model="jones2016", dt_s=1e-3,
+                                                   node_parameters={"update_rate": 1000.0}))
+    for key in ("labels", "screw_torque", *STEP_TOPICS):
+        rec.add_channel(TOPICS[key].resolved(), TOPICS[key].msg_class, TOPICS[key].qos)
+    published: list[tuple[str, int, object]] = []
+    rec.write(TOPICS["labels"].resolved(), mapper.labels(), 0)
+    published.append((TOPICS["labels"].resolved(), 0, mapper.labels()))
+    for k in range(200):
+        torque = 0.05 + 0.001 * k
+        cmd = Float64(data=torque)
+        rec.write(TOPICS["screw_torque"].resolved(), cmd, time_ns(sim.time_s))
+        published.append((TOPICS["screw_torque"].resolved(), time_ns(sim.time_s), cmd))
+        out = sim.step(torque, 100.0)
+        for topic, msg in mapper.messages(out):
+            rec.write(topic, msg, time_ns(out.time_s))
+            published.append((topic, time_ns(out.time_s), msg))
+    rec.close()
+    assert rec.error is None and rec.messages_dropped == 0
+    assert rec.messages_written == len(published)
+    return path, published
+
+
+def _fields_equal(ours, theirs) -> None:
+    """Every field of a published rclpy message equals the independently decoded one, exactly."""
+    for name in ours.get_fields_and_field_types():
+        a, b = getattr(ours, name), getattr(theirs, name)
+        if hasattr(a, "get_fields_and_field_types"):
+            _fields_equal(a, b)
+        elif isinstance(a, (list, tuple)) and a and hasattr(a[0], "get_fields_and_field_types"):
+            assert len(a) == len(b)
+            for x, y in zip(a, b):
+                _fields_equal(x, y)
+        elif isinstance(a, str) or (isinstance(a, (list, tuple)) and a and isinstance(a[0], str)):
+            assert list(a) == list(b) if not isinstance(a, str) else a == b, name
+        else:
+            assert np.array_equal(np.asarray(a, dtype=float), np.asarray(b, dtype=float)), name
+
+
+def test_file_follows_the_ros2_profile(recorded):
+    from mcap.reader import make_reader
+
+    path, _ = recorded
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+    assert all(ci.message_index_offsets for ci in summary.chunk_indexes)
+    for ch in summary.channels.values():
+        schema = summary.schemas[ch.schema_id]
+        assert ch.message_encoding == "cdr" and schema.encoding == "ros2msg"
+        pkg, mid, typ = schema.name.split("/")
+        assert mid == "msg"
+        text = schema.data.decode()
+        # the type's own .msg first, then each dependency after 80 '=' and "MSG: pkg/Type"
+        assert text.startswith(mcap_schema.msg_text(pkg, typ))
+        for dep in mcap_schema.dependencies(mcap_schema.msg_text(pkg, typ), pkg):
+            assert f"\n{'=' * 80}\nMSG: {dep}\n" in text
+        assert ch.metadata["topic_type_hash"].startswith("RIHS01_")
+    qos = {ch.topic: ch.metadata["offered_qos_profiles"] for ch in summary.channels.values()}
+    assert "reliability: 1" in qos["/joint_states"] and "durability: 2" in qos["/joint_states"]
+    assert "durability: 1" in qos["/prsm_actuator/internal_loads/labels"]  # transient local (latched)
+    assert "deadline:\n    sec: 9223372036\n    nsec: 854775807" in qos["/joint_states"]
+    run = meta["prsm_run"]
+    assert set(run) >= {"package_version", "preset", "model", "dt_s", "parameters_yaml", "node_parameters_yaml"}
+    import yaml
+    assert preset("jones2016").to_dict() == yaml.safe_load(run["parameters_yaml"])
+    assert yaml.safe_load(run["node_parameters_yaml"]) == {"update_rate": 1000.0}
+    assert set(meta["rosbag2"]) == {"ROS_DISTRO"}  # the pre-Jazzy record: QoS read as integers
+
+
+def test_mcap_ros2_decoder_gives_back_exactly_what_was_published(recorded):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    path, published = recorded
+    with open(path, "rb") as f:
+        got = [(c.topic, m.log_time, m.publish_time, d)
+               for _, c, m, d in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                   log_time_order=False)]
+    assert len(got) == len(published)
+    for (topic, stamp, msg), (t2, log, pub, dec) in zip(published, got):
+        assert (topic, stamp, stamp) == (t2, log, pub)
+        _fields_equal(msg, dec)
+
+
+def test_rosbags_reads_the_file_with_its_own_types_and_with_the_file_schemas(recorded):
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path, published = recorded
+    store = get_typestore(Stores.ROS2_KILTED)  # rosbags' own definitions, independent of our schema text
+    with Reader(path) as reader:
+        rows = [(c.topic, ts, store.deserialize_cdr(raw, c.msgtype)) for c, ts, raw in reader.messages()]
+        qos = {c.topic: c.ext.offered_qos_profiles[0] for c in reader.connections}
+    assert [(t, s) for t, s, _ in published] == [(t, s) for t, s, _ in rows]
+    for (_, _, msg), (_, _, theirs) in zip(published, rows):
+        _fields_equal(msg, theirs)
+    assert qos["/prsm_actuator/internal_loads/labels"].durability.name == "TRANSIENT_LOCAL"
+    assert qos["/joint_states"].reliability.name == "RELIABLE" and qos["/joint_states"].depth == 10
+    with AnyReader([path]) as reader:  # types parsed from the concatenated definitions in the file
+        first = {}
+        for c, ts, raw in reader.messages():
+            first.setdefault(c.topic, reader.deserialize(raw, c.msgtype))
+    js = first["/joint_states"]
+    assert list(js.name) == ["screw_joint", "nut_joint"]
+    assert js.position[1] == published[2][2].position[1]
+
+
+def test_rerun_mcap_check_finds_no_issue_in_node_and_offline_files(recorded, tmp_path):
+    path, _ = recorded
+    p = preset("jones2016")
+    traj = Simulator(p, "jones2016", 1e-3).run(np.full(300, 0.092), 100.0)
+    offline = write_trajectory_mcap(tmp_path / "offline.mcap", traj, p, "jones2016", preset_name="jones2016",
+                                    progress=False, reference_m=np.zeros(300))
+    for f in (path, offline):
+        res = subprocess.run([RERUN, "mcap", "check", str(f)], capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stderr
+        rows = [line.split() for line in res.stdout.splitlines() if line.split() and line.split()[0] in ("ok", "warn", "error")]
+        assert rows and all(r[0] == "ok" and r[-1] == "—" for r in rows), res.stdout
+        assert len(rows) == len(open_bag(f).topics)
+
+
+def test_offline_bag_carries_the_trajectory_values(tmp_path):
+    p = preset("jones2016")
+    traj = Simulator(p, "jones2016", 1e-3).run(0.08 + 0.01 * np.sin(np.arange(150) * 0.1), 100.0)
+    path = write_trajectory_mcap(tmp_path / "o.mcap", traj, p, "jones2016", preset_name="jones2016", progress=False)
+    bag = open_bag(path)
+    assert {t: i.count for t, i in bag.topics.items()} == {
+        "/prsm_actuator/internal_loads/labels": 1, "/prsm_actuator/screw_torque": 150, "/joint_states": 150,
+        "/prsm_actuator/nut/wrench": 150, "/prsm_actuator/internal_loads": 150, "/clock": 150}
+    js = list(bag.messages(["/joint_states"]))
+    assert [m.log_time_ns for m in js] == [time_ns(t) for t in traj["time_s"]]
+    assert np.array_equal([m.msg.position[1] for m in js], traj["nut_position_m"])
+    cmd = list(bag.messages(["/prsm_actuator/screw_torque"]))
+    assert np.array_equal([m.msg.data for m in cmd], traj["screw_torque_nm"])
+    assert cmd[0].log_time_ns == 0  # taken at the start of the step it drives
+
+
+def test_recorder_refuses_caller_mistakes_at_once(tmp_path):
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    with McapRecorder(tmp_path / "m.mcap") as rec:
+        rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+        with pytest.raises(KeyError, match="not added"):
+            rec.write("/b", Float64(), 0)
+        with pytest.raises(TypeError, match="std_msgs/msg/Float64"):
+            rec.write("/a", JointState(), 0)
+        with pytest.raises(ValueError, match="cannot add it again"):
+            rec.add_channel("/a", JointState, TOPICS["joint_states"].qos)
+    with pytest.raises(ValueError, match="queue_size"):
+        McapRecorder(tmp_path / "q.mcap", queue_size=0)
+
+
+def test_full_queue_drops_and_counts_instead_of_blocking(tmp_path):
+    from std_msgs.msg import Float64
+
+    rec = McapRecorder(tmp_path / "q.mcap", queue_size=10)
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    for k in range(2000):
+        rec.write("/a", Float64(data=float(k)), k)
+    rec.close()
+    assert rec.messages_dropped > 0
+    assert rec.messages_written + rec.messages_dropped == 2000
+    assert open_bag(tmp_path / "q.mcap").topics["/a"].count == rec.messages_written
+
+
+def test_unwritable_path_sets_error_and_the_caller_keeps_running(tmp_path):
+    from std_msgs.msg import Float64
+
+    for bad in (tmp_path / "missing_dir" / "x.mcap", tmp_path):  # no such directory; a directory
+        rec = McapRecorder(bad)
+        assert rec.error is not None and str(bad) in rec.error
+        rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+        for k in range(5):
+            rec.write("/a", Float64(data=1.0), k)  # no exception: recording has stopped, the node runs on
+        rec.close()
+        rec.close()
+        assert rec.messages_dropped == 5 and rec.messages_written == 0
+
+
+def test_dev_full_reports_no_space_and_the_caller_keeps_running():
+    from std_msgs.msg import Float64
+
+    rec = McapRecorder("/dev/full")  # every write returns ENOSPC, as on a full disk
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    for k in range(3):
+        rec.write("/a", Float64(data=1.0), k)
+    rec.close()
+    assert rec.error is not None and "No space left on device" in rec.error
+    assert rec.messages_dropped == 3
+
+
+_WRITER = """
+    import json, sys, time
+    from std_msgs.msg import Float64
+    from sensor_msgs.msg import JointState
+    from rclpy.qos import QoSProfile
+    from prsm_ros.recorder import McapRecorder
+    path, steps = sys.argv[1], int(sys.argv[2])
+    rec = McapRecorder(path, flush_interval_s=0.05, chunk_size=1 << 20)
+    rec.add_channel("/value", Float64, QoSProfile(depth=10))
+    rec.add_channel("/joint_states", JointState, QoSProfile(depth=10))
+    for k in range(steps):
+        rec.write("/value", Float64(data=float(k)), k * 1_000_000)
+        rec.write("/joint_states", JointState(name=["screw_joint"], position=[k * 0.5]), k * 1_000_000)
+        if k % 200 == 0:
+            time.sleep(0.01)
+            print(json.dumps({"k": k, "written": rec.messages_written, "error": rec.error}), flush=True)
+    rec.close()
+    print(json.dumps({"done": steps, "written": rec.messages_written, "dropped": rec.messages_dropped,
+                      "error": rec.error}), flush=True)
+"""
+
+
+def _assert_exact_prefix(values: list[float], scale: float = 1.0) -> int:
+    """The recovered values are 0, 1, 2, … × scale with no gap: nothing flushed was lost."""
+    assert values, "nothing recovered"
+    assert values == [k * scale for k in range(len(values))]
+    return len(values)
+
+
+def test_sigkill_leaves_a_file_readable_up_to_its_last_complete_chunk(tmp_path):
+    from mcap.exceptions import McapError
+    from mcap.reader import NonSeekingReader
+    from zstandard import ZstdError
+
+    path = tmp_path / "killed.mcap"
+    proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(_WRITER), str(path), "100000000"],
+                            stdout=subprocess.PIPE, text=True, env=CHILD_ENV)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # let several chunks reach the disk, then kill mid-run
+            line = proc.stdout.readline()
+            if json.loads(line)["written"] > 20_000 and path.stat().st_size > 200_000:
+                break
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=10)
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+
+    # 1) the mcap library's streaming reader reads every message up to the truncation
+    streamed: list[float] = []
+    with open(path, "rb") as f:
+        try:
+            for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+                if channel.topic == "/value":
+                    streamed.append(message.log_time / 1e6)
+        except (McapError, ZstdError):  # the cut-off tail: a partial record or chunk
+            pass
+    n_streamed = _assert_exact_prefix(streamed)
+
+    # 2) our recovery routine: complete chunks only, decoded values exact
+    scan = scan_records(path)
+    assert not scan.complete and scan.chunks >= 2
+    bag = open_bag(path)
+    assert not bag.complete and "unfinished" in bag.note
+    values = [m.msg.data for m in bag.messages(["/value"])]
+    n = _assert_exact_prefix(values)
+    assert n >= 5_000 and n <= n_streamed + 1  # thousands of steps recovered, never more than the stream holds
+    assert [m.msg.position[0] for m in bag.messages(["/joint_states"])] == [k * 0.5 for k in range(n)]
+
+    # 3) prsm-bag handles it with a note, not a traceback
+    res = subprocess.run([sys.executable, "-m", "prsm_ros.bag_cli", "info", str(path)], capture_output=True,
+                         text=True, timeout=60, env=CHILD_ENV)
+    assert res.returncode == 0 and "UNFINISHED" in res.stdout and "Traceback" not in res.stderr
+    assert f"{n} message" in res.stdout or str(bag.topics["/value"].count) in res.stdout
+
+
+def _unshare_tmpfs_available() -> bool:
+    if not shutil.which("unshare"):
+        return False
+    res = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt && echo ok"],
+                         capture_output=True, text=True)
+    return res.stdout.strip() == "ok"
+
+
+@pytest.mark.skipif(not _unshare_tmpfs_available(), reason="no user namespaces to mount a tiny tmpfs")
+def test_disk_filling_up_mid_run_stops_recording_and_keeps_what_was_flushed(tmp_path):
+    """A 512 KiB tmpfs (unprivileged, in a user+mount namespace) fills up during the run."""
+    mnt, keep = tmp_path / "mnt", tmp_path / "kept.mcap"
+    mnt.mkdir()
+    script = textwrap.dedent(_WRITER)
+    cmd = (f"mount -t tmpfs -o size=512k tmpfs {mnt} && {sys.executable} -c \"$0\" {mnt}/rec.mcap 60000; "
+           f"rc=$?; cp {mnt}/rec.mcap {keep}; exit $rc")
+    res = subprocess.run(["unshare", "-rm", "sh", "-c", cmd, script], capture_output=True, text=True,
+                         timeout=120, env=CHILD_ENV)
+    assert res.returncode == 0, res.stderr
+    final = json.loads(res.stdout.strip().splitlines()[-1])
+    assert final["done"] == 60000  # the caller ran to the end
+    assert "No space left on device" in final["error"]
+    assert final["dropped"] > 0
+    bag = open_bag(keep)
+    assert not bag.complete
+    n = _assert_exact_prefix([m.msg.data for m in bag.messages(["/value"])])
+    assert 1000 < n < 60000
