@@ -3,7 +3,7 @@
     prsm-bag info BAG [--json] [--parameters]
     prsm-bag export BAG -t TOPIC [-t TOPIC ...] -o OUT [--start S] [--end S] [--resample HZ] [--method linear|hold] [--merge]
     prsm-bag report BAG -o DIR [--json] [--dynamic-load-rating-n N] [--screw-joint NAME] [--nut-joint NAME]
-    prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S]
+    prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
     prsm-bag to-rrd BAG -o FILE.rrd
 
 BAG is an .mcap file (ours or any ROS 2 recorder's) or a rosbag2 directory holding one. Times
@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 
 from .bag_reader import BagError, open_bag
@@ -128,7 +129,7 @@ def _cmd_play(args) -> int:
     bag = open_bag(args.bag)
     _note(bag)
     r = play(bag, rate=args.rate, start_s=args.start, end_s=args.end, topics=args.topic,
-             clock=not args.no_clock, delay_s=args.delay)
+             clock=not args.no_clock, delay_s=args.delay, wait_for_subscribers=args.wait_for_subscribers)
     for topic, n in r["published"].items():
         print(f"{topic}: {n}")
     for topic, ty in r["skipped"].items():
@@ -206,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-clock", action="store_true", help="do not publish /clock from the bag time")
     p.add_argument("--delay", type=float, default=0.5, metavar="S",
                    help="wait after creating publishers, for discovery (default 0.5 s)")
+    p.add_argument("--wait-for-subscribers", action="store_true",
+                   help="then wait (up to 30 s) until every played topic has a subscriber")
     p.set_defaults(func=_cmd_play)
 
     p = sub.add_parser("to-rrd", help="convert to a Rerun .rrd recording")
@@ -222,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     except BagError as e:
         print(f"prsm-bag {args.command}: error: {e}", file=sys.stderr)
         return EXIT_ERROR
+    except BrokenPipeError:  # stdout closed early (`prsm-bag info BAG | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as e:
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"prsm-bag {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)

@@ -19,6 +19,22 @@ from . import mcap_schema
 from .bag_reader import Bag, BagError
 
 
+WAIT_FOR_SUBSCRIBERS_S = 30.0
+
+
+def _wait_for_subscribers(pubs: dict, context, timeout_s: float) -> None:
+    import rclpy
+    end = time.monotonic() + timeout_s
+    missing = list(pubs)
+    while time.monotonic() < end and rclpy.ok(context=context):
+        missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        if not missing:
+            return
+        time.sleep(0.02)
+    raise BagError(f"no subscriber appeared within {timeout_s:g} s on {', '.join(missing)} "
+                   "(drop --wait-for-subscribers to play regardless)")
+
+
 def message_class(type_name: str):
     """The rclpy message class of `pkg/msg/Type`, or None when the package is not installed."""
     parts = type_name.split("/")
@@ -32,8 +48,12 @@ def message_class(type_name: str):
 
 def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: float | None = None,
          topics: list[str] | None = None, clock: bool = True, delay_s: float = 0.5,
-         progress: bool = True, node_name: str = "prsm_bag_play") -> dict:
-    """Publish the selection; returns counts per topic, skipped topics and the wall time taken."""
+         wait_for_subscribers: bool = False, progress: bool = True, node_name: str = "prsm_bag_play") -> dict:
+    """Publish the selection; returns counts per topic, skipped topics and the wall time taken.
+
+    `delay_s`: pause after creating the publishers (discovery). `wait_for_subscribers`: then also
+    wait, up to WAIT_FOR_SUBSCRIBERS_S, until every played topic has a matched subscription.
+    """
     if not (rate > 0 and rate < float("inf")):
         raise BagError(f"--rate {rate!r}: must be a number > 0 (1 = real time)")
     if delay_s < 0:
@@ -66,6 +86,8 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
                 for t in playable}
         clock_pub = node.create_publisher(Clock, "/clock", 10) if synth_clock else None
         time.sleep(delay_s)  # let subscribers discover the new publishers before the first message
+        if wait_for_subscribers:
+            _wait_for_subscribers(pubs, context, WAIT_FOR_SUBSCRIBERS_S)
         wall0 = None
         t_first = None
         last_clock = None

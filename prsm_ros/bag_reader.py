@@ -80,8 +80,15 @@ def resolve_path(path) -> Path:
     return p
 
 
+def _require_magic(f, path) -> None:
+    if f.read(8) != MAGIC:
+        raise BagError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+
+
 @dataclass
-class _Scan:
+class Scan:
+    """What a record walk found: header, schemas, channels, metadata, whether the file ended properly."""
+
     header: object | None = None
     schemas: dict = field(default_factory=dict)
     channels: dict = field(default_factory=dict)
@@ -92,22 +99,22 @@ class _Scan:
     problem: str | None = None
 
 
-def scan_records(path, on_message=None) -> _Scan:
+def scan_records(path, on_message=None) -> Scan:
     """Walk an MCAP file record by record, keeping every complete record; stop at a truncated one.
 
     The recovery routine for unfinished files (MCAP spec: records are length-prefixed, chunks are
-    self-contained): schemas, channels and metadata are collected into the returned `_Scan`, and
+    self-contained): schemas, channels and metadata are collected into the returned `Scan`, and
     each message (in complete chunks or bare) is passed to `on_message(schema, channel, message)`
     in file order.
     """
-    scan = _Scan()
+    scan = Scan()
     for schema, channel, message in walk_records(path, scan):
         if on_message is not None:
             on_message(schema, channel, message)
     return scan
 
 
-def walk_records(path, scan: _Scan) -> Iterator[tuple]:
+def walk_records(path, scan: Scan) -> Iterator[tuple]:
     """The generator behind `scan_records`: yields (schema, channel, message), fills `scan`."""
     from mcap.data_stream import ReadDataStream
     from mcap.opcode import Opcode
@@ -126,8 +133,7 @@ def walk_records(path, scan: _Scan) -> Iterator[tuple]:
         return None
 
     with open(path, "rb") as f:
-        if f.read(8) != MAGIC:
-            raise BagError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+        _require_magic(f, path)
         pos = 8
         while True:
             head = f.read(9)
@@ -186,8 +192,7 @@ class Bag:
         self._decoders: dict[int, object] = {}
         self._indexed = False  # finished file with chunk indexes: read through the seeking reader
         with open(self.path, "rb") as f:
-            if f.read(8) != MAGIC:
-                raise BagError(f"{self.path}: not an MCAP file (it does not start with the MCAP magic bytes)")
+            _require_magic(f, self.path)
         summary = self._read_summary()
         if summary is None:
             self._load_by_scan()
@@ -225,25 +230,33 @@ class Bag:
 
     @staticmethod
     def _channel_time_ranges(f, summary) -> dict[int, tuple[int, int]]:
-        """First and last log time per channel from the message indexes (exact, no decompression)."""
+        """First and last log time per channel from the message indexes, without decompressing.
+
+        Only the channel's earliest and latest chunks are read (by their time ranges), so a long
+        recording costs two small reads per channel; exact when chunks do not overlap in time,
+        as rosbag2 and our recorder write them.
+        """
         from mcap.data_stream import ReadDataStream
         from mcap.records import MessageIndex
 
+        def index_times(offset: int) -> list[int]:
+            f.seek(offset + 9)  # opcode and length precede the record
+            return [t for t, _ in MessageIndex.read(ReadDataStream(f)).records]
+
         ranges: dict[int, tuple[int, int]] = {}
-        for ci in summary.chunk_indexes:
-            for cid, offset in ci.message_index_offsets.items():
-                f.seek(offset + 9)  # opcode and length precede the record
-                idx = MessageIndex.read(ReadDataStream(f))
-                if not idx.records:
-                    continue
-                times = [t for t, _ in idx.records]
-                lo, hi = min(times), max(times)
-                old = ranges.get(cid)
-                ranges[cid] = (lo, hi) if old is None else (min(old[0], lo), max(old[1], hi))
+        for cid in summary.channels:
+            chunks = [ci for ci in summary.chunk_indexes if cid in ci.message_index_offsets]
+            if not chunks:
+                continue
+            first = min(chunks, key=lambda ci: ci.message_start_time)
+            last = max(chunks, key=lambda ci: ci.message_end_time)
+            lo, hi = index_times(first.message_index_offsets[cid]), index_times(last.message_index_offsets[cid])
+            if lo and hi:
+                ranges[cid] = (min(lo), max(hi))
         return ranges
 
     def _load_by_scan(self) -> None:
-        scan = _Scan()
+        scan = Scan()
         self._schemas, self._channels = scan.schemas, scan.channels  # filled as the walk goes
         for _, channel, message in walk_records(self.path, scan):
             self._topic_for(channel)._add(message.log_time)
@@ -355,7 +368,7 @@ class Bag:
                     if keep(channel, message):
                         yield schema, channel, message
             return
-        for schema, channel, message in walk_records(self.path, _Scan()):
+        for schema, channel, message in walk_records(self.path, Scan()):
             if keep(channel, message):
                 yield schema, channel, message
 

@@ -109,6 +109,12 @@ def _internal_series(bag: Bag, roles: dict, progress: bool) -> tuple[Series, dic
     return Series(np.array(t), unpacked), labels
 
 
+def _finite_max(a: np.ndarray) -> float:
+    """Largest finite value; NaN when there is none (a field the recorder left empty)."""
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else math.nan
+
+
 def _held(t_query: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
     """v held from each sample time to the next, read at t_query (NaN before the first sample)."""
     k = np.searchsorted(t, t_query, side="right") - 1
@@ -192,11 +198,11 @@ def report(bag: Bag, out_dir, *, dynamic_load_rating_n: float = DEFAULT_DYNAMIC_
     tau, w = joints.values["screw_torque_nm"], joints.values["screw_speed_rad_s"]
     f_nut = joints.values["nut_force_n"]
     result["kinematics"] = {
-        "nut_travel_m": float(np.nanmax(x) - np.nanmin(x)),
-        "max_abs_nut_velocity_m_s": float(np.nanmax(np.abs(v))),
-        "max_abs_screw_speed_rad_s": float(np.nanmax(np.abs(w))),
-        "peak_abs_screw_torque_nm": float(np.nanmax(np.abs(tau))),
-        "peak_abs_nut_force_n": float(np.nanmax(np.abs(f_nut))),
+        "nut_travel_m": _finite_max(x) - (-_finite_max(-x)),
+        "max_abs_nut_velocity_m_s": _finite_max(np.abs(v)),
+        "max_abs_screw_speed_rad_s": _finite_max(np.abs(w)),
+        "peak_abs_screw_torque_nm": _finite_max(np.abs(tau)),
+        "peak_abs_nut_force_n": _finite_max(np.abs(f_nut)),
     }
 
     # tracking
@@ -249,10 +255,14 @@ def report(bag: Bag, out_dir, *, dynamic_load_rating_n: float = DEFAULT_DYNAMIC_
         result["peak_loads"] = _peaks(s, labels, "N")
         result["model"] = result["model"] or labels.get("model")
 
-    # life
-    life = life_from_samples(t, f_nut, w, dynamic_load_rating_n)
-    result["life"] = {**life.to_dict(), "load_source": f"|{nut_joint} effort| on {roles['joint_states']}",
-                      "speed_source": f"{screw_joint} velocity on {roles['joint_states']}"}
+    # life, over the samples that carry both an effort and a velocity
+    usable = np.isfinite(f_nut) & np.isfinite(w)
+    if usable.sum() >= 2:
+        life = life_from_samples(t[usable], f_nut[usable], w[usable], dynamic_load_rating_n)
+        result["life"] = {**life.to_dict(), "load_source": f"|{nut_joint} effort| on {roles['joint_states']}",
+                          "speed_source": f"{screw_joint} velocity on {roles['joint_states']}"}
+    else:
+        result["life"] = None
     result["plots"] = [str(p) for p in _plots(Path(out_dir), joints, internal, ref_t, ref_v, err)] if plots else []
     return result
 
@@ -382,9 +392,12 @@ def summary_text(r: dict) -> str:
     else:
         lines.append("peak internal loads: not recorded")
     life = r["life"]
-    lines.append(f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')}, F_m = {_fmt(life['mean_load_n'], 'N')}): "
-                 f"{_fmt(life['l10_revolutions'], 'revolutions')} = {_fmt(life['l10_hours'], 'h')} at the recorded cycle "
-                 f"({_fmt(life['l10_cycles'], 'cycles')} of {_fmt(life['cycle_duration_s'], 's')})")
+    if life is None:
+        lines.append("L10 life: n/a (the joint states carry no nut effort and screw velocity)")
+    else:
+        lines.append(f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')}, F_m = {_fmt(life['mean_load_n'], 'N')}): "
+                     f"{_fmt(life['l10_revolutions'], 'revolutions')} = {_fmt(life['l10_hours'], 'h')} at the recorded "
+                     f"cycle ({_fmt(life['l10_cycles'], 'cycles')} of {_fmt(life['cycle_duration_s'], 's')})")
     if r["plots"]:
         lines.append("plots: " + ", ".join(r["plots"]))
     return "\n".join(lines)

@@ -72,16 +72,15 @@ def main(argv: list[str] | None = None) -> int:
         node_log = Path(tmp) / "node.log"
         with open(node_log, "wb") as log:
             node = start_module("prsm_ros.node", ros_args(node_params), env, stdout=log, stderr=subprocess.STDOUT)
+            ctl = start_module("prsm_ros.demo_controller",
+                               ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
+                                "--wall-timeout", repr(60.0 + 20 * args.duration)],
+                               env, stdout=subprocess.PIPE)
             try:
-                ctl = start_module("prsm_ros.demo_controller",
-                                   ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
-                                    "--wall-timeout", repr(60.0 + 20 * args.duration)],
-                                   env, stdout=subprocess.PIPE)
-                out, _ = ctl.communicate()
+                out = wait_for_controller(ctl, node)
             except KeyboardInterrupt:
-                node.send_signal(signal.SIGINT)
-                node.wait(timeout=20)
-                return 130
+                ctl.kill()
+                out = b""
             finally:
                 if node.poll() is None:
                     node.send_signal(signal.SIGINT)
@@ -97,6 +96,19 @@ def main(argv: list[str] | None = None) -> int:
     dt_s = 1e-3
     print(summary_text(s, dt_s, record))
     return 0 if s["completed"] else 1
+
+
+def wait_for_controller(ctl: subprocess.Popen, node: subprocess.Popen) -> bytes:
+    """The controller's output once it exits; it is stopped at once if the node dies first."""
+    while True:
+        try:
+            out, _ = ctl.communicate(timeout=0.25)
+            return out
+        except subprocess.TimeoutExpired:
+            if node.poll() is not None:
+                ctl.kill()
+                out, _ = ctl.communicate()
+                return out
 
 
 def summary_text(s: dict, dt_s: float, record: Path | None) -> str:

@@ -111,20 +111,24 @@ def run(args: argparse.Namespace) -> dict:
         tau_pub.publish(Float64(data=ctl.torque(x_ref - x, v_ref - v, a_ref, dt)))
 
     node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state, TOPICS["joint_states"].qos)
-    deadline = time.monotonic() + args.connect_timeout
-    while tau_pub.get_subscription_count() == 0:  # the node is up once it listens for torques
-        if time.monotonic() > deadline:
-            raise SystemExit(f"prsm-demo controller: no node listening on {TOPICS['screw_torque'].resolved()} "
-                             f"after {args.connect_timeout:g} s")
-        rclpy.spin_once(node, timeout_sec=0.05)
-    tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
-    wall_limit = time.monotonic() + args.wall_timeout
-    while not st["done"] and time.monotonic() < wall_limit:
-        rclpy.spin_once(node, timeout_sec=0.1)
+    try:
+        deadline = time.monotonic() + args.connect_timeout
+        while tau_pub.get_subscription_count() == 0:  # the node is up once it listens for torques
+            if time.monotonic() > deadline:
+                print(f"prsm-demo controller: no node listening on {TOPICS['screw_torque'].resolved()} "
+                      f"after {args.connect_timeout:g} s", file=sys.stderr)
+                break
+            rclpy.spin_once(node, timeout_sec=0.05)
+        else:
+            tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
+            wall_limit = time.monotonic() + args.wall_timeout
+            while not st["done"] and time.monotonic() < wall_limit:
+                rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
     wall = time.perf_counter() - st["wall0"] if st["wall0"] is not None else math.nan
     sim = st["t"] - (st["t0"] or 0.0)
-    node.destroy_node()
-    rclpy.try_shutdown()
     return {"rms_error_m": track.rms_m, "max_error_m": track.max_abs_m, "final_position_m": st["x"],
             "final_reference_m": reference(st["t"], args.amplitude, args.frequency)[0], "sim_time_s": st["t"],
             "states_received": track.n, "wall_time_s": wall, "real_time_factor": sim / wall if wall > 0 else math.nan,

@@ -1,17 +1,20 @@
 """Regenerate the example recordings in `bags/` (golden data, one command):
 
-    python -m prsm_ros.make_bags [--out bags] [--model fu2018]
+    python -m prsm_ros.make_bags [--out bags] [--model fu2018] [--offline-tracking]
 
-Each bag is a full-rate (1 kHz) recording of a short run, written by the offline writer
-(`offline_record.write_trajectory_mcap`, the same topics and messages as a node run), with a
-`prsm_example` metadata record saying what it is and how it was made:
+Each bag is a full-rate (1 kHz) recording of a short run. The offline ones are written by
+`offline_record.write_trajectory_mcap` (the same topics and messages as a node run) with a
+`prsm_example` metadata record saying what the run is and how it was made:
 
 - `step_response.mcap`: the Jones 2016 seed example (preset jones2016, 100 N) under a torque
   step of the torque that holds 1 rad/s in the jones2016 steady state; fu2018 with its
   screw–roller law set to viscous (the Jones limit), so the run settles as the seed describes.
-- `sine_tracking.mcap`: closed-loop sinusoidal nut-position tracking (preset s30, 2 kN) by a PD
-  position controller with velocity and load feed-forward, run offline in Python at 1 kHz
-  (labelled `offline closed loop`); the reference is recorded on ~/nut_position_reference.
+- `sine_tracking.mcap`: closed-loop tracking of a raised-cosine (sinusoidal) nut-position profile
+  by a real node and controller: `prsm-demo` in lockstep mode (`prsm-node` and
+  `prsm_ros.demo_controller` as two processes over DDS, s30, 2 kN, 2 s), so the run is
+  deterministic; the bag is the node's own recording, reference on ~/nut_position_reference.
+  `--offline-tracking` makes it instead with a PD loop stepped in Python (`pd_tracking`, labelled
+  `offline closed loop`), for machines without DDS.
 - `heavy_load.mcap`, `light_load.mcap`: the Fu 2018 load cases (preset s30, 20 kN and 100 N)
   driven speed-controlled to the preset's 100 rad/s (`prsm_sim.scenarios`).
 
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +76,20 @@ def pd_tracking(sim: Simulator, *, amplitude_m: float, frequency_hz: float, load
 BAGS = ("step_response", "sine_tracking", "heavy_load", "light_load")
 
 
-def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...] = BAGS) -> list[Path]:
+def node_tracking_run(path: Path, model: str) -> Path:
+    """The node's own bag of a lockstep `prsm-demo` run (node + controller processes over DDS)."""
+    import subprocess
+    cmd = [sys.executable, "-m", "prsm_ros.demo", "--time-mode", "lockstep", "--model", model, "--preset", "s30",
+           "--load", "2000", "--duration", "2", "--record", str(path)]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    if res.returncode != 0:
+        raise RuntimeError(f"the node + controller run failed ({' '.join(cmd[1:])}):\n{res.stderr.strip()}\n"
+                           "make the bag offline instead with --offline-tracking")
+    return path
+
+
+def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...] = BAGS,
+         offline_tracking: bool = False) -> list[Path]:
     """Write the example bags (all, or those named in `only`) into `out_dir`; returns their paths."""
     unknown = set(only) - set(BAGS)
     if unknown:
@@ -98,12 +115,14 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
              "example)" + ("; fu2018 with friction.screw_roller_law = viscous (Jones limit)" if model == "fu2018" else ""))
 
     p = preset("s30")
-    if "sine_tracking" in only:
+    if "sine_tracking" in only and offline_tracking:
         traj, ref = pd_tracking(Simulator(p, model, DT_S), amplitude_m=2e-3, frequency_hz=1.0, load_n=2000.0,
                                 duration_s=1.5)
         save("sine_tracking", traj, p, "s30",
              "offline closed loop: PD nut-position control (30 Hz, ζ 0.7, velocity/acceleration/load feed-forward) "
              "tracking 2 mm × sin(2π·1 Hz·t) against 2 kN, stepped in Python at 1 kHz", reference=ref)
+    elif "sine_tracking" in only:
+        written.append(node_tracking_run(out_dir / "sine_tracking.mcap", model))
 
     for case in ("heavy", "light"):
         if f"{case}_load" not in only:
@@ -116,15 +135,21 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
     return written
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Regenerate the example MCAP recordings in bags/.")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "bags"),
                     help="output folder (default: the repository's bags/)")
     ap.add_argument("--model", default=default_model(), choices=sorted(MODELS),
                     help=f"model (default {default_model()})")
+    ap.add_argument("--offline-tracking", action="store_true",
+                    help="make sine_tracking with an offline PD loop instead of a node + controller run over DDS")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    paths = make(Path(args.out), args.model, progress=not args.no_progress)
+    try:
+        paths = make(Path(args.out), args.model, progress=not args.no_progress, offline_tracking=args.offline_tracking)
+    except RuntimeError as e:
+        print(f"make_bags: error: {e}", file=sys.stderr)
+        return 1
     from .bag_reader import open_bag
     from .bag_report import report
     for path in paths:
@@ -132,7 +157,8 @@ def main(argv: list[str] | None = None) -> None:
         keys = {"efficiency": r["efficiency"]["forward"], "tracking_rms_m": (r["tracking"] or {}).get("rms_error_m"),
                 "l10_revolutions": r["life"]["l10_revolutions"]}
         print(f"{path} ({path.stat().st_size / 1e6:.2f} MB): {json.dumps(keys)}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -49,7 +49,7 @@ from .command_gate import CommandGate
 from .messages import NODE_NAME, TOPICS, MessageMapper, stamp, time_ns
 from .node_params import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
-from .stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack
+from .stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode: a thread that never sleeps keeps the GIL and the lock from the executor (services,
@@ -104,6 +104,7 @@ class PrsmNode(Node):
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
+        self.scheduling = "normal"
         self._stop = threading.Event()
         self._resumed = threading.Event()
         self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor)
@@ -291,6 +292,8 @@ class PrsmNode(Node):
         """realtime / fast: the step thread (lockstep steps in the command callback instead)."""
         reduce_timer_slack()
         realtime = self.config.time_mode == "realtime"
+        if realtime:  # never for fast mode: a busy SCHED_FIFO thread would starve the machine
+            self.scheduling = request_realtime_priority(self.config.realtime_priority)
         self.pacer.restart()
         was_running = False
         while not self._stop.is_set():
@@ -373,7 +376,7 @@ class PrsmNode(Node):
             "sim_time_s": f"{sim_now:.6f}", "steps": st.nstep, "paused": st.paused,
             "achieved_real_time_factor": f"{rtf:.4f}",
             "target_real_time_factor": cfg.real_time_factor if cfg.time_mode == "realtime" else "n/a",
-            "step_overruns": ps.overruns, "skipped_periods": ps.skipped_periods,
+            "step_overruns": ps.overruns, "skipped_periods": ps.skipped_periods, "step_thread": self.scheduling,
             "max_step_wall_time_us": f"{self._step_wall_max_s * 1e6:.1f}",
             "command_age_s": "none yet" if math.isinf(age) else f"{age:.6f}",
             "command_nm": gate.command_nm, "timed_out": gate.timed_out, "load_force_n": st.load_n,

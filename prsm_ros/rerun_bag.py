@@ -29,7 +29,7 @@ import yaml
 
 from prsm_sim import InternalLayout, ParamError, Params, preset
 
-from .rerun_sink import APPLICATION_ID, RecordingWriter
+from .rerun_sink import APPLICATION_ID, RecordingWriter, rerun_forced_off
 
 RUN_METADATA = "prsm_run"
 SCHEMATIC_PRESET = "s30"
@@ -148,14 +148,18 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
     Summary keys: bag, rrd, source ("internal_loads" | "joint_states"), model, geometry, rows,
     scene_frames, duration_s, topics (used), inputs, warnings (e.g. an unfinished bag's note).
     The bag is opened with `prsm_ros.bag_reader` (so an unfinished recording converts as far as it
-    goes); a bag that cannot be used raises its `BagError`, an unusable output ValueError, and a
-    conversion that fails half-way removes its partial output.
+    goes); a bag that cannot be used raises its `BagError`, an unusable output (or RERUN=off in the
+    environment, which would make the SDK write nothing) ValueError, and a conversion that fails
+    half-way removes its partial output.
     """
     import rerun as rr
 
     from .bag_reader import open_bag, resolve_topics
     from .messages import parse_labels
 
+    if rerun_forced_off():  # the SDK would silently write nothing
+        raise ValueError("the environment variable RERUN=off turns the Rerun SDK off, so no .rrd can be written; "
+                         "unset it for this command")
     out = Path(rrd_path)
     if not out.parent.is_dir():
         raise ValueError(f"output directory {str(out.parent)!r} does not exist")

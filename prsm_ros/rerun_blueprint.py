@@ -7,7 +7,7 @@
     │                          ├───────────────────┼──────────────────┤
     ├──────────────────────────┤ ratio, efficiency │ slip             │
     │ heat maps roller × tooth ├──────────────────────────────────────┤
-    │ (tabs) · about           │ per-roller loads (tabs) · power      │
+    │ (tabs) · about           │ per-roller forces, carrier, power    │
     └──────────────────────────┴──────────────────────────────────────┘
 
 Views are built only for what the recording holds (a bag with joint states only has no heat map,
@@ -24,7 +24,7 @@ import rerun.blueprint as rrb
 from prsm_sim import InternalLayout
 
 from .rerun_scene import ABOUT, LOADS, NUT, WORLD, tooth_quantities
-from .rerun_series import TIMELINE, block_path, input_path, roller_blocks, scalar_path
+from .rerun_series import TIMELINE, block_path, input_path, scalar_path, series_blocks
 
 # (title, scalar outputs, recorded inputs) of the scalar plots, in reading order
 SCALAR_VIEWS: tuple[tuple[str, tuple[str, ...], tuple[str, ...]], ...] = (
@@ -56,10 +56,12 @@ def default_blueprint(scalar_names: Iterable[str], layout: InternalLayout, *, sc
         if paths:
             plots.append(_series_view(title, paths))
     tabs = []
-    for b in roller_blocks(layout):
+    for b in series_blocks(layout):  # forces per roller; every quantity of a plain (quantity,) block
         for q, unit in b.quantities:
-            if unit == "N":
-                tabs.append(_series_view(f"{q} per roller [N]", [block_path(b.name, q)]))
+            if len(b.dims) == 2 and unit == "N":
+                tabs.append(_series_view(f"{q} per {b.dims[0]} [N]", [block_path(b.name, q)]))
+            elif len(b.dims) == 1:
+                tabs.append(_series_view(f"{b.name}: {q} [{unit}]", [block_path(b.name, q)]))
     power = [scalar_path(n) for n in POWER_VIEW[1] if n in have]
     if power:
         tabs.append(_series_view(POWER_VIEW[0], power))

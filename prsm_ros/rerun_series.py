@@ -1,8 +1,8 @@
 """Time series of a PRSM run in Rerun, sent column-wise with `send_columns` (DESIGN.md "Rerun").
 
 Every scalar output goes to `series/<name>` (one entity per quantity, so each plot has one unit)
-and every per-roller quantity of the internal loads to `series/<block>/<quantity>` as one
-multi-series entity with one line per roller. Inputs read back from a bag that are not model
+and every quantity of the internal loads' (roller, quantity) and (quantity,) blocks to
+`series/<block>/<quantity>`, with one line per roller (or one line). Inputs read back from a bag that are not model
 outputs (a controller's nut position reference, say) go to `series/inputs/<name>`.
 
 All rows carry the `sim_time` timeline: a duration, the simulation time of the step's end, in
@@ -45,9 +45,10 @@ def input_path(name: str) -> str:
     return f"{INPUTS_ROOT}/{name}"
 
 
-def roller_blocks(layout: InternalLayout) -> list[InternalBlock]:
-    """Blocks with one row per roller and a quantity axis: these become per-roller series."""
-    return [b for b in layout.blocks if b.dims == ("roller", "quantity")]
+def series_blocks(layout: InternalLayout) -> list[InternalBlock]:
+    """Blocks that plot as time series: (quantity,) — one line per quantity — and (<index>, quantity),
+    e.g. (roller, quantity) — one line per roller. Larger blocks (roller × tooth) are heat maps."""
+    return [b for b in layout.blocks if b.dims[-1] == "quantity" and len(b.dims) <= 2]
 
 
 @dataclass(frozen=True)
@@ -63,9 +64,11 @@ def series_entities(scalar_names: Iterable[str], layout: InternalLayout) -> list
     """What `send_series` writes for these scalar columns and this layout (time_s is the index, not a series)."""
     out = [SeriesEntity(scalar_path(n), UNITS.get(n, ""), (f"{n} [{UNITS.get(n, '?')}]",))
            for n in scalar_names if n != "time_s"]
-    for b in roller_blocks(layout):
-        rollers = tuple(f"roller {q}" for q in range(b.shape[0]))
-        out += [SeriesEntity(block_path(b.name, q), unit, rollers) for q, unit in b.quantities]
+    for b in series_blocks(layout):
+        for q, unit in b.quantities:
+            names = (tuple(f"{b.dims[0]} {i}" for i in range(b.shape[0])) if len(b.dims) == 2
+                     else (f"{q} [{unit}]",))
+            out.append(SeriesEntity(block_path(b.name, q), unit, names))
     return out
 
 
@@ -95,11 +98,11 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
     if internal is not None and layout.size:
         internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
         offsets = layout.offsets()
-        for b in roller_blocks(layout):
+        for b in series_blocks(layout):
             block = internal[:, offsets[b.name]: offsets[b.name] + b.size].reshape((n,) + b.shape)
             for k, (q, _) in enumerate(b.quantities):
                 rec.send_columns(block_path(b.name, q), indexes=index,
-                                 columns=rr.Scalars.columns(scalars=np.ascontiguousarray(block[:, :, k])))
+                                 columns=rr.Scalars.columns(scalars=np.ascontiguousarray(block[..., k])))
     return n
 
 

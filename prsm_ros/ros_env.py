@@ -31,7 +31,7 @@ def isolated_env(domain_id: int | None = None, *, respect_user: bool = True, **e
 
 
 def ros_args(params: dict[str, Any]) -> list[str]:
-    """`--ros-args -p name:=value ...`, values typed as YAML reads them (floats keep a decimal point)."""
+    """`--ros-args -p name:=value ...` keeping each value's Python type through ROS's YAML parsing."""
     out = ["--ros-args"]
     for k, v in params.items():
         if isinstance(v, bool):
@@ -39,7 +39,7 @@ def ros_args(params: dict[str, Any]) -> list[str]:
         elif isinstance(v, float):
             text = repr(v) if any(c in repr(v) for c in ".en") else f"{v}.0"  # "1e-05", "nan", "inf" stay as they are
         elif isinstance(v, str):
-            text = v if v else "''"
+            text = "'" + v.replace("'", "''") + "'"  # quoted: YAML would read off/yes/1.0 as bool or number
         else:
             text = str(v)
         out += ["-p", f"{k}:={text}"]

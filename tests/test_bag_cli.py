@@ -291,7 +291,7 @@ def test_play_republishes_the_bag_over_dds_with_clock(tracking):
     try:
         assert sub.stdout.readline().strip() == "ready"
         res = subprocess.run([sys.executable, "-m", "prsm_ros.bag_cli", "play", str(path), "--rate", "2",
-                              "--end", "0.2", "--delay", "1.0", "-t", "/joint_states",
+                              "--end", "0.2", "--delay", "0.5", "--wait-for-subscribers", "-t", "/joint_states",
                               "-t", "/prsm_actuator/internal_loads/labels"],
                              capture_output=True, text=True, env=ENV, timeout=60)
         assert res.returncode == 0, res.stderr
@@ -310,14 +310,17 @@ def test_play_republishes_the_bag_over_dds_with_clock(tracking):
 
 
 def test_example_bags_are_readable_and_current(tmp_path):
-    """bags/ hold the four examples; the step response regenerates identically (golden data)."""
+    """bags/ hold the four examples; the step response regenerates to the same values (golden data)."""
     from prsm_ros.make_bags import make
     bags = {p.stem: open_bag(p) for p in sorted((ROOT / "bags").glob("*.mcap"))}
     assert set(bags) == {"step_response", "sine_tracking", "heavy_load", "light_load"}
     assert sum(b.path.stat().st_size for b in bags.values()) < 8e6
     for name, bag in bags.items():
-        assert bag.complete and bag.metadata["prsm_example"]["made_by"] == "python -m prsm_ros.make_bags"
-        assert bag.topics["/joint_states"].count >= 500
+        assert bag.complete and bag.topics["/joint_states"].count >= 500
+        if "prsm_example" in bag.metadata:  # written offline
+            assert bag.metadata["prsm_example"]["made_by"] == "python -m prsm_ros.make_bags"
+        else:  # recorded by the node in a prsm-demo run
+            assert "time_mode: lockstep" in bag.run_metadata["node_parameters_yaml"]
     assert bags["sine_tracking"].topics["/prsm_actuator/nut_position_reference"].count > 0
     fresh = open_bag(make(tmp_path, bags["step_response"].run_metadata["model"], progress=False, only=("step_response",))[0])
     old = [m.msg.position[1] for m in bags["step_response"].messages(["/joint_states"])]

@@ -54,8 +54,11 @@ def test_our_bag_converts_to_a_verified_rrd_with_every_step(ours):
     rows = rrd_rows(rrd)
     for name, _ in OUTPUT_FIELDS[1:]:
         assert rows[(f"/series/{name}", "Scalars:scalars")] == N, name
-    for q, _ in traj.layout.blocks[0].quantities:
-        assert rows[(f"/series/per_roller/{q}", "Scalars:scalars")] == N, q
+    for block in ("per_roller", "carrier"):  # (roller, quantity) and (quantity,) blocks are series
+        b = next(b for b in traj.layout.blocks if b.name == block)
+        for q, _ in b.quantities:
+            assert rows[(f"/series/{block}/{q}", "Scalars:scalars")] == N, q
+    assert not any(e.startswith("/series/per_tooth") for e in entities(rows))  # heat maps, not series
     assert rows[("/series/inputs/nut_position_reference", "Scalars:scalars")] == N
     assert rows[("/series/inputs/screw_torque", "Scalars:scalars")] == N
     assert rows[("/world/nut/carrier/forces/screw_normal_force", "Arrows3D:vectors")] == frames
@@ -210,4 +213,12 @@ def test_a_bag_that_breaks_half_way_leaves_no_partial_rrd(tmp_path):
     f.finish()
     with pytest.raises(ValueError, match="elements, the labels describe"):
         bag_to_rrd(bag, tmp_path / "x.rrd", progress=False)
+    assert not (tmp_path / "x.rrd").exists()
+
+
+def test_rerun_off_in_the_environment_is_refused_not_ignored(ours, tmp_path, monkeypatch):
+    """The Rerun SDK honours RERUN=off by writing nothing; an explicit conversion says so instead."""
+    monkeypatch.setenv("RERUN", "off")
+    with pytest.raises(ValueError, match="RERUN=off"):
+        bag_to_rrd(ours[0], tmp_path / "x.rrd", progress=False)
     assert not (tmp_path / "x.rrd").exists()

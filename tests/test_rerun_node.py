@@ -7,6 +7,8 @@ the .rrd at its stamp with the same nut position; and the recording holds every 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -17,24 +19,28 @@ from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402
 from test_rerun_support import has_blueprint, rrd_component, rrd_rows, rrd_verify  # noqa: E402
 
 ENV = {**ros_test_env("test_rerun_node"), "RERUN": "on"}  # the helper turns Rerun off for other tests
+# A namespace of our own as well: a node of another test process that happens to share the domain
+# publishes on other topics, so every /joint_states message received here is this node's.
+NS = f"/rerun_test_{os.getpid()}"
 
 
 def test_node_run_in_save_mode_records_every_step(tmp_path):
+    from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     rrd = tmp_path / "node.rrd"
     params = {"model": "fu2018", "preset": "s30", "record": False, "rerun": "save", "rerun_target": str(rrd),
               "load_force": 500.0, "cmd_timeout": 0.0}
-    with NodeProcess(ENV, params, workdir=tmp_path / "node") as proc:
-        client = RosClient(ENV, name="rerun_test_client")
+    with NodeProcess(ENV, params, workdir=tmp_path / "node", extra_args=["--ros-args", "-r", f"__ns:={NS}"]) as proc:
+        client = RosClient(ENV, name="rerun_test_client", node_name=f"{NS[1:]}/prsm_actuator")
         try:
-            states = client.subscribe("/joint_states", JointState)
-            client.publisher("/prsm_actuator/screw_torque", Float64)
+            states = client.subscribe(f"{NS}/joint_states", JointState, qos=QoSProfile(depth=10_000))
+            client.publisher(f"{NS}/prsm_actuator/screw_torque", Float64)
             client.wait_for_node(proc)
-            client.publish("/prsm_actuator/screw_torque", Float64(data=1.0))
+            client.publish(f"{NS}/prsm_actuator/screw_torque", Float64(data=1.0))
             client.spin_until(lambda: len(states) > 800, timeout=20, what="800 joint states")
-            client.publish("/prsm_actuator/screw_torque", Float64(data=-1.0))
+            client.publish(f"{NS}/prsm_actuator/screw_torque", Float64(data=-1.0))
             client.spin_for(0.4)
         finally:
             client.close()
