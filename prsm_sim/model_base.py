@@ -86,23 +86,26 @@ class Model:
             power_in_w=p_in,
             power_out_w=p_out,
             power_dissipated_w=dissipated_j / h,
-            efficiency=efficiency(p_in, p_out),
+            efficiency=efficiency(p_out, dissipated_j / h),
             speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
             internal=internal,
         )
         return state, out
 
 
-def efficiency(power_in_w: float, power_out_w: float) -> float:
-    """Forward (screw drives load): P_out / P_in; backward (load drives screw): P_in / P_out.
+def efficiency(power_out_w: float, power_dissipated_w: float) -> float:
+    """Efficiency of the mechanism itself, from the power through it (inertia excluded).
 
-    Both in the sign convention of `outputs`: power_in = τ ω_S, power_out = F v_nut. NaN when
-    no power flows through the screw in a definite direction.
+    Forward (the screw delivers power to the load, P_out > 0): P_out / (P_out + P_diss).
+    Backward (the load drives the screw, P_out < 0): (|P_out| − P_diss) / |P_out|, which is ≤ 0
+    for a screw that must be driven even when back-driven (self-locking). NaN when no power
+    reaches the load. At constant speed these equal the port ratios P_out/P_in and P_in/P_out;
+    unlike the port ratios they never exceed 1 while the rotor's kinetic energy changes.
     """
-    if power_in_w > 0.0 and power_out_w > 0.0:
-        return power_out_w / power_in_w
-    if power_in_w < 0.0 and power_out_w < 0.0:
-        return power_in_w / power_out_w
+    if power_out_w > 0.0:
+        return power_out_w / (power_out_w + power_dissipated_w)
+    if power_out_w < 0.0:
+        return 1.0 - power_dissipated_w / -power_out_w
     return math.nan
 
 
@@ -138,8 +141,8 @@ def columns_to_trajectory(model: Model, tau: np.ndarray, load: np.ndarray, cols:
     w_in, w_out = tau * dth, load * p * dth
     with np.errstate(divide="ignore", invalid="ignore"):
         p_in, p_out = w_in / h, w_out / h
-        eff = np.where((p_in > 0) & (p_out > 0), p_out / p_in,
-                       np.where((p_in < 0) & (p_out < 0), p_in / p_out, np.nan))
+        p_d = diss / h
+        eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
         ratio = np.where(w_s != 0, w_c / w_s, np.nan)
     if np.isnan(nut_force).any():
         nut_force = np.where(np.isnan(nut_force), load + model.params.mass.moved_mass_kg * p * (w_s - w_prev) / h,

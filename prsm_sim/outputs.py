@@ -81,10 +81,11 @@ class Outputs:
     - `slip_speed_m_s`: magnitude of the screw–roller sliding velocity at the contact.
     - `power_in_w` = screw torque × screw speed, `power_out_w` = load force × nut velocity,
       `power_dissipated_w` = friction power; step averages, so their sum balances with ΔT/Δt.
-    - `efficiency`: power_out / power_in when the screw drives the load (forward),
-      power_in / power_out when the load drives the screw (backward), NaN when either
-      power is zero (no power flows, efficiency undefined). Consumers must treat NaN
-      here as "undefined", not as a fault.
+    - `efficiency`: of the mechanism, from the power through it (`model_base.efficiency`):
+      P_out / (P_out + P_diss) when the screw drives the load, 1 − P_diss / |P_out| when the
+      load drives the screw (≤ 0: self-locking), NaN when no power reaches the load. Equal to
+      the port ratios at constant speed, never above 1. Consumers must treat NaN here as
+      "undefined", not as a fault.
     - `speed_ratio`: ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
     - `internal`: flat internal-load vector described by the model's `InternalLayout`.
     """
