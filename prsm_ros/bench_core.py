@@ -119,20 +119,21 @@ def fu2018_figures(quick: bool = False) -> list[dict]:
               _error(tr["carrier_speed_rad_s"], ref["carrier_speed_rad_s"][fine - 1::fine]))
     rt = sim_s / wall
     cost, batch = {}, {}
+    head = torque[:1000]
     for teeth in (10, 100):
         s_t = Simulator(p.with_overrides({"geometry.n_teeth": teeth}), "fu2018", DT)
 
         def step_teeth(s_t=s_t):
             s_t.reset()
-            for t in torque[:1000].tolist():
+            for t in head.tolist():
                 s_t.step(t, load)  # each step returns the full labelled vector, per-tooth loads included
 
         def batch_teeth(s_t=s_t):
             s_t.reset()
-            return s_t.run(torque[:1000], load).internal  # materialise every step's per-tooth loads
+            return s_t.run(head, load).internal  # materialise every step's per-tooth loads
 
-        cost[teeth] = _timed(step_teeth, repeats)[0] / 1000
-        batch[teeth] = _timed(batch_teeth, repeats)[0] / 1000
+        cost[teeth] = _timed(step_teeth, repeats)[0] / len(head)
+        batch[teeth] = _timed(batch_teeth, repeats)[0] / len(head)
     ratio = cost[100] / cost[10]
     return [
         figure("fu2018 (10 rollers × 40 teeth) simulated s per wall s", rt, "×", "≥ 200", rt >= 200 and err <= 1e-3,

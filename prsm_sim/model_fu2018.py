@@ -190,6 +190,11 @@ class Fu2018(Model):
         # I_R (1 − g) − r_R m_R a − r_R I_C / (N_R a): the carrier-mode inertia of the spin equation
         self._j_spin = (m.roller_inertia_kgm2 * (1.0 - geo.gear_ratio) - geo.roller_radius_m * self._mr_a
                         - geo.roller_radius_m * m.carrier_inertia_kgm2 / (nr * self.a))
+        self._side_k = {sg: (c.g00, c.g01, c.g10, c.g11, c.g20, c.g21, *c.n_s, *c.ps, *c.rs, *c.n_n, c.spin_n)
+                        for sg, c in self._consts.items()}
+        self._k = (self._coulomb, fr.mu_screw_roller, self.eps_v**2, self.eps_w**2, self._c_nt, self._mu_pin_r,
+                   self.k_drag, self._mu_rr_r, nr, self.a, self._r_r, self._mp, self._i_s, self._i_c, self._mr_p,
+                   self._mr_kmig, self._mr_a, self._j_spin, self._tan_gear, self._g)
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
@@ -228,48 +233,44 @@ class Fu2018(Model):
         axial (3) and spin (6) are then two equations in the two accelerations; the radial
         balance (4) gives F_pr last. Returns the accelerations only unless `forces`.
         """
-        c = self._consts[sign]
-        fr = self.params.friction
-        w_s, w_c = float(u[0]), float(u[1])
-        vx = c.g00 * w_s + c.g01 * w_c
-        vy = c.g10 * w_s + c.g11 * w_c
-        vz = c.g20 * w_s + c.g21 * w_c
-        nsx, nsy, nsz = c.n_s
-        if self._coulomb:
-            k = fr.mu_screw_roller / math.sqrt(vx * vx + vy * vy + vz * vz + self.eps_v * self.eps_v)
+        # constants unpacked from two tuples: one bytecode each instead of ~30 attribute lookups
+        (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, spin_n) = self._side_k[sign]
+        (coulomb, mu, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_r, mp, i_s, i_c, mr_p, mr_kmig, mr_a,
+         j_spin, tan_gear, g) = self._k
+        w_s, w_c = u
+        vx = g00 * w_s + g01 * w_c
+        vy = g10 * w_s + g11 * w_c
+        vz = g20 * w_s + g21 * w_c
+        if coulomb:
+            k = mu / math.sqrt(vx * vx + vy * vy + vz * vz + eps_v2)
             esx, esy, esz = nsx - k * vx, nsy - k * vy, nsz - k * vz
             f0x = f0y = f0z = 0.0
         else:
             esx, esy, esz = nsx, nsy, nsz
-            f0x, f0y, f0z = -self._c_nt * vx, -self._c_nt * vy, -self._c_nt * vz
-        psx, psy = c.ps
-        rsx, rsy = c.rs
+            f0x, f0y, f0z = -c_nt * vx, -c_nt * vy, -c_nt * vz
         mom_s = psx * esy - psy * esx
         mom_f0 = psx * f0y - psy * f0x
         spin_s = rsx * esy - rsy * esx
         spin_f0 = rsx * f0y - rsy * f0x
-        wc_eps = math.sqrt(w_c * w_c + self.eps_w * self.eps_w)
-        s_c = w_c / wc_eps  # regularised sgn(ω_C); spins rel. nut ((1−g)ω_C) and carrier (−gω_C) have sign −s_c
-        m_pin = self._mu_pin_r * pin_abs * s_c  # −μ|F|r sgn(−gω_C)
-        m_drag = -self.k_drag * w_c
-        mu_rr = -self._mu_rr_r * s_c  # μ_NR r_R sgn((1−g)ω_C)
-        nr, a, r_r = self._nr, self.a, self._r_r
-        nnx, nny, nnz = c.n_n
+        s_c = w_c / math.sqrt(w_c * w_c + eps_w2)  # regularised sgn(ω_C); spins rel. nut and carrier have sign −s_c
+        m_pin = mu_pin_r * pin_abs * s_c  # −μ|F|r sgn(−gω_C)
+        m_drag = -k_drag * w_c
+        mu_rr = -mu_rr_r * s_c  # μ_NR r_R sgn((1−g)ω_C)
         # N_N = αN a_S + βN (nut), N_S = αS a_S + βS (screw)
-        alpha_n = self._mp / (nr * nnz)
+        alpha_n = mp / (nr * nnz)
         beta_n = load / (nr * nnz)
-        alpha_s = -self._i_s / (nr * mom_s)
+        alpha_s = -i_s / (nr * mom_s)
         beta_s = (tau - nr * mom_f0) / (nr * mom_s)
         rhs7 = -nr * m_pin + m_drag
         # roller axial (3)
-        a11 = -self._mr_p - esz * alpha_s - nnz * alpha_n
-        a12 = self._mr_kmig
+        a11 = -mr_p - esz * alpha_s - nnz * alpha_n
+        a12 = mr_kmig
         b1 = f0z + esz * beta_s + nnz * beta_n
         # roller spin (6) with F_gt from (5) and F_pt from (7)
         cs = r_r * esy - spin_s
-        cn = r_r * nny - (c.spin_n - mu_rr)  # M_rr = −mu_rr N_N moved to the left-hand side
+        cn = r_r * nny - (spin_n - mu_rr)  # M_rr = −mu_rr N_N moved to the left-hand side
         a21 = cs * alpha_s + cn * alpha_n
-        a22 = self._j_spin
+        a22 = j_spin
         b2 = spin_f0 + m_pin - r_r * f0y - r_r * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
         det = a11 * a22 - a12 * a21
         acc_s = (b1 * a22 - a12 * b2) / det
@@ -278,13 +279,12 @@ class Fu2018(Model):
             return acc_s, acc_c
         n_s = alpha_s * acc_s + beta_s
         n_n = alpha_n * acc_s + beta_n
-        f_pt = (rhs7 - self._i_c * acc_c) / (nr * a)
-        f_gt = self._mr_a * acc_c - esy * n_s - nny * n_n - f_pt - f0y
-        tan_g = self._tan_gear * gear_sign
-        f_pr = -self._mr_a * w_c * w_c - f0x - esx * n_s - nnx * n_n + tan_g * f_gt
+        f_pt = (rhs7 - i_c * acc_c) / (nr * a)
+        f_gt = mr_a * acc_c - esy * n_s - nny * n_n - f_pt - f0y
+        tan_g = tan_gear * gear_sign
+        f_pr = -mr_a * w_c * w_c - f0x - esx * n_s - nnx * n_n + tan_g * f_gt
         fx, fy, fz = n_s * (esx - nsx) + f0x, n_s * (esy - nsy) + f0y, n_s * (esz - nsz) + f0z
         m_rr = -n_n * mu_rr
-        g = self._g
         # power lost: screw friction on the slip, pin and rolling moments on their spins, drag
         diss = nr * (-(fx * vx + fy * vy + fz * vz) - m_pin * (-g * w_c) - m_rr * ((1.0 - g) * w_c)) - m_drag * w_c
         return Forces(acc_s, acc_c, diss, n_s, n_n, fx, fy, fz, vx, vy, vz, m_rr, f_gt, -tan_g * f_gt, f_pr, f_pt,
