@@ -190,6 +190,8 @@ class Fu2018(Model):
         # I_R (1 − g) − r_R m_R a − r_R I_C / (N_R a): the carrier-mode inertia of the spin equation
         self._j_spin = (m.roller_inertia_kgm2 * (1.0 - geo.gear_ratio) - geo.roller_radius_m * self._mr_a
                         - geo.roller_radius_m * m.carrier_inertia_kgm2 / (nr * self.a))
+        self._zeta_share = self.zeta / nt
+        self._gather = self._gather_index()
         self._side_k = {sg: (c.g00, c.g01, c.g10, c.g11, c.g20, c.g21, *c.n_s, *c.ps, *c.rs, *c.n_n, c.spin_n)
                         for sg, c in self._consts.items()}
         self._k = (self._coulomb, fr.mu_screw_roller, self.eps_v**2, self.eps_w**2, self._c_nt, self._mu_pin_r,
@@ -338,7 +340,7 @@ class Fu2018(Model):
                       carrier_angle_rad=s.carrier_angle_rad + 0.5 * h * (s.carrier_speed_rad_s + wc1),
                       carrier_speed_rad_s=wc1, flank_sign=int(f1.sign), pin_force_n=math.hypot(f1.f_pr, f1.f_pt),
                       gear_force_n=f1.f_gt, solver=mem)
-        internal = self.expand(np.array([f1.compact]))[0]
+        internal = self.expand_one(f1.compact)
         return self.finish_step(s, after, torque_nm, load_n, dissipated_j=0.5 * h * (f0.dissipated_w + f1.dissipated_w),
                                 slip_speed_m_s=math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), internal=internal,
                                 nut_force_n=f1.axial)
@@ -376,6 +378,23 @@ class Fu2018(Model):
                                      state.screw_speed_rad_s)
 
     _compact_size = len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)
+
+    def expand_one(self, compact: tuple) -> np.ndarray:
+        """`expand` for one step, as a single gather from [compact, ζ/N_T·N_S, ζ/N_T·N_N] (the node's path)."""
+        row = np.array(compact)
+        src = np.concatenate((row, self._zeta_share * compact[0], self._zeta_share * compact[1]))
+        return src[self._gather]
+
+    def _gather_index(self) -> np.ndarray:
+        """Positions in `expand_one`'s source vector of every element of the layout."""
+        geo = self.geo
+        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        ncomp = self._compact_size
+        per_roller = np.tile(np.arange(nq), nr)
+        teeth = np.arange(nt)[:, None] + ncomp + nt * np.arange(2)[None, :]  # (tooth, side)
+        per_tooth = np.tile(teeth.ravel(), nr)
+        carrier = np.arange(nq, ncomp)
+        return np.concatenate([per_roller, per_tooth, carrier])
 
     def expand(self, compact: np.ndarray) -> np.ndarray:
         """Compact rows (steps × 17) → the full labelled internal vectors (steps × layout.size).
