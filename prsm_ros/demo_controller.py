@@ -77,6 +77,7 @@ class Tracking:
 
 def run(args: argparse.Namespace) -> dict:
     import rclpy
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
@@ -111,6 +112,8 @@ def run(args: argparse.Namespace) -> dict:
         tau_pub.publish(Float64(data=ctl.torque(x_ref - x, v_ref - v, a_ref, dt)))
 
     node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state, TOPICS["joint_states"].qos)
+    executor = SingleThreadedExecutor()  # one executor: rclpy.spin_once(node) re-adds the node on every call
+    executor.add_node(node)
     try:
         deadline = time.monotonic() + args.connect_timeout
         while tau_pub.get_subscription_count() == 0:  # the node is up once it listens for torques
@@ -118,13 +121,14 @@ def run(args: argparse.Namespace) -> dict:
                 print(f"prsm-demo controller: no node listening on {TOPICS['screw_torque'].resolved()} "
                       f"after {args.connect_timeout:g} s", file=sys.stderr)
                 break
-            rclpy.spin_once(node, timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.05)
         else:
             tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
             wall_limit = time.monotonic() + args.wall_timeout
             while not st["done"] and time.monotonic() < wall_limit:
-                rclpy.spin_once(node, timeout_sec=0.1)
+                executor.spin_once(timeout_sec=0.1)
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     wall = time.perf_counter() - st["wall0"] if st["wall0"] is not None else math.nan

@@ -42,6 +42,7 @@ from rclpy.clock import Clock as RosClock
 from rclpy.clock_type import ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
+from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from std_srvs.srv import SetBool, Trigger
 
@@ -56,6 +57,8 @@ WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad comman
 # commands) for a switch interval at a time, so it really sleeps briefly every few steps.
 FAST_YIELD_EVERY = 32
 FAST_YIELD_S = 2e-5
+OVERRIDABLE_QOS = (QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY, QoSPolicyKind.DURABILITY)
+REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Python's default: 5 ms)
 
 
 class PrsmNode(Node):
@@ -73,7 +76,8 @@ class PrsmNode(Node):
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
         self._set_decimation()
 
-        qos_opts = QoSOverridingOptions.with_default_policies
+        def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
+            return QoSOverridingOptions(policy_kinds=OVERRIDABLE_QOS)
         try:
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
@@ -89,8 +93,17 @@ class PrsmNode(Node):
         self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
         self._topic_names.update({k: s.topic_name for k, s in self.sub.items()})
 
+        self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
+        if cfg.time_mode == "realtime":
+            self._prepare_realtime()
         self.recorder = self._open_recorder()
-        self.rerun = self._open_rerun()
+        try:
+            self.rerun = self._open_rerun()
+        except ConfigError:
+            if self.recorder is not None:  # no run happened: leave no empty bag behind
+                self.recorder.close()
+                self.recorder.path.unlink(missing_ok=True)
+            raise
 
         self.create_service(SetBool, "~/pause", self._srv_pause)
         self.create_service(Trigger, "~/step", self._srv_step)
@@ -104,10 +117,9 @@ class PrsmNode(Node):
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
-        self.scheduling = "normal"
         self._stop = threading.Event()
         self._resumed = threading.Event()
-        self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor)
+        self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
         self._thread: threading.Thread | None = None
         if cfg.time_mode != "lockstep":
             self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
@@ -117,6 +129,20 @@ class PrsmNode(Node):
             + (f" ×{cfg.real_time_factor:g}" if cfg.time_mode == "realtime" else "")
             + (f", recording to {self.recorder.path}" if self.recorder else "")
             + (", paused" if cfg.start_paused else ""))
+
+    def _prepare_realtime(self) -> None:
+        """Realtime mode: keep the step thread from waiting for the GIL (measured in bench_node).
+
+        The step thread wakes on time under SCHED_FIFO, but then needs the GIL; if the thread
+        holding it (executor, recorder) is a normal thread the OS has preempted, the step waits
+        for milliseconds (priority inversion). So this thread, and the threads started after it
+        (recorder, Rerun), run SCHED_FIFO one level below the step thread when the OS allows, and
+        a waiting thread gets the GIL after 100 µs instead of Python's default 5 ms.
+        """
+        prio = self.config.realtime_priority
+        if prio > 1:
+            self.scheduling["other_threads"] = request_realtime_priority(prio - 1)
+        sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
 
     # -- parameters ------------------------------------------------------------------------
     def _declare_parameters(self) -> NodeConfig:
@@ -271,7 +297,14 @@ class PrsmNode(Node):
                 self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
                 break
             done += 1
-            self._publish_step(out, force_state=publish_last_state and i == n - 1)
+            try:
+                self._publish_step(out, force_state=publish_last_state and i == n - 1)
+            except Exception as e:  # never let a publishing failure take the process down
+                if not rclpy.ok(context=self.context):
+                    break
+                self.stepper.fault = f"publishing step {self.stepper.nstep} failed: {type(e).__name__}: {e}"
+                self.get_logger().error(self.stepper.fault)
+                break
             self._step_wall_max_s = max(self._step_wall_max_s, time.perf_counter() - t0)
         return done
 
@@ -279,10 +312,11 @@ class PrsmNode(Node):
         k = self.stepper.nstep
         st = stamp(out.time_s)
         ns = time_ns(out.time_s)
-        self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
+        # joint_states first: a lockstep controller computes its next command while the rest goes out
         if force_state or k % self._js_every == 0:
             self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
             self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+        self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
         if k % self._il_every == 0:
             self._publish(self.pub["internal_loads"], "internal_loads", self.mapper.internal_loads(out), ns)
         if self.rerun is not None:
@@ -293,7 +327,7 @@ class PrsmNode(Node):
         reduce_timer_slack()
         realtime = self.config.time_mode == "realtime"
         if realtime:  # never for fast mode: a busy SCHED_FIFO thread would starve the machine
-            self.scheduling = request_realtime_priority(self.config.realtime_priority)
+            self.scheduling["step_thread"] = request_realtime_priority(self.config.realtime_priority)
         self.pacer.restart()
         was_running = False
         while not self._stop.is_set():
@@ -376,7 +410,7 @@ class PrsmNode(Node):
             "sim_time_s": f"{sim_now:.6f}", "steps": st.nstep, "paused": st.paused,
             "achieved_real_time_factor": f"{rtf:.4f}",
             "target_real_time_factor": cfg.real_time_factor if cfg.time_mode == "realtime" else "n/a",
-            "step_overruns": ps.overruns, "skipped_periods": ps.skipped_periods, "step_thread": self.scheduling,
+            "step_overruns": ps.overruns, "skipped_periods": ps.skipped_periods, **self.scheduling,
             "max_step_wall_time_us": f"{self._step_wall_max_s * 1e6:.1f}",
             "command_age_s": "none yet" if math.isinf(age) else f"{age:.6f}",
             "command_nm": gate.command_nm, "timed_out": gate.timed_out, "load_force_n": st.load_n,
@@ -436,7 +470,7 @@ def _descriptor(p: NodeParam) -> ParameterDescriptor:
 
 
 def _usage() -> str:
-    lines = [__doc__.split("\n\n")[0], "", "usage: prsm-node [--help] [--params-template [PRESET]] [--ros-args ...]",
+    lines = ["prsm-node: the simulated PRSM actuator (planetary roller screw) on the ROS 2 graph.", "", "usage: prsm-node [--help] [--params-template [PRESET]] [--ros-args ...]",
              "", "parameters (-p name:=value, or a ros__parameters YAML via --params-file):"]
     for p in node_parameters():
         unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""

@@ -84,8 +84,11 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
               choices=TIME_MODES, read_only=True),
     NodeParam("real_time_factor", 1.0, "1", "simulated seconds per wall second in realtime mode",
               lo=0.0, hi=100.0, lo_open=True),
-    NodeParam("realtime_priority", 10, "", "SCHED_FIFO priority of the realtime step thread when the OS allows "
-              "it (0: normal scheduling); reported on /diagnostics", lo=0, hi=99, read_only=True),
+    NodeParam("realtime_priority", 10, "", "realtime: SCHED_FIFO priority of the step thread when the OS allows "
+              "it, the node's other threads one below (0: normal scheduling); reported on /diagnostics",
+              lo=0, hi=99, read_only=True),
+    NodeParam("pacing_spin", 1e-4, "s", "realtime: poll the clock for this long before each deadline instead "
+              "of trusting the sleep's wake-up latency (CPU for jitter; 0: sleep only)", lo=0.0, hi=1e-2, read_only=True),
     NodeParam("lockstep_steps", 1, "steps", "steps advanced per received command in lockstep mode", lo=1, hi=1_000_000),
     NodeParam("step_count", 1, "steps", "steps advanced by one ~/step call (std_srvs/Trigger) while paused",
               lo=1, hi=10_000_000),

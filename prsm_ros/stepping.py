@@ -62,8 +62,8 @@ class SimStepper:
         before = self.sim.state
         try:
             out = self.sim.step(torque, self.load_n)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
-            self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {e}"
+        except Exception as e:  # any model failure stops stepping; the node stays up for ~/reset
+            self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {type(e).__name__}: {e}"
             return None
         if not state_is_finite(out):
             self.sim.state = before  # keep the last finite state for inspection; reset clears the fault
@@ -119,8 +119,9 @@ class DeadlinePacer:
 
     def __init__(self, period_s: float, real_time_factor: float = 1.0, *, max_catchup_periods: int = 50,
                  clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep,
-                 keep_lateness: int = 200_000) -> None:
+                 keep_lateness: int = 200_000, spin_s: float = 0.0) -> None:
         self.nominal_period_s = period_s
+        self.spin_s = spin_s
         self.max_catchup_periods = max_catchup_periods
         self._clock, self._sleep = clock, sleep
         self._keep = keep_lateness
@@ -148,8 +149,10 @@ class DeadlinePacer:
         """Sleep until the next step is due; returns its lateness in seconds (>= 0 when on time)."""
         due = self.next_deadline
         now = self._clock()
-        if due > now:
-            self._sleep(due - now)
+        if due - self.spin_s > now:
+            self._sleep(due - self.spin_s - now)
+            now = self._clock()
+        while now < due:  # the last spin_s: poll the clock instead of trusting the wake-up latency
             now = self._clock()
         late = now - due
         if late > self.max_catchup_periods * self.period_s:

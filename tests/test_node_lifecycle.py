@@ -71,8 +71,8 @@ def test_realtime_run_services_and_sigint(tmp_path):
 
         res = cli.call("/prsm_actuator/step", Trigger)
         assert res.success, res.message
-        cli.spin_until(lambda: len(js) == n_js + 5, 5.0, "5 stepped states")
-        assert clock_ns(clock[-1]) == paused_at + 5_000_000
+        cli.spin_until(lambda: len(js) == n_js + 5 and clock_ns(clock[-1]) == paused_at + 5_000_000, 5.0,
+                       "5 stepped states and /clock 5 ms on")
         assert [m.header.stamp.nanosec for m in js[n_js:]] == [(paused_at + k * 1_000_000) % 10**9 for k in range(1, 6)]
 
         assert cli.call("/prsm_actuator/reset", Trigger).success
@@ -118,3 +118,26 @@ def test_fast_mode_and_sigterm(tmp_path):
     # decimated: joint_states every 10th step, internal loads every 100th
     assert len(topics["/joint_states"]) == len(clocks) // 10
     assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks) // 100
+
+
+def test_rerun_save_writes_an_rrd_that_the_rerun_cli_verifies(tmp_path):
+    """rerun = save: the node's .rrd holds every step's scalar series (checked with the `rerun` CLI)."""
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    from test_rerun_support import rrd_rows, rrd_verify
+    rrd = tmp_path / "node.rrd"
+    env = {**ENV, "RERUN": ""}
+    params = {"time_mode": "lockstep", "lockstep_steps": 10, "record": False, "rerun": "save",
+              "rerun_target": str(rrd)}
+    with NodeProcess(env, params, workdir=tmp_path) as proc, RosClient(env) as cli:
+        js = cli.subscribe("/joint_states", JointState)
+        cli.publisher("/prsm_actuator/screw_torque", Float64)
+        cli.wait_for_node(proc)
+        for k in range(20):
+            cli.publish("/prsm_actuator/screw_torque", Float64(data=1.0))
+            cli.spin_until(lambda: len(js) >= 10 * (k + 1), 10.0, "state")
+        assert proc.stop(signal.SIGINT) == 0, proc.stderr
+    res = rrd_verify(rrd)
+    assert res.returncode == 0, res.stderr
+    rows = rrd_rows(rrd)
+    assert rows[("/series/nut_position_m", "Scalars:scalars")] == 200, sorted(rows)[:20]

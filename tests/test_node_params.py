@@ -80,7 +80,8 @@ def test_params_file_and_runtime_changes(tmp_path):
     pfile.write_text(
         "prsm_actuator:\n  ros__parameters:\n    time_mode: lockstep\n    preset: jones2016\n"
         "    load_force: 250\n    cmd_timeout: 0\n    record: false\n"
-        "    physics:\n      friction:\n        viscous_n_s_m: 40.0\n")
+        "    physics:\n      friction:\n        viscous_n_s_m: 40.0\n"
+        "    qos_overrides:\n      /prsm_actuator/nut/wrench:\n        publisher:\n          durability: transient_local\n")
     with NodeProcess(ENV, workdir=tmp_path, extra_args=["--ros-args", "--params-file", str(pfile)]) as proc, \
             RosClient(ENV) as cli:
         js = cli.subscribe("/joint_states", JointState)
@@ -89,6 +90,9 @@ def test_params_file_and_runtime_changes(tmp_path):
         got = cli.get_parameters(["load_force", "physics.friction.viscous_n_s_m", "time_mode", "max_effort"])
         assert got == {"load_force": 250, "physics.friction.viscous_n_s_m": 40.0, "time_mode": "lockstep",
                        "max_effort": 50.0}
+        from rclpy.qos import DurabilityPolicy
+        info = cli.node.get_publishers_info_by_topic("/prsm_actuator/nut/wrench")
+        assert [i.qos_profile.durability for i in info] == [DurabilityPolicy.TRANSIENT_LOCAL]  # QoS overridden
 
         p0 = preset("jones2016").with_overrides({"friction.viscous_n_s_m": 40.0})
         sim = Simulator(p0, "jones2016", 1e-3)
@@ -117,4 +121,18 @@ def test_params_file_and_runtime_changes(tmp_path):
                          "update_rate": 1000, "physics.geometry.n_rollers": 10}
         want = [sim2.step(1.0, 500.0) for _ in range(3)]  # nothing changed: same dynamics, same load
         assert_same(lockstep_states(cli, js, [1.0] * 3, 8), want)
+        assert proc.stop() == 0
+
+
+def test_namespace_and_topic_parameters_move_the_topics(tmp_path):
+    """Topic names are relative: a namespace moves them all; topics.* renames one; /clock stays global."""
+    with NodeProcess(ENV, {"record": False, "topics.joint_states": "measured_states"}, workdir=tmp_path,
+                     extra_args=["--ros-args", "-r", "__ns:=/left"]) as proc, \
+            RosClient(ENV, node_name="left/prsm_actuator") as cli:
+        cli.wait_for_node(proc)
+        names = {n for n, _ in cli.node.get_topic_names_and_types()}
+        assert {"/left/prsm_actuator/screw_torque", "/left/prsm_actuator/joint_commands", "/left/measured_states",
+                "/left/prsm_actuator/nut/wrench", "/left/prsm_actuator/internal_loads/labels", "/clock",
+                "/diagnostics"} <= names
+        assert "/joint_states" not in names and "/left/joint_states" not in names
         assert proc.stop() == 0
