@@ -66,6 +66,18 @@ class PrsmNode(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         super().__init__(NODE_NAME, **node_kwargs)
+        self.recorder = self.rerun = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        try:
+            self._setup()
+        except BaseException:
+            # a refused start-up: release what exists now, not during interpreter shutdown
+            self.close()
+            self.destroy_node()
+            raise
+
+    def _setup(self) -> None:
         self.config = self._declare_parameters()
         cfg = self.config
         self._lock = threading.Lock()
@@ -103,6 +115,7 @@ class PrsmNode(Node):
             if self.recorder is not None:  # no run happened: leave no empty bag behind
                 self.recorder.close()
                 self.recorder.path.unlink(missing_ok=True)
+                self.recorder = None
             raise
 
         self.create_service(SetBool, "~/pause", self._srv_pause)
@@ -117,10 +130,8 @@ class PrsmNode(Node):
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
-        self._stop = threading.Event()
         self._resumed = threading.Event()
         self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
-        self._thread: threading.Thread | None = None
         if cfg.time_mode != "lockstep":
             self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
             self._thread.start()
@@ -448,8 +459,8 @@ class PrsmNode(Node):
     def close(self) -> None:
         """Stop stepping, then close the recorder and the Rerun sink (idempotent)."""
         self._stop.set()
-        self._resumed.set()
         if self._thread is not None:
+            self._resumed.set()
             self._thread.join(timeout=5.0)
         if self.recorder is not None:
             self.recorder.close()

@@ -33,7 +33,7 @@ def domain_id(salt: str = "") -> int:
 
 def ros_test_env(salt: str = "", **extra: str) -> dict[str, str]:
     """os.environ with the isolation this project's ROS tests use (see module docstring)."""
-    env = isolated_env(domain_id(salt), respect_user=False, RERUN="off", **extra)
+    env = isolated_env(domain_id(salt), respect_user=False, RERUN="off", PYTHONFAULTHANDLER="1", **extra)
     env.pop("ROS_STATIC_PEERS", None)
     return env
 
