@@ -111,12 +111,14 @@ def run(args: argparse.Namespace) -> dict:
         ref_pub.publish(Float64(data=x_ref))
         tau_pub.publish(Float64(data=ctl.torque(x_ref - x, v_ref - v, a_ref, dt)))
 
-    node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state, TOPICS["joint_states"].qos)
+    state_sub = node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state,
+                                         TOPICS["joint_states"].qos)
     executor = SingleThreadedExecutor()  # one executor: rclpy.spin_once(node) re-adds the node on every call
     executor.add_node(node)
     try:
         deadline = time.monotonic() + args.connect_timeout
-        while tau_pub.get_subscription_count() == 0:  # the node is up once it listens for torques
+        # matched both ways: in lockstep a first state sent before we listen would be lost for good
+        while tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0:
             if time.monotonic() > deadline:
                 print(f"prsm-demo controller: no node listening on {TOPICS['screw_torque'].resolved()} "
                       f"after {args.connect_timeout:g} s", file=sys.stderr)
@@ -124,9 +126,13 @@ def run(args: argparse.Namespace) -> dict:
             executor.spin_once(timeout_sec=0.05)
         else:
             tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
-            wall_limit = time.monotonic() + args.wall_timeout
+            kicked = time.monotonic()
+            wall_limit = kicked + args.wall_timeout
             while not st["done"] and time.monotonic() < wall_limit:
                 executor.spin_once(timeout_sec=0.1)
+                if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
+                    tau_pub.publish(Float64(data=0.0))
+                    kicked = time.monotonic()
     finally:
         executor.shutdown()
         node.destroy_node()

@@ -72,9 +72,7 @@ class PrsmNode(Node):
         try:
             self._setup()
         except BaseException:
-            # a refused start-up: release what exists now, not during interpreter shutdown
-            self.close()
-            self.destroy_node()
+            self.close()  # our threads and files; the caller decides about the rcl node
             raise
 
     def _setup(self) -> None:
@@ -492,6 +490,20 @@ def _usage() -> str:
     return "\n".join(lines)
 
 
+def _exit_now(code: int, message: str) -> None:
+    """Report a refused start-up and leave without tearing down the rcl node.
+
+    Destroying a node within milliseconds of creating it sometimes crashes (SIGSEGV in
+    rcl's node destruction) or hangs in the middleware while its discovery threads are still
+    starting (seen about once in 50 start-ups on a loaded machine). Nothing of ours is open
+    at this point (PrsmNode closed its recorder and threads), so skipping the teardown loses nothing.
+    """
+    print(message, file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: init, spin until SIGINT/SIGTERM or external shutdown, close everything, exit 0."""
     args = list(sys.argv if argv is None else argv)
@@ -522,14 +534,11 @@ def main(argv: list[str] | None = None) -> int:
         try:
             node = PrsmNode()
         except ConfigError as e:
-            print(f"prsm-node: error: {e}", file=sys.stderr)
-            return 2
+            _exit_now(2, f"prsm-node: error: {e}")
         except Exception as e:  # e.g. an RCLError for a QoS override the middleware refuses
             if os.environ.get("PRSM_DEBUG"):
                 raise
-            print(f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)",
-                  file=sys.stderr)
-            return 1
+            _exit_now(1, f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)")
         executor = rclpy.executors.SingleThreadedExecutor()
         executor.add_node(node)
         # Python runs signal handlers only between bytecodes, so spin in short slices.

@@ -101,6 +101,7 @@ class RosClient:
         self.executor.add_node(self.node)
         self.received: dict[str, list] = {}
         self._pubs: dict[str, Any] = {}
+        self._subs: dict[str, Any] = {}
 
     # -- topics --------------------------------------------------------------------------
     def subscribe(self, topic: str, msg_class, qos=None) -> list:
@@ -114,7 +115,7 @@ class RosClient:
                 qos = QoSProfile(history=qos.history, depth=max(qos.depth, 10000), reliability=qos.reliability,
                                  durability=qos.durability)
             self.received[topic] = []
-            self.node.create_subscription(msg_class, topic, self.received[topic].append, qos)
+            self._subs[topic] = self.node.create_subscription(msg_class, topic, self.received[topic].append, qos)
         return self.received[topic]
 
     def publisher(self, topic: str, msg_class):
@@ -141,13 +142,18 @@ class RosClient:
             self.executor.spin_once(timeout_sec=0.01)
 
     def wait_for_node(self, proc: NodeProcess | None = None, timeout: float = 20.0) -> None:
-        """Until the node's ~/screw_torque subscription and every publisher we created are matched."""
+        """Until the node is on the graph and every publisher and subscription we made is matched.
+
+        Matching both ways matters in lockstep: a state published before our reader matched the
+        node's writer is lost (volatile QoS), and the loop would wait for it forever.
+        """
         def ready() -> bool:
             if proc is not None and proc.proc.poll() is not None:
                 raise AssertionError(f"node exited with {proc.proc.returncode}:\n{proc.stderr}")
             if self.node.count_subscribers(f"{self.node_path}/screw_torque") == 0:
                 return False
-            return all(p.get_subscription_count() > 0 for p in self._pubs.values())
+            return all(p.get_subscription_count() > 0 for p in self._pubs.values()) and \
+                all(s.get_publisher_count() > 0 for s in self._subs.values())
         self.spin_until(ready, timeout, "the node to appear on the graph")
 
     # -- services and parameters -----------------------------------------------------------

@@ -60,7 +60,7 @@ def test_realtime_run_services_and_sigint(tmp_path):
         n0, t0 = len(clock), clock_ns(clock[-1])
         cli.spin_for(0.5)
         sim_advance = (clock_ns(clock[-1]) - t0) * 1e-9
-        assert 0.35 < sim_advance < 0.65, sim_advance  # 1 kHz paced on wall time (loose: a loaded CI box)
+        assert 0.25 < sim_advance < 0.75, sim_advance  # paced on wall time (a function check, not a speed figure)
         assert len(clock) > n0
 
         assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True)).success
@@ -87,7 +87,7 @@ def test_realtime_run_services_and_sigint(tmp_path):
         cli.spin_until(lambda: len(diag) > m + 1, 5.0, "diagnostics")
         level, text, v = diagnostics_of(diag[-1])
         assert level == 0 and text == "running"
-        assert 0.8 < float(v["achieved_real_time_factor"]) < 1.2
+        assert 0.5 < float(v["achieved_real_time_factor"]) < 1.5  # bench_node measures the pacing itself
         assert int(v["record_written"]) > 0 and v["record_error"] == ""
         assert proc.stop(signal.SIGINT) == 0, proc.stderr
     assert "Traceback" not in proc.stderr

@@ -130,9 +130,12 @@ def test_namespace_and_topic_parameters_move_the_topics(tmp_path):
                      extra_args=["--ros-args", "-r", "__ns:=/left"]) as proc, \
             RosClient(ENV, node_name="left/prsm_actuator") as cli:
         cli.wait_for_node(proc)
-        names = {n for n, _ in cli.node.get_topic_names_and_types()}
-        assert {"/left/prsm_actuator/screw_torque", "/left/prsm_actuator/joint_commands", "/left/measured_states",
-                "/left/prsm_actuator/nut/wrench", "/left/prsm_actuator/internal_loads/labels", "/clock",
-                "/diagnostics"} <= names
-        assert "/joint_states" not in names and "/left/joint_states" not in names
+        expected = {"/left/prsm_actuator/screw_torque", "/left/prsm_actuator/joint_commands", "/left/measured_states",
+                    "/left/prsm_actuator/nut/wrench", "/left/prsm_actuator/internal_loads/labels", "/clock",
+                    "/diagnostics"}
+
+        def names():
+            return {n for n, _ in cli.node.get_topic_names_and_types()}
+        cli.spin_until(lambda: expected <= names(), 10.0, f"topics {sorted(expected)}")  # discovery is gradual
+        assert "/joint_states" not in names() and "/left/joint_states" not in names()
         assert proc.stop() == 0
