@@ -82,14 +82,14 @@ def run(args: argparse.Namespace) -> dict:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from .messages import TOPICS
+    from .messages import TOPICS, with_depth
 
     params = preset(args.preset)
     ctl = PositionController(reflected_inertia(params), params.geometry.lead_per_rad_m, bandwidth_hz=args.bandwidth,
                              load_n=args.load, max_torque_nm=args.max_torque)
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("prsm_demo_controller")
-    tau_pub = node.create_publisher(Float64, TOPICS["screw_torque"].resolved(), TOPICS["screw_torque"].qos)
+    tau_pub = node.create_publisher(Float64, TOPICS["screw_torque"].resolved(), with_depth(TOPICS["screw_torque"].qos, 10))
     ref_pub = node.create_publisher(Float64, TOPICS["nut_position_reference"].resolved(),
                                     TOPICS["nut_position_reference"].qos)
     track = Tracking()

@@ -94,6 +94,18 @@ TOPICS: dict[str, TopicSpec] = {t.key: t for t in (
     TopicSpec("diagnostics", "/diagnostics", DiagnosticArray, qos_profile_system_default, "out"),
 )}
 
+def with_depth(qos: QoSProfile, depth: int) -> QoSProfile:
+    """The same policies with a deeper keep-last history.
+
+    For the other end of a topic: a controller's command writer or a test's reader. A reliable
+    writer of depth 1 can fail to publish ("cannot publish data") when its previous sample is not
+    yet acknowledged, which happens on a loaded machine; the node's depth-1 command reader still
+    keeps only the newest command.
+    """
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(qos.depth, depth), reliability=qos.reliability,
+                      durability=qos.durability)
+
+
 # The per-step output topics, in the order `MessageMapper.messages` returns them.
 STEP_TOPICS = ("joint_states", "wrench", "internal_loads", "clock")
 

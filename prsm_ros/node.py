@@ -125,6 +125,7 @@ class PrsmNode(Node):
         self._diag_timer = self.create_timer(1.0 / cfg.diagnostics_rate, self._publish_diagnostics, clock=self._steady)
         self._diag_last = (time.perf_counter(), 0.0, 0)  # wall s, sim s, overruns at the last report
         self._warned_at: dict[str, float] = {}
+        self.publish_failures = 0
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
@@ -255,7 +256,14 @@ class PrsmNode(Node):
             raise ConfigError(str(e)) from None
 
     def _publish(self, pub, key: str, msg, stamp_ns: int | None = None) -> None:
-        pub.publish(msg)
+        try:
+            pub.publish(msg)
+        except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
+            if not rclpy.ok(context=self.context):
+                raise
+            self.publish_failures += 1
+            self._warn_throttled(f"publish:{key}", f"publishing on {self._topic_names[key]} failed "
+                                                   f"({self.publish_failures} so far): {e}")
         if self.recorder is not None:
             self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
 
@@ -425,7 +433,8 @@ class PrsmNode(Node):
             "command_nm": gate.command_nm, "timed_out": gate.timed_out, "load_force_n": st.load_n,
             "commands_received": c.received, "commands_accepted": c.accepted,
             "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
-            "saturated": c.saturated, "timeouts": c.timeouts, "fault": st.fault or "",
+            "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
+            "fault": st.fault or "",
         }
         self._step_wall_max_s = 0.0
         problems = []

@@ -1,7 +1,7 @@
 """Shared helpers for tests that run real ROS 2 processes talking over DDS on this machine.
 
 - `ros_test_env(salt)`: an environment isolated per test module and per pytest process: a unique
-  ROS_DOMAIN_ID (from the pid and a salt, in 100..199), localhost-only discovery, RERUN=off
+  ROS_DOMAIN_ID (from the pid and a salt, in 1..232), localhost-only discovery, RERUN=off
   (`prsm_ros.ros_env.isolated_env`, ignoring whatever the developer's shell has set).
 - `NodeProcess`: `prsm-node` in its own OS process with `-p name:=value` parameters; stop it with
   SIGINT/SIGTERM and get its exit code and output.
@@ -27,8 +27,8 @@ from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
 
 def domain_id(salt: str = "") -> int:
-    """A ROS_DOMAIN_ID in 100..199 that differs between concurrent pytest processes and modules."""
-    return 100 + (os.getpid() + zlib.crc32(salt.encode())) % 100
+    """A ROS_DOMAIN_ID in 1..232 that differs between concurrent pytest processes and modules."""
+    return 1 + (os.getpid() + zlib.crc32(salt.encode())) % 232
 
 
 def ros_test_env(salt: str = "", **extra: str) -> dict[str, str]:
@@ -91,6 +91,7 @@ class RosClient:
         from rclpy.executors import SingleThreadedExecutor
 
         self.node_path = f"/{node_name}"
+        self.domain = env["ROS_DOMAIN_ID"]
         self.context = rclpy.Context()
         # The domain is the env's: the context reads it at init; localhost discovery comes from the env too.
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
@@ -106,23 +107,19 @@ class RosClient:
     # -- topics --------------------------------------------------------------------------
     def subscribe(self, topic: str, msg_class, qos=None) -> list:
         """Collect every message on `topic` into the returned list (the same list every call)."""
-        from prsm_ros.messages import TOPICS
+        from prsm_ros.messages import TOPICS, with_depth
         if topic not in self.received:
             spec = next((t for t in TOPICS.values() if t.resolved() == topic), None)
-            qos = qos or (spec.qos if spec else 10)
-            if hasattr(qos, "depth"):
-                from rclpy.qos import QoSProfile
-                qos = QoSProfile(history=qos.history, depth=max(qos.depth, 10000), reliability=qos.reliability,
-                                 durability=qos.durability)
+            qos = qos or (with_depth(spec.qos, 10000) if spec else 10000)
             self.received[topic] = []
             self._subs[topic] = self.node.create_subscription(msg_class, topic, self.received[topic].append, qos)
         return self.received[topic]
 
     def publisher(self, topic: str, msg_class):
-        from prsm_ros.messages import TOPICS
+        from prsm_ros.messages import TOPICS, with_depth
         if topic not in self._pubs:
             spec = next((t for t in TOPICS.values() if t.resolved() == topic), None)
-            self._pubs[topic] = self.node.create_publisher(msg_class, topic, spec.qos if spec else 10)
+            self._pubs[topic] = self.node.create_publisher(msg_class, topic, with_depth(spec.qos, 10) if spec else 10)
         return self._pubs[topic]
 
     def publish(self, topic: str, msg) -> None:
@@ -155,6 +152,10 @@ class RosClient:
             return all(p.get_subscription_count() > 0 for p in self._pubs.values()) and \
                 all(s.get_publisher_count() > 0 for s in self._subs.values())
         self.spin_until(ready, timeout, "the node to appear on the graph")
+        others = [n for n in self.node.get_node_names() if n not in (self.node_path.split("/")[-1], self.node.get_name())]
+        n_torque = self.node.count_subscribers(f"{self.node_path}/screw_torque")
+        assert n_torque == 1, (f"{n_torque} nodes listen on {self.node_path}/screw_torque: another ROS graph shares "
+                               f"ROS_DOMAIN_ID {self.domain} (nodes: {others})")
 
     # -- services and parameters -----------------------------------------------------------
     def call(self, service: str, srv_class, request=None, timeout: float = 10.0):
