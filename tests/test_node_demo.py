@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from prsm_ros.demo_controller import PositionController, reference  # noqa: E402
 from ros_procs import ros_test_env  # noqa: E402

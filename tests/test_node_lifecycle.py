@@ -10,7 +10,7 @@ import signal
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
 

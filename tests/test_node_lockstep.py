@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from prsm_sim import MODELS, OUTPUT_FIELDS, Simulator, preset  # noqa: E402
 from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("rclpy")
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from prsm_sim import Simulator, preset  # noqa: E402
 from prsm_ros.node_params import NodeConfig, params_template  # noqa: E402

@@ -137,7 +137,6 @@ def test_stepper_faults_on_non_finite_state_and_reset_clears_it():
 
 @pytest.mark.parametrize("model", sorted(MODELS))
 def test_internal_loads_message_round_trips_through_the_labels(model):
-    pytest.importorskip("rclpy")
     from prsm_ros.messages import MessageMapper, parse_labels, unpack_internal
     sim = Simulator(preset("s30"), model, 1e-3)
     outs = [sim.step(2.0, 100.0) for _ in range(3)]

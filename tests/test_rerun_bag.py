@@ -14,7 +14,7 @@ from prsm_sim import OUTPUT_FIELDS, Simulator, preset
 from test_rerun_support import entities, has_blueprint, rrd_component, rrd_rows, rrd_verify
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
-rr = pytest.importorskip("rerun")
+import rerun as rr  # the test extra installs it; a missing install must fail, not skip
 from prsm_ros.bag_reader import BagError  # noqa: E402
 from prsm_ros.offline_record import write_trajectory_mcap  # noqa: E402
 from prsm_ros.rerun_bag import bag_to_rrd  # noqa: E402

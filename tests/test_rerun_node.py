@@ -12,8 +12,8 @@ import os
 import numpy as np
 import pytest
 
-pytest.importorskip("rclpy")
-pytest.importorskip("rerun")
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
+import rerun  # noqa: F401
 
 from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402
 from test_rerun_support import has_blueprint, rrd_component, rrd_rows, rrd_verify  # noqa: E402
