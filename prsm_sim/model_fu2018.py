@@ -154,8 +154,6 @@ class Forces(NamedTuple):
         return self[3:]
 
 
-COMPACT_START = 3
-
 
 class Fu2018(Model):
     name = "fu2018"
@@ -173,7 +171,6 @@ class Fu2018(Model):
         self.eps_v = fr.coulomb_regularisation_m_s
         # the same regularisation, as an angular speed at the roller's rolling radius
         self.eps_w = fr.coulomb_regularisation_m_s / geo.roller_radius_m
-        self.masses = m
         nr, nt = geo.n_rollers, geo.n_teeth
         self._consts = {sg: _SideConsts.of(side, self.a) for sg, side in self.sides.items()}
         self._coulomb = fr.screw_roller_law == "coulomb"

@@ -24,10 +24,6 @@ from .params import Params
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018}
 
 
-def register_model(cls: type[Model]) -> None:
-    MODELS[cls.name] = cls
-
-
 def build_model(params: Params, model: str, dt_s: float) -> Model:
     """The named model for these parameters; an unknown name is refused with the known ones."""
     try:
