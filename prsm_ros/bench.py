@@ -58,7 +58,7 @@ def table(figures: list[dict]) -> str:
     for f in figures:
         spread = f.get("spread")
         rows.append((f["area"], f["figure"], f"{_fmt(f['value'])} {f['unit']}".strip(), f["target"],
-                     "ok" if f["ok"] else "MISSED", f"±{spread * 50:.0f} %" if spread else "", f.get("notes", "")))
+                     "not judged" if f["ok"] is None else "ok" if f["ok"] else "MISSED", f"±{spread * 50:.0f} %" if spread else "", f.get("notes", "")))
     widths = [max(len(r[i]) for r in rows) for i in range(6)]
     lines = []
     for r in rows:

@@ -38,8 +38,9 @@ def _error(x: np.ndarray, ref: np.ndarray) -> float:
 
 
 def figure(name, value, unit, target, ok, spread=None, notes=""):
-    return {"figure": name, "value": value, "unit": unit, "target": target, "ok": bool(ok), "spread": spread,
-            "notes": notes}
+    """One benchmark figure; `ok` None means not judged (an indicative smoke figure)."""
+    return {"figure": name, "value": value, "unit": unit, "target": target, "ok": None if ok is None else bool(ok),
+            "spread": spread, "notes": notes}
 
 
 def jones2016_figures(quick: bool = False) -> list[dict]:

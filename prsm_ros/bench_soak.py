@@ -92,9 +92,11 @@ def measure(quick: bool = False) -> list[dict]:
     from .bench_core import figure
     sim_s = 30.0 if quick else 3600.0
     r = soak(sim_s, timeout_s=120.0 if quick else 3 * 3600.0)
-    ok = r["growth_mb"] < TARGET_GROWTH_MB and r["reached_sim_s"] >= sim_s
+    # a 30 s quick run sees only start-up allocations (RSS levels off after about 70 s simulated):
+    # it shows the soak works, it cannot pass or fail the 1 h target
+    ok = None if quick else r["growth_mb"] < TARGET_GROWTH_MB and r["reached_sim_s"] >= sim_s
     return [figure(f"node fast mode + recording, {r['reached_sim_s']:.0f} s simulated: memory growth",
-                   r["growth_mb"], "MB", "< 20", ok, None,
+                   r["growth_mb"], "MB", "< 20 (1 h run)", ok, None,
                    f"RSS {r['rss_start_mb']:.0f} → {r['rss_end_mb']:.0f} MB over {r['wall_s']:.0f} s wall "
                    f"({r['reached_sim_s'] / max(r['wall_s'], 1e-9):.0f}× real time), bag {r['bag_mb']:.0f} MB"
                    + ("" if not quick else "; quick: 30 s only, not the 1 h target"))]
