@@ -14,29 +14,17 @@ bad file or argument gives one line on stderr and exit status 1 (2 for usage err
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import os
 import sys
 
 from .bag_reader import BagError, open_bag
+from .json_out import dumps
 
 EXIT_ERROR = 1
 
 
-def _jsonable(obj):
-    """Non-finite floats → null (JSON has no NaN/Infinity; the text output says which it is)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    return obj
-
-
 def _print_json(obj) -> None:
-    print(json.dumps(_jsonable(obj), indent=2, ensure_ascii=False))
+    print(dumps(obj))
 
 
 def info_dict(bag) -> dict:
@@ -116,7 +104,7 @@ def _cmd_report(args) -> int:
     from pathlib import Path
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "report.json").write_text(json.dumps(_jsonable(r), indent=2, ensure_ascii=False), encoding="utf-8")
+    (out / "report.json").write_text(dumps(r), encoding="utf-8")
     if args.json:
         _print_json(r)
     else:

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import math
 import platform
 import sys
 import time
+
+from .json_out import dumps
 
 AREAS = {
     "core": "prsm_ros.bench_core",
@@ -76,12 +77,17 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"machine": platform.machine(), "python": platform.python_version(), "quick": a.quick,
             "cpus": __import__("os").cpu_count()}
     if a.json:
-        print(json.dumps({"meta": meta, "figures": figures}, indent=2, default=float))
+        print(dumps({"meta": meta, "figures": figures}))
     else:
         print(f"prsm-bench on {meta['machine']}, {meta['cpus']} CPUs, Python {meta['python']}"
               f"{' (quick: indicative only)' if a.quick else ''}")
         print(table(figures))
     return 0
+
+
+def area_main(area: str, argv: list[str] | None = None) -> int:
+    """`python -m prsm_ros.bench_<area>`: the same as `prsm-bench --only <area>` (same options)."""
+    return main(["--only", area, *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -170,21 +170,10 @@ def measure(quick: bool = False) -> list[dict]:
     return jones2016_figures(quick) + fu2018_figures(quick) + step_path_figures(quick)
 
 
-def main() -> None:
-    import argparse
-    import json
-    ap = argparse.ArgumentParser(description="Benchmark the prsm_sim dynamics core.")
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--json", action="store_true")
-    a = ap.parse_args()
-    figs = measure(a.quick)
-    if a.json:
-        print(json.dumps(figs, indent=2))
-    else:
-        for f in figs:
-            print(f"{f['figure']:58s} {f['value']:10.2f} {f['unit']:2s} target {f['target']:8s} "
-                  f"{'ok' if f['ok'] else 'MISSED'}  {f['notes']}")
+def main(argv: list[str] | None = None) -> int:
+    from .bench import area_main
+    return area_main("core", argv)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -135,11 +135,8 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the node figures: `prsm-bench --only node` (same options: --quick, --json)."""
-    import sys
-
-    from .bench import main as bench_main
-    return bench_main(["--only", "node", *(sys.argv[1:] if argv is None else argv)])
+    from .bench import area_main
+    return area_main("node", argv)
 
 
 if __name__ == "__main__":

@@ -159,11 +159,8 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the recorder figures: `prsm-bench --only recorder` (same options: --quick, --json)."""
-    import sys
-
-    from .bench import main as bench_main
-    return bench_main(["--only", "recorder", *(sys.argv[1:] if argv is None else argv)])
+    from .bench import area_main
+    return area_main("recorder", argv)
 
 
 if __name__ == "__main__":

@@ -151,11 +151,8 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the Rerun figures: `prsm-bench --only rerun` (same options: --quick, --json)."""
-    import sys
-
-    from .bench import main as bench_main
-    return bench_main(["--only", "rerun", *(sys.argv[1:] if argv is None else argv)])
+    from .bench import area_main
+    return area_main("rerun", argv)
 
 
 if __name__ == "__main__":

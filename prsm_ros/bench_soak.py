@@ -102,10 +102,10 @@ def measure(quick: bool = False) -> list[dict]:
                    + ("" if not quick else "; quick: 30 s only, not the 1 h target"))]
 
 
-def main() -> None:
-    from .bench import main as bench_main
-    bench_main(["--only", "soak"] + (["--quick"] if "--quick" in os.sys.argv else []))
+def main(argv: list[str] | None = None) -> int:
+    from .bench import area_main
+    return area_main("soak", argv)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

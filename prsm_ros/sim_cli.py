@@ -13,7 +13,6 @@ Every command takes --preset P or --params FILE.yaml, --set group.name=value ove
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from typing import Any
@@ -27,6 +26,7 @@ from prsm_sim.kinematics import ideal_speed_ratio
 from prsm_sim.model_jones2016 import steady_state
 from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, summarise
 
+from .json_out import dumps
 from .param_files import params_to_yaml, resolve_params
 
 PROGRESS_MIN_STEPS = 20_000
@@ -54,25 +54,7 @@ def _params(args) -> Params:
 
 
 def _emit(args, data: dict, text: str) -> None:
-    if args.json:
-        print(json.dumps(_jsonable(data), indent=2, allow_nan=True))
-    else:
-        print(text)
-
-
-def _jsonable(x):
-    """NaN and inf become null: JSON has no NaN, and consumers must see 'undefined', not a number."""
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
+    print(dumps(data) if args.json else text)
 
 
 def cmd_presets(args) -> None:
@@ -92,7 +74,7 @@ def cmd_presets(args) -> None:
 def cmd_params(args) -> None:
     p = _params(args)
     if args.json:
-        print(json.dumps(_jsonable(p.to_dict()), indent=2))
+        print(dumps(p.to_dict()))
     else:
         print(params_to_yaml(p), end="")
 
