@@ -93,32 +93,13 @@ class _Side:
     G: np.ndarray  # screw–roller sliding: v_s = G u
 
 
-@dataclass(frozen=True)
-class _SideConsts:
-    """Floats of one flank pair's contact geometry, unpacked once for the scalar hot path."""
-
-    n_s: tuple[float, float, float]
-    n_n: tuple[float, float, float]
-    ps: tuple[float, float]
-    rs: tuple[float, float]
-    spin_n: float
-    g00: float
-    g01: float
-    g10: float
-    g11: float
-    g20: float
-    g21: float
-
-    @staticmethod
-    def of(side: _Side, a: float) -> _SideConsts:
-        ns, nn = side.screw.normal_on_roller, side.nut.normal_on_roller
-        ps, pn = side.screw.point_m, side.nut.point_m
-        rnx, rny = pn[0] - a, pn[1]
-        G = side.G
-        return _SideConsts(n_s=tuple(map(float, ns)), n_n=tuple(map(float, nn)), ps=(float(ps[0]), float(ps[1])),
-                           rs=(float(ps[0] - a), float(ps[1])), spin_n=float(rnx * nn[1] - rny * nn[0]),
-                           g00=float(G[0, 0]), g01=float(G[0, 1]), g10=float(G[1, 0]), g11=float(G[1, 1]),
-                           g20=float(G[2, 0]), g21=float(G[2, 1]))
+def _side_tuple(side: _Side, a: float) -> tuple[float, ...]:
+    """One flank pair's geometry as floats for the scalar hot path (`Fu2018._solve` unpacks it):
+    G (row major), n_S, P_S (x, y), P_S − axis (x, y), n_N, (r_N × n_N)_z about the roller axis."""
+    ns, nn = side.screw.normal_on_roller, side.nut.normal_on_roller
+    ps, pn = side.screw.point_m, side.nut.point_m
+    spin_n = (pn[0] - a) * nn[1] - pn[1] * nn[0]
+    return tuple(float(v) for v in (*side.G.ravel(), *ns, ps[0], ps[1], ps[0] - a, ps[1], *nn, spin_n))
 
 
 class Forces(NamedTuple):
@@ -172,7 +153,6 @@ class Fu2018(Model):
         # the same regularisation, as an angular speed at the roller's rolling radius
         self.eps_w = fr.coulomb_regularisation_m_s / geo.roller_radius_m
         nr, nt = geo.n_rollers, geo.n_teeth
-        self._consts = {sg: _SideConsts.of(side, self.a) for sg, side in self.sides.items()}
         self._coulomb = fr.screw_roller_law == "coulomb"
         self._c_nt = fr.viscous_n_s_m * nt
         self._nr, self._r_r, self._g = nr, geo.roller_radius_m, geo.gear_ratio
@@ -189,8 +169,7 @@ class Fu2018(Model):
                         - geo.roller_radius_m * m.carrier_inertia_kgm2 / (nr * self.a))
         self._zeta_share = self.zeta / nt
         self._gather = self._gather_index()
-        self._side_k = {sg: (c.g00, c.g01, c.g10, c.g11, c.g20, c.g21, *c.n_s, *c.ps, *c.rs, *c.n_n, c.spin_n)
-                        for sg, c in self._consts.items()}
+        self._side_k = {sg: _side_tuple(side, self.a) for sg, side in self.sides.items()}
         self._k = (self._coulomb, fr.mu_screw_roller, self.eps_v**2, self.eps_w**2, self._c_nt, self._mu_pin_r,
                    self.k_drag, self._mu_rr_r, nr, self.a, self._r_r, self._mp, self._i_s, self._i_c, self._mr_p,
                    self._mr_kmig, self._mr_a, self._j_spin, self._tan_gear, self._g)

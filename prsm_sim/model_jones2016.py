@@ -88,10 +88,13 @@ class Jones2016(Model):
                                 slip_speed_m_s=float(np.linalg.norm(v_s)), internal=self._internal(v_s))
 
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
-        """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth)."""
+        """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
+
+        `v_s` is 3 × steps (or 3 for one step); identical rollers repeat the row.
+        """
         f = -self.params.friction.viscous_n_s_m * self.geo.n_teeth * v_s
-        row = np.concatenate([v_s, f])
-        return np.tile(row, self.geo.n_rollers)
+        rows = np.concatenate([v_s, f]).T
+        return np.tile(rows, (1, self.geo.n_rollers)) if rows.ndim == 2 else np.tile(rows, self.geo.n_rollers)
 
     def run(self, state: State, torque_nm, load_n) -> Trajectory:
         """Batch form of `step`: the same ZOH recursion, evaluated by recursive filters per mode."""
@@ -118,8 +121,7 @@ class Jones2016(Model):
         p = self.geo.lead_per_rad_m
         dtheta = dq[0]
         v_s = self.G @ w  # 3 × n
-        fr = -self.params.friction.viscous_n_s_m * self.geo.n_teeth * v_s
-        internal = np.tile(np.vstack([v_s, fr]).T, (1, self.geo.n_rollers))
+        internal = self._internal(v_s)
         final = State(time_s=state.time_s + self.dt_s * n, screw_angle_rad=q[0, -1] if n else q0[0],
                       screw_speed_rad_s=w[0, -1] if n else w0[0], carrier_angle_rad=q[1, -1] if n else q0[1],
                       carrier_speed_rad_s=w[1, -1] if n else w0[1],
