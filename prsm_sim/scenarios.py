@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model_base import trajectory_from_rows
+from .model_base import efficiency, trajectory_from_rows
 from .model_ideal import reflected_inertia
 from .model_jones2016 import steady_state
 from .outputs import Trajectory
@@ -128,19 +128,13 @@ def concatenate(parts: list[Trajectory]) -> Trajectory:
 def summarise(traj: Trajectory, tail_fraction: float = 0.1) -> dict:
     """Figures of a run: final state, tail means (last `tail_fraction`), peaks of the internal loads.
 
-    Tail efficiency is the ratio of the tail's mean powers (not the mean of step ratios,
-    which NaN and reversals would bias).
+    Tail efficiency is the mechanism efficiency (`model_base.efficiency`) of the tail's mean
+    powers, not the mean of step values, which NaN and reversals would bias.
     """
     n = len(traj)
     tail = slice(max(0, n - max(1, int(n * tail_fraction))), n)
     c = traj.columns
-    p_in, p_out = float(np.mean(c["power_in_w"][tail])), float(np.mean(c["power_out_w"][tail]))
-    if p_in > 0 and p_out > 0:
-        eff = p_out / p_in
-    elif p_in < 0 and p_out < 0:
-        eff = p_in / p_out
-    else:
-        eff = math.nan
+    eff = efficiency(float(np.mean(c["power_out_w"][tail])), float(np.mean(c["power_dissipated_w"][tail])))
     w_s, w_c = c["screw_speed_rad_s"][tail], c["carrier_speed_rad_s"][tail]
     moving = np.abs(w_s) > 1e-9
     out = {
