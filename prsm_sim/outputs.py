@@ -207,5 +207,42 @@ class Trajectory:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[name]
 
+    def __repr__(self) -> str:
+        n = len(self)
+        span = f"{self.columns['time_s'][0]:.6g}–{self.columns['time_s'][-1]:.6g} s" if n else "empty"
+        return (f"Trajectory({n} steps, {span}, {len(self.columns)} scalar columns, "
+                f"internal {n}×{self.layout.size} in blocks {[b.name for b in self.layout.blocks]})")
+
+    def keys(self) -> list[str]:
+        """The scalar column names, in OUTPUT_FIELDS order (units: `OUTPUT_FIELDS`)."""
+        return list(self.columns)
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Simulation time at the end of each step, s."""
+        return self.columns["time_s"]
+
+    def internal_block(self, name: str) -> np.ndarray:
+        """One internal-load block over the run: shape (steps, *block.shape), labelled by `layout`."""
+        at = self.layout.offsets()[name]
+        b = next(b for b in self.layout.blocks if b.name == name)
+        return self.internal[:, at:at + b.size].reshape(len(self), *b.shape)
+
+    def to_dataframe(self, internal: bool = False):
+        """The scalar columns as a pandas DataFrame indexed by `time_s` (pandas is optional).
+
+        With `internal=True` every internal-load element is added as a column named by its
+        label (e.g. ``per_roller[2].screw_normal_force_n [N]``).
+        """
+        try:
+            import pandas as pd
+        except ImportError as e:  # optional dependency: say how to get it
+            raise ImportError("Trajectory.to_dataframe needs pandas: pip install pandas "
+                              "(or the 'sweep' extra)") from e
+        data = {k: v for k, v in self.columns.items() if k != "time_s"}
+        if internal and self.layout.size:
+            data.update(zip(self.layout.labels(), self.internal.T))
+        return pd.DataFrame(data, index=pd.Index(self.columns["time_s"], name="time_s"))
+
     def row(self, k: int) -> Outputs:
         return Outputs(**{n: float(self.columns[n][k]) for n, _ in OUTPUT_FIELDS}, internal=self.internal[k])

@@ -12,9 +12,7 @@ import math
 from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from typing import Any
 
-
-class ParamError(ValueError):
-    """A parameter value, name or file was refused; the message says which and what is allowed."""
+from prsm_sim.errors import ParamError
 
 
 def _check(group: str, name: str, value: Any, ok: bool, allowed: str) -> None:

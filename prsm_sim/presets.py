@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .params import Friction, Geometry, Loads, MassProperties, ParamError, Params
+from prsm_sim.params import Friction, Geometry, Loads, MassProperties, ParamError, Params
 
 
 def _jones2016() -> Params:

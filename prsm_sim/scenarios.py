@@ -14,12 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model_base import efficiency, trajectory_from_rows
-from .model_ideal import reflected_inertia
-from .model_jones2016 import steady_state
-from .outputs import Trajectory
-from .params import Params
-from .simulator import Simulator
+from prsm_sim.models.base import efficiency, trajectory_from_rows
+from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.models.jones2016 import steady_state
+from prsm_sim.outputs import Trajectory
+from prsm_sim.params import Params
+from prsm_sim.simulator import Simulator
 
 SCENARIOS = ("step", "ramp", "sine", "heavy", "light", "sine-motion")
 HEAVY_LOAD_N = 20_000.0  # Fu 2018 heavy-load case, MODEL.md §4.2 ("e.g. 20 kN")

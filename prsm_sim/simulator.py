@@ -14,12 +14,13 @@ import math
 
 import numpy as np
 
-from .model_base import Model
-from .model_fu2018 import Fu2018
-from .model_ideal import Ideal
-from .model_jones2016 import Jones2016
-from .outputs import Outputs, State, Trajectory
-from .params import Params
+from prsm_sim.errors import InputError
+from prsm_sim.models.base import Model
+from prsm_sim.models.fu2018 import Fu2018
+from prsm_sim.models.ideal import Ideal
+from prsm_sim.models.jones2016 import Jones2016
+from prsm_sim.outputs import Outputs, State, Trajectory
+from prsm_sim.params import Params
 
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018}
 
@@ -65,7 +66,7 @@ class Simulator:
         """One step; a non-finite input is refused (ValueError) and the state is left unchanged."""
         for name, v in (("torque_nm", torque_nm), ("load_n", load_n)):
             if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v):
-                raise ValueError(f"{name} = {v!r}: inputs must be finite numbers")
+                raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
         self.state, out = self.model.step(self.state, torque_nm, load_n)
         self.nstep += 1
         return out

@@ -20,10 +20,10 @@ import pytest
 
 from prsm_sim import MODELS, Simulator, preset
 from prsm_sim.scenarios import default_spec, run_scenario
-from prsm_ros.bag_cli import main
-from prsm_ros.bag_reader import open_bag
-from prsm_ros.make_bags import pd_tracking
-from prsm_ros.offline_record import write_trajectory_mcap
+from prsm_ros.bag.cli import main
+from prsm_ros.bag.reader import open_bag
+from prsm_ros.cli.make_bags import pd_tracking
+from prsm_ros.mcap.offline import write_trajectory_mcap
 
 MODEL = "fu2018" if "fu2018" in MODELS else "jones2016"
 ROOT = Path(__file__).resolve().parent.parent
@@ -211,7 +211,7 @@ def test_bad_files_and_arguments_get_one_clear_line_and_exit_1(tracking, tmp_pat
     from rclpy.qos import QoSProfile
     from rosgraph_msgs.msg import Clock
 
-    from prsm_ros.recorder import McapRecorder
+    from prsm_ros.mcap.recorder import McapRecorder
     with McapRecorder(clock_only) as rec:
         rec.add_channel("/clock", Clock, QoSProfile(depth=1))
         rec.write("/clock", Clock(), 0)
@@ -290,7 +290,7 @@ def test_play_republishes_the_bag_over_dds_with_clock(tracking):
                            text=True, env=ENV)
     try:
         assert sub.stdout.readline().strip() == "ready"
-        res = subprocess.run([sys.executable, "-m", "prsm_ros.bag_cli", "play", str(path), "--rate", "2",
+        res = subprocess.run([sys.executable, "-m", "prsm_ros.bag.cli", "play", str(path), "--rate", "2",
                               "--end", "0.2", "--delay", "0.5", "--wait-for-subscribers", "-t", "/joint_states",
                               "-t", "/prsm_actuator/internal_loads/labels"],
                              capture_output=True, text=True, env=ENV, timeout=60)
@@ -311,18 +311,18 @@ def test_play_republishes_the_bag_over_dds_with_clock(tracking):
 
 def test_example_bags_are_readable_and_current(tmp_path):
     """bags/ hold the four examples; the step response regenerates to the same values (golden data)."""
-    from prsm_ros.make_bags import make
+    from prsm_ros.cli.make_bags import make
     bags = {p.stem: open_bag(p) for p in sorted((ROOT / "bags").glob("*.mcap"))}
     assert set(bags) == {"step_response", "sine_tracking", "heavy_load", "light_load"}
     assert sum(b.path.stat().st_size for b in bags.values()) < 8e6
     for name, bag in bags.items():
         assert bag.complete and bag.topics["/joint_states"].count >= 500
         if "prsm_example" in bag.metadata:  # written offline
-            assert bag.metadata["prsm_example"]["made_by"] == "python -m prsm_ros.make_bags"
+            assert bag.metadata["prsm_example"]["made_by"] == "python -m prsm_ros.cli.make_bags"
         else:  # recorded by the node in a prsm-demo run
             assert "time_mode: lockstep" in bag.run_metadata["node_parameters_yaml"]
     assert bags["sine_tracking"].topics["/prsm_actuator/nut_position_reference"].count > 0
     fresh = open_bag(make(tmp_path, bags["step_response"].run_metadata["model"], progress=False, only=("step_response",))[0])
     old = [m.msg.position[1] for m in bags["step_response"].messages(["/joint_states"])]
     new = [m.msg.position[1] for m in fresh.messages(["/joint_states"])]
-    assert np.allclose(old, new, rtol=1e-9, atol=0), "bags/ are stale: regenerate with python -m prsm_ros.make_bags"
+    assert np.allclose(old, new, rtol=1e-9, atol=0), "bags/ are stale: regenerate with python -m prsm_ros.cli.make_bags"

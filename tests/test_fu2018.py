@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, preset
-from prsm_sim.contact import solve_contact
-from prsm_sim.model_fu2018 import Fu2018, load_distribution
-from prsm_sim.model_jones2016 import mass_matrix, steady_state
+from prsm_sim.physics.contact import solve_contact
+from prsm_sim.models.fu2018 import Fu2018, load_distribution
+from prsm_sim.models.jones2016 import mass_matrix, steady_state
 from prsm_sim.scenarios import default_spec, run_scenario, summarise
 
 ONLY_SCREW_ROLLER = {"friction.mu_nut_roller_rolling": 0.0, "friction.mu_pin": 0.0,

@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from prsm_sim import Simulator, preset
-from prsm_sim.model_jones2016 import Jones2016, input_matrix, mass_matrix, steady_state
+from prsm_sim.models.jones2016 import Jones2016, input_matrix, mass_matrix, steady_state
 
 
 def test_steady_ratio_is_the_seeds_2669_with_exact_contact():

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, preset
-from prsm_sim.contact import contact_for, predicted_screw_offset_rad, solve_contact
-from prsm_sim.kinematics import (ideal_carrier_ratio, ideal_speed_ratio, roller_axial_velocity_z, roller_spin,
+from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad, solve_contact
+from prsm_sim.physics.kinematics import (ideal_carrier_ratio, ideal_speed_ratio, roller_axial_velocity_z, roller_spin,
                                  sliding_velocity)
 
 PRESETS = ("jones2016", "s30")

@@ -15,7 +15,7 @@ import pytest
 
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
-from prsm_ros.demo_controller import PositionController, reference  # noqa: E402
+from prsm_ros.cli.demo_controller import PositionController, reference  # noqa: E402
 from ros_procs import ros_test_env  # noqa: E402
 
 ENV = ros_test_env("test_node_demo")

@@ -12,7 +12,7 @@ import pytest
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from prsm_sim import Simulator, preset  # noqa: E402
-from prsm_ros.node_params import NodeConfig, params_template  # noqa: E402
+from prsm_ros.node.parameters import NodeConfig, params_template  # noqa: E402
 from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402
 
 ENV = ros_test_env("test_node_params")

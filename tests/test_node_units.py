@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from prsm_sim import MODELS, OUTPUT_FIELDS, Simulator, preset
-from prsm_ros.command_gate import CommandGate
-from prsm_ros.node_params import ConfigError, NodeConfig, runtime_change
-from prsm_ros.stepping import DeadlinePacer, SimStepper, every_n_steps
+from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.node.parameters import ConfigError, NodeConfig, runtime_change
+from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps
 
 
 def test_gate_rejects_non_finite_keeps_last_and_saturates():

@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, preset
-from prsm_ros import mcap_schema
-from prsm_ros.bag_reader import open_bag, scan_records
+from prsm_ros.mcap import schema as mcap_schema
+from prsm_ros.bag.reader import open_bag, scan_records
 from prsm_ros.messages import TOPICS, MessageMapper, STEP_TOPICS, time_ns
-from prsm_ros.offline_record import write_trajectory_mcap
-from prsm_ros.recorder import McapRecorder, run_metadata
+from prsm_ros.mcap.offline import write_trajectory_mcap
+from prsm_ros.mcap.recorder import McapRecorder, run_metadata
 
 RERUN = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
 CHILD_ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1"}
@@ -247,7 +247,7 @@ _WRITER = """
     from std_msgs.msg import Float64
     from sensor_msgs.msg import JointState
     from rclpy.qos import QoSProfile
-    from prsm_ros.recorder import McapRecorder
+    from prsm_ros.mcap.recorder import McapRecorder
     path, steps = sys.argv[1], int(sys.argv[2])
     rec = McapRecorder(path, flush_interval_s=0.05, chunk_size=1 << 20)
     rec.add_channel("/value", Float64, QoSProfile(depth=10))
@@ -313,7 +313,7 @@ def test_sigkill_leaves_a_file_readable_up_to_its_last_complete_chunk(tmp_path):
     assert [m.msg.position[0] for m in bag.messages(["/joint_states"])] == [k * 0.5 for k in range(n)]
 
     # 3) prsm-bag handles it with a note, not a traceback
-    res = subprocess.run([sys.executable, "-m", "prsm_ros.bag_cli", "info", str(path)], capture_output=True,
+    res = subprocess.run([sys.executable, "-m", "prsm_ros.bag.cli", "info", str(path)], capture_output=True,
                          text=True, timeout=60, env=CHILD_ENV)
     assert res.returncode == 0 and "UNFINISHED" in res.stdout and "Traceback" not in res.stderr
     assert f"{n} message" in res.stdout or str(bag.topics["/value"].count) in res.stdout

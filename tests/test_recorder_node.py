@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from prsm_ros.bag_cli import main as bag_main
-from prsm_ros.bag_reader import open_bag
+from prsm_ros.bag.cli import main as bag_main
+from prsm_ros.bag.reader import open_bag
 
 BIN = Path(sys.executable).parent
 RERUN = shutil.which("rerun") or str(BIN / "rerun")

@@ -1,4 +1,4 @@
-"""bag_to_rrd on real MCAP files: ours (prsm_ros.offline_record, the node's message mapping), a
+"""bag_to_rrd on real MCAP files: ours (prsm_ros.mcap.offline, the node's message mapping), a
 third-party rosbag2 bag written by rosbags with joint states only, an unfinished recording and
 bags that cannot be converted. The .rrd files are checked with the `rerun` CLI; the values are
 compared with the bag as an independent reader (rosbags) decodes it.
@@ -15,10 +15,10 @@ from test_rerun_support import entities, has_blueprint, rrd_component, rrd_rows,
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
 import rerun as rr  # the test extra installs it; a missing install must fail, not skip
-from prsm_ros.bag_reader import BagError  # noqa: E402
-from prsm_ros.offline_record import write_trajectory_mcap  # noqa: E402
-from prsm_ros.rerun_bag import bag_to_rrd  # noqa: E402
-from prsm_ros.rerun_sink import RerunSink  # noqa: E402
+from prsm_ros.bag.reader import BagError  # noqa: E402
+from prsm_ros.mcap.offline import write_trajectory_mcap  # noqa: E402
+from prsm_ros.viz.from_bag import bag_to_rrd  # noqa: E402
+from prsm_ros.viz.sink import RerunSink  # noqa: E402
 
 N = 1200
 RATE_HZ = 30.0
@@ -196,7 +196,7 @@ def test_bag_without_joint_states_or_internal_loads_is_refused(tmp_path):
 def test_a_bag_that_breaks_half_way_leaves_no_partial_rrd(tmp_path):
     """Labels that do not describe the rows (a jones2016 labels beside fu2018 rows): one clear error, no output."""
     from prsm_ros.messages import TOPICS, MessageMapper, time_ns
-    from prsm_ros.recorder import McapFile
+    from prsm_ros.mcap.recorder import McapFile
 
     params = preset("s30")
     traj = Simulator(params, "fu2018", 1e-3).run(np.full(50, 1.0), 100.0)

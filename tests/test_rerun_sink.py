@@ -20,14 +20,14 @@ import numpy as np
 import pytest
 
 from prsm_sim import OUTPUT_FIELDS, Simulator, preset
-from prsm_sim.contact import contact_for
+from prsm_sim.physics.contact import contact_for
 
 from test_rerun_support import RERUN_BIN, entities, has_blueprint, rrd_component, rrd_rows, rrd_verify
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
 import rerun as rr  # the test extra installs it; a missing install must fail, not skip
-from prsm_ros.rerun_scene import arrow_length_m  # noqa: E402
-from prsm_ros.rerun_sink import RerunSink  # noqa: E402
+from prsm_ros.viz.scene import arrow_length_m  # noqa: E402
+from prsm_ros.viz.sink import RerunSink  # noqa: E402
 
 N_STEPS = 1500
 RATE_HZ = 30.0
@@ -205,7 +205,7 @@ def test_full_queue_drops_and_counts(tmp_path):
 def test_a_script_that_never_closes_still_leaves_a_finished_file(tmp_path):
     path = tmp_path / "unclosed.rrd"
     code = ("from prsm_sim import Simulator, preset\n"
-            "from prsm_ros.rerun_sink import RerunSink\n"
+            "from prsm_ros.viz.sink import RerunSink\n"
             "p = preset('jones2016'); sim = Simulator(p, 'jones2016')\n"
             f"s = RerunSink('save', {str(path)!r}, p, sim.layout, 'jones2016')\n"
             "for _ in range(300): s.submit(sim.step(0.1, 10.0))\n")
@@ -219,7 +219,7 @@ def test_a_script_that_never_closes_still_leaves_a_finished_file(tmp_path):
 def test_off_mode_starts_and_imports_nothing():
     code = ("import sys\n"
             "from prsm_sim import Simulator, preset\n"
-            "from prsm_ros.rerun_sink import RerunSink\n"
+            "from prsm_ros.viz.sink import RerunSink\n"
             "p = preset('jones2016'); sim = Simulator(p, 'jones2016')\n"
             "s = RerunSink('off', 'ignored.rrd', p, sim.layout, 'jones2016')\n"
             "s.submit(sim.step(0.1, 10.0)); s.close()\n"

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-CLI = [sys.executable, "-m", "prsm_ros.sim_cli"]
+CLI = [sys.executable, "-m", "prsm_ros.cli.sim"]
 
 
 def run(*args, ok=True):

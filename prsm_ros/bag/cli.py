@@ -1,0 +1,229 @@
+"""`prsm-bag`: inspect, export, report on, replay and convert ROS 2 MCAP recordings.
+
+    prsm-bag info BAG [--json] [--parameters]
+    prsm-bag export BAG -t TOPIC [-t TOPIC ...] -o OUT [--start S] [--end S] [--resample HZ] [--method linear|hold] [--merge]
+    prsm-bag report BAG -o DIR [--json] [--dynamic-load-rating-n N] [--screw-joint NAME] [--nut-joint NAME]
+    prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
+    prsm-bag to-rrd BAG -o FILE.rrd
+
+BAG is an .mcap file (ours or any ROS 2 recorder's) or a rosbag2 directory holding one. Times
+given with --start/--end are seconds from the bag's first message. Progress goes to stderr; a
+bad file or argument gives one line on stderr and exit status 1 (2 for usage errors).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from prsm_ros.bag.reader import BagError, open_bag
+from prsm_ros.cli.json_out import dumps
+
+EXIT_ERROR = 1
+
+
+def _print_json(obj) -> None:
+    print(dumps(obj))
+
+
+def info_dict(bag) -> dict:
+    start, end = bag.start_ns, bag.end_ns
+    return {
+        "path": str(bag.path), "size_bytes": bag.path.stat().st_size, "complete": bag.complete, "note": bag.note,
+        "profile": bag.profile, "library": bag.library, "messages": bag.message_count,
+        "start_s": None if start is None else start * 1e-9, "end_s": None if end is None else end * 1e-9,
+        "duration_s": None if start is None else (end - start) * 1e-9,
+        "run": {k: v for k, v in bag.run_metadata.items() if not k.endswith("_yaml")},
+        "metadata_records": sorted(bag.metadata),
+        "topics": [{"topic": t.topic, "type": t.type, "count": t.count, "rate_hz": t.rate_hz,
+                    "first_s": None if t.first_ns is None else t.first_ns * 1e-9,
+                    "last_s": None if t.last_ns is None else t.last_ns * 1e-9,
+                    "encoding": f"{t.schema_encoding}/{t.message_encoding}"} for t in bag.topics.values()],
+    }
+
+
+def _cmd_info(args) -> int:
+    bag = open_bag(args.bag)
+    d = info_dict(bag)
+    if args.parameters:
+        d["parameters_yaml"] = bag.run_metadata.get("parameters_yaml")
+        d["node_parameters_yaml"] = bag.run_metadata.get("node_parameters_yaml")
+    if args.json:
+        _print_json(d)
+        return 0
+    print(f"file:      {d['path']} ({d['size_bytes'] / 1e6:.2f} MB){'' if d['complete'] else '  UNFINISHED'}")
+    if d["note"]:
+        print(f"note:      {d['note']}")
+    print(f"profile:   {d['profile'] or '(none)'}   library: {d['library'] or '(none)'}")
+    if d["duration_s"] is not None:
+        print(f"time:      {d['start_s']:.6f} s → {d['end_s']:.6f} s (duration {d['duration_s']:.3f} s)")
+    print(f"messages:  {d['messages']}")
+    if d["run"]:
+        print("run:       " + ", ".join(f"{k}={v}" for k, v in d["run"].items()))
+    else:
+        print("run:       no prsm_run metadata (recorded elsewhere)")
+    print(f"metadata:  {', '.join(d['metadata_records']) or '(none)'}")
+    width = max((len(t["topic"]) for t in d["topics"]), default=5)
+    twidth = max((len(t["type"]) for t in d["topics"]), default=4)
+    print(f"\n{'topic':<{width}}  {'type':<{twidth}}  {'count':>8}  {'rate':>10}")
+    for t in sorted(d["topics"], key=lambda t: t["topic"]):
+        rate = f"{t['rate_hz']:.1f} Hz" if t["rate_hz"] else "-"
+        print(f"{t['topic']:<{width}}  {t['type']:<{twidth}}  {t['count']:>8}  {rate:>10}")
+    if args.parameters:
+        print("\nparameters:\n" + (d["parameters_yaml"] or "(none recorded)"))
+        if d["node_parameters_yaml"]:
+            print("node parameters:\n" + d["node_parameters_yaml"])
+    return 0
+
+
+def _note(bag) -> None:
+    if bag.note:
+        print(f"prsm-bag: note: {bag.note}", file=sys.stderr)
+
+
+def _cmd_export(args) -> int:
+    from prsm_ros.bag.export import export
+    bag = open_bag(args.bag)
+    _note(bag)
+    paths = export(bag, args.topic or [], args.output, start_s=args.start, end_s=args.end,
+                   resample_hz=args.resample, method=args.method, merge=args.merge)
+    for p in paths:
+        print(p)
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from prsm_ros.bag.report import report, summary_text
+    bag = open_bag(args.bag)
+    _note(bag)
+    topics = {"joint_states": args.joint_states_topic, "reference": args.reference_topic,
+              "internal_loads": args.internal_loads_topic}
+    r = report(bag, args.output, dynamic_load_rating_n=args.dynamic_load_rating_n,
+               screw_joint=args.screw_joint, nut_joint=args.nut_joint, topics=topics, plots=not args.no_plots)
+    from pathlib import Path
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "report.json").write_text(dumps(r), encoding="utf-8")
+    if args.json:
+        _print_json(r)
+    else:
+        print(summary_text(r))
+    return 0
+
+
+def _cmd_play(args) -> int:
+    from prsm_ros.bag.play import play
+    bag = open_bag(args.bag)
+    _note(bag)
+    r = play(bag, rate=args.rate, start_s=args.start, end_s=args.end, topics=args.topic,
+             clock=not args.no_clock, delay_s=args.delay, wait_for_subscribers=args.wait_for_subscribers)
+    for topic, n in r["published"].items():
+        print(f"{topic}: {n}")
+    for topic, ty in r["skipped"].items():
+        print(f"skipped {topic} ({ty}: message package not installed)", file=sys.stderr)
+    print(f"played in {r['wall_time_s']:.3f} s wall time at rate {r['rate']}")
+    return 0
+
+
+def _cmd_to_rrd(args) -> int:
+    bag = open_bag(args.bag)  # one clear message for a bad file before Rerun is involved
+    _note(bag)
+    try:
+        from prsm_ros.viz.from_bag import bag_to_rrd
+    except ImportError as e:
+        raise BagError(f"to-rrd needs prsm_ros.viz.from_bag and the Rerun SDK (pip install 'prsm[rerun]'): {e}") from None
+    try:
+        summary = bag_to_rrd(bag.path, args.output)
+    except (ValueError, LookupError) as e:
+        raise BagError(f"{bag.path.name}: {e}") from None
+    print(args.output)
+    if isinstance(summary, dict):
+        for k, v in summary.items():
+            print(f"  {k}: {v}")
+    return 0
+
+
+def _range_args(p) -> None:
+    p.add_argument("--start", type=float, metavar="S", help="start, seconds from the bag's first message")
+    p.add_argument("--end", type=float, metavar="S", help="end, seconds from the bag's first message")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
+    ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
+                                 "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{info,export,report,play,to-rrd}")
+
+    p = sub.add_parser("info", help="topics, counts, rates, duration, run metadata")
+    p.add_argument("bag")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--parameters", action="store_true", help="also print the recorded parameter set (YAML)")
+    p.set_defaults(func=_cmd_info)
+
+    p = sub.add_parser("export", help="topics to CSV (one column per field, time in seconds)")
+    p.add_argument("bag")
+    p.add_argument("-t", "--topic", action="append", help="topic to export (repeat for several)")
+    p.add_argument("-o", "--output", required=True, help="a .csv file (one topic, or --merge) or a directory")
+    _range_args(p)
+    p.add_argument("--resample", type=float, metavar="HZ", help="interpolate numeric columns onto a uniform grid")
+    p.add_argument("--method", choices=("linear", "hold"), default="linear",
+                   help="resampling: linear interpolation or zero-order hold (default linear)")
+    p.add_argument("--merge", action="store_true", help="all topics in one CSV on the resampled grid")
+    p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("report", help="metrics and PNG plots into a folder, summary on stdout")
+    p.add_argument("bag")
+    p.add_argument("-o", "--output", required=True, help="folder for the plots and report.json")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.add_argument("--dynamic-load-rating-n", type=float, default=DEFAULT_DYNAMIC_LOAD_RATING_N, metavar="N",
+                   help=f"dynamic axial load rating C_a for the L10 life (default {DEFAULT_DYNAMIC_LOAD_RATING_N:g} N, "
+                        "a catalogue value for a ~30 mm × 5 mm lead roller screw; give your screw's)")
+    p.add_argument("--screw-joint", default="screw_joint", help="JointState name of the screw (default screw_joint)")
+    p.add_argument("--nut-joint", default="nut_joint", help="JointState name of the nut (default nut_joint)")
+    p.add_argument("--joint-states-topic", help="JointState topic (default: /joint_states or the only one)")
+    p.add_argument("--reference-topic", help="Float64 nut position reference (default: .../nut_position_reference)")
+    p.add_argument("--internal-loads-topic", help="Float64MultiArray internal loads (default: .../internal_loads)")
+    p.add_argument("--no-plots", action="store_true", help="metrics only")
+    p.set_defaults(func=_cmd_report)
+
+    p = sub.add_parser("play", help="republish onto ROS topics at a rate factor, with /clock")
+    p.add_argument("bag")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1 = real time)")
+    _range_args(p)
+    p.add_argument("-t", "--topic", action="append", help="topic to play (repeat; default all)")
+    p.add_argument("--no-clock", action="store_true", help="do not publish /clock from the bag time")
+    p.add_argument("--delay", type=float, default=0.5, metavar="S",
+                   help="wait after creating publishers, for discovery (default 0.5 s)")
+    p.add_argument("--wait-for-subscribers", action="store_true",
+                   help="then wait (up to 30 s) until every played topic has a subscriber")
+    p.set_defaults(func=_cmd_play)
+
+    p = sub.add_parser("to-rrd", help="convert to a Rerun .rrd recording")
+    p.add_argument("bag")
+    p.add_argument("-o", "--output", required=True, help="the .rrd file to write")
+    p.set_defaults(func=_cmd_to_rrd)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except BagError as e:
+        print(f"prsm-bag {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    except BrokenPipeError:  # stdout closed early (`prsm-bag info BAG | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except OSError as e:
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"prsm-bag {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"prsm-bag {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

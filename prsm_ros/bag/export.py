@@ -1,0 +1,255 @@
+"""`prsm-bag export`: chosen topics to CSV, one column per field, time in seconds.
+
+Columns: `time_s` (the message's log time in s; simulation time for our bags) then every field
+of the message flattened to a dotted name: JointState arrays by joint (`screw_joint.position`),
+`~/internal_loads` by the labels its latched labels topic gives (`screw_speed_rad_s`,
+`per_roller[3].screw_slip_axial_m_s`), stamps (`builtin_interfaces/Time`) as seconds, other arrays
+by index (`data[2]`). With `resample_hz` every numeric column is interpolated onto a uniform grid
+(linear, or `hold` = zero-order hold, the right choice for commands); text columns are dropped
+then. Time ranges are given in seconds from the bag's first message.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from prsm_ros.bag.reader import Bag, BagError, resolve_topics
+
+
+def _is_time(obj) -> bool:
+    return hasattr(obj, "sec") and hasattr(obj, "nanosec") and len(getattr(obj, "__slots__", ())) == 2
+
+
+def _fields(obj) -> list[str]:
+    return list(getattr(obj, "__slots__", ()))
+
+
+def flatten(obj, prefix: str, names: list[str], values: list) -> None:
+    """Append the dotted names and values of a decoded message's leaves to `names` / `values`."""
+    if _is_time(obj):
+        names.append(prefix)
+        values.append(obj.sec + obj.nanosec * 1e-9)
+        return
+    keys = _fields(obj)
+    if keys and keys[:4] == ["header", "name", "position", "velocity"]:  # sensor_msgs/JointState
+        flatten(obj.header, f"{prefix}header.", names, values)
+        for i, joint in enumerate(obj.name):
+            for attr in ("position", "velocity", "effort"):
+                arr = getattr(obj, attr)
+                if i < len(arr):
+                    names.append(f"{prefix}{joint}.{attr}")
+                    values.append(arr[i])
+        return
+    for key in keys:
+        if key == "layout" and "data" in keys:  # MultiArray layout: description, not data
+            continue
+        v = getattr(obj, key)
+        name = f"{prefix}{key}"
+        if isinstance(v, (list, tuple, np.ndarray)) or type(v).__name__ == "array":
+            for i, item in enumerate(v):
+                if _fields(item):
+                    flatten(item, f"{name}[{i}].", names, values)
+                else:
+                    names.append(f"{name}[{i}]")
+                    values.append(item)
+        elif _fields(v):
+            if _is_time(v):
+                flatten(v, name, names, values)
+            else:
+                flatten(v, f"{name}.", names, values)
+        else:
+            names.append(name)
+            values.append(v)
+
+
+class Table:
+    """Columns of one topic: `time_s` then fields, rows as lists (the union of columns if they vary)."""
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.columns: list[str] = ["time_s"]
+        self._index: dict[str, int] = {"time_s": 0}
+        self.rows: list[list] = []
+
+    def add(self, time_s: float, names: list[str], values: list) -> None:
+        if len(names) + 1 == len(self.columns) and self.columns[1:] == names:
+            self.rows.append([time_s, *values])
+            return
+        row = [None] * len(self.columns)
+        row[0] = time_s
+        for n, v in zip(names, values):
+            k = self._index.get(n)
+            if k is None:
+                k = self._index[n] = len(self.columns)
+                self.columns.append(n)
+                row.append(None)
+            row[k] = v
+        self.rows.append(row)
+
+    def numeric(self) -> tuple[list[str], np.ndarray]:
+        """Numeric columns (time first) as a float array; missing values are NaN, text columns dropped."""
+        width = len(self.columns)
+        keep = []
+        for k in range(width):
+            sample = next((r[k] for r in self.rows if k < len(r) and r[k] is not None), None)
+            if sample is None or isinstance(sample, (int, float, bool, np.number)):
+                keep.append(k)
+        data = np.full((len(self.rows), len(keep)), np.nan)
+        for i, r in enumerate(self.rows):
+            for j, k in enumerate(keep):
+                if k < len(r) and r[k] is not None:
+                    data[i, j] = float(r[k])
+        return [self.columns[k] for k in keep], data
+
+
+def _labels_for(bag: Bag, roles: dict) -> list[str] | None:
+    """Element labels of ~/internal_loads from its latched labels topic, None when unavailable."""
+    if not roles.get("labels"):
+        return None
+    from prsm_ros.messages import parse_labels
+    for m in bag.messages([roles["labels"]]):
+        try:
+            return [el["label"] for el in parse_labels(m.msg.data)["elements"]]
+        except (ValueError, KeyError, AttributeError):
+            return None
+    return None
+
+
+def read_table(bag: Bag, topic: str, start_ns: int | None = None, end_ns: int | None = None, *,
+               labels: list[str] | None = None, progress: bool = True) -> Table:
+    """Decode `topic` into a Table; `labels` names the elements of a Float64MultiArray's data."""
+    table = Table(topic)
+    cached: tuple[int, list[str]] | None = None
+    for m in bag.messages([topic], start_ns, end_ns, progress=progress, desc=topic):
+        if m.msg is None:
+            raise BagError(f"{bag.path.name}: topic {topic} ({m.type or 'no schema'}) cannot be decoded "
+                           f"(needs a ros2msg schema and cdr encoding)")
+        data = getattr(m.msg, "data", None)
+        if labels is not None and isinstance(data, list) and len(data) == len(labels):
+            if cached is None or cached[0] != len(data):
+                cached = (len(data), list(labels))
+            table.add(m.log_time_ns * 1e-9, cached[1], data)
+            continue
+        names: list[str] = []
+        values: list = []
+        flatten(m.msg, "", names, values)
+        table.add(m.log_time_ns * 1e-9, names, values)
+    return table
+
+
+def resample(names: list[str], data: np.ndarray, hz: float, method: str = "linear",
+             t0: float | None = None, t1: float | None = None) -> np.ndarray:
+    """Numeric table (time in column 0) on a uniform grid at `hz` from t0 to t1 (default: its span)."""
+    if not (math.isfinite(hz) and hz > 0):
+        raise BagError(f"--resample {hz!r}: must be a rate in Hz > 0")
+    if method not in ("linear", "hold"):
+        raise BagError(f"--method {method!r}: must be linear or hold")
+    t = data[:, 0]
+    if t.size == 0:
+        return np.empty((0, len(names)))
+    t0 = t[0] if t0 is None else t0
+    t1 = t[-1] if t1 is None else t1
+    grid = t0 + np.arange(int(math.floor((t1 - t0) * hz + 1e-9)) + 1) / hz
+    out = np.empty((grid.size, len(names)))
+    out[:, 0] = grid
+    if method == "hold":
+        k = np.searchsorted(t, grid, side="right") - 1
+        valid = k >= 0
+        out[:, 1:] = np.nan
+        out[valid, 1:] = data[k[valid], 1:]
+    else:
+        for j in range(1, len(names)):
+            col = data[:, j]
+            ok = np.isfinite(col)
+            out[:, j] = np.interp(grid, t[ok], col[ok], left=np.nan, right=np.nan) if ok.any() else np.nan
+    return out
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+    return str(v)
+
+
+def write_csv(path: Path, columns: list[str], rows) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(columns)
+        for r in rows:
+            w.writerow([_fmt(v) for v in r] + [""] * (len(columns) - len(r)))
+
+
+def csv_name(topic: str) -> str:
+    """File name for a topic: "/prsm_actuator/nut/wrench" → "prsm_actuator__nut__wrench.csv"."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", topic.strip("/").replace("/", "__")) + ".csv"
+
+
+def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, end_s: float | None = None,
+           resample_hz: float | None = None, method: str = "linear", merge: bool = False,
+           progress: bool = True) -> list[Path]:
+    """Write CSV files; returns their paths.
+
+    `out`: a .csv file for one topic (or with `merge`), else a directory (one file per topic).
+    `merge` puts all topics on one resampled grid, columns prefixed with the topic name.
+    """
+    if not topics:
+        raise BagError("export: name at least one topic with -t/--topic; topics in the bag: "
+                       + ", ".join(sorted(bag.topics)))
+    for t in topics:
+        if t not in bag.topics:
+            raise BagError(f"{bag.path.name}: no topic {t!r}; topics: {', '.join(sorted(bag.topics))}")
+    if merge and resample_hz is None:
+        raise BagError("--merge needs --resample HZ: topics at different times share one grid only after resampling")
+    if start_s is not None and end_s is not None and end_s < start_s:
+        raise BagError(f"--end {end_s} is before --start {start_s}")
+    base = bag.start_ns or 0
+    start_ns = None if start_s is None else base + int(round(start_s * 1e9))
+    end_ns = None if end_s is None else base + int(round(end_s * 1e9))
+    out = Path(out)
+    single_file = out.suffix.lower() == ".csv"
+    if single_file and len(topics) > 1 and not merge:
+        raise BagError(f"{out}: one .csv file holds one topic; give a directory for {len(topics)} topics, or --merge")
+    if not single_file:
+        out.mkdir(parents=True, exist_ok=True)
+    roles = resolve_topics(bag)
+    labels = _labels_for(bag, roles)
+    tables = []
+    for topic in topics:
+        lab = labels if topic == roles.get("internal_loads") else None
+        tables.append(read_table(bag, topic, start_ns, end_ns, labels=lab, progress=progress))
+    t0 = None if start_ns is None else start_ns * 1e-9
+    t1 = None if end_ns is None else end_ns * 1e-9
+    written: list[Path] = []
+    if merge:
+        spans = [tb.rows[0][0] for tb in tables if tb.rows], [tb.rows[-1][0] for tb in tables if tb.rows]
+        if not spans[0]:
+            raise BagError("export: no messages of these topics in the chosen time range")
+        t0 = t0 if t0 is not None else min(spans[0])
+        t1 = t1 if t1 is not None else max(spans[1])
+        columns, blocks = ["time_s"], []
+        for tb in tables:
+            names, data = tb.numeric()
+            res = resample(names, data, resample_hz, method, t0, t1) if len(data) else None
+            grid_len = int(math.floor((t1 - t0) * resample_hz + 1e-9)) + 1
+            blocks.append(res[:, 1:] if res is not None else np.full((grid_len, len(names) - 1), np.nan))
+            columns += [f"{tb.topic}:{n}" for n in names[1:]]
+        grid = t0 + np.arange(blocks[0].shape[0]) / resample_hz
+        path = out if single_file else out / "merged.csv"
+        write_csv(path, columns, np.column_stack([grid, *blocks]).tolist())
+        return [path]
+    for tb in tables:
+        path = out if single_file else out / csv_name(tb.topic)
+        if resample_hz is not None:
+            names, data = tb.numeric()
+            write_csv(path, names, resample(names, data, resample_hz, method, t0, t1).tolist() if len(data) else [])
+        else:
+            write_csv(path, tb.columns, tb.rows)
+        written.append(path)
+    return written

@@ -1,0 +1,117 @@
+"""`prsm-bag play`: republish a bag's messages onto ROS topics in real time × a rate factor.
+
+Messages go out as recorded (the CDR bytes, no decoding) on publishers with each channel's
+recorded QoS (`offered_qos_profiles`; latched topics stay latched), paced on absolute deadlines
+from the bag's log times. `/clock` carries the bag time: a recorded `/clock` topic is played like
+any other; when it is not played (absent, or not selected), a Clock with the current bag time is
+published before each new log time
+(the simulator's convention: the bag time is the simulation time), so nodes with
+use_sim_time follow the playback. Types must be importable (`pkg.msg`); topics of other types
+are skipped and reported.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+
+from prsm_ros.mcap import schema as mcap_schema
+from prsm_ros.bag.reader import Bag, BagError
+
+
+WAIT_FOR_SUBSCRIBERS_S = 30.0
+
+
+def _wait_for_subscribers(pubs: dict, context, timeout_s: float) -> None:
+    import rclpy
+    end = time.monotonic() + timeout_s
+    missing = list(pubs)
+    while time.monotonic() < end and rclpy.ok(context=context):
+        missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        if not missing:
+            return
+        time.sleep(0.02)
+    raise BagError(f"no subscriber appeared within {timeout_s:g} s on {', '.join(missing)} "
+                   "(drop --wait-for-subscribers to play regardless)")
+
+
+def message_class(type_name: str):
+    """The rclpy message class of `pkg/msg/Type`, or None when the package is not installed."""
+    parts = type_name.split("/")
+    if len(parts) != 3 or parts[1] != "msg":
+        return None
+    try:
+        return getattr(importlib.import_module(f"{parts[0]}.msg"), parts[2])
+    except (ImportError, AttributeError):
+        return None
+
+
+def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: float | None = None,
+         topics: list[str] | None = None, clock: bool = True, delay_s: float = 0.5,
+         wait_for_subscribers: bool = False, progress: bool = True, node_name: str = "prsm_bag_play") -> dict:
+    """Publish the selection; returns counts per topic, skipped topics and the wall time taken.
+
+    `delay_s`: pause after creating the publishers (discovery). `wait_for_subscribers`: then also
+    wait, up to WAIT_FOR_SUBSCRIBERS_S, until every played topic has a matched subscription.
+    """
+    if not (rate > 0 and rate < float("inf")):
+        raise BagError(f"--rate {rate!r}: must be a number > 0 (1 = real time)")
+    if delay_s < 0:
+        raise BagError(f"--delay {delay_s!r}: must be >= 0 s")
+    selected = list(topics) if topics else sorted(bag.topics)
+    for t in selected:
+        if t not in bag.topics:
+            raise BagError(f"{bag.path.name}: no topic {t!r}; topics: {', '.join(sorted(bag.topics))}")
+    base = bag.start_ns or 0
+    start_ns = None if start_s is None else base + int(round(start_s * 1e9))
+    end_ns = None if end_s is None else base + int(round(end_s * 1e9))
+
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+
+    classes = {t: message_class(bag.topics[t].type) for t in selected}
+    skipped = {t: bag.topics[t].type for t, c in classes.items() if c is None}
+    playable = [t for t in selected if classes[t] is not None]
+    if not playable:
+        raise BagError(f"{bag.path.name}: none of the selected topics has an installed message type "
+                       f"({', '.join(f'{t} ({ty})' for t, ty in skipped.items())})")
+    synth_clock = clock and "/clock" not in playable
+    counts = {t: 0 for t in playable}
+    clock_count = 0
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node(node_name, context=context)
+        pubs = {t: node.create_publisher(classes[t], t, mcap_schema.qos_from_yaml(bag.topics[t].qos_yaml))
+                for t in playable}
+        clock_pub = node.create_publisher(Clock, "/clock", 10) if synth_clock else None
+        time.sleep(delay_s)  # let subscribers discover the new publishers before the first message
+        if wait_for_subscribers:
+            _wait_for_subscribers(pubs, context, WAIT_FOR_SUBSCRIBERS_S)
+        wall0 = None
+        t_first = None
+        last_clock = None
+        for m in bag.messages(playable, start_ns, end_ns, decode=False, progress=progress, desc="playing"):
+            if t_first is None:
+                t_first, wall0 = m.log_time_ns, time.monotonic()
+            due = wall0 + (m.log_time_ns - t_first) * 1e-9 / rate
+            wait = due - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            if clock_pub is not None and m.log_time_ns != last_clock:
+                sec, nsec = divmod(m.log_time_ns, 1_000_000_000)
+                c = Clock()
+                c.clock.sec, c.clock.nanosec = sec, nsec
+                clock_pub.publish(c)
+                clock_count += 1
+                last_clock = m.log_time_ns
+            pubs[m.topic].publish(m.data)
+            counts[m.topic] += 1
+        wall = time.monotonic() - wall0 if wall0 is not None else 0.0
+        time.sleep(min(delay_s, 0.5))  # reliable writers: give the last samples time to be delivered
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    if clock_pub is not None:
+        counts["/clock (from bag time)"] = clock_count
+    return {"published": counts, "skipped": skipped, "wall_time_s": wall, "rate": rate}

@@ -1,0 +1,1 @@
+"""`prsm-bench`: performance figures beside their targets, one module per area."""

@@ -1,0 +1,167 @@
+"""Benchmarks of the MCAP recorder: throughput, and its cost beside a 1 kHz step loop.
+
+- throughput: messages per second from the first `write` until `close()` returns (serialization,
+  chunking, zstd, indexes, summary), for the node's per-step topics of a real run (joint states,
+  wrench, internal loads of the model's layout, /clock, the torque command);
+- CPU at 1 kHz: a loop paced on absolute 1 ms deadlines that maps each step's outputs to the
+  messages (as the node does) and records them, against the same loop without recording; the
+  difference in process CPU time per wall second is the recorder's cost (% of one core), and the
+  loop's lateness percentiles show whether the writer thread disturbs the step loop.
+
+Figures are printed, never asserted (`prsm-bench` aggregates them).
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from prsm_ros.bench.core import figure
+
+THROUGHPUT_TARGET = 50_000.0  # messages/s (issue 5)
+
+
+def _run_outputs(model: str, steps: int):
+    from prsm_sim import Simulator, preset
+    from prsm_sim.scenarios import default_spec, run_scenario
+    p = preset("s30")
+    sim = Simulator(p, model, 1e-3)
+    traj = run_scenario(sim, default_spec(p, "heavy"), steps * 1e-3)
+    return p, traj
+
+
+def _channels(rec):
+    from std_msgs.msg import Float64
+
+    from prsm_ros.messages import STEP_TOPICS, TOPICS
+    topics = [TOPICS[k].resolved() for k in STEP_TOPICS]
+    for k in STEP_TOPICS:
+        rec.add_channel(TOPICS[k].resolved(), TOPICS[k].msg_class, TOPICS[k].qos)
+    cmd = TOPICS["screw_torque"]
+    rec.add_channel(cmd.resolved(), Float64, cmd.qos)
+    return topics, cmd.resolved()
+
+
+def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, float, int]:
+    """(median messages/s, spread, MB/s of file, messages per run)."""
+    from std_msgs.msg import Float64
+
+    from prsm_ros.messages import MessageMapper, time_ns
+    from prsm_ros.mcap.recorder import McapRecorder
+
+    _, traj = _run_outputs(model, steps)
+    mapper = MessageMapper(traj.layout, model)
+    prepared = []
+    for k in range(len(traj)):
+        out = traj.row(k)
+        prepared.append((time_ns(out.time_s), mapper.messages(out), Float64(data=out.screw_torque_nm)))
+    rates, sizes = [], []
+    n_msgs = 0
+    with tempfile.TemporaryDirectory() as d:
+        for r in range(repeats + 1):  # run 0 warms up (imports, schema files, zstd) and is not counted
+            path = Path(d) / f"t{r}.mcap"
+            rec = McapRecorder(path, queue_size=10 * len(prepared) + 10)
+            topics, cmd_topic = _channels(rec)
+            t0 = time.perf_counter()
+            for stamp, msgs, cmd in prepared:
+                rec.write(cmd_topic, cmd, stamp)
+                for topic, (_, msg) in zip(topics, msgs):
+                    rec.write(topic, msg, stamp)
+            rec.close()
+            wall = time.perf_counter() - t0
+            n_msgs = rec.messages_written
+            if rec.messages_dropped or rec.error:
+                raise RuntimeError(f"benchmark run lost messages: dropped {rec.messages_dropped}, error {rec.error}")
+            if r > 0:
+                rates.append(n_msgs / wall)
+                sizes.append(path.stat().st_size / wall / 1e6)
+    med = statistics.median(rates)
+    return med, (max(rates) - min(rates)) / med, statistics.median(sizes), n_msgs
+
+
+def paced_loop(steps: int, work, period_s: float = 1e-3) -> dict:
+    """Call `work(k)` on absolute deadlines k·period (the node's pacing) and measure the loop.
+
+    Returns process CPU seconds per wall second (all threads: a writer thread counts too) and the
+    lateness of the wake-ups against their deadlines (p50, p99, max in ms).
+    """
+    late = np.empty(steps)
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    for k in range(steps):
+        due = t0 + (k + 1) * period_s
+        now = time.perf_counter()
+        if due > now:
+            time.sleep(due - now)
+        late[k] = time.perf_counter() - due
+        work(k)
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
+    return {"cpu_per_wall": cpu / wall, "late_p50_ms": float(np.percentile(late, 50) * 1e3),
+            "late_p99_ms": float(np.percentile(late, 99) * 1e3), "late_max_ms": float(np.max(late) * 1e3)}
+
+
+def loop_cost(model: str, seconds: float, record: bool) -> dict:
+    """A 1 kHz loop mapping (and optionally recording) each step's messages, as the node does."""
+    from std_msgs.msg import Float64
+
+    from prsm_ros.messages import MessageMapper, time_ns
+    from prsm_ros.mcap.recorder import McapRecorder
+
+    steps = int(seconds * 1000)
+    _, traj = _run_outputs(model, steps)
+    mapper = MessageMapper(traj.layout, model)
+    rows = [traj.row(k) for k in range(len(traj))]
+    with tempfile.TemporaryDirectory() as d:
+        rec = McapRecorder(Path(d) / "loop.mcap") if record else None
+        topics, cmd_topic = _channels(rec) if rec is not None else ([], "")
+
+        def step(k: int) -> None:
+            out = rows[k]
+            msgs = mapper.messages(out)
+            cmd = Float64(data=out.screw_torque_nm)
+            if rec is not None:
+                stamp = time_ns(out.time_s)
+                rec.write(cmd_topic, cmd, stamp)
+                for topic, (_, msg) in zip(topics, msgs):
+                    rec.write(topic, msg, stamp)
+
+        result = paced_loop(steps, step)
+        if rec is not None:
+            rec.close()  # after the measurement: the tail's flush is not part of the steady-state cost
+    result.update(written=rec.messages_written if rec else 0, dropped=rec.messages_dropped if rec else 0)
+    return result
+
+
+def measure(quick: bool = False) -> list[dict]:
+    from prsm_sim import MODELS
+    model = "fu2018" if "fu2018" in MODELS else "jones2016"
+    steps = 2000 if quick else 10_000
+    rate, spread, mb_s, n = throughput(model, steps, 1 if quick else 5)
+    seconds = 1.0 if quick else 10.0
+    base = loop_cost(model, seconds, record=False)
+    rec = loop_cost(model, seconds, record=True)
+    cost = (rec["cpu_per_wall"] - base["cpu_per_wall"]) * 100
+    per_s = rec["written"] / seconds
+    return [
+        figure(f"MCAP recorder throughput ({model} topics, 5 per step)", rate, "msg/s", "≥ 50000",
+               rate >= THROUGHPUT_TARGET, spread, f"{n} messages per run, {mb_s:.1f} MB/s of file, zstd chunks + indexes"),
+        figure("MCAP recorder CPU at 1 kHz, all topics", cost, "% core", "≤ 25", cost <= 25, None,
+               f"{per_s:.0f} msg/s recorded; loop alone {base['cpu_per_wall'] * 100:.1f} % of a core, "
+               f"with recorder {rec['cpu_per_wall'] * 100:.1f} %; dropped {rec['dropped']}"),
+        figure("1 kHz loop lateness p99 with recorder", rec["late_p99_ms"], "ms", "≤ 1", rec["late_p99_ms"] <= 1.0, None,
+               f"without recorder p99 {base['late_p99_ms']:.3f} ms; p50 {rec['late_p50_ms']:.3f} vs {base['late_p50_ms']:.3f} ms; "
+               f"max {rec['late_max_ms']:.2f} vs {base['late_max_ms']:.2f} ms (OS scheduling on a shared machine shows here too)"),
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    from prsm_ros.bench.cli import area_main
+    return area_main("recorder", argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

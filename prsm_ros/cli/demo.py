@@ -1,0 +1,132 @@
+"""`prsm-demo`: the simulated actuator and a position controller, two processes talking over DDS.
+
+    prsm-demo                      # 4 s realtime run, s30 preset, jones2016 model, bag recorded
+    prsm-demo --time-mode lockstep --model fu2018 --duration 2 --record run.mcap
+    prsm-demo --no-record --rerun spawn
+
+It starts `prsm-node` and `python -m prsm_ros.cli.demo_controller` as separate OS processes, lets the
+controller track a smooth nut-position profile through the torque topic for `--duration` seconds
+of simulation time, stops the node with SIGINT, and prints the tracking summary (RMS and maximum
+error, final position, steps, real-time factor) and where the bag is.
+
+Isolation: a ROS_DOMAIN_ID you set is used as it is (so `ros2 topic echo` in another shell sees the
+run); otherwise the demo picks one from its process id and prints it. Discovery stays on this
+machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) unless you set a range yourself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import subprocess
+import sys
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+
+from prsm_ros.ros_env import isolated_env, ros_args, start_module
+
+TIME_MODES = ("realtime", "fast", "lockstep")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from prsm_sim import MODELS, PRESETS
+    p = argparse.ArgumentParser(prog="prsm-demo", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to run (default 4)")
+    p.add_argument("--preset", default="s30", choices=sorted(PRESETS))
+    p.add_argument("--model", default="jones2016", choices=list(MODELS))
+    p.add_argument("--time-mode", default="realtime", choices=TIME_MODES)
+    p.add_argument("--load", type=float, default=500.0, help="external nut load force in N (default 500)")
+    p.add_argument("--record", metavar="FILE.mcap", help="bag path (default ./prsm_demo_<UTC time>.mcap)")
+    p.add_argument("--no-record", action="store_true", help="do not record a bag")
+    p.add_argument("--rerun", default="off", choices=("off", "save", "spawn", "connect"),
+                   help="Rerun output of the node (default off)")
+    p.add_argument("--rerun-target", default="", help="save: .rrd path; spawn: port; connect: address")
+    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: yours, else one from the pid)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not (0 < args.duration <= 3600):
+        print(f"prsm-demo: error: --duration {args.duration:g}: must be in (0, 3600] s", file=sys.stderr)
+        return 2
+    try:
+        env = isolated_env(args.domain_id)
+    except ValueError as e:
+        print(f"prsm-demo: error: --domain-id: {e}", file=sys.stderr)
+        return 2
+    record = None if args.no_record else Path(
+        args.record or f"prsm_demo_{datetime.now(timezone.utc).strftime('%Y%m%d_%H%M%S')}.mcap").resolve()
+    node_params = {"preset": args.preset, "model": args.model, "time_mode": args.time_mode,
+                   "load_force": args.load, "record": record is not None, "record_path": str(record or ""),
+                   "rerun": args.rerun, "rerun_target": args.rerun_target}
+    print(f"prsm-demo: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} "
+          f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}; "
+          f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N", flush=True)
+
+    with tempfile.TemporaryDirectory(prefix="prsm_demo_") as tmp:
+        node_log = Path(tmp) / "node.log"
+        with open(node_log, "wb") as log:
+            node = start_module("prsm_ros.node.ros_node", ros_args(node_params), env, stdout=log, stderr=subprocess.STDOUT)
+            ctl = start_module("prsm_ros.cli.demo_controller",
+                               ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
+                                "--wall-timeout", repr(60.0 + 20 * args.duration)],
+                               env, stdout=subprocess.PIPE)
+            try:
+                out = wait_for_controller(ctl, node)
+            except KeyboardInterrupt:
+                ctl.kill()
+                out = b""
+            finally:
+                if node.poll() is None:
+                    node.send_signal(signal.SIGINT)
+                node_rc = node.wait(timeout=30)
+        node_text = node_log.read_text(errors="replace")
+    lines = [line for line in out.decode(errors="replace").splitlines() if line.startswith("{")]
+    if node_rc != 0 or not lines:
+        print(f"prsm-demo: the run failed (node exit code {node_rc}, controller exit code {ctl.returncode})",
+              file=sys.stderr)
+        print(node_text, file=sys.stderr)
+        return 1
+    s = json.loads(lines[-1])
+    dt_s = 1e-3
+    print(summary_text(s, dt_s, record))
+    return 0 if s["completed"] else 1
+
+
+def wait_for_controller(ctl: subprocess.Popen, node: subprocess.Popen) -> bytes:
+    """The controller's output once it exits; it is stopped at once if the node dies first."""
+    while True:
+        try:
+            out, _ = ctl.communicate(timeout=0.25)
+            return out
+        except subprocess.TimeoutExpired:
+            if node.poll() is not None:
+                ctl.kill()
+                out, _ = ctl.communicate()
+                return out
+
+
+def summary_text(s: dict, dt_s: float, record: Path | None) -> str:
+    lines = [
+        "tracking summary (nut position, controller process over DDS):",
+        f"  RMS error        {s['rms_error_m'] * 1e3:10.4f} mm",
+        f"  max error        {s['max_error_m'] * 1e3:10.4f} mm",
+        f"  final position   {s['final_position_m'] * 1e3:10.4f} mm   (reference {s['final_reference_m'] * 1e3:.4f} mm)",
+        f"  steps            {round(s['sim_time_s'] / dt_s):10d}     ({s['sim_time_s']:.3f} s simulated, "
+        f"{s['states_received']} states received)",
+        f"  real-time factor {s['real_time_factor']:10.3f}     ({s['wall_time_s']:.2f} s wall)",
+    ]
+    if not s["completed"]:
+        lines.append("  (incomplete: the controller stopped before the end of the run)")
+    if record is not None:
+        lines.append(f"bag: {record}   (inspect: prsm-bag info {record.name}; prsm-bag report {record.name})")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,170 @@
+"""The demo's controller under test: a nut-position PID with feed-forward, in its own process over DDS.
+
+    python -m prsm_ros.cli.demo_controller --duration 4 --preset s30 --load 0
+
+It listens to `/joint_states`, answers every state with a screw torque on
+`/prsm_actuator/screw_torque` and publishes its reference on `/prsm_actuator/nut_position_reference`
+(so the reference lands in the node's bag). The reference runs on simulation time (the states'
+header stamps), so the loop behaves the same in realtime, fast and lockstep modes; in lockstep the
+controller's first command starts the simulation. At the end it prints one JSON line with the
+tracking summary, which `prsm-demo` reads.
+
+Control law (nut coordinates x, lead per radian p, reflected inertia J about the screw):
+    τ = (J/p)·(a_ref + 2ζω ė + ω² e + (ω³/κ) ∫e) + p·F_load
+with e = x_ref − x: critically damped (ζ = 1) error dynamics at `bandwidth_hz`, a slow integral
+(κ = 10) for friction, and the load's static torque fed forward. The inertia is the `ideal` model's
+reflected inertia of the preset (`prsm_sim.models.ideal.reflected_inertia`), i.e. model-based tuning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+
+from prsm_sim import preset
+from prsm_sim.models.ideal import reflected_inertia
+
+
+def reference(t_s: float, amplitude_m: float, frequency_hz: float) -> tuple[float, float, float]:
+    """x_ref = A/2 (1 − cos 2πft): starts at rest at 0, smooth; returns position, velocity, acceleration."""
+    w = 2 * math.pi * frequency_hz
+    return (0.5 * amplitude_m * (1 - math.cos(w * t_s)), 0.5 * amplitude_m * w * math.sin(w * t_s),
+            0.5 * amplitude_m * w * w * math.cos(w * t_s))
+
+
+@dataclass
+class PositionController:
+    """Nut-position PID with acceleration and load feed-forward; output clamped to ±max_torque_nm."""
+
+    inertia_kgm2: float
+    lead_per_rad_m: float
+    bandwidth_hz: float = 8.0
+    damping: float = 1.0
+    integral_ratio: float = 10.0
+    load_n: float = 0.0
+    max_torque_nm: float = 50.0
+    integral_ms: float = 0.0  # ∫e dt, m·s
+
+    def torque(self, e_m: float, de_m_s: float, a_ref_m_s2: float, dt_s: float) -> float:
+        w = 2 * math.pi * self.bandwidth_hz
+        self.integral_ms += e_m * dt_s
+        accel = a_ref_m_s2 + 2 * self.damping * w * de_m_s + w * w * e_m + w ** 3 / self.integral_ratio * self.integral_ms
+        tau = self.inertia_kgm2 / self.lead_per_rad_m * accel + self.lead_per_rad_m * self.load_n
+        return max(-self.max_torque_nm, min(self.max_torque_nm, tau))
+
+
+@dataclass
+class Tracking:
+    """Running tracking statistics."""
+
+    n: int = 0
+    sum_sq_m2: float = 0.0
+    max_abs_m: float = 0.0
+
+    def add(self, e_m: float) -> None:
+        self.n += 1
+        self.sum_sq_m2 += e_m * e_m
+        self.max_abs_m = max(self.max_abs_m, abs(e_m))
+
+    @property
+    def rms_m(self) -> float:
+        return math.sqrt(self.sum_sq_m2 / self.n) if self.n else math.nan
+
+
+def run(args: argparse.Namespace) -> dict:
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from prsm_ros.messages import TOPICS, with_depth
+
+    params = preset(args.preset)
+    ctl = PositionController(reflected_inertia(params), params.geometry.lead_per_rad_m, bandwidth_hz=args.bandwidth,
+                             load_n=args.load, max_torque_nm=args.max_torque)
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = Node("prsm_demo_controller")
+    tau_pub = node.create_publisher(Float64, TOPICS["screw_torque"].resolved(), with_depth(TOPICS["screw_torque"].qos, 10))
+    ref_pub = node.create_publisher(Float64, TOPICS["nut_position_reference"].resolved(),
+                                    TOPICS["nut_position_reference"].qos)
+    track = Tracking()
+    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_t": None}
+
+    def on_state(msg: JointState) -> None:
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        i = list(msg.name).index("nut_joint")
+        x, v = msg.position[i], msg.velocity[i]
+        if st["t0"] is None:
+            st["t0"], st["wall0"] = t, time.perf_counter()
+        dt = t - st["last_t"] if st["last_t"] is not None else 0.0
+        st["last_t"], st["t"], st["x"] = t, t, x
+        x_ref, v_ref, a_ref = reference(t, args.amplitude, args.frequency)
+        track.add(x_ref - x)
+        if t >= args.duration:
+            st["done"] = True
+            return
+        ref_pub.publish(Float64(data=x_ref))
+        tau_pub.publish(Float64(data=ctl.torque(x_ref - x, v_ref - v, a_ref, dt)))
+
+    state_sub = node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state,
+                                         TOPICS["joint_states"].qos)
+    executor = SingleThreadedExecutor()  # one executor: rclpy.spin_once(node) re-adds the node on every call
+    executor.add_node(node)
+    try:
+        deadline = time.monotonic() + args.connect_timeout
+        # matched both ways: in lockstep a first state sent before we listen would be lost for good
+        while tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0:
+            if time.monotonic() > deadline:
+                print(f"prsm-demo controller: no node listening on {TOPICS['screw_torque'].resolved()} "
+                      f"after {args.connect_timeout:g} s", file=sys.stderr)
+                break
+            executor.spin_once(timeout_sec=0.05)
+        else:
+            tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
+            kicked = time.monotonic()
+            wall_limit = kicked + args.wall_timeout
+            while not st["done"] and time.monotonic() < wall_limit:
+                executor.spin_once(timeout_sec=0.1)
+                if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
+                    tau_pub.publish(Float64(data=0.0))
+                    kicked = time.monotonic()
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    wall = time.perf_counter() - st["wall0"] if st["wall0"] is not None else math.nan
+    sim = st["t"] - (st["t0"] or 0.0)
+    return {"rms_error_m": track.rms_m, "max_error_m": track.max_abs_m, "final_position_m": st["x"],
+            "final_reference_m": reference(st["t"], args.amplitude, args.frequency)[0], "sim_time_s": st["t"],
+            "states_received": track.n, "wall_time_s": wall, "real_time_factor": sim / wall if wall > 0 else math.nan,
+            "completed": st["done"]}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m prsm_ros.cli.demo_controller", description=__doc__.split("\n\n")[0])
+    p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to track (s)")
+    p.add_argument("--preset", default="s30", help="preset the node runs (for the controller's inertia)")
+    p.add_argument("--load", type=float, default=0.0, help="the node's load_force, fed forward (N)")
+    p.add_argument("--amplitude", type=float, default=0.02, help="reference stroke (m)")
+    p.add_argument("--frequency", type=float, default=0.5, help="reference frequency (Hz)")
+    p.add_argument("--bandwidth", type=float, default=8.0, help="closed-loop bandwidth (Hz)")
+    p.add_argument("--max-torque", type=float, default=50.0, help="controller torque limit (N·m)")
+    p.add_argument("--connect-timeout", type=float, default=20.0, help="wall seconds to wait for the node")
+    p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    summary = run(args)
+    print(json.dumps(summary), flush=True)
+    return 0 if summary["completed"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

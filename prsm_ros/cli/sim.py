@@ -1,0 +1,268 @@
+"""`prsm-sim`: offline simulation from the command line (no ROS graph is started).
+
+    prsm-sim presets
+    prsm-sim params --preset s30
+    prsm-sim contact --preset jones2016
+    prsm-sim steady-state --preset jones2016 --model jones2016 --json
+    prsm-sim run --preset s30 --model fu2018 --scenario heavy --duration 1 --json [--csv F] [--mcap F]
+
+Every command takes --preset P or --params FILE.yaml, --set group.name=value overrides and
+--json. Errors print one line and exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from typing import Any
+
+import numpy as np
+import yaml
+
+from prsm_sim.errors import PrsmError
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, ParamError, Params, Simulator
+from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
+from prsm_sim.physics.kinematics import ideal_speed_ratio
+from prsm_sim.models.jones2016 import steady_state
+from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, summarise
+
+from prsm_ros.cli.json_out import dumps
+from prsm_ros.cli.param_files import params_to_yaml, resolve_params
+
+PROGRESS_MIN_STEPS = 20_000
+
+
+class CliError(PrsmError):
+    """A user error: printed as one line, exit status 2."""
+
+
+def _overrides(items: list[str]) -> dict[str, Any]:
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise CliError(f"--set {item!r}: expected group.name=value, e.g. friction.mu_screw_roller=0.1")
+        try:
+            out[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise CliError(f"--set {item!r}: cannot read the value {value!r}") from None
+    return out
+
+
+def _params(args) -> Params:
+    return resolve_params(args.preset, args.params, _overrides(args.set))
+
+
+def _emit(args, data: dict, text: str) -> None:
+    print(dumps(data) if args.json else text)
+
+
+def cmd_presets(args) -> None:
+    rows = {}
+    for name in PRESETS:
+        p = resolve_params(name, None)
+        g = p.geometry
+        rows[name] = {"screw_radius_m": g.screw_radius_m, "roller_radius_m": g.roller_radius_m, "starts": g.starts,
+                      "pitch_m": g.pitch_m, "lead_m": g.lead_m, "n_rollers": g.n_rollers, "n_teeth": g.n_teeth,
+                      "ideal_speed_ratio": ideal_speed_ratio(g)}
+    text = "\n".join(f"{n:18s} r_S={r['screw_radius_m'] * 1e3:.2f} mm  r_R={r['roller_radius_m'] * 1e3:.2f} mm  "
+                     f"n={r['starts']}  L={r['lead_m'] * 1e3:.1f} mm  {r['n_rollers']} rollers × {r['n_teeth']} teeth  "
+                     f"ideal ω_S/ω_C={r['ideal_speed_ratio']:.4f}" for n, r in rows.items())
+    _emit(args, {"presets": rows}, text)
+
+
+def cmd_params(args) -> None:
+    p = _params(args)
+    if args.json:
+        print(dumps(p.to_dict()))
+    else:
+        print(params_to_yaml(p), end="")
+
+
+def cmd_contact(args) -> None:
+    p = _params(args)
+    geo = p.geometry
+    w_c = 1.0 / ideal_speed_ratio(geo)
+    data: dict[str, Any] = {
+        "lead_m": geo.lead_m, "ideal_speed_ratio": ideal_speed_ratio(geo), "roller_spin_per_carrier": -geo.gear_ratio,
+        "screw_lead_angle_deg": math.degrees(geo.screw_lead_angle_rad),
+        "roller_lead_angle_deg": math.degrees(geo.roller_lead_angle_rad),
+        "predicted_screw_offset_deg": -math.degrees(predicted_screw_offset_rad(geo)),
+        "contacts": {},
+    }
+    lines = [f"lead {geo.lead_m * 1e3:.3f} mm, ideal ω_S/ω_C {ideal_speed_ratio(geo):.5f}, roller spin {-geo.gear_ratio:.3f} ω_C",
+             f"predicted screw offset (λ_S − λ_R)/tan β: {data['predicted_screw_offset_deg']:.3f}°"]
+    for ev in ("exact", "line_of_centres"):
+        for side in ("screw", "nut"):
+            c = contact_for(geo, side, ev)
+            v = c.sliding_matrix(geo) @ np.array([1.0, w_c])
+            v_nut = geo.lead_per_rad_m
+            entry = {"body_radius_m": c.body_radius_m, "roller_contact_radius_m": c.roller_contact_radius_m,
+                     "offset_deg": math.degrees(c.body_angle_rad), "roller_angle_deg": math.degrees(c.roller_angle_rad),
+                     "point_m": c.point_m, "normal_on_roller": c.normal_on_roller,
+                     "sliding_speed_per_nut_speed": float(np.linalg.norm(v)) / v_nut,
+                     "normal_sliding_per_nut_speed": float(v @ c.normal_on_roller) / v_nut}
+            data["contacts"][f"{side}_{ev}"] = entry
+            lines.append(f"{side:5s} {ev:15s} r={c.body_radius_m * 1e3:.5f} mm  offset={entry['offset_deg']:+.4f}°  "
+                         f"|v_s|/v_N={entry['sliding_speed_per_nut_speed']:.4f} at ideal kinematics")
+    data["sliding_per_nut_speed_model_md"] = 1.0 / math.sin(geo.flank_angle_rad)
+    lines.append(f"MODEL.md §3: screw sliding |v_N|/sin β = {data['sliding_per_nut_speed_model_md']:.4f} |v_N|")
+    _emit(args, data, "\n".join(lines))
+
+
+def cmd_steady_state(args) -> None:
+    p = _params(args)
+    if args.model == "jones2016":
+        ss = steady_state(p, screw_speed_rad_s=args.speed, torque_nm=args.torque, load_n=args.load)
+        ss = {"model": "jones2016", "method": "closed form (Jones 2016 eqs. 37-41)", **ss}
+    elif args.model == "ideal":
+        ss = _ideal_steady(p, args)
+    else:
+        spec = default_spec(p, "light", load_n=args.load if args.load is not None else p.loads.nut_load_n,
+                            speed_rad_s=args.speed)
+        sim = Simulator(p, args.model, args.dt)
+        s = summarise(run_scenario(sim, spec, args.duration))
+        w = s["final"]["screw_speed_rad_s"]
+        ss = {"model": args.model, "method": f"simulation: PI speed loop, tail of {args.duration} s",
+              "screw_speed_rad_s": w, "carrier_speed_rad_s": s["final"]["carrier_speed_rad_s"],
+              "carrier_over_screw": s["tail_mean_speed_ratio"],
+              "speed_ratio_screw_over_carrier": 1.0 / s["tail_mean_speed_ratio"],
+              "torque_nm": s["final"]["screw_torque_nm"], "load_force_n": spec.load_n,
+              "efficiency": s["tail_efficiency"], "slip_speed_m_s": s["tail_mean_slip_speed_m_s"]}
+    text = "\n".join(f"{k}: {v}" for k, v in ss.items())
+    _emit(args, ss, text)
+
+
+def _ideal_steady(p: Params, args) -> dict:
+    """Forward rolling at constant speed: τ = F (L/2π)/η_f + b ω (the ideal model's own law)."""
+    w = p.loads.screw_speed_rad_s if args.speed is None else args.speed
+    f = p.loads.nut_load_n if args.load is None else args.load
+    il = p.ideal
+    tau_l = f * p.geometry.lead_per_rad_m
+    forward = tau_l * w >= 0
+    tau = tau_l / il.efficiency_forward if forward else tau_l * il.efficiency_backward
+    tau += il.viscous_nm_s_rad * w
+    return {"model": "ideal", "method": "closed form (efficiency law)", "screw_speed_rad_s": w,
+            "carrier_over_screw": 1.0 / ideal_speed_ratio(p.geometry),
+            "speed_ratio_screw_over_carrier": ideal_speed_ratio(p.geometry), "torque_nm": tau, "load_force_n": f,
+            "efficiency": (tau_l * w) / (tau * w) if tau * w > 0 and tau_l * w > 0 else math.nan}
+
+
+def cmd_run(args) -> None:
+    p = _params(args)
+    spec = default_spec(p, args.scenario, load_n=args.load, torque_nm=args.torque, speed_rad_s=args.speed,
+                        frequency_hz=args.frequency)
+    for name, v in (("duration_s", args.duration), ("dt_s", args.dt)):
+        if not (math.isfinite(v) and v > 0):
+            raise CliError(f"{name} = {v!r}: must be a finite number > 0")
+    sim = Simulator(p, args.model, args.dt)
+    n = int(round(args.duration / args.dt))
+    bar = None
+    if n >= PROGRESS_MIN_STEPS and not args.no_progress:
+        from tqdm import tqdm
+        bar = tqdm(total=n, unit="step", file=sys.stderr, desc=f"{args.model} {args.scenario}")
+    done = [0]
+
+    def progress(k: int) -> None:
+        if bar is not None:
+            bar.update(k - done[0])
+            done[0] = k
+
+    traj = run_scenario(sim, spec, args.duration, progress)
+    if bar is not None:
+        bar.close()
+    summary = {"preset": p.name, "model": args.model, "scenario": args.scenario, "dt_s": args.dt,
+               "load_n": spec.load_n, "torque_nm": spec.torque_nm, "speed_reference_rad_s": spec.speed_rad_s,
+               **summarise(traj)}
+    if args.csv:
+        _write_csv(args.csv, traj)
+        summary["csv"] = args.csv
+    if args.mcap:
+        from prsm_ros.mcap.offline import write_trajectory_mcap
+        write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
+                              progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
+        summary["mcap"] = args.mcap
+    f = summary["final"]
+    text = "\n".join([
+        f"{p.name} / {args.model} / {args.scenario}: {summary['steps']} steps of {args.dt} s",
+        f"final: screw {f['screw_speed_rad_s']:.4f} rad/s, carrier {f['carrier_speed_rad_s']:.4f} rad/s, "
+        f"nut {f['nut_position_m'] * 1e3:.4f} mm at {f['nut_velocity_m_s'] * 1e3:.4f} mm/s, "
+        f"nut force {f['nut_force_n']:.2f} N, torque {f['screw_torque_nm']:.5f} N·m",
+        f"tail: ζ_PS = ω_C/ω_S {summary['tail_mean_speed_ratio']:.5f}, efficiency {summary['tail_efficiency']:.4f}, "
+        f"slip {summary['tail_mean_slip_speed_m_s']:.5f} m/s",
+    ] + ([f"peak tooth normal force {summary['peak_tooth_normal_force_n']:.2f} N"]
+         if "peak_tooth_normal_force_n" in summary else []))
+    _emit(args, summary, text)
+
+
+def _write_csv(path: str, traj) -> None:
+    names = [n for n, _ in OUTPUT_FIELDS]
+    header = ",".join(f"{n} [{u}]" for n, u in OUTPUT_FIELDS)
+    labels = traj.layout.labels()
+    if labels:
+        header += "," + ",".join(f'"{lab}"' for lab in labels)
+    data = np.column_stack([traj[n] for n in names] + ([traj.internal] if labels else []))
+    try:
+        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.10g")
+    except OSError as e:
+        raise CliError(f"cannot write CSV {path}: {e.strerror or e}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="prsm-sim", description="Offline planetary roller screw simulation.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--preset", choices=list(PRESETS), help="named parameter set (default jones2016)")
+    common.add_argument("--params", metavar="FILE.yaml", help="parameter file (may name a base `preset:`)")
+    common.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override one parameter (repeatable)")
+    common.add_argument("--json", action="store_true", help="machine-readable output")
+    sub.add_parser("presets", parents=[common], help="list the presets").set_defaults(func=cmd_presets)
+    sub.add_parser("params", parents=[common], help="print every parameter as YAML").set_defaults(func=cmd_params)
+    sub.add_parser("contact", parents=[common], help="exact thread contact geometry").set_defaults(func=cmd_contact)
+    ss = sub.add_parser("steady-state", parents=[common], help="steady state of a model")
+    ss.add_argument("--model", choices=list(MODELS), default="jones2016")
+    g = ss.add_mutually_exclusive_group()
+    g.add_argument("--speed", type=float, help="screw speed, rad/s (default: the preset's)")
+    g.add_argument("--torque", type=float, help="screw torque, N·m (jones2016 only)")
+    ss.add_argument("--load", type=float, help="nut load, N (default: the preset's)")
+    ss.add_argument("--dt", type=float, default=1e-3, help="step for simulated steady states, s")
+    ss.add_argument("--duration", type=float, default=1.0, help="simulated time for models without a closed form, s")
+    ss.set_defaults(func=cmd_steady_state)
+    run = sub.add_parser("run", parents=[common], help="simulate a scenario")
+    run.add_argument("--model", choices=list(MODELS), default="jones2016")
+    run.add_argument("--scenario", choices=SCENARIOS, default="step")
+    run.add_argument("--duration", type=float, default=1.0, help="simulated time, s")
+    run.add_argument("--dt", type=float, default=1e-3, help="fixed step, s")
+    run.add_argument("--load", type=float, help="nut load, N (positive resists positive motion)")
+    run.add_argument("--torque", type=float, help="open-loop torque amplitude, N·m")
+    run.add_argument("--speed", type=float, help="speed reference amplitude, rad/s")
+    run.add_argument("--frequency", type=float, default=1.0, help="sine frequency, Hz")
+    run.add_argument("--csv", metavar="FILE", help="write every step's outputs and internal loads")
+    run.add_argument("--mcap", metavar="FILE", help="write the run as a ROS 2 MCAP bag (needs the mcap extra)")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar on long runs")
+    run.set_defaults(func=cmd_run)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command == "steady-state" and args.torque is not None and args.model != "jones2016":
+        print("prsm-sim: error: --torque applies to --model jones2016 only (the others take --speed)", file=sys.stderr)
+        return 2
+    try:
+        args.func(args)
+    except (ParamError, ValueError, CliError) as e:
+        print(f"prsm-sim: error: {e}", file=sys.stderr)
+        return 2
+    except ImportError as e:
+        print(f"prsm-sim: error: {e.name or e} is not installed; install the extras: pip install 'prsm[all]'",
+              file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        return 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,299 @@
+"""ROS 2 messages to MCAP: `McapFile` (the format, synchronous) and `McapRecorder` (off-thread).
+
+The file follows the ROS 2 MCAP profile as rosbag2 writes it (see `mcap_schema`): profile `ros2`,
+`ros2msg` schemas with their dependent definitions, `cdr` messages
+(`rclpy.serialization.serialize_message`), `offered_qos_profiles` channel metadata, zstd chunks
+with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
+metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
+
+`McapRecorder` is what the node uses (DESIGN.md: the recorder never runs on the step path): the
+caller only appends `(channel, message, stamp)` to a bounded queue; a background thread serializes,
+writes, and flushes a finished chunk at least every `flush_interval_s`, so a killed process loses
+at most that much. An unwritable path or a full disk sets `.error`, stops recording and counts
+what could not be written in `messages_dropped`; the caller is never interrupted. `close()`
+writes the summary and footer; it is idempotent and also runs at interpreter exit.
+"""
+
+from __future__ import annotations
+
+import atexit
+import threading
+import time
+from collections import deque
+from datetime import datetime, timezone
+from pathlib import Path
+
+from prsm_ros.mcap import schema as mcap_schema
+
+DEFAULT_CHUNK_SIZE = 1 << 20  # bytes before compression; a flush usually closes the chunk first
+# The writer thread holds the GIL while it serializes. A thread waiting for the GIL (the step
+# loop waking from its sleep) only forces a hand-over after the switch interval (5 ms), and a
+# bare sleep(0) hands it over rarely (the releasing thread wins the race to re-acquire). So the
+# writer sleeps for real after each slice of work: the step loop then waits at most one slice.
+WORK_SLICE_S = 2e-4
+YIELD_S = 5e-5
+
+
+def package_version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("prsm")
+    except Exception:
+        return "unknown"
+
+
+def run_metadata(params, *, preset: str, model: str, dt_s: float,
+                 node_parameters: dict | None = None) -> dict[str, dict[str, str]]:
+    """The `prsm_run` metadata record (cross-helper contract): what reproduces the run.
+
+    Keys: package_version, preset, model, dt_s, parameters_yaml (the full resolved Params.to_dict()),
+    node_parameters_yaml (the node's ROS parameters; {} for offline runs).
+    """
+    import yaml
+    return {"prsm_run": {
+        "package_version": package_version(),
+        "preset": str(preset),
+        "model": str(model),
+        "dt_s": repr(float(dt_s)),
+        "parameters_yaml": yaml.safe_dump(params.to_dict(), sort_keys=False),
+        "node_parameters_yaml": yaml.safe_dump(dict(node_parameters or {}), sort_keys=True),
+    }}
+
+
+def default_record_path(now: datetime | None = None) -> Path:
+    """./prsm_<UTC yyyymmdd_HHMMSS>.mcap, the node's file for an empty `record_path`."""
+    now = now or datetime.now(timezone.utc)
+    return Path(f"prsm_{now.strftime('%Y%m%d_%H%M%S')}.mcap")
+
+
+class McapFile:
+    """A ROS 2 MCAP file being written, synchronously (one thread at a time).
+
+    Opening writes the header and the metadata records (plus the `rosbag2` record, see
+    `mcap_schema.rosbag2_metadata`) and flushes them; OSError propagates to the caller.
+    """
+
+    def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+        from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
+        from rclpy.serialization import serialize_message
+
+        self._serialize = serialize_message
+        self.path = Path(path)
+        records = {"rosbag2": mcap_schema.rosbag2_metadata()}
+        for name, data in (metadata or {}).items():
+            records[str(name)] = {str(k): str(v) for k, v in data.items()}
+        self._schema_ids: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, type]] = {}
+        self._sequence: dict[int, int] = {}
+        self.messages_written = 0
+        self._stream = open(self.path, "wb")
+        try:
+            self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD,
+                                  index_types=IndexType.ALL)
+            self._writer.start(profile=mcap_schema.PROFILE, library=f"prsm {package_version()}; {LIBRARY_IDENTIFIER}")
+            for name, data in records.items():
+                self._writer.add_metadata(name, data)
+            self._stream.flush()
+        except BaseException:
+            self.abort()
+            raise
+
+    def add_channel(self, topic: str, msg_class, qos) -> int:
+        """Declare `topic` (schema and QoS metadata); returns its channel id. Re-adding is a no-op."""
+        known = self._channels.get(topic)
+        name = mcap_schema.type_name(msg_class)
+        if known is not None:
+            if known[1] is not msg_class:
+                raise ValueError(f"topic {topic!r} was added as {mcap_schema.type_name(known[1])}; "
+                                 f"cannot add it again as {name}")
+            return known[0]
+        sid = self._schema_ids.get(name)
+        if sid is None:
+            sid = self._writer.register_schema(name, mcap_schema.SCHEMA_ENCODING,
+                                               mcap_schema.full_definition(name).encode("utf-8"))
+            self._schema_ids[name] = sid
+        meta = {"offered_qos_profiles": mcap_schema.offered_qos_profiles_yaml(qos)}
+        type_hash = mcap_schema.type_hash(name)
+        if type_hash:
+            meta["topic_type_hash"] = type_hash
+        cid = self._writer.register_channel(topic, mcap_schema.MESSAGE_ENCODING, sid, meta)
+        self._channels[topic] = (cid, msg_class)
+        self._sequence[cid] = 0
+        return cid
+
+    def channel_id(self, topic: str) -> int:
+        try:
+            return self._channels[topic][0]
+        except KeyError:
+            raise KeyError(f"topic {topic!r} was not added with add_channel; "
+                           f"added: {', '.join(self._channels) or 'none'}") from None
+
+    def write(self, channel_id: int, msg, stamp_ns: int) -> None:
+        """Serialize `msg` to CDR and add it at log_time = publish_time = stamp_ns."""
+        seq = self._sequence[channel_id] + 1
+        self._sequence[channel_id] = seq
+        self._writer.add_message(channel_id, stamp_ns, self._serialize(msg), stamp_ns, seq)
+        self.messages_written += 1
+
+    def flush(self) -> None:
+        """Close the chunk in progress (with its message index) and push it to the OS."""
+        self._writer.flush()
+
+    def finish(self) -> None:
+        """Last chunk, summary (schemas, channels, statistics, chunk and metadata indexes), footer."""
+        self._writer.finish()
+        self._stream.close()
+
+    def abort(self) -> None:
+        """Close the file as it is (no summary): what reached the disk stays readable up to its last chunk."""
+        try:
+            self._stream.close()
+        except OSError:
+            pass  # a buffered tail that cannot be written (disk full) is lost either way
+
+
+class McapRecorder:
+    """Record ROS 2 messages to MCAP without blocking the caller (cross-helper contract).
+
+        rec = McapRecorder("run.mcap", metadata=run_metadata(...))
+        rec.add_channel("/joint_states", JointState, qos)
+        rec.write("/joint_states", msg, stamp_ns)      # enqueue only
+        rec.close()                                     # flush, summary, footer
+
+    `metadata`: MCAP metadata records {name: {key: value}} written at the start of the file.
+    `queue_size`: messages held for the writer thread; when full, `write` drops and counts.
+    `flush_interval_s`: wall time between forced chunk flushes. It bounds the loss on SIGKILL, and
+    keeps each chunk's finishing work (its message index is built in Python, about 1 µs per
+    message, holding the GIL) near 1 ms at our 1 kHz topics.
+    """
+
+    def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
+                 queue_size: int = 100_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
+                 flush_interval_s: float = 0.25) -> None:
+        if not isinstance(queue_size, int) or queue_size < 1:
+            raise ValueError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
+        self.path = Path(path)
+        self.error: str | None = None
+        self._dropped_full = 0
+        self._lost = 0
+        self._queue: deque = deque()
+        self._queue_size = queue_size
+        self._classes: dict[str, type] = {}
+        self._flush_interval_s = float(flush_interval_s)
+        self._stop = threading.Event()
+        self._closed = False
+        self._writing = True
+        self._file: McapFile | None = None
+        self._final_written = 0
+        try:
+            self._file = McapFile(self.path, metadata=metadata, chunk_size=chunk_size)
+        except OSError as e:
+            self._fail(e)
+        self._thread = threading.Thread(target=self._run, name=f"mcap-recorder:{self.path.name}", daemon=True)
+        self._thread.start()
+        atexit.register(self.close)
+
+    # ---- caller side: cheap, never blocks ----------------------------------------------------
+
+    @property
+    def messages_written(self) -> int:
+        """Messages handed to the MCAP writer (on disk once their chunk is flushed)."""
+        f = self._file
+        return f.messages_written if f is not None else self._final_written
+
+    @property
+    def messages_dropped(self) -> int:
+        """Messages not recorded: queue full, or not yet written when recording stopped."""
+        return self._dropped_full + self._lost
+
+    @property
+    def queue_length(self) -> int:
+        return len(self._queue)
+
+    def add_channel(self, topic: str, msg_class, qos) -> None:
+        """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing)."""
+        known = self._classes.get(topic)
+        if known is not None and known is not msg_class:
+            raise ValueError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
+                             f"cannot add it again as {mcap_schema.type_name(msg_class)}")
+        mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the thread
+        self._classes[topic] = msg_class
+        self._queue.append((topic, (msg_class, qos), None))
+
+    def write(self, topic: str, msg, stamp_ns: int) -> None:
+        """Enqueue one message stamped `stamp_ns` (log and publish time, ns). Never blocks."""
+        cls = self._classes.get(topic)
+        if cls is None:
+            raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._classes) or 'none'}")
+        if type(msg) is not cls:
+            raise TypeError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
+        if not self._writing:
+            self._lost += 1
+        elif len(self._queue) >= self._queue_size:
+            self._dropped_full += 1
+        else:
+            self._queue.append((topic, msg, stamp_ns))
+
+    def close(self) -> None:
+        """Write what is queued, then the summary and footer. Idempotent; safe after an error."""
+        if self._closed:
+            return
+        self._closed = True
+        self._writing = False  # later writes are counted as dropped; queued ones are still written
+        atexit.unregister(self.close)
+        self._stop.set()
+        self._thread.join()
+
+    def __enter__(self) -> McapRecorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---- writer thread -----------------------------------------------------------------------
+
+    def _fail(self, e: BaseException) -> None:
+        what = e.strerror if isinstance(e, OSError) and e.strerror else (str(e) or type(e).__name__)
+        self.error = f"recording to {self.path} stopped: {what}"
+        self._writing = False
+        if self._file is not None:
+            self._final_written = self._file.messages_written
+            self._file.abort()
+            self._file = None
+
+    def _run(self) -> None:
+        ids: dict[str, int] = {}
+        last_flush = time.monotonic()
+        queue = self._queue
+        clock = time.perf_counter
+        while True:
+            stopping = self._stop.wait(0.01)
+            f = self._file
+            try:
+                slice_end = clock() + WORK_SLICE_S
+                while queue and f is not None:
+                    topic, msg, stamp = queue.popleft()
+                    if stamp is None:  # a channel declaration, kept in order with the messages
+                        ids[topic] = f.add_channel(topic, *msg)
+                        continue
+                    f.write(ids[topic], msg, stamp)
+                    if clock() > slice_end:
+                        time.sleep(YIELD_S)  # let the step loop take the GIL (see WORK_SLICE_S)
+                        slice_end = clock() + WORK_SLICE_S
+                if f is not None:
+                    now = time.monotonic()
+                    if stopping:
+                        f.finish()
+                        self._final_written = f.messages_written
+                        self._file = None
+                    elif now - last_flush >= self._flush_interval_s:
+                        f.flush()
+                        last_flush = now
+            except Exception as e:  # disk full, I/O error: recording stops, the caller does not
+                self._fail(e)
+            if self._file is None:
+                self._lost += sum(1 for item in queue if item[2] is not None)
+                queue.clear()
+            if stopping:
+                return

@@ -1,0 +1,1 @@
+"""The ROS 2 node: rclpy plumbing (`ros_node`) over pure-Python parameters, command gate and stepping."""

@@ -1,0 +1,269 @@
+"""The node's ROS parameters: declarations (type, unit, range, description) and validation, no ROS.
+
+Every parameter is declared by `prsm_ros.node.ros_node` from `NODE_PARAMETERS` plus one `physics.<group>.<name>`
+parameter per `Params.override_keys()` key, whose default is the chosen preset's value. Values come
+from a standard `ros__parameters` YAML file (`--ros-args --params-file FILE`), `-p name:=value`, or
+`ros2 param set` at runtime. `NodeConfig.from_values` turns the flat name → value mapping into one
+validated record, or raises `ConfigError` with one line naming the parameter, the value and what is
+allowed; the node uses it at start-up (non-zero exit) and for every runtime change (rejected with
+the reason, nothing changed).
+
+Units are SI (REP 103). Doubles also accept integers (`cmd_timeout: 1`), because YAML and
+`ros2 param set` type "1" as an integer and refusing it helps no one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from prsm_sim.errors import PrsmError
+from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
+
+from prsm_ros.node.command_gate import TIMEOUT_BEHAVIOURS
+
+TIME_MODES = ("realtime", "fast", "lockstep")
+RERUN_MODES = ("off", "save", "spawn", "connect")
+PHYSICS_PREFIX = "physics."
+DEFAULT_PRESET = "s30"
+DEFAULT_MODEL = "jones2016"
+
+
+class ConfigError(PrsmError, ValueError):
+    """A node parameter was refused; the message names it, its value and what is allowed."""
+
+
+@dataclass(frozen=True)
+class NodeParam:
+    """One node parameter: name, default (its type is the parameter's type), unit, meaning, limits.
+
+    `lo`/`hi` bound numbers (inclusive unless `lo_open`), `choices` bounds strings; `read_only`
+    parameters are fixed at start-up (changing them means a new run).
+    """
+
+    name: str
+    default: Any
+    unit: str
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    choices: tuple[str, ...] | None = None
+    read_only: bool = False
+
+    @property
+    def allowed(self) -> str:
+        """The constraint in words, for descriptors and error messages."""
+        if self.choices is not None:
+            return f"one of {', '.join(self.choices)}"
+        if isinstance(self.default, bool):
+            return "true or false"
+        kind = "a whole number" if isinstance(self.default, int) else "a finite number"
+        if self.lo is not None and self.hi is not None:
+            return f"{kind} in {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
+        if self.lo is not None:
+            return f"{kind} {'>' if self.lo_open else '>='} {self.lo:g}"
+        return kind if not isinstance(self.default, str) else "a string"
+
+
+def _topic_params() -> list[NodeParam]:
+    from prsm_ros.messages import TOPICS  # rclpy message classes: imported only when the node needs them
+    return [NodeParam(f"topics.{t.key}", t.name, "", f"name of the {t.msg_class.__name__} {t.direction}put topic "
+                      "(relative names follow the node's namespace; ~/ is the node)", read_only=True)
+            for t in TOPICS.values() if t.key not in ("clock", "diagnostics")]
+
+
+NODE_PARAMETERS: tuple[NodeParam, ...] = (
+    NodeParam("preset", DEFAULT_PRESET, "", "named parameter set; physics.* parameters default to its values",
+              choices=tuple(PRESETS), read_only=True),
+    NodeParam("model", DEFAULT_MODEL, "", "dynamics model", choices=tuple(MODELS), read_only=True),
+    NodeParam("update_rate", 1000, "Hz", "simulation steps per second of simulation time (step = 1/update_rate)",
+              lo=1, hi=100_000, read_only=True),
+    NodeParam("time_mode", "realtime", "", "realtime: paced at update_rate × real_time_factor on absolute "
+              "deadlines; fast: as fast as possible; lockstep: lockstep_steps steps per received command",
+              choices=TIME_MODES, read_only=True),
+    NodeParam("real_time_factor", 1.0, "1", "simulated seconds per wall second in realtime mode",
+              lo=0.0, hi=100.0, lo_open=True),
+    NodeParam("realtime_priority", 10, "", "realtime: SCHED_FIFO priority of the step thread when the OS allows "
+              "it, the node's other threads one below (0: normal scheduling); reported on /diagnostics",
+              lo=0, hi=99, read_only=True),
+    NodeParam("pacing_spin", 1e-4, "s", "realtime: poll the clock for this long before each deadline instead "
+              "of trusting the sleep's wake-up latency (CPU for jitter; 0: sleep only)", lo=0.0, hi=1e-2, read_only=True),
+    NodeParam("lockstep_steps", 1, "steps", "steps advanced per received command in lockstep mode", lo=1, hi=1_000_000),
+    NodeParam("step_count", 1, "steps", "steps advanced by one ~/step call (std_srvs/Trigger) while paused",
+              lo=1, hi=10_000_000),
+    NodeParam("start_paused", False, "", "start paused (resume with ~/pause false)", read_only=True),
+    NodeParam("joint_states_rate", 0.0, "Hz", "publish rate of joint_states and ~/nut/wrench (0: every step)",
+              lo=0.0, hi=1e6),
+    NodeParam("internal_loads_rate", 0.0, "Hz", "publish rate of ~/internal_loads (0: every step)", lo=0.0, hi=1e6),
+    NodeParam("diagnostics_rate", 1.0, "Hz", "publish rate of /diagnostics (wall time)", lo=0.01, hi=100.0),
+    NodeParam("cmd_timeout", 0.5, "s", "command watchdog in simulation time (0 disables)", lo=0.0, hi=1e6),
+    NodeParam("timeout_behaviour", "zero", "", "after cmd_timeout: zero torque, or hold the last command",
+              choices=TIMEOUT_BEHAVIOURS),
+    NodeParam("max_effort", 50.0, "N·m", "screw torque limit; larger commands are saturated and counted",
+              lo=0.0, hi=1e6, lo_open=True),
+    NodeParam("initial_nut_position", 0.0, "m", "nut position at start and after ~/reset", lo=-1e3, hi=1e3),
+    NodeParam("load_force", 0.0, "N", "external axial load on the nut, positive resisting positive nut motion",
+              lo=-1e8, hi=1e8),
+    NodeParam("record", True, "", "record every published and received topic to MCAP", read_only=True),
+    NodeParam("record_path", "", "", "MCAP file ('' → ./prsm_<UTC yyyymmdd_HHMMSS>.mcap)", read_only=True),
+    NodeParam("rerun", "off", "", "Rerun output (environment RERUN=off forces off)", choices=RERUN_MODES,
+              read_only=True),
+    NodeParam("rerun_target", "", "", "save: .rrd path; spawn: port; connect: viewer address ('' → default)",
+              read_only=True),
+)
+
+
+def node_parameters() -> tuple[NodeParam, ...]:
+    """All non-physics parameters, topic names included (their defaults come from messages.TOPICS)."""
+    return NODE_PARAMETERS + tuple(_topic_params())
+
+
+def physics_parameters(params: Params) -> dict[str, Any]:
+    """`physics.<group>.<name>` → the value in `params` (the preset), one per Params.override_keys()."""
+    d = params.to_dict()
+    return {PHYSICS_PREFIX + key: d[key.split(".")[0]][key.split(".")[1]] for key in Params.override_keys()}
+
+
+def physics_unit(key: str) -> str:
+    """Unit from the field-name suffix (the project names units in field names)."""
+    for suffix, unit in (("_kg_m3", "kg/m³"), ("_m2_s", "m²/s"), ("_kgm2", "kg·m²"), ("_n_s_m", "N·s/m"),
+                         ("_nm_s_rad", "N·m·s/rad"), ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_kg", "kg"),
+                         ("_deg", "deg"), ("_w", "W"), ("_n", "N"), ("_m", "m")):
+        if key.endswith(suffix):
+            return unit
+    return ""
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """The node's validated configuration (see NODE_PARAMETERS for meanings and units)."""
+
+    values: dict[str, Any]  # every parameter by name, coerced (doubles as float)
+    params: Params  # the preset with every physics.* value applied, validated
+    topics: dict[str, str] = field(default_factory=dict)  # topic key → name
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "values":
+            raise AttributeError(name)
+        try:
+            return self.values[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    @property
+    def dt_s(self) -> float:
+        return 1.0 / self.values["update_rate"]
+
+    @classmethod
+    def from_values(cls, values: dict[str, Any]) -> NodeConfig:
+        """Validate a full name → value mapping (node and physics parameters); ConfigError on the first problem."""
+        out: dict[str, Any] = {}
+        for p in node_parameters():
+            out[p.name] = check_value(p, values.get(p.name, p.default))
+        base = preset(out["preset"])
+        phys = {k[len(PHYSICS_PREFIX):]: v for k, v in values.items() if k.startswith(PHYSICS_PREFIX)}
+        try:
+            params = base.with_overrides(phys)
+        except ParamError as e:
+            raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
+        topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
+        return cls(values=out, params=params, topics=topics)
+
+
+def check_value(p: NodeParam, value: Any) -> Any:
+    """The value coerced to the parameter's type, or ConfigError naming the parameter and what is allowed."""
+    def bad(why: str = "") -> ConfigError:
+        unit = f" ({p.unit})" if p.unit and p.unit != "1" else ""
+        return ConfigError(f"parameter {p.name} = {value!r}: must be {why or p.allowed}{unit}")
+
+    d = p.default
+    if isinstance(d, bool):
+        if not isinstance(value, bool):
+            raise bad()
+        return value
+    if isinstance(d, str):
+        if not isinstance(value, str):
+            raise bad("a string" if p.choices is None else p.allowed)
+        if p.choices is not None and value not in p.choices:
+            raise bad()
+        if p.name.startswith("topics."):
+            why = _topic_name_problem(value)
+            if why:
+                raise bad(f"a valid ROS topic name ({why})")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise bad()
+    if isinstance(d, int) and not isinstance(value, int):
+        raise bad()
+    if not math.isfinite(value):
+        raise bad()
+    lo_ok = p.lo is None or (value > p.lo if p.lo_open else value >= p.lo)
+    if not lo_ok or (p.hi is not None and value > p.hi):
+        raise bad()
+    return value if isinstance(d, int) else float(value)
+
+
+def _topic_name_problem(name: str) -> str | None:
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_topic_name import validate_topic_name
+    try:
+        validate_topic_name(name)
+    except InvalidTopicNameException as e:
+        return str(e).splitlines()[0].split(": ", 1)[-1]
+    return None
+
+
+def check_preset(name: Any) -> Params:
+    """The preset's Params, or ConfigError naming the known ones (checked before physics.* are declared)."""
+    if not isinstance(name, str) or name not in PRESETS:
+        raise ConfigError(f"parameter preset = {name!r}: must be one of {', '.join(PRESETS)}")
+    return preset(name)
+
+
+def runtime_change(old: NodeConfig, changes: dict[str, Any]) -> NodeConfig:
+    """The new config after a runtime change, or ConfigError with the reason (nothing changes then).
+
+    Read-only parameters are refused by ROS before this runs. A physics change that would alter
+    the internal-load layout (e.g. the number of rollers) is refused: the latched labels and the
+    MCAP channels describe one layout per run.
+    """
+    from prsm_sim import build_model
+    new = NodeConfig.from_values({**old.values, **physics_parameters(old.params), **changes})
+    if new.params != old.params:
+        before = build_model(old.params, old.model, old.dt_s).layout
+        after = build_model(new.params, new.model, new.dt_s).layout
+        if after != before:
+            changed = ", ".join(sorted(k for k in changes if k.startswith(PHYSICS_PREFIX)))
+            raise ConfigError(f"{changed}: changes the internal-load layout of model {old.model} "
+                              f"({before.size} → {after.size} elements); set it at start-up instead")
+    return new
+
+
+def physics_type(params: Params, key: str) -> type:
+    """int, str or float: the type of a physics.<group>.<name> parameter, from the dataclass field."""
+    group, name = key[len(PHYSICS_PREFIX):].split(".")
+    gcls = type(getattr(params, group))
+    ann = str(next(f.type for f in fields(gcls) if f.name == name))
+    return int if ann.startswith("int") else str if ann.startswith("str") else float
+
+
+def params_template(preset_name: str = DEFAULT_PRESET, node_name: str = "prsm_actuator") -> str:
+    """A complete `ros__parameters` YAML file with every parameter at its default, units in comments."""
+    import yaml
+    lines = ["# prsm-node parameters; use with: prsm-node --ros-args --params-file FILE", f"{node_name}:",
+             "  ros__parameters:"]
+    for p in node_parameters():
+        if p.name == "preset":
+            value = preset_name
+        else:
+            value = p.default
+        unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
+        text = yaml.safe_dump({p.name: value}, default_flow_style=True).strip()[1:-1]
+        lines.append(f"    {text}  # {p.description}{unit}; {p.allowed}")
+    for key, value in physics_parameters(check_preset(preset_name)).items():
+        unit = physics_unit(key)
+        text = yaml.safe_dump({key: value}, default_flow_style=True).strip()[1:-1]
+        lines.append(f"    {text}" + (f"  # [{unit}]" if unit else ""))
+    return "\n".join(lines) + "\n"

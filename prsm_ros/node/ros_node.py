@@ -1,0 +1,567 @@
+"""`prsm-node`: the simulated PRSM actuator on the ROS 2 graph (issue 4; DESIGN.md "ROS interface").
+
+    prsm-node --ros-args --params-file my_params.yaml -p time_mode:=lockstep
+    prsm-node --params-template > my_params.yaml       # every parameter, its unit and range
+    prsm-node --help
+
+The node is plumbing (STYLE.md §8): it declares parameters (`node_params`), turns command
+messages into gated torques (`command_gate`), steps the simulator (`stepping.SimStepper`) on its
+clock, and hands each step's outputs to the publishers (`messages.MessageMapper`), the MCAP
+recorder and the Rerun sink.
+
+Time modes. `realtime`: a dedicated thread steps on absolute deadlines (`stepping.DeadlinePacer`);
+`fast`: the same thread without sleeping; `lockstep`: every message received on a command topic
+(valid or not: the controller's tick keeps the loop going) advances `lockstep_steps` steps in the
+command callback, so a slow controller or a debugger never breaks the loop and the same command
+sequence always gives the same states. `/clock` is published on every step; joint_states and the
+wrench at `joint_states_rate` (and after every lockstep batch), internal loads at
+`internal_loads_rate`. Nothing is published before the first step.
+
+Services (std_srvs): `~/pause` (SetBool: true pauses, false resumes), `~/step` (Trigger: advances
+`step_count` steps, only while paused — std_srvs has no integer request, so the count is a
+parameter), `~/reset` (Trigger: time zero, at rest at `initial_nut_position`, command and counters
+cleared, fault cleared). SIGINT and SIGTERM stop the node cleanly (exit 0, MCAP closed).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+import rclpy.executors
+import rclpy.signals
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock as RosClock
+from rclpy.clock_type import ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.qos import QoSPolicyKind
+from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from std_srvs.srv import SetBool, Trigger
+
+from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, stamp, time_ns
+from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
+                          params_template, physics_parameters, physics_type, physics_unit, runtime_change)
+from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority
+
+WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
+# fast mode: a thread that never sleeps keeps the GIL and the lock from the executor (services,
+# commands) for a switch interval at a time, so it really sleeps briefly every few steps.
+FAST_YIELD_EVERY = 32
+FAST_YIELD_S = 2e-5
+OVERRIDABLE_QOS = (QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY, QoSPolicyKind.DURABILITY)
+REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Python's default: 5 ms)
+
+
+class PrsmNode(Node):
+    """Publishers, subscriptions, services and the step loop; all logic lives in the helpers."""
+
+    def __init__(self, **node_kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **node_kwargs)
+        self.recorder = self.rerun = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        try:
+            self._setup()
+        except BaseException:
+            self.close()  # our threads and files; the caller decides about the rcl node
+            raise
+
+    def _setup(self) -> None:
+        self.config = self._declare_parameters()
+        cfg = self.config
+        self._lock = threading.Lock()
+        self.gate = CommandGate(cfg.max_effort, cfg.cmd_timeout, cfg.timeout_behaviour)
+        self.stepper = SimStepper(cfg.params, cfg.model, cfg.dt_s, self.gate,
+                                  nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force)
+        self.stepper.paused = cfg.start_paused
+        self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
+        self._set_decimation()
+
+        def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
+            return QoSOverridingOptions(policy_kinds=OVERRIDABLE_QOS)
+        try:
+            self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
+                                                 qos_overriding_options=qos_opts())
+                        for k in ("joint_states", "wrench", "internal_loads", "labels", "clock", "diagnostics")}
+            self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
+                                                    qos_overriding_options=qos_opts())
+                        for k, cb in (("screw_torque", self._on_screw_torque),
+                                      ("joint_commands", self._on_joint_commands),
+                                      ("nut_position_reference", self._on_reference))}
+        except (InvalidQosOverridesError, ParameterException) as e:
+            raise ConfigError(f"QoS override: {e}") from None
+        self._check_unknown_overrides()
+        self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
+        self._topic_names.update({k: s.topic_name for k, s in self.sub.items()})
+
+        self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
+        if cfg.time_mode == "realtime":
+            self._prepare_realtime()
+        self.recorder = self._open_recorder()
+        try:
+            self.rerun = self._open_rerun()
+        except ConfigError:
+            if self.recorder is not None:  # no run happened: leave no empty bag behind
+                self.recorder.close()
+                self.recorder.path.unlink(missing_ok=True)
+                self.recorder = None
+            raise
+
+        self.create_service(SetBool, "~/pause", self._srv_pause)
+        self.create_service(Trigger, "~/step", self._srv_step)
+        self.create_service(Trigger, "~/reset", self._srv_reset)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._steady = RosClock(clock_type=ClockType.STEADY_TIME)  # diagnostics follow wall time, never /clock
+        self._diag_timer = self.create_timer(1.0 / cfg.diagnostics_rate, self._publish_diagnostics, clock=self._steady)
+        self._diag_last = (time.perf_counter(), 0.0, 0)  # wall s, sim s, overruns at the last report
+        self._warned_at: dict[str, float] = {}
+        self.publish_failures = 0
+        self._step_wall_max_s = 0.0
+        self._publish(self.pub["labels"], "labels", self.mapper.labels())
+
+        self._resumed = threading.Event()
+        self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
+        if cfg.time_mode != "lockstep":
+            self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
+            self._thread.start()
+        self.get_logger().info(
+            f"{cfg.model} model, preset {cfg.preset}, {cfg.update_rate} Hz, {cfg.time_mode}"
+            + (f" ×{cfg.real_time_factor:g}" if cfg.time_mode == "realtime" else "")
+            + (f", recording to {self.recorder.path}" if self.recorder else "")
+            + (", paused" if cfg.start_paused else ""))
+
+    def _prepare_realtime(self) -> None:
+        """Realtime mode: keep the step thread from waiting for the GIL (measured in bench_node).
+
+        The step thread wakes on time under SCHED_FIFO, but then needs the GIL; if the thread
+        holding it (executor, recorder) is a normal thread the OS has preempted, the step waits
+        for milliseconds (priority inversion). So this thread, and the threads started after it
+        (recorder, Rerun), run SCHED_FIFO one level below the step thread when the OS allows, and
+        a waiting thread gets the GIL after 100 µs instead of Python's default 5 ms.
+        """
+        prio = self.config.realtime_priority
+        if prio > 1:
+            self.scheduling["other_threads"] = request_realtime_priority(prio - 1)
+        sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
+
+    # -- parameters ------------------------------------------------------------------------
+    def _declare_parameters(self) -> NodeConfig:
+        values: dict[str, Any] = {}
+        for p in node_parameters():
+            values[p.name] = self._declare(p.name, p.default, _descriptor(p), p)
+            if p.name == "preset":
+                base = check_preset(values["preset"])
+        for key, default in physics_parameters(base).items():
+            unit = physics_unit(key)
+            desc = ParameterDescriptor(
+                description=f"physical parameter {key[len(PHYSICS_PREFIX):]}"
+                            + (f" [{unit}]" if unit else "") + f"; default from preset {base.name}",
+                additional_constraints=f"{physics_type(base, key).__name__}; validated by prsm_sim.Params",
+                dynamic_typing=True)
+            values[key] = self._declare(key, default, desc)
+        return NodeConfig.from_values(values)
+
+    def _declare(self, name: str, default: Any, desc: ParameterDescriptor, spec: NodeParam | None = None) -> Any:
+        """Declare one parameter; rclpy's type or range refusal is re-worded by our own check when we can."""
+        try:
+            return self.declare_parameter(name, default, desc).value
+        except ParameterException as e:
+            given = getattr(self, "_parameter_overrides", {}).get(name)  # rclpy keeps them here; no getter
+            if spec is not None and given is not None:
+                check_value(spec, given.value)  # raises ConfigError in the words of node_params
+            raise ConfigError(f"parameter {name}: {e}") from None
+
+    def _check_unknown_overrides(self) -> None:
+        """A physics.* key in the parameter file that we did not declare is a typo: refuse it."""
+        overrides = getattr(self, "_parameter_overrides", {})
+        unknown = sorted(k for k in overrides if not self.has_parameter(k))
+        for k in unknown:
+            if k.startswith(PHYSICS_PREFIX):
+                group = k[len(PHYSICS_PREFIX):].split(".")[0]
+                allowed = [n for n in physics_parameters(self.config.params) if n.startswith(f"{PHYSICS_PREFIX}{group}.")]
+                raise ConfigError(f"unknown parameter {k}; allowed: "
+                                  + (", ".join(allowed) if allowed else
+                                     "physics.<group>.<name> with group geometry, mass, friction, ideal or loads"))
+            self.get_logger().warning(f"parameter {k} is not a parameter of this node; ignored")
+
+    def _on_set_parameters(self, parameters) -> SetParametersResult:
+        ours = {p.name: p.value for p in parameters if p.name in self.config.values or p.name.startswith(PHYSICS_PREFIX)}
+        if not ours:
+            return SetParametersResult(successful=True)
+        try:
+            new = runtime_change(self.config, ours)
+        except ConfigError as e:
+            return SetParametersResult(successful=False, reason=str(e))
+        with self._lock:
+            old, self.config = self.config, new
+            self.gate.configure(new.max_effort, new.cmd_timeout, new.timeout_behaviour)
+            self.stepper.load_n = new.load_force
+            self.stepper.nut_position_m = new.initial_nut_position
+            if new.params != old.params:
+                self.stepper.rebuild(new.params)
+            if new.real_time_factor != old.real_time_factor:
+                self.pacer.set_rate(new.real_time_factor)
+            self._set_decimation()
+        if new.diagnostics_rate != old.diagnostics_rate:
+            self._diag_timer.timer_period_ns = int(1e9 / new.diagnostics_rate)
+        self.get_logger().info("parameters changed: " + ", ".join(f"{k} = {v!r}" for k, v in ours.items()))
+        return SetParametersResult(successful=True)
+
+    def _set_decimation(self) -> None:
+        cfg = self.config
+        self._js_every = every_n_steps(cfg.joint_states_rate, cfg.update_rate)
+        self._il_every = every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
+
+    def _topic(self, key: str) -> str:
+        return self.config.topics.get(key, TOPICS[key].name)
+
+    # -- recording -------------------------------------------------------------------------
+    def _open_recorder(self):
+        cfg = self.config
+        if not cfg.record:
+            return None
+        from prsm_ros.mcap.recorder import McapRecorder, default_record_path, run_metadata
+        node_params = {k: v for k, v in cfg.values.items()}
+        node_params.update(physics_parameters(cfg.params))
+        meta = run_metadata(cfg.params, preset=cfg.preset, model=cfg.model, dt_s=cfg.dt_s,
+                            node_parameters=node_params)
+        rec = McapRecorder(cfg.record_path or default_record_path(), metadata=meta)
+        if rec.error:
+            rec.close()
+            raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {rec.error}")
+        for k, name in self._topic_names.items():
+            ent = self.pub.get(k) or self.sub[k]
+            rec.add_channel(name, TOPICS[k].msg_class, ent.qos_profile)
+        return rec
+
+    def _open_rerun(self):
+        cfg = self.config
+        from prsm_ros.viz.sink import rerun_forced_off
+        if cfg.rerun == "off" or rerun_forced_off():
+            return None
+        from prsm_ros.viz.sink import RerunSink
+        try:
+            return RerunSink(cfg.rerun, cfg.rerun_target, cfg.params, self.stepper.sim.layout, cfg.model)
+        except (ValueError, RuntimeError) as e:
+            raise ConfigError(str(e)) from None
+
+    def _publish(self, pub, key: str, msg, stamp_ns: int | None = None) -> None:
+        try:
+            pub.publish(msg)
+        except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
+            if not rclpy.ok(context=self.context):
+                raise
+            self.publish_failures += 1
+            self._warn_throttled(f"publish:{key}", f"publishing on {self._topic_names[key]} failed "
+                                                   f"({self.publish_failures} so far): {e}")
+        if self.recorder is not None:
+            self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
+
+    def _record_input(self, key: str, msg) -> None:
+        if self.recorder is not None:
+            self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s))
+
+    # -- commands in -----------------------------------------------------------------------
+    def _on_screw_torque(self, msg) -> None:
+        with self._lock:
+            self._record_input("screw_torque", msg)
+            reason = self.gate.offer_torque(msg.data, self.stepper.time_s)
+            self._after_command("screw_torque", reason)
+
+    def _on_joint_commands(self, msg) -> None:
+        with self._lock:
+            self._record_input("joint_commands", msg)
+            reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
+                                                   self.stepper.time_s)
+            self._after_command("joint_commands", reason)
+
+    def _on_reference(self, msg) -> None:
+        with self._lock:
+            self._record_input("nut_position_reference", msg)
+
+    def _after_command(self, key: str, reason: str | None) -> None:
+        """Called with the lock held: warn (throttled per topic) about a refused command; step in lockstep."""
+        if reason is not None:
+            self._warn_throttled(key, f"{self._topic_names[key]}: {reason}")
+        if self.config.time_mode == "lockstep" and not self.stepper.paused:
+            self._advance(self.config.lockstep_steps, publish_last_state=True)
+
+    def _warn_throttled(self, key: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._warned_at.get(key, -math.inf) >= WARN_THROTTLE_S:
+            self._warned_at[key] = now
+            self.get_logger().warning(text)
+
+    # -- stepping --------------------------------------------------------------------------
+    def _advance(self, n: int, publish_last_state: bool = False) -> int:
+        """Step n times and publish (lock held); the last state is always published when asked
+        (a lockstep controller waits for it). Returns the steps done (fewer after a fault)."""
+        done = 0
+        for i in range(n):
+            t0 = time.perf_counter()
+            out = self.stepper.step()
+            if out is None:
+                self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
+                break
+            done += 1
+            try:
+                self._publish_step(out, force_state=publish_last_state and i == n - 1)
+            except Exception as e:  # never let a publishing failure take the process down
+                if not rclpy.ok(context=self.context):
+                    break
+                self.stepper.fault = f"publishing step {self.stepper.nstep} failed: {type(e).__name__}: {e}"
+                self.get_logger().error(self.stepper.fault)
+                break
+            self._step_wall_max_s = max(self._step_wall_max_s, time.perf_counter() - t0)
+        return done
+
+    def _publish_step(self, out, force_state: bool = False) -> None:
+        k = self.stepper.nstep
+        st = stamp(out.time_s)
+        ns = time_ns(out.time_s)
+        # joint_states first: a lockstep controller computes its next command while the rest goes out
+        if force_state or k % self._js_every == 0:
+            self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
+            self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+        self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
+        if k % self._il_every == 0:
+            self._publish(self.pub["internal_loads"], "internal_loads", self.mapper.internal_loads(out), ns)
+        if self.rerun is not None:
+            self.rerun.submit(out)
+
+    def _loop(self) -> None:
+        """realtime / fast: the step thread (lockstep steps in the command callback instead)."""
+        reduce_timer_slack()
+        realtime = self.config.time_mode == "realtime"
+        if realtime:  # never for fast mode: a busy SCHED_FIFO thread would starve the machine
+            self.scheduling["step_thread"] = request_realtime_priority(self.config.realtime_priority)
+        self.pacer.restart()
+        was_running = False
+        while not self._stop.is_set():
+            if self.stepper.paused or self.stepper.fault is not None:
+                was_running = False
+                self._resumed.wait(0.05)
+                continue
+            if not was_running:
+                self.pacer.restart()
+                was_running = True
+            if realtime:
+                self.pacer.wait()
+            else:
+                self.pacer.stats.steps += 1
+                if self.pacer.stats.steps % FAST_YIELD_EVERY == 0:
+                    time.sleep(FAST_YIELD_S)
+            try:
+                with self._lock:
+                    if not self.stepper.paused:
+                        self._advance(1)
+            except Exception as e:  # a publish after shutdown, or a bug: never kill the process from here
+                if self._stop.is_set() or not rclpy.ok(context=self.context):
+                    return
+                self.stepper.fault = f"step loop error: {type(e).__name__}: {e}"
+                self.get_logger().error(self.stepper.fault)
+
+    # -- services --------------------------------------------------------------------------
+    def _srv_pause(self, request, response):
+        with self._lock:
+            self.stepper.paused = bool(request.data)
+            if self.stepper.paused:
+                self._resumed.clear()
+            else:
+                self._resumed.set()
+            response.success = True
+            response.message = f"{'paused' if self.stepper.paused else 'running'} at t = {self.stepper.time_s:.6f} s"
+        return response
+
+    def _srv_step(self, request, response):
+        with self._lock:
+            n = self.config.step_count
+            if not self.stepper.paused:
+                response.success, response.message = False, "not paused: ~/step works only while paused (call ~/pause true first)"
+            elif self.stepper.fault is not None:
+                response.success, response.message = False, f"faulted: {self.stepper.fault}"
+            else:
+                done = self._advance(n, publish_last_state=True)
+                response.success = done == n
+                response.message = f"stepped {done} of {n} steps to t = {self.stepper.time_s:.6f} s"
+        return response
+
+    def _srv_reset(self, request, response):
+        with self._lock:
+            self.stepper.reset(self.config.initial_nut_position)
+            self.pacer.restart()
+            response.success = True
+            response.message = f"reset to t = 0, nut at {self.config.initial_nut_position:g} m"
+        self.get_logger().info(response.message)
+        return response
+
+    # -- diagnostics -----------------------------------------------------------------------
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            status = self._diagnostic_status()
+            msg = DiagnosticArray(status=[status])
+            msg.header.stamp = stamp(self.stepper.time_s)
+            self._publish(self.pub["diagnostics"], "diagnostics", msg)
+
+    def _diagnostic_status(self) -> DiagnosticStatus:
+        cfg, st, gate = self.config, self.stepper, self.gate
+        now_wall, sim_now = time.perf_counter(), st.time_s
+        wall0, sim0, over0 = self._diag_last
+        rtf = (sim_now - sim0) / (now_wall - wall0) if now_wall > wall0 else math.nan
+        ps = self.pacer.stats
+        self._diag_last = (now_wall, sim_now, ps.overruns)
+        c = gate.counters
+        age = gate.command_age_s(sim_now)
+        values: dict[str, Any] = {
+            "time_mode": cfg.time_mode, "model": cfg.model, "preset": cfg.preset,
+            "sim_time_s": f"{sim_now:.6f}", "steps": st.nstep, "paused": st.paused,
+            "achieved_real_time_factor": f"{rtf:.4f}",
+            "target_real_time_factor": cfg.real_time_factor if cfg.time_mode == "realtime" else "n/a",
+            "step_overruns": ps.overruns, "skipped_periods": ps.skipped_periods, **self.scheduling,
+            "max_step_wall_time_us": f"{self._step_wall_max_s * 1e6:.1f}",
+            "command_age_s": "none yet" if math.isinf(age) else f"{age:.6f}",
+            "command_nm": gate.command_nm, "timed_out": gate.timed_out, "load_force_n": st.load_n,
+            "commands_received": c.received, "commands_accepted": c.accepted,
+            "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
+            "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
+            "fault": st.fault or "",
+        }
+        self._step_wall_max_s = 0.0
+        problems = []
+        if self.recorder is not None:
+            values.update(record_path=str(self.recorder.path), record_written=self.recorder.messages_written,
+                          record_dropped=self.recorder.messages_dropped, record_error=self.recorder.error or "")
+            if self.recorder.error:
+                problems.append(self.recorder.error)
+        if self.rerun is not None:
+            values.update({f"rerun_{k}": v for k, v in self.rerun.stats().items() if v is not None})
+            if self.rerun.error:
+                problems.append(self.rerun.error)
+        if gate.timed_out:
+            problems.append(f"no command for {age:.3f} s (cmd_timeout {cfg.cmd_timeout:g} s): "
+                            + ("zero torque" if cfg.timeout_behaviour == "zero" else "holding the last command"))
+        if ps.overruns > over0:
+            problems.append(f"{ps.overruns - over0} step overruns since the last report")
+        if st.fault is not None:
+            level, text = DiagnosticStatus.ERROR, st.fault
+        elif problems:
+            level, text = DiagnosticStatus.WARN, "; ".join(problems)
+        else:
+            level, text = DiagnosticStatus.OK, "paused" if st.paused else "running"
+        return DiagnosticStatus(level=level, name=f"{self.get_name()}: simulation", message=text,
+                                hardware_id=f"prsm_sim/{cfg.model}",
+                                values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+    # -- shutdown --------------------------------------------------------------------------
+    def close(self) -> None:
+        """Stop stepping, then close the recorder and the Rerun sink (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._resumed.set()
+            self._thread.join(timeout=5.0)
+        if self.recorder is not None:
+            self.recorder.close()
+        if self.rerun is not None:
+            self.rerun.close()
+
+
+def _descriptor(p: NodeParam) -> ParameterDescriptor:
+    unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
+    d = ParameterDescriptor(description=p.description + unit, additional_constraints=p.allowed, read_only=p.read_only)
+    if isinstance(p.default, float):
+        d.dynamic_typing = True  # accept integers for doubles; node_params checks the type
+        if p.lo is not None and p.hi is not None:
+            d.floating_point_range = [FloatingPointRange(from_value=float(p.lo), to_value=float(p.hi))]
+    elif isinstance(p.default, int) and not isinstance(p.default, bool) and p.lo is not None and p.hi is not None:
+        d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=1)]
+    return d
+
+
+def _usage() -> str:
+    lines = ["prsm-node: the simulated PRSM actuator (planetary roller screw) on the ROS 2 graph.", "", "usage: prsm-node [--help] [--params-template [PRESET]] [--ros-args ...]",
+             "", "parameters (-p name:=value, or a ros__parameters YAML via --params-file):"]
+    for p in node_parameters():
+        unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
+        lines.append(f"  {p.name} = {p.default!r}{unit}: {p.description}; {p.allowed}"
+                     + (" (read-only)" if p.read_only else ""))
+    lines.append("  physics.<group>.<name>: any prsm_sim parameter, default from the preset "
+                 "(see prsm-node --params-template)")
+    return "\n".join(lines)
+
+
+def _exit_now(code: int, message: str) -> None:
+    """Report a refused start-up and leave without tearing down the rcl node.
+
+    Destroying a node within milliseconds of creating it sometimes crashes (SIGSEGV in
+    rcl's node destruction) or hangs in the middleware while its discovery threads are still
+    starting (seen about once in 50 start-ups on a loaded machine). Nothing of ours is open
+    at this point (PrsmNode closed its recorder and threads), so skipping the teardown loses nothing.
+    """
+    print(message, file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: init, spin until SIGINT/SIGTERM or external shutdown, close everything, exit 0."""
+    args = list(sys.argv if argv is None else argv)
+    user = args[1:args.index("--ros-args")] if "--ros-args" in args else args[1:]
+    if "-h" in user or "--help" in user:
+        print(_usage())
+        return 0
+    if "--params-template" in user:
+        i = user.index("--params-template")
+        name = user[i + 1] if i + 1 < len(user) else "s30"
+        try:
+            print(params_template(name), end="")
+        except ConfigError as e:
+            print(f"prsm-node: error: {e}", file=sys.stderr)
+            return 2
+        return 0
+    if user:
+        print(f"prsm-node: error: unknown argument {user[0]!r}; ROS arguments go after --ros-args "
+              "(see prsm-node --help)", file=sys.stderr)
+        return 2
+
+    stop = threading.Event()
+    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    node = None
+    try:
+        try:
+            node = PrsmNode()
+        except ConfigError as e:
+            _exit_now(2, f"prsm-node: error: {e}")
+        except Exception as e:  # e.g. an RCLError for a QoS override the middleware refuses
+            if os.environ.get("PRSM_DEBUG"):
+                raise
+            _exit_now(1, f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)")
+        executor = rclpy.executors.SingleThreadedExecutor()
+        executor.add_node(node)
+        # Python runs signal handlers only between bytecodes, so spin in short slices.
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except rclpy.executors.ExternalShutdownException:
+        pass
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,201 @@
+"""The node's stepping and pacing logic, pure Python (no ROS), so it is tested without DDS.
+
+- `SimStepper`: the simulator, its command gate, the load, pause and fault state. One `step()`
+  asks the gate for the torque, steps the core, and stops for good (until `reset`) when the model
+  produces a non-finite state: it never publishes garbage and never raises into the node.
+- `DeadlinePacer`: realtime pacing on absolute deadlines t0 + k·period (no drift: lateness is
+  never folded into the next period), with catch-up for late steps, a bound on how far it
+  catches up, and the measured real-time factor and overruns.
+- `every_n_steps`: publish decimation for a rate in Hz.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from prsm_sim import Outputs, Params, Simulator
+
+from prsm_ros.node.command_gate import CommandGate
+
+
+def state_is_finite(out: Outputs) -> bool:
+    """The state-carrying outputs are finite (efficiency and speed_ratio may be NaN by design)."""
+    return all(math.isfinite(v) for v in (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_angle_rad,
+                                          out.carrier_speed_rad_s, out.nut_force_n)) \
+        and bool(np.all(np.isfinite(out.internal)))
+
+
+class SimStepper:
+    """Simulator + command gate + external load; the node calls `step()` once per step."""
+
+    def __init__(self, params: Params, model: str, dt_s: float, gate: CommandGate, *,
+                 nut_position_m: float = 0.0, load_n: float = 0.0) -> None:
+        self.sim = Simulator(params, model, dt_s, nut_position_m)
+        self.nut_position_m = float(nut_position_m)
+        self.model_name = model
+        self.gate = gate
+        self.load_n = float(load_n)
+        self.paused = False
+        self.fault: str | None = None
+        self.last: Outputs | None = None
+
+    @property
+    def time_s(self) -> float:
+        return self.sim.time_s
+
+    @property
+    def nstep(self) -> int:
+        return self.sim.nstep
+
+    def step(self) -> Outputs | None:
+        """One step with the gated torque; None (and nothing changed) once faulted."""
+        if self.fault is not None:
+            return None
+        torque = self.gate.torque(self.sim.time_s)
+        before = self.sim.state
+        try:
+            out = self.sim.step(torque, self.load_n)
+        except Exception as e:  # any model failure stops stepping; the node stays up for ~/reset
+            self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {type(e).__name__}: {e}"
+            return None
+        if not state_is_finite(out):
+            self.sim.state = before  # keep the last finite state for inspection; reset clears the fault
+            self.sim.nstep -= 1
+            self.fault = (f"model {self.model_name} produced a non-finite state at t = {out.time_s:.6f} s "
+                          f"(torque {torque:g} N·m, load {self.load_n:g} N); stepping stopped, call ~/reset")
+            return None
+        self.last = out
+        return out
+
+    def reset(self, nut_position_m: float | None = None) -> None:
+        """Back to time zero at rest; clears the fault, the command and the gate counters."""
+        if nut_position_m is not None:
+            self.nut_position_m = float(nut_position_m)
+        self.sim.reset(self.nut_position_m)
+        self.gate.reset()
+        self.fault = None
+        self.last = None
+
+    def rebuild(self, params: Params) -> None:
+        """New parameters for the same model, keeping the state and the step count (runtime change)."""
+        sim = Simulator(params, self.model_name, self.sim.dt_s, self.nut_position_m)
+        sim.state, sim.nstep = self.sim.state, self.sim.nstep
+        self.sim = sim
+
+
+def every_n_steps(rate_hz: float, update_rate_hz: float) -> int:
+    """Publish every n-th step for `rate_hz` (0 or >= update rate: every step)."""
+    if rate_hz <= 0 or rate_hz >= update_rate_hz:
+        return 1
+    return max(1, round(update_rate_hz / rate_hz))
+
+
+@dataclass
+class PacerStats:
+    """Realtime pacing figures since start (or `DeadlinePacer.restart`)."""
+
+    steps: int = 0
+    overruns: int = 0  # steps that started more than one period after their deadline
+    skipped_periods: int = 0  # periods dropped when too far behind to catch up
+    lateness_s: list[float] = field(default_factory=list)  # per-step start − deadline (bounded ring)
+
+
+class DeadlinePacer:
+    """Absolute-deadline pacing: step k is due at t0 + k·period/rtf (wall clock, monotonic).
+
+    `wait()` sleeps until the next deadline and returns; a late step is not waited for (catch-up),
+    and when the loop falls more than `max_catchup_periods` behind it jumps the schedule forward
+    (counting the skipped periods) instead of running a burst. Sleeping uses the monotonic clock
+    with the thread's timer slack reduced to 1 µs (Linux prctl), so wake-ups are not rounded up by
+    the default 50 µs slack.
+    """
+
+    def __init__(self, period_s: float, real_time_factor: float = 1.0, *, max_catchup_periods: int = 50,
+                 clock: Callable[[], float] = time.perf_counter, sleep: Callable[[float], None] = time.sleep,
+                 keep_lateness: int = 200_000, spin_s: float = 0.0) -> None:
+        self.nominal_period_s = period_s
+        self.spin_s = spin_s
+        self.max_catchup_periods = max_catchup_periods
+        self._clock, self._sleep = clock, sleep
+        self._keep = keep_lateness
+        self.set_rate(real_time_factor)
+        self.restart()
+
+    def set_rate(self, real_time_factor: float) -> None:
+        """Change the real-time factor; the schedule restarts from now so no burst or gap follows."""
+        self.real_time_factor = real_time_factor
+        self.period_s = self.nominal_period_s / real_time_factor
+        if hasattr(self, "_t0"):
+            self.restart()
+
+    def restart(self) -> None:
+        """New schedule from now (after a pause, a reset or a rate change)."""
+        self._t0 = self._clock()
+        self._k = 0
+        self.stats = PacerStats()
+
+    @property
+    def next_deadline(self) -> float:
+        return self._t0 + (self._k + 1) * self.period_s
+
+    def wait(self) -> float:
+        """Sleep until the next step is due; returns its lateness in seconds (>= 0 when on time)."""
+        due = self.next_deadline
+        now = self._clock()
+        if due - self.spin_s > now:
+            self._sleep(due - self.spin_s - now)
+            now = self._clock()
+        while now < due:  # the last spin_s: poll the clock instead of trusting the wake-up latency
+            now = self._clock()
+        late = now - due
+        if late > self.max_catchup_periods * self.period_s:
+            skip = int(late // self.period_s)
+            self._k += skip
+            self.stats.skipped_periods += skip
+            late -= skip * self.period_s
+        if late > self.period_s:
+            self.stats.overruns += 1
+        self._k += 1
+        self.stats.steps += 1
+        lat = self.stats.lateness_s
+        if len(lat) >= self._keep:
+            del lat[: self._keep // 2]
+        lat.append(late)
+        return late
+
+    def achieved_rtf(self, sim_dt_s: float) -> float:
+        """Simulated time over wall time since the schedule started."""
+        wall = self._clock() - self._t0
+        return self.stats.steps * sim_dt_s / wall if wall > 0 else math.nan
+
+
+def reduce_timer_slack() -> bool:
+    """Set this thread's timer slack to 1 ns (Linux), so sleeps wake on time; False where unsupported."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_timerslack = 29
+        return libc.prctl(pr_set_timerslack, 1, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def request_realtime_priority(priority: int) -> str:
+    """Put the calling thread under SCHED_FIFO at `priority` (Linux, needs CAP_SYS_NICE or an rtprio limit).
+
+    A paced thread that sleeps most of each period loses little to this and gains on-time
+    wake-ups when other processes keep the cores busy. Returns what was applied, in words.
+    """
+    if priority <= 0:
+        return "normal (realtime_priority 0)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as e:
+        return f"normal (SCHED_FIFO {priority} refused: {getattr(e, 'strerror', None) or e})"
+    return f"SCHED_FIFO {priority}"

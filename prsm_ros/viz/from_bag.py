@@ -1,0 +1,221 @@
+"""`bag_to_rrd`: the Rerun scene and series of a recorded MCAP bag (`prsm-bag to-rrd BAG -o FILE.rrd`).
+
+What a bag gives, in order of preference:
+
+1. `…/internal_loads` + `…/internal_loads/labels` (our node, `prsm-sim run --mcap`): every scalar
+   output and the internal loads, decoded with `prsm_ros.messages.parse_labels`/`unpack_internal`
+   — the same recording `RerunSink` makes live.
+2. otherwise `…joint_states` (sensor_msgs/JointState): `screw_joint` and `nut_joint` give the screw
+   angle/speed/torque and nut position/velocity/force series and move the screw and the nut in 3D;
+   other joints become series `series/inputs/joint_states/<joint>/<position|velocity|effort>`.
+
+Topics are found by `prsm_ros.bag.reader.resolve_topics` (type and name suffix, so a namespaced or
+remapped node still converts). The `…/nut_position_reference` and `…/screw_torque` commands
+(std_msgs/Float64) are plotted as inputs beside the outputs. Geometry comes from the run metadata (`prsm_run`
+parameters_yaml, written by our recorder); a bag without it gets its `preset`, else a schematic
+geometry (preset s30), and the summary says so. Time: our bags are stamped with simulation time
+and keep it; a foreign bag's `sim_time` is the time since its first message.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from prsm_sim import InternalLayout, ParamError, Params, preset
+
+from prsm_ros.viz.sink import APPLICATION_ID, RecordingWriter, rerun_forced_off
+
+RUN_METADATA = "prsm_run"
+SCHEMATIC_PRESET = "s30"
+_JOINT_COLUMNS = {  # joint → (position, velocity, effort) output names
+    "screw_joint": ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm"),
+    "nut_joint": ("nut_position_m", "nut_velocity_m_s", "nut_force_n"),
+}
+_UNITS = {"nut_position_reference": "m", "screw_torque": "N·m"}
+
+
+def _params_from(meta: dict[str, str], explicit: Params | None) -> tuple[Params, str]:
+    if explicit is not None:
+        return explicit, "given by the caller"
+    text = meta.get("parameters_yaml")
+    if text:
+        try:
+            return Params.from_dict(yaml.safe_load(text)), "bag run metadata"
+        except (ParamError, yaml.YAMLError) as e:
+            raise ValueError(f"bag run metadata {RUN_METADATA}.parameters_yaml is not a valid parameter set: "
+                             f"{e}") from None
+    if meta.get("preset"):
+        try:
+            return preset(meta["preset"]), f"preset {meta['preset']} named in the run metadata"
+        except ParamError:
+            pass
+    return preset(SCHEMATIC_PRESET), f"schematic (preset {SCHEMATIC_PRESET}; the bag carries no parameters)"
+
+
+def _stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+class _Conversion:
+    """The rows of one bag on their way to a RecordingWriter: collected, batched, sent."""
+
+    def __init__(self, writer: RecordingWriter, source: str, labels: dict | None, scalar_names: list[str],
+                 input_topics: set[str], *, ours: bool, batch_rows: int) -> None:
+        self.writer, self.source, self.labels = writer, source, labels
+        self.scalar_names = scalar_names
+        self.n_scalar = labels["segments"][0]["size"] if labels else 0
+        self.i_time = scalar_names.index("time_s") if labels and "time_s" in scalar_names else None
+        self.input_topics = input_topics
+        self.batch_rows = batch_rows
+        self.t0_ns = 0 if ours else None
+        self.rows: list[tuple[float, Any]] = []
+        self.inputs: dict[str, tuple[list[float], list[float], str]] = {}
+        self.t_span = [math.inf, -math.inf]
+
+    def sim_time(self, t_ns: int) -> float:
+        """Seconds: our bags keep their simulation time; a foreign bag's starts at its first message
+        (subtracted in integer ns: wall-clock epoch stamps do not survive a float subtraction)."""
+        if self.t0_ns is None:
+            self.t0_ns = t_ns
+        return (t_ns - self.t0_ns) * 1e-9
+
+    def take(self, m) -> None:
+        """One decoded bag message (prsm_ros.bag.reader.BagMessage)."""
+        msg = m.msg
+        if m.topic in self.input_topics:
+            self._input(m.topic.rstrip("/").rsplit("/", 1)[-1], self.sim_time(m.log_time_ns), float(msg.data))
+            return
+        if self.source == "internal_loads":
+            row = np.asarray(msg.data, dtype=float)
+            t = float(row[self.i_time]) if self.i_time is not None else self.sim_time(m.log_time_ns)
+        else:
+            stamped = msg.header.stamp.sec or msg.header.stamp.nanosec
+            t = self.sim_time(_stamp_ns(msg) if stamped else m.log_time_ns)
+            row = {}
+            for k, name in enumerate(msg.name):
+                vals = [seq[k] if k < len(seq) else math.nan for seq in (msg.position, msg.velocity, msg.effort)]
+                if name in _JOINT_COLUMNS:
+                    row.update(zip(_JOINT_COLUMNS[name], vals))
+                else:
+                    for field, v in zip(("position", "velocity", "effort"), vals):
+                        self._input(f"joint_states/{name}/{field}", t, v)
+        self.rows.append((t, row))
+        self.t_span = [min(self.t_span[0], t), max(self.t_span[1], t)]
+        if len(self.rows) >= self.batch_rows:
+            self.flush()
+
+    def _input(self, name: str, t: float, v: float) -> None:
+        ts, vs, _ = self.inputs.setdefault(name, ([], [], _UNITS.get(name, "")))
+        ts.append(t)
+        vs.append(v)
+
+    def flush(self) -> None:
+        if not self.rows:
+            return
+        from prsm_ros.messages import unpack_internal
+        t = np.array([r[0] for r in self.rows])
+        if self.source == "internal_loads":
+            data = np.asarray([r[1] for r in self.rows], dtype=float)
+            cols = unpack_internal(data, self.labels)
+            columns = {n: cols[n] for n in self.scalar_names}
+            columns["time_s"] = t  # the row's own time_s, else its log time
+            self.writer.send(columns, data[:, self.n_scalar:])
+        else:
+            columns = {"time_s": t}
+            for name in self.scalar_names[1:]:
+                vals = np.array([r[1].get(name, math.nan) for r in self.rows])
+                if not np.all(np.isnan(vals)):
+                    columns[name] = vals
+            self.writer.send(columns, None)
+        self.rows = []
+
+    def finish(self) -> None:
+        self.flush()
+        for name, (ts, vs, unit) in self.inputs.items():
+            self.writer.send_input(name, np.array(ts), np.array(vs), unit)
+
+
+def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | None = None,
+               scene_rate_hz: float = 30.0, batch_rows: int = 20_000) -> dict[str, Any]:
+    """Convert a recorded MCAP bag into an .rrd with the default blueprint; returns a summary dict.
+
+    Summary keys: bag, rrd, source ("internal_loads" | "joint_states"), model, geometry, rows,
+    scene_frames, duration_s, topics (used), inputs, warnings (e.g. an unfinished bag's note).
+    The bag is opened with `prsm_ros.bag.reader` (so an unfinished recording converts as far as it
+    goes); a bag that cannot be used raises its `BagError`, an unusable output (or RERUN=off in the
+    environment, which would make the SDK write nothing) ValueError, and a conversion that fails
+    half-way removes its partial output.
+    """
+    import rerun as rr
+
+    from prsm_ros.bag.reader import open_bag, resolve_topics
+    from prsm_ros.messages import parse_labels
+
+    if rerun_forced_off():  # the SDK would silently write nothing
+        raise ValueError("the environment variable RERUN=off turns the Rerun SDK off, so no .rrd can be written; "
+                         "unset it for this command")
+    out = Path(rrd_path)
+    if not out.parent.is_dir():
+        raise ValueError(f"output directory {str(out.parent)!r} does not exist")
+    bag = open_bag(bag_path)
+    if out.resolve() == bag.path.resolve():
+        raise ValueError(f"output {str(out)!r} would overwrite the bag")
+    warnings = [bag.note] if bag.note else []
+    roles = resolve_topics(bag)
+    meta = bag.run_metadata
+
+    labels = None
+    if roles["internal_loads"] and roles["labels"]:
+        for m in bag.messages([roles["labels"]]):
+            labels = parse_labels(m.msg.data)
+            break
+    elif roles["internal_loads"]:
+        warnings.append(f"{roles['internal_loads']} has no labels topic beside it: read the joint states instead")
+    if labels is not None:
+        source, data_topic = "internal_loads", roles["internal_loads"]
+        layout: InternalLayout = labels["layout_obj"]
+        model = labels["model"]
+        scalar_names = [e["label"] for e in labels["elements"][: labels["segments"][0]["size"]]]
+    elif roles["joint_states"]:
+        source, data_topic = "joint_states", roles["joint_states"]
+        layout, model = InternalLayout(blocks=()), meta.get("model")
+        scalar_names = ["time_s"] + [c for cols in _JOINT_COLUMNS.values() for c in cols]
+    else:
+        raise ValueError(f"{bag.path.name}: nothing to convert — no …/internal_loads with labels and no joint "
+                         f"states topic (topics: {', '.join(sorted(bag.topics)) or 'none'})")
+    run_params, geometry = _params_from(meta, params)
+    input_topics = {roles[r] for r in ("reference", "screw_torque") if roles[r]}
+    topics = [data_topic, *sorted(input_topics)]
+
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+    rec.save(out)
+    try:
+        rec.send_recording_name(f"{bag.path.name} · {model or 'unknown model'}")
+        writer = RecordingWriter(rec, run_params, layout, model or "unknown", scalar_names=scalar_names,
+                                 scene_rate_hz=scene_rate_hz)
+        writer.log_static()
+        conv = _Conversion(writer, source, labels, scalar_names, input_topics,
+                           ours=labels is not None or bool(meta), batch_rows=batch_rows)
+        for m in bag.messages(topics, progress=progress, desc=f"to-rrd {bag.path.name}"):
+            conv.take(m)
+        conv.finish()
+        if writer.rows == 0:
+            warnings.append(f"{data_topic} has no messages: the recording holds only the static scene")
+        writer.send_blueprint()
+        rec.flush(timeout_sec=60.0)
+        rec.disconnect()
+    except BaseException:  # a bag that fails to decode half-way, Ctrl-C: leave no half-written .rrd behind
+        rec.disconnect()
+        out.unlink(missing_ok=True)
+        raise
+    used = ([roles["labels"]] if labels is not None else []) + topics
+    return {"bag": str(bag.path), "rrd": str(out), "source": source, "model": model, "geometry": geometry,
+            "rows": writer.rows, "scene_frames": writer.scene_frames,
+            "duration_s": conv.t_span[1] - conv.t_span[0] if writer.rows else 0.0, "topics": used,
+            "inputs": list(writer.inputs), "warnings": warnings}

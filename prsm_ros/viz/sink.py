@@ -1,0 +1,308 @@
+"""Rerun output of a running simulation: `RerunSink` for the node, `RecordingWriter` shared with the bag converter.
+
+    sink = RerunSink("save", "run.rrd", params, sim.layout, "jones2016")   # or spawn / connect / off
+    sink.submit(out)        # per step, from the 1 kHz loop: appends to a bounded queue, nothing else
+    sink.close()            # drains the queue, finalises the file
+
+A background thread wakes every `flush_period_s` (0.25 s: the viewer lags by at most that), takes
+what the loop queued, sends the scalar series of every step with `send_columns` (one call per
+entity per batch) and draws the 3D scene for the first step of each 1/scene_rate_hz of simulation
+time (DESIGN.md "Rerun"). The cost is per batch more than per step, so the period sets it:
+`prsm-bench --only rerun` measures it beside a 1 kHz loop. It logs
+through an explicit `RecordingStream`, never the global one. The loop is never blocked: a full
+queue drops the step and counts it in `dropped`; a Rerun failure sets `error` and the loop runs on.
+
+Modes and targets (the node's `rerun` and `rerun_target` parameters):
+
+- `off`: nothing is imported or started. The environment variable RERUN=off (also 0/false/no) forces it.
+- `save`: write an .rrd to `target` ("" → ./prsm_<UTC yyyymmdd_HHMMSS>.rrd), blueprint included.
+- `spawn`: start a native viewer and stream to it; `target` is its port ("" → 9876).
+- `connect`: stream to a running viewer or `rerun --serve-grpc`; `target` is a URL
+  `rerun+http://host:port/proxy`, `host:port` or a port ("" → rerun+http://127.0.0.1:9876/proxy).
+
+This module imports `rerun` only when a sink or writer is actually made, so importing it costs nothing.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Iterable, Mapping
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prsm_sim import OUTPUT_FIELDS, InternalLayout, Outputs, Params, State
+from prsm_sim.models.base import trajectory_from_rows
+
+MODES = ("off", "save", "spawn", "connect")
+APPLICATION_ID = "prsm"
+DEFAULT_PORT = 9876
+_OFF_VALUES = ("off", "0", "false", "no")
+
+
+def rerun_forced_off() -> bool:
+    """True when the environment variable RERUN turns Rerun off."""
+    return os.environ.get("RERUN", "").strip().lower() in _OFF_VALUES
+
+
+def default_rrd_path(now: datetime | None = None) -> Path:
+    """./prsm_<UTC yyyymmdd_HHMMSS>.rrd, the name `save` uses for an empty target (like the MCAP default)."""
+    now = now or datetime.now(timezone.utc)
+    return Path.cwd() / f"prsm_{now.strftime('%Y%m%d_%H%M%S')}.rrd"
+
+
+def grpc_url(target: str) -> str:
+    """A viewer address from `rerun+http://host:port/proxy`, `host:port`, a port or "" (the default viewer)."""
+    t = target.strip()
+    if not t:
+        return f"rerun+http://127.0.0.1:{DEFAULT_PORT}/proxy"
+    if "://" in t:
+        if not t.startswith(("rerun://", "rerun+http://", "rerun+https://")) or not t.rstrip("/").endswith("/proxy"):
+            raise ValueError(f"rerun_target {target!r}: a viewer URL must be rerun+http://HOST:PORT/proxy "
+                             "(or rerun:// / rerun+https://)")
+        return t
+    host, _, port = t.rpartition(":")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"rerun_target {target!r}: expected rerun+http://HOST:PORT/proxy, HOST:PORT or a port 1-65535")
+    return f"rerun+http://{host or '127.0.0.1'}:{int(port)}/proxy"
+
+
+def _spawn_port(target: str) -> int:
+    t = target.strip()
+    if not t:
+        return DEFAULT_PORT
+    if not t.isdigit() or not 0 < int(t) < 65536:
+        raise ValueError(f"rerun_target {target!r}: in spawn mode the target is the viewer's port (1-65535) or empty")
+    return int(t)
+
+
+def _save_path(target: str) -> Path:
+    path = Path(target).expanduser() if target.strip() else default_rrd_path()
+    if path.is_dir():
+        raise ValueError(f"rerun_target {target!r} is a directory; give a file name ending in .rrd")
+    if not path.parent.is_dir():
+        raise ValueError(f"rerun_target {target!r}: directory {str(path.parent)!r} does not exist")
+    if not os.access(path.parent, os.W_OK):
+        raise ValueError(f"rerun_target {target!r}: directory {str(path.parent)!r} is not writable")
+    return path
+
+
+class _YieldingStream:
+    """A RecordingStream that hands the GIL back after every send (`time.sleep(0)`).
+
+    The background thread's Python work (building Arrow columns) otherwise holds the GIL until the
+    interpreter's switch interval (5 ms) forces a hand-over, and the 1 kHz loop thread, woken on its
+    deadline, waits that long. Yielding after each send bounds its wait by one send.
+    """
+
+    def __init__(self, rec: Any) -> None:
+        self._rec = rec
+
+    def send_columns(self, *args, **kwargs) -> None:
+        self._rec.send_columns(*args, **kwargs)
+        time.sleep(0)
+
+    def log(self, *args, **kwargs) -> None:
+        self._rec.log(*args, **kwargs)
+        time.sleep(0)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._rec, name)
+
+
+class RecordingWriter:
+    """One Rerun recording of a PRSM run: static scene, batches of steps, default blueprint.
+
+    Shared by the live sink and `bag_to_rrd`, so a recording made live and one converted from a
+    bag have the same entities. `params=None` means no geometry is known: series only.
+    """
+
+    def __init__(self, rec: Any, params: Params | None, layout: InternalLayout, model_name: str, *,
+                 scalar_names: Iterable[str] = tuple(n for n, _ in OUTPUT_FIELDS),
+                 scene_rate_hz: float = 30.0) -> None:
+        from prsm_ros.viz import scene as rerun_scene, series as rerun_series
+        if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
+            raise ValueError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
+        self.rec = rec
+        self.params = params
+        self.layout = layout
+        self.model_name = model_name
+        self.scene_rate_hz = float(scene_rate_hz)
+        self.scalar_names = [n for n in scalar_names if n != "time_s"]
+        self._series = rerun_series
+        self.scene = rerun_scene.Scene(params, layout) if params is not None else None
+        self._slot = -1
+        self.rows = 0
+        self.scene_frames = 0
+        self.inputs: list[str] = []
+
+    def log_static(self) -> None:
+        s = self._series
+        s.log_series_styles(self.rec, s.series_entities(self.scalar_names, self.layout))
+        if self.scene is not None:
+            self.scene.log_static(self.rec)
+
+    def send(self, columns: Mapping[str, np.ndarray], internal: np.ndarray | None) -> None:
+        """A batch of consecutive steps: every step to the series, the scene at its rate."""
+        n = self._series.send_series(self.rec, columns, internal, self.layout)
+        self.rows += n
+        if self.scene is None or n == 0:
+            return
+        from prsm_ros.viz.scene import scene_frame_indices
+        idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
+        if len(idx):
+            cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
+            self.scene_frames += self.scene.send_frames(self.rec, cols, None if internal is None else internal[idx])
+
+    def send_input(self, name: str, time_s: np.ndarray, values: np.ndarray, unit: str = "") -> None:
+        """A recorded input (e.g. the controller's nut position reference), plotted beside the outputs."""
+        if name not in self.inputs:
+            self._series.log_input_style(self.rec, name, unit)
+            self.inputs.append(name)
+        self._series.send_input(self.rec, name, time_s, values)
+
+    def blueprint(self):
+        from prsm_ros.viz.blueprint import default_blueprint
+        eye = 3 * self.params.geometry.nut_radius_m if self.params is not None else None
+        return default_blueprint(self.scalar_names, self.layout, scene=self.scene is not None, inputs=self.inputs,
+                                 eye_distance_m=eye)
+
+    def send_blueprint(self) -> None:
+        """Make the default layout active, so the file or viewer opens laid out whatever the viewer remembers."""
+        self.rec.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+
+
+class RerunSink:
+    """Live Rerun output of the node (contract: mode, target, params, layout, model_name, scene_rate_hz).
+
+    Bad mode or target raises ValueError naming what is allowed; nothing is started then.
+    """
+
+    def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
+                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.25, queue_size: int = 100_000,
+                 recording_name: str | None = None) -> None:
+        if mode not in MODES:
+            raise ValueError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
+        if not (isinstance(flush_period_s, (int, float)) and 0 < flush_period_s <= 10):
+            raise ValueError(f"flush_period_s = {flush_period_s!r}: must be in (0, 10] s")
+        if not (isinstance(queue_size, int) and queue_size > 0):
+            raise ValueError(f"queue_size = {queue_size!r}: must be a whole number > 0")
+        self.requested_mode = mode
+        self.mode = "off" if rerun_forced_off() else mode
+        self.target = target
+        self.layout = layout
+        self.model_name = model_name
+        self.flush_period_s = float(flush_period_s)
+        self.queue_size = queue_size
+        self.path: Path | None = None
+        self.url: str | None = None
+        self.error: str | None = None
+        self.dropped = 0
+        self.submitted = 0
+        self.batches = 0
+        self.flush_time_s = 0.0  # wall time the background thread spent on batches
+        self._queue: deque[Outputs] = deque()
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self._wake = threading.Event()
+        self.writer: RecordingWriter | None = None
+        if self.mode == "off":
+            return
+        # validate the target before importing or starting anything
+        if self.mode == "save":
+            self.path = _save_path(target)
+        elif self.mode == "connect":
+            self.url = grpc_url(target)
+        else:
+            port = _spawn_port(target)
+        import rerun as rr
+        rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+        self.writer = RecordingWriter(_YieldingStream(rec), params, layout, model_name, scene_rate_hz=scene_rate_hz)
+        if self.mode == "save":
+            rec.save(self.path)
+        elif self.mode == "connect":
+            rec.connect_grpc(self.url)
+        else:
+            try:
+                rec.spawn(port=port, hide_welcome_screen=True)
+            except Exception as e:  # no viewer binary, no display: say so, the caller decides
+                raise RuntimeError(f"rerun = spawn: could not start a viewer on port {port} ({e}); "
+                                   "use rerun = save or connect instead") from None
+            self.url = f"rerun+http://127.0.0.1:{port}/proxy"
+        rec.send_recording_name(recording_name or f"{params.name} · {model_name}")
+        self.writer.send_blueprint()
+        self.writer.log_static()
+        self._thread = threading.Thread(target=self._run, name="prsm-rerun-sink", daemon=True)
+        self._thread.start()
+        atexit.register(self.close)  # a script that forgets close() still gets a finished file
+
+    @property
+    def active(self) -> bool:
+        return self.writer is not None and not self._closed and self.error is None
+
+    def submit(self, out: Outputs) -> None:
+        """Queue one step's outputs (O(1), no lock, no Rerun call); dropped and counted when the queue is full."""
+        if self.writer is None or self._closed or self.error is not None:
+            return
+        if len(self._queue) >= self.queue_size:
+            self.dropped += 1
+            return
+        self._queue.append(out)
+        self.submitted += 1
+
+    def _drain(self) -> None:
+        n = len(self._queue)
+        if n == 0 or self.error is not None:
+            return
+        rows = [self._queue.popleft() for _ in range(n)]
+        t0 = time.perf_counter()
+        try:
+            traj = trajectory_from_rows(rows, self.layout, State())  # the batch as columns; the state is unused
+            self.writer.send(traj.columns, traj.internal)
+        except Exception as e:  # never propagate into the node: report and stop logging
+            self.error = f"rerun logging failed: {type(e).__name__}: {e}"
+            self._queue.clear()
+        self.batches += 1
+        self.flush_time_s += time.perf_counter() - t0
+
+    def _run(self) -> None:
+        while not self._wake.wait(self.flush_period_s):
+            self._drain()
+        self._drain()
+
+    def close(self) -> None:
+        """Send what is queued, flush and close the file or connection. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        atexit.unregister(self.close)
+        if self._thread is not None:
+            self._wake.set()
+            self._thread.join()
+        if self.writer is not None:
+            rec = self.writer.rec
+            try:
+                rec.flush(timeout_sec=10.0)
+            except Exception as e:
+                self.error = self.error or f"rerun flush failed: {type(e).__name__}: {e}"
+            rec.disconnect()
+
+    def stats(self) -> dict[str, Any]:
+        """Counters for diagnostics: steps submitted, dropped, rows and scene frames sent, batches, error."""
+        w = self.writer
+        return {"mode": self.mode, "submitted": self.submitted, "dropped": self.dropped,
+                "rows": w.rows if w else 0, "scene_frames": w.scene_frames if w else 0,
+                "batches": self.batches, "flush_time_s": self.flush_time_s, "error": self.error}
+
+    def __enter__(self) -> RerunSink:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

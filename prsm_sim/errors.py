@@ -1,0 +1,19 @@
+"""The project's one error family: catch `PrsmError` for all of them, or one member.
+
+Every message names what was wrong (the field or input), the value, and what is allowed, in
+one line, so a command-line tool can print it as it is and exit with status 2.
+"""
+
+from __future__ import annotations
+
+
+class PrsmError(Exception):
+    """Base of every error this project raises on purpose."""
+
+
+class ParamError(PrsmError, ValueError):
+    """A parameter value, name or file was refused; the message says which and what is allowed."""
+
+
+class InputError(PrsmError, ValueError):
+    """A step or run input was refused (non-finite, wrong shape or type); the state is unchanged."""

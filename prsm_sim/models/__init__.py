@@ -1,0 +1,1 @@
+"""The model levels behind the one stepping contract (`base.Model`): ideal, jones2016, fu2018."""

@@ -1,0 +1,159 @@
+"""The one stepping contract every model shares, and the bookkeeping they have in common.
+
+A model is built from parameters and a fixed step `dt_s`; `step(state, torque, load)`
+returns the next state and the step's outputs and never mutates anything (SciPy's
+OdeSolver habit: the counters live in `Simulator`). `run` advances through input arrays and
+returns a columnar `Trajectory`; models with a faster batch form override it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from prsm_sim.errors import InputError
+from prsm_sim.outputs import OUTPUT_FIELDS, InternalLayout, Outputs, State, Trajectory
+from prsm_sim.params import Params
+
+
+class Model:
+    """Base class: subclasses set `name`, `layout` and implement `_advance`."""
+
+    name = "base"
+
+    def __init__(self, params: Params, dt_s: float) -> None:
+        if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.1):
+            raise ValueError(f"dt_s = {dt_s!r}: the step must be a finite number in (0, 0.1] s")
+        self.params = params
+        self.geo = params.geometry
+        self.dt_s = float(dt_s)
+        self.layout = InternalLayout(blocks=())
+
+    def initial_state(self, nut_position_m: float = 0.0) -> State:
+        """At rest, nut at `nut_position_m` (x_nut = (L/2π) θ_S fixes the screw angle)."""
+        return State(screw_angle_rad=nut_position_m / self.geo.lead_per_rad_m)
+
+    def step(self, state: State, torque_nm: float, load_n: float) -> tuple[State, Outputs]:
+        """Advance one fixed step with screw torque and nut load held over the step."""
+        return self._advance(state, float(torque_nm), float(load_n))
+
+    def _advance(self, state: State, torque_nm: float, load_n: float) -> tuple[State, Outputs]:
+        raise NotImplementedError
+
+    def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
+        """Advance len(torque_nm) steps; input k is held over step k, output k is at its end."""
+        torque_nm, load_n = _inputs(torque_nm, load_n)
+        rows = []
+        for tau, f in zip(torque_nm.tolist(), load_n.tolist()):
+            state, out = self._advance(state, tau, f)
+            rows.append(out)
+        return trajectory_from_rows(rows, self.layout, state)
+
+    # -- shared bookkeeping -------------------------------------------------------------
+    def finish_step(self, before: State, after: State, torque_nm: float, load_n: float, *,
+                    dissipated_j: float, slip_speed_m_s: float, internal: np.ndarray,
+                    nut_force_n: float | None = None) -> tuple[State, Outputs]:
+        """Energy ledger and the common outputs from the state before and after a step.
+
+        Work over the step is exact for inputs held over it: W_in = τ Δθ_S, W_out = F (L/2π) Δθ_S.
+        """
+        h = self.dt_s
+        p = self.geo.lead_per_rad_m
+        dtheta = after.screw_angle_rad - before.screw_angle_rad
+        w_in = torque_nm * dtheta
+        w_out = load_n * p * dtheta
+        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
+                        work_out_j=before.work_out_j + w_out, dissipated_j=before.dissipated_j + dissipated_j)
+        if nut_force_n is None:
+            m = self.params.mass.moved_mass_kg
+            nut_force_n = load_n + m * p * (after.screw_speed_rad_s - before.screw_speed_rad_s) / h
+        p_in, p_out = w_in / h, w_out / h
+        w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
+        out = Outputs(
+            time_s=state.time_s,
+            screw_angle_rad=state.screw_angle_rad,
+            screw_speed_rad_s=w_s,
+            screw_torque_nm=torque_nm,
+            carrier_angle_rad=state.carrier_angle_rad,
+            carrier_speed_rad_s=w_c,
+            roller_spin_rad_s=-self.geo.gear_ratio * w_c,
+            nut_position_m=p * state.screw_angle_rad,
+            nut_velocity_m_s=p * w_s,
+            nut_force_n=nut_force_n,
+            load_force_n=load_n,
+            slip_speed_m_s=slip_speed_m_s,
+            power_in_w=p_in,
+            power_out_w=p_out,
+            power_dissipated_w=dissipated_j / h,
+            efficiency=efficiency(p_out, dissipated_j / h),
+            speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
+            internal=internal,
+        )
+        return state, out
+
+
+def efficiency(power_out_w: float, power_dissipated_w: float) -> float:
+    """Efficiency of the mechanism itself, from the power through it (inertia excluded).
+
+    Forward (the screw delivers power to the load, P_out > 0): P_out / (P_out + P_diss).
+    Backward (the load drives the screw, P_out < 0): (|P_out| − P_diss) / |P_out|, which is ≤ 0
+    for a screw that must be driven even when back-driven (self-locking). NaN when no power
+    reaches the load. At constant speed these equal the port ratios P_out/P_in and P_in/P_out;
+    unlike the port ratios they never exceed 1 while the rotor's kinetic energy changes.
+    """
+    if power_out_w > 0.0:
+        return power_out_w / (power_out_w + power_dissipated_w)
+    if power_out_w < 0.0:
+        return 1.0 - power_dissipated_w / -power_out_w
+    return math.nan
+
+
+def _inputs(torque_nm, load_n) -> tuple[np.ndarray, np.ndarray]:
+    tau = np.asarray(torque_nm, dtype=float).ravel()
+    f = np.broadcast_to(np.asarray(load_n, dtype=float), tau.shape).ravel()
+    for name, arr in (("torque_nm", tau), ("load_n", f)):
+        if not np.all(np.isfinite(arr)):
+            k = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise InputError(f"{name}[{k}] = {arr[k]!r}: inputs must be finite numbers")
+    return tau, f
+
+
+def trajectory_from_rows(rows: list[Outputs], layout: InternalLayout, final: State) -> Trajectory:
+    cols = {n: np.fromiter((getattr(r, n) for r in rows), dtype=float, count=len(rows)) for n, _ in OUTPUT_FIELDS}
+    internal = np.array([r.internal for r in rows], dtype=float).reshape(len(rows), layout.size)
+    return Trajectory(columns=cols, internal=internal, layout=layout, final_state=final)
+
+
+def columns_to_trajectory(model: Model, tau: np.ndarray, load: np.ndarray, cols: np.ndarray, internal: np.ndarray,
+                          final: State, initial_screw_speed_rad_s: float = 0.0) -> Trajectory:
+    """The common output columns of a batch run, vectorised (the batch twin of `finish_step`).
+
+    `cols` rows: ω_S, ω_C, θ_S, θ_C at the end of each step, Δθ_S over it, dissipated work,
+    slip speed, nut force (NaN: derive it from the load and the moved mass's acceleration).
+    """
+    h = model.dt_s
+    geo = model.geo
+    p = geo.lead_per_rad_m
+    n = len(tau)
+    w_s, w_c, th_s, th_c, dth, diss, slip, nut_force = (cols[:, i] for i in range(8))
+    w_prev = np.concatenate([[initial_screw_speed_rad_s], w_s[:-1]])
+    w_in, w_out = tau * dth, load * p * dth
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p_in, p_out = w_in / h, w_out / h
+        p_d = diss / h
+        eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
+        ratio = np.where(w_s != 0, w_c / w_s, np.nan)
+    if np.isnan(nut_force).any():
+        nut_force = np.where(np.isnan(nut_force), load + model.params.mass.moved_mass_kg * p * (w_s - w_prev) / h,
+                             nut_force)
+    columns = {
+        "time_s": final.time_s - h * np.arange(n - 1, -1, -1),
+        "screw_angle_rad": th_s, "screw_speed_rad_s": w_s, "screw_torque_nm": tau.copy(),
+        "carrier_angle_rad": th_c, "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -geo.gear_ratio * w_c,
+        "nut_position_m": p * th_s, "nut_velocity_m_s": p * w_s, "nut_force_n": nut_force,
+        "load_force_n": load.copy(), "slip_speed_m_s": slip, "power_in_w": p_in, "power_out_w": p_out,
+        "power_dissipated_w": diss / h, "efficiency": eff, "speed_ratio": ratio,
+    }
+    return Trajectory(columns=columns, internal=internal, layout=model.layout, final_state=final)

@@ -1,0 +1,178 @@
+"""The `jones2016` model: 2-DOF Lagrange dynamics with viscous screw–roller friction (MODEL.md §4.1).
+
+Generalised coordinates (θ_S, θ_C). The gear ties roller spin to the carrier (ω_r = −g ω_C),
+the threads tie the nut to the screw (v = (L/2π) ω_S). Each of the N_R·N_T screw–roller
+contacts carries f = −c v_s with v_s the sliding velocity at the contact (exact tangency
+point by default, the line of centres as in Jones 2016 eqs. 20, 28 on request). By virtual
+power the friction's generalised force is −c N_R N_T Gᵀ G q̇ with v_s = G q̇, so
+
+    M q̈ = −C q̇ + B (τ, F),   C = c N_R N_T Gᵀ G,   B = [[1, −L/2π], [0, 0]]
+
+(Jones 2016 eqs. 35–36 with eq. 34's friction terms). Linear with constant coefficients:
+stepped exactly by zero-order hold (`linear_step`), and run in batch by recursive filters.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import lfilter
+
+from prsm_sim.physics.contact import ContactPoint, contact_for
+from prsm_sim.models.base import Model, _inputs, columns_to_trajectory
+from prsm_sim.outputs import InternalBlock, InternalLayout, State, Trajectory
+from prsm_sim.models.linear_step import discretise
+from prsm_sim.params import Params
+
+PER_ROLLER_QUANTITIES = (
+    ("screw_slip_radial_m_s", "m/s"),
+    ("screw_slip_tangential_m_s", "m/s"),
+    ("screw_slip_axial_m_s", "m/s"),
+    ("screw_friction_radial_n", "N"),
+    ("screw_friction_tangential_n", "N"),
+    ("screw_friction_axial_n", "N"),
+)
+
+
+def mass_matrix(params: Params) -> np.ndarray:
+    """Kinetic energy T = ½ q̇ᵀ M q̇ (MODEL.md §4.1; Jones 2016 eq. 27 incl. the migration coupling).
+
+    Roller axial velocity v_R = −(L/2π) ω_S + (P (n − g)/2π) ω_C couples the two coordinates
+    when g ≠ n; for the standard design the off-diagonal term vanishes.
+    """
+    geo, m = params.geometry, params.mass
+    p = geo.lead_per_rad_m
+    k_mig = geo.pitch_m * (geo.starts - geo.gear_ratio) / (2 * math.pi)
+    nr, mr = geo.n_rollers, m.roller_mass_kg
+    j_s = m.screw_inertia_kgm2 + (m.moved_mass_kg + nr * mr) * p**2
+    j_c = (m.carrier_inertia_kgm2 + nr * (mr * geo.carrier_radius_m**2 + mr * k_mig**2
+                                          + m.roller_inertia_kgm2 * (1 - geo.gear_ratio) ** 2))
+    j_sc = -nr * mr * p * k_mig
+    return np.array([[j_s, j_sc], [j_sc, j_c]])
+
+
+def input_matrix(params: Params) -> np.ndarray:
+    """Generalised forces of (screw torque, nut load): the load resists positive motion."""
+    return np.array([[1.0, -params.geometry.lead_per_rad_m], [0.0, 0.0]])
+
+
+class Jones2016(Model):
+    name = "jones2016"
+
+    def __init__(self, params: Params, dt_s: float) -> None:
+        super().__init__(params, dt_s)
+        geo, fr = self.geo, params.friction
+        self.contact: ContactPoint = contact_for(geo, "screw", fr.contact_evaluation)
+        self.G = self.contact.sliding_matrix(geo)
+        n_contacts = geo.n_rollers * geo.n_teeth
+        self.M = mass_matrix(params)
+        self.C = fr.viscous_n_s_m * n_contacts * (self.G.T @ self.G)
+        self.B = input_matrix(params)
+        self.lin = discretise(self.M, self.C, self.B, self.dt_s)
+        self.layout = InternalLayout(blocks=(
+            InternalBlock("per_roller", ("roller", "quantity"), (geo.n_rollers, len(PER_ROLLER_QUANTITIES)),
+                          PER_ROLLER_QUANTITIES),
+        ))
+
+    def _advance(self, state: State, torque_nm: float, load_n: float):
+        x = np.array([state.screw_angle_rad, state.carrier_angle_rad, state.screw_speed_rad_s,
+                      state.carrier_speed_rad_s])
+        u = np.array([torque_nm, load_n])
+        xn = self.lin.Phi @ x + self.lin.Gam @ u
+        z = np.concatenate([x[2:], u])
+        after = State(screw_angle_rad=xn[0], carrier_angle_rad=xn[1], screw_speed_rad_s=xn[2],
+                      carrier_speed_rad_s=xn[3])
+        v_s = self.G @ xn[2:]
+        return self.finish_step(state, after, torque_nm, load_n, dissipated_j=float(z @ self.lin.W @ z),
+                                slip_speed_m_s=float(np.linalg.norm(v_s)), internal=self._internal(v_s))
+
+    def _internal(self, v_s: np.ndarray) -> np.ndarray:
+        """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
+
+        `v_s` is 3 × steps (or 3 for one step); identical rollers repeat the row.
+        """
+        f = -self.params.friction.viscous_n_s_m * self.geo.n_teeth * v_s
+        rows = np.concatenate([v_s, f]).T
+        return np.tile(rows, (1, self.geo.n_rollers)) if rows.ndim == 2 else np.tile(rows, self.geo.n_rollers)
+
+    def run(self, state: State, torque_nm, load_n) -> Trajectory:
+        """Batch form of `step`: the same ZOH recursion, evaluated by recursive filters per mode."""
+        tau, f = _inputs(torque_nm, load_n)
+        n = len(tau)
+        lin = self.lin
+        u = np.vstack([tau, f])  # 2 × n
+        q0 = np.array([state.screw_angle_rad, state.carrier_angle_rad])
+        w0 = np.array([state.screw_speed_rad_s, state.carrier_speed_rad_s])
+        V, lam = lin.speed_modes, lin.speed_eigvals
+        Vi = np.linalg.inv(V)
+        drive = Vi @ (lin.Gam[2:] @ u)  # modal input, 2 × n
+        z0 = Vi @ w0
+        modes = np.empty((2, n))
+        for i in range(2):
+            # z[k+1] = λ z[k] + drive[k]; filter output is z[1..n]
+            modes[i], _ = lfilter([1.0], [1.0, -lam[i]], drive[i], zi=[lam[i] * z0[i]])
+        w = V @ modes  # speeds at the end of each step
+        w_prev = np.hstack([w0[:, None], w[:, :-1]])
+        dq = lin.Phi[:2, 2:] @ w_prev + lin.Gam[:2] @ u
+        q = q0[:, None] + np.cumsum(dq, axis=1)
+        zz = np.vstack([w_prev, u])
+        diss = np.einsum("ik,ij,jk->k", zz, lin.W, zz)
+        p = self.geo.lead_per_rad_m
+        dtheta = dq[0]
+        v_s = self.G @ w  # 3 × n
+        internal = self._internal(v_s)
+        final = State(time_s=state.time_s + self.dt_s * n, screw_angle_rad=q[0, -1] if n else q0[0],
+                      screw_speed_rad_s=w[0, -1] if n else w0[0], carrier_angle_rad=q[1, -1] if n else q0[1],
+                      carrier_speed_rad_s=w[1, -1] if n else w0[1],
+                      work_in_j=state.work_in_j + float(tau @ dtheta),
+                      work_out_j=state.work_out_j + float(f @ dtheta) * p,
+                      dissipated_j=state.dissipated_j + diss.sum())
+        cols = np.column_stack([w[0], w[1], q[0], q[1], dtheta, diss, np.linalg.norm(v_s, axis=0),
+                                np.full(n, np.nan)])
+        return columns_to_trajectory(self, tau, f, cols, internal, final, float(w0[0]))
+
+
+def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torque_nm: float | None = None,
+                 load_n: float | None = None) -> dict[str, float]:
+    """Closed-form steady state of `jones2016` (Jones 2016 eqs. 37–41 structure).
+
+    C q̇ = B (τ, F): the carrier row gives the speed ratio (independent of c, F, τ, MODEL.md
+    §4.1); the screw row gives the torque for a speed, or the speed for a torque. Exactly one
+    of `screw_speed_rad_s` and `torque_nm` may be given; default: the preset's screw speed.
+    """
+    if screw_speed_rad_s is not None and torque_nm is not None:
+        raise ValueError("give screw_speed_rad_s or torque_nm, not both")
+    geo, fr = params.geometry, params.friction
+    f = params.loads.nut_load_n if load_n is None else load_n
+    contact = contact_for(geo, "screw", fr.contact_evaluation)
+    G = contact.sliding_matrix(geo)
+    n_contacts = geo.n_rollers * geo.n_teeth
+    C = fr.viscous_n_s_m * n_contacts * (G.T @ G)
+    a_ss, b_ss, c_ss, d_ss = C[0, 0], C[0, 1], C[1, 0], C[1, 1]  # seed eq. (39): A ω_S + B ω_C = τ − F L/2π
+    p = geo.lead_per_rad_m
+    if torque_nm is None:
+        w_s = params.loads.screw_speed_rad_s if screw_speed_rad_s is None else screw_speed_rad_s
+        w_c = -c_ss / d_ss * w_s
+        torque_nm = a_ss * w_s + b_ss * w_c + f * p
+    else:
+        # seed eq. (40)
+        det = a_ss * d_ss - b_ss * c_ss
+        w_s = d_ss * (torque_nm - f * p) / det
+        w_c = -c_ss * (torque_nm - f * p) / det
+    v_s = G @ np.array([w_s, w_c])
+    p_in, p_out = torque_nm * w_s, f * p * w_s
+    return {
+        "screw_speed_rad_s": float(w_s),
+        "carrier_speed_rad_s": float(w_c),
+        "speed_ratio_screw_over_carrier": float(-d_ss / c_ss),
+        "carrier_over_screw": float(-c_ss / d_ss),
+        "torque_nm": float(torque_nm),
+        "load_force_n": float(f),
+        "nut_velocity_m_s": float(p * w_s),
+        "slip_speed_m_s": float(np.linalg.norm(v_s)),
+        "efficiency": float(p_out / p_in) if p_in > 0 and p_out > 0 else math.nan,
+        "steady_a_nm_s": float(a_ss), "steady_b_nm_s": float(b_ss),
+        "steady_c_nm_s": float(c_ss), "steady_d_nm_s": float(d_ss),
+        "contact_evaluation": fr.contact_evaluation,
+    }

@@ -1,0 +1,1 @@
+"""Geometry and contact mechanics shared by the models: kinematics and thread contact points."""
