@@ -1,4 +1,4 @@
-"""Rating life L10 of a roller screw over a duty cycle (MODEL.md §5 item 10).
+"""Rating life L10 of a roller screw over a duty cycle (docs/model.md §5 item 10).
 
 Vendor catalogues (the ISO 281 / ISO 3408-5 form used for ball and roller screws) give the
 basic rating life, reached or exceeded by 90 % of identical screws, as

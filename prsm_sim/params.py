@@ -1,4 +1,4 @@
-"""Frozen, validated parameter records (MODEL.md §1), SI units, unit in the name.
+"""Frozen, validated parameter records (docs/model.md §1), SI units, unit in the name.
 
 Each group validates itself where it is built and names the field, the value and what is
 allowed. Optional quantities (nut radius, gear ratio, masses and inertias) are derived from
@@ -42,7 +42,7 @@ def _set(obj: Any, name: str, value: Any) -> None:
 
 @dataclass(frozen=True)
 class Geometry:
-    """Thread and carrier geometry (MODEL.md §1). Radii are pitch (nominal) radii."""
+    """Thread and carrier geometry (docs/model.md §1). Radii are pitch (nominal) radii."""
 
     screw_radius_m: float
     roller_radius_m: float
@@ -59,7 +59,7 @@ class Geometry:
     def __post_init__(self) -> None:
         g = "geometry"
         _positive(g, self, "screw_radius_m", "roller_radius_m", "pitch_m")
-        # starts >= 3: the planetary fit r_S = (n − 2) r_R needs it (MODEL.md §1)
+        # starts >= 3: the planetary fit r_S = (n − 2) r_R needs it (docs/model.md §1)
         for n, lo in (("starts", 3), ("n_rollers", 3), ("n_teeth", 1)):
             v = getattr(self, n)
             _check(g, n, v, isinstance(v, int) and not isinstance(v, bool) and v >= lo,
@@ -122,7 +122,7 @@ class Geometry:
 
 @dataclass(frozen=True)
 class MassProperties:
-    """Masses and inertias; None means derived from geometry and density (MODEL.md §1, Jones 2016 eq. 14)."""
+    """Masses and inertias; None means derived from geometry and density (docs/model.md §1, Jones 2016 eq. 14)."""
 
     moved_mass_kg: float  # nut plus everything attached to it
     density_kg_m3: float = 7850.0
@@ -162,14 +162,14 @@ class Friction:
     """Friction and lubrication parameters of the `jones2016` and `fu2018` models.
 
     `viscous_n_s_m` is Jones 2016's c, per screw–roller thread contact. `contact_evaluation`
-    selects where the screw–roller slip is evaluated: at the exact tangency point (MODEL.md §3)
+    selects where the screw–roller slip is evaluated: at the exact tangency point (docs/model.md §3)
     or on the line of centres as the seed's equations (20), (28) do.
     """
 
     viscous_n_s_m: float = 25.0
     contact_evaluation: str = "exact"
     mu_screw_roller: float = 0.05
-    coulomb_regularisation_m_s: float = 1e-4  # ε in f = −μN v/√(|v|²+ε²), MODEL.md §4.2
+    coulomb_regularisation_m_s: float = 1e-4  # ε in f = −μN v/√(|v|²+ε²), docs/model.md §4.2
     screw_roller_law: str = "coulomb"  # fu2018: "coulomb" (Fu 2018) or "viscous" (Jones limit)
     mu_nut_roller_rolling: float = 0.002
     mu_pin: float = 0.05

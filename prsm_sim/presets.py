@@ -1,4 +1,4 @@
-"""Named parameter sets (MODEL.md §1, "Presets")."""
+"""Named parameter sets (docs/model.md §1, "Presets")."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from prsm_sim.params import Friction, Geometry, Loads, MassProperties, ParamErro
 
 
 def _jones2016() -> Params:
-    """Jones, Velinsky, Lasky 2016 worked example, its radii read as diameters (MODEL.md §1).
+    """Jones, Velinsky, Lasky 2016 worked example, its radii read as diameters (docs/model.md §1).
 
     d_S = 19.5 mm, d_R = 6.5 mm (r_S = 3 r_R, the n = 5 standard design), 10 rollers × 40
     threads, c = 25 N·s/m per contact, moved mass 3000 kg, F_out = 100 N, steady 1 rad/s.
@@ -25,7 +25,7 @@ def _jones2016_literal() -> Params:
     """The seed's numbers as printed: r_S = 19.5 mm, r_R = 5 mm.
 
     Not a consistent 5-start design (r_N / r_R = 5.9); its ideal ratio is 2.513, not the
-    2.667 the seed reports. Kept so users can see the discrepancy (MODEL.md §1).
+    2.667 the seed reports. Kept so users can see the discrepancy (docs/model.md §1).
     """
     base = _jones2016()
     return Params.from_dict({"name": "jones2016_literal",
@@ -39,7 +39,7 @@ def _jones2016_literal() -> Params:
 
 
 def _s30() -> Params:
-    """A catalogue-sized standard 5-start design, d_S = 30 mm, lead 5 mm [assumed, MODEL.md §1]."""
+    """A catalogue-sized standard 5-start design, d_S = 30 mm, lead 5 mm [assumed, docs/model.md §1]."""
     return Params(
         name="s30",
         geometry=Geometry(screw_radius_m=15e-3, roller_radius_m=5e-3, starts=5, pitch_m=1e-3,

@@ -22,7 +22,7 @@ from prsm_sim.params import Params
 from prsm_sim.simulator import Simulator
 
 SCENARIOS = ("step", "ramp", "sine", "heavy", "light", "sine-motion")
-HEAVY_LOAD_N = 20_000.0  # Fu 2018 heavy-load case, MODEL.md §4.2 ("e.g. 20 kN")
+HEAVY_LOAD_N = 20_000.0  # Fu 2018 heavy-load case, docs/model.md §4.2 ("e.g. 20 kN")
 LIGHT_LOAD_N = 100.0  # Fu 2018 light-load case ("e.g. 100 N")
 
 

@@ -1,4 +1,4 @@
-"""`fu2018` (MODEL.md §4.2 reconstruction of Fu et al. 2018), each check against an independent number."""
+"""`fu2018` (docs/model.md §4.2 reconstruction of Fu et al. 2018), each check against an independent number."""
 
 import math
 
@@ -35,7 +35,7 @@ def test_viscous_limit_reproduces_jones2016():
 
 
 def test_energy_balance_with_every_friction_on():
-    # MODEL.md §5 item 5: input work = output work + ΔT + Σ dissipation, within 0.1 %, through reversals
+    # docs/model.md §5 item 5: input work = output work + ΔT + Σ dissipation, within 0.1 %, through reversals
     p = preset("s30").with_overrides({"friction.mu_pin": 0.1, "friction.mu_nut_roller_rolling": 0.005})
     sim, tr, _ = _steady(p, "sine-motion", duration=1.2, load_n=3000.0)
     s = tr.final_state
@@ -48,7 +48,7 @@ def test_energy_balance_with_every_friction_on():
 
 @pytest.mark.parametrize("profile", ["uniform", "exponential"])
 def test_tooth_loads_sum_to_the_axial_load(profile):
-    # MODEL.md §5 item 9: Σ per-tooth normal force × c_z = axial force; per-roller shares sum to one
+    # docs/model.md §5 item 9: Σ per-tooth normal force × c_z = axial force; per-roller shares sum to one
     p = preset("s30").with_overrides({"friction.load_distribution": profile, "friction.load_distribution_decay": 0.1})
     sim, tr, _ = _steady(p, "heavy")
     lay = tr.layout
@@ -65,7 +65,7 @@ def test_tooth_loads_sum_to_the_axial_load(profile):
 
 
 def test_uniform_tooth_load_at_20kn_matches_model_md():
-    # MODEL.md §4.3 reference magnitude: s30, 20 kN, uniform → about 94 N normal load per contact
+    # docs/model.md §4.3 reference magnitude: s30, 20 kN, uniform → about 94 N normal load per contact
     p = preset("s30")
     _, tr, _ = _steady(p, "heavy")
     teeth = tr.layout.view(tr.internal[-1], "per_tooth")
@@ -89,7 +89,7 @@ def test_roller_and_screw_statics_in_steady_state():
 
 
 def test_heavy_load_sits_at_kinematic_ratio_light_load_lags():
-    # Fu 2018 results (seed abstract, MODEL.md §4.2): under heavy load ζ_PS ≈ kinematic; under light load
+    # Fu 2018 results (seed abstract, docs/model.md §4.2): under heavy load ζ_PS ≈ kinematic; under light load
     # the Couette drag makes the carrier lag and the efficiency drop. With drag as the only carrier loss
     # (the seed's mechanism) heavy load sits within 0.1 % of kinematic; the default nut–roller rolling
     # resistance is load-proportional and adds a load-independent lag of a few 0.1 % (documented).
@@ -104,7 +104,7 @@ def test_heavy_load_sits_at_kinematic_ratio_light_load_lags():
 
 
 def test_screw_roller_friction_flips_at_a_motion_reversal():
-    # MODEL.md §3: v_s ∝ v_N, so Coulomb friction at the screw–roller contact flips with the motion
+    # docs/model.md §3: v_s ∝ v_N, so Coulomb friction at the screw–roller contact flips with the motion
     p = preset("s30")
     _, tr, _ = _steady(p, "sine-motion", duration=1.0, load_n=2000.0)
     q = [n for n, _ in tr.layout.blocks[0].quantities].index("screw_friction_axial_n")
@@ -117,7 +117,7 @@ def test_screw_roller_friction_flips_at_a_motion_reversal():
 
 @pytest.mark.parametrize("mu,expected", [(0.05, 0.905), (0.10, 0.82)])
 def test_sliding_only_efficiency_matches_model_md(mu, expected):
-    # MODEL.md §4.2: η_f ≈ 1 / (1 + μ / (sin β (c_zS − μ sin β))) → 0.905 at μ = 0.05, 0.82 at 0.10
+    # docs/model.md §4.2: η_f ≈ 1 / (1 + μ / (sin β (c_zS − μ sin β))) → 0.905 at μ = 0.05, 0.82 at 0.10
     p = preset("s30").with_overrides({**ONLY_SCREW_ROLLER, "friction.mu_screw_roller": mu})
     g = p.geometry
     b, lam = g.flank_angle_rad, g.screw_lead_angle_rad
@@ -129,7 +129,7 @@ def test_sliding_only_efficiency_matches_model_md(mu, expected):
 
 
 def test_carrier_drag_magnitude_matches_model_md():
-    # MODEL.md §4.2: M = 2πρνbR³ω/h ≈ 0.01 N·m per carrier at 1500 rpm (screw; the carrier turns at the
+    # docs/model.md §4.2: M = 2πρνbR³ω/h ≈ 0.01 N·m per carrier at 1500 rpm (screw; the carrier turns at the
     # kinematic ratio) for R = 22 mm, b = 5 mm, h = 0.1 mm, ν = 55 cSt, ρ = 900 kg/m³
     p = preset("s30").with_overrides({"friction.drag_radius_m": 0.022, "friction.drag_width_m": 5e-3,
                                       "friction.drag_gap_m": 1e-4})

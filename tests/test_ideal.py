@@ -36,7 +36,7 @@ def test_backward_efficiency_is_returned_when_the_load_drives():
 
 
 def test_self_locking_screw_holds_a_back_driving_load():
-    # η_b ≤ 0: a load alone cannot turn the screw (MODEL.md §4 `ideal`)
+    # η_b ≤ 0: a load alone cannot turn the screw (docs/model.md §4 `ideal`)
     p = _params(efficiency_forward=0.4, efficiency_backward=-0.2)
     sim = Simulator(p, "ideal", 1e-3)
     tr = sim.run(np.zeros(2000), 5000.0)

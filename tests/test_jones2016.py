@@ -11,21 +11,21 @@ from prsm_sim.models.jones2016 import Jones2016, input_matrix, mass_matrix, stea
 
 
 def test_steady_ratio_is_the_seeds_2669_with_exact_contact():
-    # Jones 2016 eq. (42): ω_S/ω_C = 2.669 for the worked example (preset read as diameters, MODEL.md §1)
+    # Jones 2016 eq. (42): ω_S/ω_C = 2.669 for the worked example (preset read as diameters, docs/model.md §1)
     ss = steady_state(preset("jones2016"))
     assert ss["speed_ratio_screw_over_carrier"] == pytest.approx(2.669, abs=0.001)
     assert ss["screw_speed_rad_s"] == 1.0
 
 
 def test_steady_ratio_is_kinematic_on_the_line_of_centres():
-    # MODEL.md §4.1: with line-of-centres slip the steady ratio is exactly the kinematic 2(n−1)/(n−2)
+    # docs/model.md §4.1: with line-of-centres slip the steady ratio is exactly the kinematic 2(n−1)/(n−2)
     p = preset("jones2016").with_overrides({"friction.contact_evaluation": "line_of_centres"})
     assert steady_state(p)["speed_ratio_screw_over_carrier"] == pytest.approx(8 / 3, abs=1e-4)
 
 
 @pytest.mark.parametrize("c,load,torque", [(5.0, 0.0, 0.5), (25.0, 100.0, 0.2), (400.0, 5000.0, 30.0)])
 def test_steady_ratio_is_independent_of_c_load_and_torque(c, load, torque):
-    # MODEL.md §4.1: the steady state minimises Σ|v_s|² over ω_C; c, F_out and M_in drop out
+    # docs/model.md §4.1: the steady state minimises Σ|v_s|² over ω_C; c, F_out and M_in drop out
     p = preset("jones2016").with_overrides({"friction.viscous_n_s_m": c})
     ss = steady_state(p, torque_nm=torque, load_n=load)
     assert ss["speed_ratio_screw_over_carrier"] == pytest.approx(2.669025, abs=1e-6)
@@ -42,7 +42,7 @@ def test_closed_form_equals_long_run_simulation(evaluation):
 
 
 def test_seed_torque_for_one_rad_per_s():
-    # MODEL.md §4.1: M_in ≈ F_out L/2π + c N_R N_T (L/(2π sin β))² ω_S ≈ 0.092 N·m
+    # docs/model.md §4.1: M_in ≈ F_out L/2π + c N_R N_T (L/(2π sin β))² ω_S ≈ 0.092 N·m
     p = preset("jones2016")
     g = p.geometry
     approx = 100 * g.lead_per_rad_m + 25 * 400 * (g.lead_per_rad_m / math.sin(g.flank_angle_rad)) ** 2
@@ -51,7 +51,7 @@ def test_seed_torque_for_one_rad_per_s():
 
 
 def test_transient_takes_about_02_s():
-    # Jones 2016 Fig. 5 / text: "steady state is reached in approximately 0.2 s"; MODEL.md §4.1 gives the
+    # Jones 2016 Fig. 5 / text: "steady state is reached in approximately 0.2 s"; docs/model.md §4.1 gives the
     # screw time constant τ_S = J_S / (c N_R N_T (L/(2π sin β))²); the simulated 63 % rise time must match it
     p = preset("jones2016")
     g = p.geometry
@@ -69,7 +69,7 @@ def test_transient_takes_about_02_s():
 
 
 def test_energy_balance_over_a_run():
-    # MODEL.md §5 item 5: input work = output work + ΔT + dissipated work (within 0.1 %; here ~1e-7)
+    # docs/model.md §5 item 5: input work = output work + ΔT + dissipated work (within 0.1 %; here ~1e-7)
     p = preset("jones2016")
     sim = Simulator(p, "jones2016", 1e-3)
     tau = 0.2 * np.sin(np.linspace(0, 20, 4000)) + 0.05

@@ -1,4 +1,4 @@
-"""Kinematics (MODEL.md §2) and exact contact (MODEL.md §3), checked against closed forms."""
+"""Kinematics (docs/model.md §2) and exact contact (docs/model.md §3), checked against closed forms."""
 
 import math
 
@@ -15,7 +15,7 @@ PRESETS = ("jones2016", "s30")
 
 @pytest.mark.parametrize("name", PRESETS)
 def test_lead_is_exact_whatever_the_carrier_does(name):
-    # MODEL.md §2: engaging screw and nut gives v_N = −(L/2π) ω_S for any ω_C (Jones & Velinsky 2012)
+    # docs/model.md §2: engaging screw and nut gives v_N = −(L/2π) ω_S for any ω_C (Jones & Velinsky 2012)
     geo = preset(name).geometry
     rng = np.random.default_rng(1)
     for w_s, w_c in rng.normal(size=(20, 2)) * 50:
@@ -26,7 +26,7 @@ def test_lead_is_exact_whatever_the_carrier_does(name):
 
 @pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
 def test_simulated_nut_moves_one_lead_per_revolution(model):
-    # MODEL.md §5 item 1: Δz_N / Δθ_S = L/2π exactly, any slip
+    # docs/model.md §5 item 1: Δz_N / Δθ_S = L/2π exactly, any slip
     p = preset("s30")
     sim = Simulator(p, model, 1e-3)
     tr = sim.run(0.8 * np.sin(np.linspace(0, 6, 300)), 500.0)
@@ -37,7 +37,7 @@ def test_simulated_nut_moves_one_lead_per_revolution(model):
 
 @pytest.mark.parametrize("name", PRESETS)
 def test_kinematic_ratio_is_pure_rolling_at_both_pitch_points(name):
-    # MODEL.md §2: ω_S/ω_C = 2(r_S + r_R)/r_S and ω_r = −(r_N/r_R) ω_C make the in-plane velocities of
+    # docs/model.md §2: ω_S/ω_C = 2(r_S + r_R)/r_S and ω_r = −(r_N/r_R) ω_C make the in-plane velocities of
     # roller and body equal at both pitch points (an independent check by point velocities)
     geo = preset(name).geometry
     assert ideal_speed_ratio(geo) == pytest.approx(2 * (geo.screw_radius_m + geo.roller_radius_m) / geo.screw_radius_m)
@@ -50,7 +50,7 @@ def test_kinematic_ratio_is_pure_rolling_at_both_pitch_points(name):
 
 
 def test_seed_literal_radii_give_2513_not_2667():
-    # MODEL.md §1: r_S = 19.5 mm, r_R = 5 mm give an ideal ratio of 2.513
+    # docs/model.md §1: r_S = 19.5 mm, r_R = 5 mm give an ideal ratio of 2.513
     assert ideal_speed_ratio(preset("jones2016_literal").geometry) == pytest.approx(2.513, abs=5e-4)
 
 
@@ -59,7 +59,7 @@ def test_seed_literal_radii_give_2513_not_2667():
 def test_exact_contact_facts(name, load_sign):
     geo = preset(name).geometry
     cs, cn = solve_contact(geo, "screw", load_sign), solve_contact(geo, "nut", load_sign)
-    # MODEL.md §3: screw–roller offset ≈ (λ_S − λ_R)/tan β, toward −φ for this flank pair
+    # docs/model.md §3: screw–roller offset ≈ (λ_S − λ_R)/tan β, toward −φ for this flank pair
     assert cs.body_angle_rad == pytest.approx(-load_sign * predicted_screw_offset_rad(geo), rel=0.01)
     # nut–roller (standard design): on the line of centres at the pitch radii
     assert abs(cn.body_angle_rad) < 1e-9 and cn.body_radius_m == pytest.approx(geo.nut_radius_m, rel=1e-9)
@@ -75,7 +75,7 @@ def test_exact_contact_facts(name, load_sign):
 @pytest.mark.parametrize("name", PRESETS)
 def test_relative_velocity_is_tangent_at_the_exact_contact_for_any_speeds(name):
     # bodies that stay in contact slide in the common tangent plane: the exact point and normal are
-    # one consistent solution (MODEL.md §3: mixing point and normal breaks energy conservation)
+    # one consistent solution (docs/model.md §3: mixing point and normal breaks energy conservation)
     geo = preset(name).geometry
     rng = np.random.default_rng(2)
     for side in ("screw", "nut"):

@@ -1,4 +1,4 @@
-"""L10 rating life, MODEL.md §5 item 10: L10 = (C/F_m)³ · 10⁶ revolutions, F_m the cubic mean
+"""L10 rating life, docs/model.md §5 item 10: L10 = (C/F_m)³ · 10⁶ revolutions, F_m the cubic mean
 load weighted by revolutions (vendor catalogues). Reference values are computed by hand below."""
 
 import math

@@ -9,7 +9,7 @@ from prsm_sim import Geometry, ParamError, Params, preset
 
 
 def test_presets_have_model_md_values():
-    # MODEL.md §1 preset table
+    # docs/model.md §1 preset table
     j = preset("jones2016").geometry
     assert (j.screw_radius_m, j.roller_radius_m, j.starts, j.pitch_m, j.n_rollers, j.n_teeth) == \
         (9.75e-3, 3.25e-3, 5, 1e-3, 10, 40)
@@ -17,7 +17,7 @@ def test_presets_have_model_md_values():
     s = preset("s30").geometry
     assert (s.screw_radius_m, s.roller_radius_m, s.n_teeth) == (15e-3, 5e-3, 30)
     lit = preset("jones2016_literal").geometry
-    # the seed's literal numbers are not a consistent 5-start design: r_N / r_R = 5.9 (MODEL.md §1)
+    # the seed's literal numbers are not a consistent 5-start design: r_N / r_R = 5.9 (docs/model.md §1)
     assert lit.nut_radius_m / lit.roller_radius_m == pytest.approx(5.9)
 
 

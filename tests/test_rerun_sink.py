@@ -1,9 +1,9 @@
 """RerunSink fed with real Simulator outputs: .rrd files checked with the `rerun` CLI and read back.
 
 Oracles: the simulator's own outputs (the series must equal them), the lead relation
-x_nut = (L/2π) θ_S and the gear relation ω_r = −g ω_C (MODEL.md §2) for the scene poses, Jones
+x_nut = (L/2π) θ_S and the gear relation ω_r = −g ω_C (docs/model.md §2) for the scene poses, Jones
 2016's viscous law f = −c N_T v_s (friction arrows oppose the slip, at the documented length),
-and the fu2018 tooth-load sharing Σ_k ζ_T,k = N_T (MODEL.md §4.2: tooth loads sum to the roller's
+and the fu2018 tooth-load sharing Σ_k ζ_T,k = N_T (docs/model.md §4.2: tooth loads sum to the roller's
 normal force).
 """
 
@@ -108,7 +108,7 @@ def _wrap(a):
 
 
 def test_scene_poses_follow_lead_and_gear(jones_run):
-    """Nut at z = −x_nut = −(L/2π) θ_S; roller spin relative to the carrier −g θ_C (MODEL.md §2)."""
+    """Nut at z = −x_nut = −(L/2π) θ_S; roller spin relative to the carrier −g θ_C (docs/model.md §2)."""
     path, params, _, outs, _ = jones_run
     geo = params.geometry
     by_time = {round(o.time_s * 1e9): o for o in outs}

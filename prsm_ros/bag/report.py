@@ -13,7 +13,7 @@ when our topics are there:
 - slip: the scalar slip speed and the peak of every per-roller slip quantity;
 - peak roller and tooth loads: every force quantity (unit N) of each internal-load block, with
   where and when it peaked;
-- L10 life (`prsm_sim.life`, MODEL.md §5 item 10) from the axial load |nut force| and the screw
+- L10 life (`prsm_sim.life`, docs/model.md §5 item 10) from the axial load |nut force| and the screw
   speed, the recorded cycle repeated, for a dynamic load rating C_a
   (`DEFAULT_DYNAMIC_LOAD_RATING_N` unless given).
 

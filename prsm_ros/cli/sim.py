@@ -107,7 +107,7 @@ def cmd_contact(args) -> None:
             lines.append(f"{side:5s} {ev:15s} r={c.body_radius_m * 1e3:.5f} mm  offset={entry['offset_deg']:+.4f}°  "
                          f"|v_s|/v_N={entry['sliding_speed_per_nut_speed']:.4f} at ideal kinematics")
     data["sliding_per_nut_speed_model_md"] = 1.0 / math.sin(geo.flank_angle_rad)
-    lines.append(f"MODEL.md §3: screw sliding |v_N|/sin β = {data['sliding_per_nut_speed_model_md']:.4f} |v_N|")
+    lines.append(f"docs/model.md §3: screw sliding |v_N|/sin β = {data['sliding_per_nut_speed_model_md']:.4f} |v_N|")
     _emit(args, data, "\n".join(lines))
 
 

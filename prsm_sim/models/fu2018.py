@@ -1,9 +1,9 @@
-"""The `fu2018` spatial model: Newton–Euler force system per roller (MODEL.md §4.2, reconstructed).
+"""The `fu2018` spatial model: Newton–Euler force system per roller (docs/model.md §4.2, reconstructed).
 
 Fu, Liu, Tong, Ma, Lim 2018 give the structure (seed abstract and nomenclature): a spatial
 force system on screw, nut, rollers and carriers; Coulomb friction at screw–roller, rolling
 friction at nut–roller, Couette drag at ring gear–carrier, gear and pin forces, a thread load
-distribution coefficient ζ_T. MODEL.md §4.2 reconstructs the equations; the choices the
+distribution coefficient ζ_T. docs/model.md §4.2 reconstructs the equations; the choices the
 sources leave open are parameters (`Friction`).
 
 Rigid bodies and identical rollers leave two independent speeds, u = (ω_S, ω_C), as in Jones
@@ -19,7 +19,7 @@ the nut and the carriers are solved together for the accelerations and the inter
 6. roller spin       I_R (1 − g) ω̇_C = (r_S × F_RS)_z + (r_N × F_RN)_z + r_R F_gt + M_pin + M_rr
 7. carriers          I_C ω̇_C = N_R (−a F_pin,t − M_pin) + M_drag
 
-with F_RS = N_S n_S + f_S (screw on roller, at the exact contact of MODEL.md §3),
+with F_RS = N_S n_S + f_S (screw on roller, at the exact contact of docs/model.md §3),
 F_RN = N_N n_N (nut on roller), f_S = −μ_SR N_S v_s/√(|v_s|² + ε²) (regularised Coulomb) or
 −c N_T v_s (viscous, the Jones limit), M_rr = −μ_NR N_N r_R sgn(spin rel. nut) (rolling
 resistance moment), M_pin = −μ_pin |F_pin| r_pin sgn(ω_r), M_drag = −2 · 2πρνbR³ ω_C / h
@@ -70,10 +70,10 @@ GEAR_PRESSURE_ANGLE_RAD = math.radians(20.0)  # standard involute spur/ring gear
 
 
 def load_distribution(params: Params) -> np.ndarray:
-    """ζ_T,k over the N_T teeth, Σ ζ = N_T (MODEL.md §4.2).
+    """ζ_T,k over the N_T teeth, Σ ζ = N_T (docs/model.md §4.2).
 
     "uniform": ζ = 1. "exponential": ζ_k ∝ exp(−d k), decaying from the loaded end (tooth 0),
-    the shape static load-distribution models give for same-side mounting (MODEL.md §4.3).
+    the shape static load-distribution models give for same-side mounting (docs/model.md §4.3).
     """
     n_t = params.geometry.n_teeth
     fr = params.friction
@@ -376,7 +376,7 @@ class Fu2018(Model):
         """Compact rows (steps × 17) → the full labelled internal vectors (steps × layout.size).
 
         Per roller: identical rollers repeat the row. Per tooth: ζ_T,k / N_T times the roller's
-        normal forces (MODEL.md §4.2) — the only part that grows with the tooth count.
+        normal forces (docs/model.md §4.2) — the only part that grows with the tooth count.
         """
         geo = self.geo
         steps = compact.shape[0]

@@ -1,4 +1,4 @@
-"""The `ideal` model: a rigid lead with direction-dependent efficiency (MODEL.md §4, `ideal` row).
+"""The `ideal` model: a rigid lead with direction-dependent efficiency (docs/model.md §4, `ideal` row).
 
 The parameter set of Simscape's Leadscrew block and Modelica's LossyGear (`IdealLoss`):
 forward efficiency η_f when the screw drives the load, backward efficiency η_b when the load
@@ -47,7 +47,7 @@ class Ideal(Model):
         self.k_forward = 1.0 / il.efficiency_forward - 1.0
         self.k_backward = 1.0 - il.efficiency_backward
         self.self_locking = il.efficiency_backward <= 0.0
-        self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # MODEL.md §3 sliding
+        self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
 
     def loss_limit_nm(self, load_torque_nm: float, direction: float, speed_rad_s: float) -> float:
         """Mesh-loss torque magnitude for motion in `direction` (±1) at `speed_rad_s`."""

@@ -1,4 +1,4 @@
-"""The `jones2016` model: 2-DOF Lagrange dynamics with viscous screw–roller friction (MODEL.md §4.1).
+"""The `jones2016` model: 2-DOF Lagrange dynamics with viscous screw–roller friction (docs/model.md §4.1).
 
 Generalised coordinates (θ_S, θ_C). The gear ties roller spin to the carrier (ω_r = −g ω_C),
 the threads tie the nut to the screw (v = (L/2π) ω_S). Each of the N_R·N_T screw–roller
@@ -36,7 +36,7 @@ PER_ROLLER_QUANTITIES = (
 
 
 def mass_matrix(params: Params) -> np.ndarray:
-    """Kinetic energy T = ½ q̇ᵀ M q̇ (MODEL.md §4.1; Jones 2016 eq. 27 incl. the migration coupling).
+    """Kinetic energy T = ½ q̇ᵀ M q̇ (docs/model.md §4.1; Jones 2016 eq. 27 incl. the migration coupling).
 
     Roller axial velocity v_R = −(L/2π) ω_S + (P (n − g)/2π) ω_C couples the two coordinates
     when g ≠ n; for the standard design the off-diagonal term vanishes.
@@ -137,7 +137,7 @@ def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torq
                  load_n: float | None = None) -> dict[str, float]:
     """Closed-form steady state of `jones2016` (Jones 2016 eqs. 37–41 structure).
 
-    C q̇ = B (τ, F): the carrier row gives the speed ratio (independent of c, F, τ, MODEL.md
+    C q̇ = B (τ, F): the carrier row gives the speed ratio (independent of c, F, τ, docs/model.md
     §4.1); the screw row gives the torque for a speed, or the speed for a torque. Exactly one
     of `screw_speed_rad_s` and `torque_nm` may be given; default: the preset's screw speed.
     """

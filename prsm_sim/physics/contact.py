@@ -1,4 +1,4 @@
-"""Exact thread contact between the roller's arc profile and the straight screw/nut flanks (MODEL.md §3).
+"""Exact thread contact between the roller's arc profile and the straight screw/nut flanks (docs/model.md §3).
 
 The screw and nut flanks are helicoids with straight generators at the flank angle β; the
 roller flank is a helicoid swept by an arc of radius R_p = r_R / sin β centred on the roller
@@ -56,7 +56,7 @@ def _flank_signs(side: str, load_sign: int) -> tuple[int, int]:
 
 
 def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
-    """Exact tangency contact for one side (MODEL.md §3)."""
+    """Exact tangency contact for one side (docs/model.md §3)."""
     if side not in ("screw", "nut"):
         raise ValueError(f"side must be 'screw' or 'nut', got {side!r}")
     if load_sign not in (1, -1):
@@ -110,7 +110,7 @@ def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
 def line_of_centres_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
     """The pitch point on the line of centres with the pitch-point flank normal, as the seed's equations assume.
 
-    Normal from MODEL.md §3 at the pitch radius (axial, circumferential, radial split by α_n, λ).
+    Normal from docs/model.md §3 at the pitch radius (axial, circumferential, radial split by α_n, λ).
     """
     beta = geo.flank_angle_rad
     if side == "screw":
@@ -137,5 +137,5 @@ def contact_for(geo: Geometry, side: str, evaluation: str, load_sign: int = 1) -
 
 
 def predicted_screw_offset_rad(geo: Geometry) -> float:
-    """MODEL.md §3 estimate of the screw–roller offset: (λ_S − λ_R) / tan β (sign: toward −φ for load_sign +1)."""
+    """docs/model.md §3 estimate of the screw–roller offset: (λ_S − λ_R) / tan β (sign: toward −φ for load_sign +1)."""
     return (geo.screw_lead_angle_rad - geo.roller_lead_angle_rad) / math.tan(geo.flank_angle_rad)

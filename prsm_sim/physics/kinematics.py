@@ -1,4 +1,4 @@
-"""Rigid-body kinematics of the PRSM (MODEL.md §2).
+"""Rigid-body kinematics of the PRSM (docs/model.md §2).
 
 Internally the body frame has z along the screw axis (right-hand threads); nut motion is
 reported along x_nut = −z (see `outputs` for the sign convention). Angular velocities are
@@ -13,7 +13,7 @@ from prsm_sim.params import Geometry
 
 
 def ideal_carrier_ratio(geo: Geometry) -> float:
-    """ω_C / ω_S for pure rolling at both pitch circles: r_S / (2 (r_S + r_R)) (MODEL.md §2, Velinsky 2009)."""
+    """ω_C / ω_S for pure rolling at both pitch circles: r_S / (2 (r_S + r_R)) (docs/model.md §2, Velinsky 2009)."""
     return geo.screw_radius_m / (2 * geo.carrier_radius_m)
 
 
@@ -23,17 +23,17 @@ def ideal_speed_ratio(geo: Geometry) -> float:
 
 
 def roller_spin(geo: Geometry, carrier_speed_rad_s: float) -> float:
-    """Roller spin relative to the carrier from the spur/ring gear: ω_r = −g ω_C (MODEL.md §2)."""
+    """Roller spin relative to the carrier from the spur/ring gear: ω_r = −g ω_C (docs/model.md §2)."""
     return -geo.gear_ratio * carrier_speed_rad_s
 
 
 def nut_velocity(geo: Geometry, screw_speed_rad_s: float) -> float:
-    """Nut velocity along x_nut: (L / 2π) ω_S, whatever the carrier speed or slip (MODEL.md §2)."""
+    """Nut velocity along x_nut: (L / 2π) ω_S, whatever the carrier speed or slip (docs/model.md §2)."""
     return geo.lead_per_rad_m * screw_speed_rad_s
 
 
 def roller_axial_velocity_z(geo: Geometry, screw_speed_rad_s: float, carrier_speed_rad_s: float) -> float:
-    """Roller axial velocity along +z from the screw–roller thread engagement (MODEL.md §2).
+    """Roller axial velocity along +z from the screw–roller thread engagement (docs/model.md §2).
 
     v_R = −(L_S/2π)(ω_S − ω_C) + (L_R/2π) ω_r. Exact at any contact point: each term is a
     helicoidal motion that maps one of the two thread surfaces onto itself.
@@ -43,7 +43,7 @@ def roller_axial_velocity_z(geo: Geometry, screw_speed_rad_s: float, carrier_spe
 
 
 def roller_migration_velocity(geo: Geometry, carrier_speed_rad_s: float) -> float:
-    """Axial roller velocity relative to the nut, along +z: (P ω_C / 2π)(n − g) (MODEL.md §2)."""
+    """Axial roller velocity relative to the nut, along +z: (P ω_C / 2π)(n − g) (docs/model.md §2)."""
     return geo.pitch_m * carrier_speed_rad_s / (2 * np.pi) * (geo.starts - geo.gear_ratio)
 
 
