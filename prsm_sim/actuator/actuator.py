@@ -1,0 +1,485 @@
+"""`Actuator`: drive, motor, coupling, screw model, end stops, brake, faults and sensors behind one step.
+
+    act = Actuator(preset("s30"), 1e-3, "ideal", ActuatorParams(motor=MotorParams(), ...))
+    state = act.initial_state(0.0)
+    state, out = act.step(state, command, load_n)    # command in the active interface's unit
+
+The same step contract as a bare model (`Model.step(state, input, load) → (state, Outputs)`):
+the scalar outputs are the screw's true ones, and the actuator's own quantities and what the
+sensors measure travel as two labelled internal-layout blocks (`actuator`, `measured`) after
+the screw model's blocks, so node, recorder, bag report and Rerun need no per-part code.
+
+Per step (h) the drive's loop runs n_sub = loop_rate × h times (the screw model is built at
+h / n_sub), or once every 1 / (loop_rate × h) steps when slower. Per sub-step:
+drive law on the encoder feedback → current loop → motor torque → (rigid: the rotor inertia
+is part of the screw's; compliant: a torsional spring solved implicitly) → end-stop force and
+dry friction (brake, jam) solved on the screw's linear response → screw model step. The
+energy ledger (source in = load work + dissipated + stored) is kept in the state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from prsm_sim.actuator import faults as fl
+from prsm_sim.actuator.brake import brake_level, stiction_torque
+from prsm_sim.actuator.drive import drive_update
+from prsm_sim.actuator.motor import current_reference, current_step, voltage
+from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
+from prsm_sim.actuator.sensors import DROPOUT_STREAM, STREAM, first_order, normal, quantise, uniform
+from prsm_sim.actuator.stops import stop_force, stop_penetration, stop_stored_j
+from prsm_sim.errors import InputError
+from prsm_sim.models.base import Model, efficiency
+from prsm_sim.models.jones2016 import mass_matrix
+from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.params import Params
+
+ACTUATOR_QUANTITIES = (
+    ("command", "m | rad/s | N·m (active interface)"),
+    ("mode", "0 effort, 1 velocity, 2 position"),
+    ("speed_reference_rad_s", "rad/s"),
+    ("torque_reference_nm", "N·m"),
+    ("torque_limited", "1"),
+    ("motor_current_a", "A"),
+    ("motor_torque_nm", "N·m"),
+    ("motor_speed_rad_s", "rad/s"),
+    ("motor_voltage_v", "V"),
+    ("electrical_power_w", "W"),
+    ("coupling_torque_nm", "N·m"),
+    ("brake_level", "1"),
+    ("brake_torque_nm", "N·m"),
+    ("jam_torque_nm", "N·m"),
+    ("stop_force_n", "N"),
+    ("stop_penetration_m", "m"),
+    ("stop_absorbed_j", "J"),
+    ("energy_in_j", "J"),
+    ("load_work_j", "J"),
+    ("dissipated_j", "J"),
+    ("stored_j", "J"),
+    ("faults_active", "1"),
+)
+MEASURED_QUANTITIES = (
+    ("motor_angle_rad", "rad"),
+    ("screw_angle_rad", "rad"),
+    ("screw_speed_rad_s", "rad/s"),
+    ("nut_position_m", "m"),
+    ("nut_velocity_m_s", "m/s"),
+    ("nut_force_n", "N"),
+    ("motor_encoder_fresh", "1"),
+    ("linear_encoder_fresh", "1"),
+    ("load_cell_fresh", "1"),
+)
+_SENSOR_INDEX = {"motor_encoder": 0, "linear_encoder": 1, "load_cell": 2}
+_GROUPS = {"motor_encoder": (0, 1, 2), "linear_encoder": (3, 4), "load_cell": (5,)}  # indices into MEASURED_QUANTITIES
+
+
+@dataclass(frozen=True, slots=True)
+class Ledger:
+    """Energy accumulators of the actuator (J); the screw's own friction is in `State.dissipated_j`."""
+
+    energy_in_j: float = 0.0  # electrical energy drawn (ideal torque source: its mechanical work)
+    copper_j: float = 0.0
+    coupling_j: float = 0.0  # dissipated in the coupling's damper
+    stiction_j: float = 0.0  # dissipated by the brake and jams
+    stop_work_j: float = 0.0  # work the nut did on the end stops
+    load_work_j: float = 0.0  # work done against the external load
+
+
+@dataclass(frozen=True, slots=True)
+class ActuatorState:
+    """The screw model's state plus the drive, motor, brake, sensor and fault memory (pure data).
+
+    Motor angle and speed are in screw coordinates (motor / gear ratio); with a rigid coupling
+    they equal the screw's. `faults` holds the faults injected at runtime; `history` the true
+    samples the sensors' latency still has to deliver; `measured` the last published reading.
+    """
+
+    screw: State
+    step: int = 0
+    mode: str = "effort"
+    motor_angle_rad: float = 0.0
+    motor_speed_rad_s: float = 0.0
+    current_a: float = 0.0
+    integral_nm: float = 0.0
+    torque_ref_nm: float = 0.0
+    speed_ref_rad_s: float = 0.0
+    limited: bool = False
+    encoder_rad: float = 0.0  # last screw angle the drive read from the encoder
+    brake_engaged: bool = False
+    brake_level: float = 0.0
+    faults: tuple[Fault, ...] = ()
+    history: tuple[tuple[float, ...], ...] = ()
+    measured: tuple[float, ...] = ()
+    load_cell_filtered_n: float = 0.0
+    ledger: Ledger = Ledger()
+
+    @property
+    def time_s(self) -> float:
+        return self.screw.time_s
+
+
+class Actuator(Model):
+    """The actuator around a screw model (any of ideal, jones2016, fu2018), one step contract."""
+
+    name = "actuator"
+
+    def __init__(self, params: Params, dt_s: float, model: str = "jones2016",
+                 actuator: ActuatorParams | None = None) -> None:
+        super().__init__(params, dt_s)
+        from prsm_sim.simulator import MODELS  # late: the simulator may build actuators
+        if model not in MODELS:
+            raise ValueError(f"unknown model {model!r}; known models: {', '.join(MODELS)}")
+        self._cls = MODELS[model]
+        self.model_name = model
+        self.actuator = a = actuator if actuator is not None else ActuatorParams()
+        if not isinstance(a, ActuatorParams):
+            raise InputError(f"actuator: expected ActuatorParams, got {type(a).__name__}")
+        m = a.motor
+        self.ratio = m.gear_ratio if m is not None else 1.0
+        self.rigid = m is None or m.coupling_stiffness_nm_rad is None
+        if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
+            mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
+                           + m.rotor_inertia_kgm2 * m.gear_ratio**2)
+            self.screw_params = replace(params, mass=mass)
+        else:
+            self.screw_params = params
+        self.motor_inertia = 0.0 if m is None else m.rotor_inertia_kgm2 * m.gear_ratio**2  # screw side
+        rate = a.drive.loop_rate_hz
+        self.n_sub, self.hold_steps = 1, 1
+        if rate is not None and rate * self.dt_s >= 1.0:
+            self.n_sub = int(round(rate * self.dt_s))
+        elif rate is not None:
+            self.hold_steps = int(round(1.0 / (rate * self.dt_s)))
+        self.h_sub = self.dt_s / self.n_sub
+        self._models: dict[tuple[float, float], Model] = {}
+        base = self._model(fl.NONE)
+        self.p = self.geo.lead_per_rad_m
+        self.J = self._probe_inertia(base)
+        self.M = mass_matrix(self.screw_params)
+        for f in a.faults:
+            fl.check_fault(f, params, model, m is not None)
+        self.layout = InternalLayout(blocks=base.layout.blocks + (
+            InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
+            InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
+        ))
+        self._n_screw_internal = base.layout.size
+
+    # -- construction helpers ------------------------------------------------------------
+    def _model(self, act: fl.Active) -> Model:
+        key = (act.friction_factor, act.lubrication_factor)
+        mod = self._models.get(key)
+        if mod is None:
+            p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
+            mod = self._models[key] = self._cls(p, self.h_sub)
+        return mod
+
+    def _probe_inertia(self, model: Model) -> float:
+        """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
+
+        Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
+        implicit stop, coupling and dry-friction torques; the step itself is the model's.
+        """
+        s0 = model.initial_state(0.0)
+        w1 = model.step(s0, 1.0, 0.0)[0].screw_speed_rad_s
+        w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
+        return self.h_sub / (w1 - w0)
+
+    # -- state ---------------------------------------------------------------------------
+    def initial_state(self, nut_position_m: float = 0.0) -> ActuatorState:
+        screw = self._model(fl.NONE).initial_state(nut_position_m)
+        th = screw.screw_angle_rad
+        st = ActuatorState(screw=screw, mode=self.actuator.drive.mode, motor_angle_rad=th)
+        sample = self._sample(st, screw, 0.0)
+        enc = self._encoder_screw_angle(th * self.ratio, th)
+        st = replace(st, encoder_rad=enc, history=(sample,), load_cell_filtered_n=0.0)
+        meas = self._measure(st, sample, sample, fl.NONE, first=True)
+        return replace(st, measured=meas)
+
+    def all_faults(self, state: ActuatorState) -> tuple[Fault, ...]:
+        return self.actuator.faults + state.faults
+
+    def set_mode(self, state: ActuatorState, mode: str) -> ActuatorState:
+        """Switch the command interface; the speed integrator restarts from the present torque (bumpless)."""
+        check_interface(mode)
+        return replace(state, mode=mode, integral_nm=state.torque_ref_nm if mode != "effort" else 0.0)
+
+    def command_brake(self, state: ActuatorState, engage: bool) -> ActuatorState:
+        """Engage or release the holding brake; refused (InputError, nothing changed) where unsupported."""
+        if not isinstance(engage, bool):
+            raise InputError(f"brake command = {engage!r}: must be true (engage) or false (release)")
+        if not self.actuator.brake.fitted:
+            raise InputError("brake command refused: no brake fitted (brake.holding_torque_nm = 0)")
+        if not engage and fl.active(self.all_faults(state), state.time_s).drive_off:
+            raise InputError("brake release refused: a drive fault is active (torque off), the load would run away; "
+                             "clear the fault first")
+        return replace(state, brake_engaged=engage)
+
+    def inject(self, state: ActuatorState, fault: Fault) -> ActuatorState:
+        """Add a fault at runtime (absolute simulation time); refused with one line where it cannot apply."""
+        fl.check_fault(fault, self.params, self.model_name, self.actuator.motor is not None)
+        return replace(state, faults=state.faults + (fault,))
+
+    def clear_faults(self, state: ActuatorState) -> ActuatorState:
+        """End every runtime fault now (the ones not yet started are dropped)."""
+        t = state.time_s
+        kept = tuple(replace(f, duration_s=t - f.start_s) for f in state.faults if f.start_s < t and f.end_s > t)
+        kept += tuple(f for f in state.faults if f.end_s <= t)
+        return replace(state, faults=kept)
+
+    def events(self, before: ActuatorState | None, after: ActuatorState) -> list[fl.FaultEvent]:
+        """Faults that started or cleared between two states (`before` None: those active at the start)."""
+        t0 = -1.0 if before is None else before.time_s
+        return fl.fault_events(self.all_faults(after), t0, after.time_s)
+
+    # -- the step ------------------------------------------------------------------------
+    def step(self, state: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:
+        """One step with `command` (active interface: N·m, screw rad/s or nut m) and the nut load."""
+        for name, v in (("command", command), ("load_n", load_n)):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v):
+                raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
+        if not isinstance(state, ActuatorState):
+            raise InputError(f"state: expected an ActuatorState (Actuator.initial_state), got {type(state).__name__}")
+        return self._advance(state, float(command), float(load_n))
+
+    def _advance(self, st: ActuatorState, command: float, load_n: float):
+        a, m = self.actuator, self.actuator.motor
+        h, p, J, N = self.h_sub, self.p, self.J, self.ratio
+        act = fl.active(self.all_faults(st), st.time_s)
+        model = self._model(act)
+        screw, led = st.screw, st.ledger
+        th_r, w_r, i_a = st.motor_angle_rad, st.motor_speed_rad_s, st.current_a
+        integ, tau_ref, w_ref, limited, enc = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, st.limited, st.encoder_rad
+        level = st.brake_level
+        sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
+        volt = tau_c = tau_st = f_stop = 0.0
+        tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
+        loop_due = st.step % self.hold_steps == 0
+        for j in range(self.n_sub):
+            # drive loop on the encoder feedback
+            if loop_due:
+                enc_new = self._read_encoder(th_r * N, screw.screw_angle_rad, act, st.step * self.n_sub + j, enc)
+                h_loop = h * self.hold_steps
+                if a.sensors.encoder_counts_per_rev == 0 and not act.sensor:
+                    w_meas = w_r if not self.rigid else screw.screw_speed_rad_s
+                else:
+                    w_meas = (enc_new - enc) / h_loop
+                enc = enc_new
+                x_meas = self._read_linear(screw.screw_angle_rad * p, enc, act, st.step * self.n_sub + j)
+                if act.drive_off:
+                    tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
+                else:
+                    d = drive_update(a.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop)
+                    tau_ref, integ, limited, w_ref = d
+            # current loop and motor torque (screw side)
+            if m is None:
+                tau_d = tau_ref
+            else:
+                i_ref = 0.0 if act.drive_off else current_reference(m, tau_ref, w_r * N)
+                cs = current_step(m, i_a, i_ref, h)
+                volt = voltage(m, cs, i_a, w_r * N, h)
+                tau_d = N * m.torque_constant_nm_a * cs.mean_current_a
+            ws0 = screw.screw_speed_rad_s
+            x0 = p * screw.screw_angle_rad
+            if self.rigid:
+                tau_drive_screw = tau_d
+            else:
+                k, c = m.coupling_stiffness_nm_rad, m.coupling_damping_nm_s_rad
+                phi0, dw0 = th_r - screw.screw_angle_rad, w_r - ws0
+                tau_drive_screw = k * phi0 + c * dw0  # first guess, for the stop and friction predictions
+            # end stops, then dry friction (brake, jam), on the screw's linear response
+            w_free = ws0 + h * (tau_drive_screw - p * load_n) / J
+            f_stop = 0.0
+            if a.stops.fitted:
+                f_stop = stop_force(a.stops, x0, p * ws0, p * w_free, h, h * p * p / J)
+                w_free += h * p * f_stop / J
+            cap = level * a.brake.holding_torque_nm + act.jam_nm
+            tau_st = stiction_torque(cap, w_free, J, h)
+            if not self.rigid:
+                w_sfree = ws0 + h * (tau_st - p * (load_n - f_stop)) / J
+                A = w_r + h * tau_d / self.motor_inertia - w_sfree
+                B = h * (1.0 / self.motor_inertia + 1.0 / J)
+                g = k * h / 4.0 + c / 2.0
+                tau_c = (k * phi0 + g * (dw0 + A)) / (1.0 + g * B)
+                tau_drive_screw = tau_c
+            tau_in = tau_drive_screw + tau_st if tau_st != 0.0 else tau_drive_screw
+            load_in = load_n - f_stop if f_stop != 0.0 else load_n
+            new, out = model.step(screw, tau_in, load_in)
+            if cap > 0.0 and abs(tau_st) < cap and new.screw_speed_rad_s != 0.0:
+                # holding: one correction with the model's actual end speed (exact for the linear models)
+                tau_st = max(-cap, min(cap, tau_st - J * new.screw_speed_rad_s / h))
+                tau_in = tau_drive_screw + tau_st
+                new, out = model.step(screw, tau_in, load_in)
+            dth = new.screw_angle_rad - screw.screw_angle_rad
+            # motor side and the ledger
+            if self.rigid:
+                th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
+                dth_r = dth
+                tau_c = tau_d
+            else:
+                w_r1 = w_r + h * (tau_d - tau_c) / self.motor_inertia
+                th_r1 = th_r + 0.5 * h * (w_r + w_r1)
+                dth_r = th_r1 - th_r
+                v0 = 0.5 * k * phi0 * phi0
+                phi1 = th_r1 - new.screw_angle_rad
+                led = replace(led, coupling_j=led.coupling_j + tau_c * (dth_r - dth) - (0.5 * k * phi1 * phi1 - v0))
+            if m is None:
+                e_in = tau_d * dth
+                copper = 0.0
+            else:
+                copper = cs.copper_j
+                e_in = cs.copper_j + cs.magnetic_j + tau_d * dth_r
+                i_a = cs.current_a
+            led = Ledger(energy_in_j=led.energy_in_j + e_in, copper_j=led.copper_j + copper, coupling_j=led.coupling_j,
+                         stiction_j=led.stiction_j - tau_st * dth, stop_work_j=led.stop_work_j - f_stop * p * dth,
+                         load_work_j=led.load_work_j + load_n * p * dth)
+            th_r, w_r = th_r1, w_r1
+            if self.n_sub > 1:
+                sums[0] += tau_in
+                sums[1] += out.power_in_w
+                sums[2] += out.power_out_w
+                sums[3] += out.power_dissipated_w
+            screw = new
+            level = brake_level(a.brake, level, st.brake_engaged, h)
+        if self.n_sub > 1:
+            n = self.n_sub
+            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
+            out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
+                          power_dissipated_w=pd, efficiency=efficiency(pout, pd))
+        nxt = replace(st, screw=screw, step=st.step + 1, motor_angle_rad=th_r, motor_speed_rad_s=w_r, current_a=i_a,
+                      integral_nm=integ, torque_ref_nm=tau_ref, speed_ref_rad_s=w_ref, limited=limited,
+                      encoder_rad=enc, brake_level=level, ledger=led)
+        # sensors: the true sample now, delivered `latency_steps` later
+        sample = self._sample(nxt, screw, out.nut_force_n)
+        lat = a.sensors.latency_steps
+        history = (st.history + (sample,))[-(lat + 1):]
+        nxt = replace(nxt, history=history)
+        meas = self._measure(nxt, history[0], st.history[0] if st.history else history[0], act)
+        nxt = replace(nxt, measured=meas[:-1], load_cell_filtered_n=meas[-1])
+        # the actuator block
+        stored = self.stored_energy(nxt)
+        diss = screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j \
+            - stop_stored_j(a.stops, p * screw.screw_angle_rad)
+        cap_b = level * a.brake.holding_torque_nm
+        cap_all = cap_b + act.jam_nm
+        brake_t = tau_st * cap_b / cap_all if cap_all > 0 else 0.0
+        motor_torque = 0.0 if m is None else m.torque_constant_nm_a * i_a
+        block = (command, float(COMMAND_INTERFACES.index(st.mode)), w_ref, tau_ref, float(limited), i_a, motor_torque,
+                 w_r * N, volt, (led.energy_in_j - st.ledger.energy_in_j) / self.dt_s, tau_c, level, brake_t,
+                 tau_st - brake_t, f_stop, stop_penetration(a.stops, p * screw.screw_angle_rad),
+                 led.stop_work_j - stop_stored_j(a.stops, p * screw.screw_angle_rad), led.energy_in_j,
+                 led.load_work_j, diss, stored, float(sum(f.active(st.time_s) for f in self.all_faults(st))))
+        internal = np.concatenate((out.internal, block, nxt.measured))
+        return nxt, replace(out, internal=internal)
+
+    # -- energy --------------------------------------------------------------------------
+    def stored_energy(self, st: ActuatorState) -> float:
+        """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27), a compliant rotor's,
+        magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
+        s, m = st.screw, self.actuator.motor
+        q = np.array([s.screw_speed_rad_s, s.carrier_speed_rad_s])
+        e = 0.5 * float(q @ self.M @ q) + stop_stored_j(self.actuator.stops, self.p * s.screw_angle_rad)
+        if m is not None:
+            e += 0.5 * m.inductance_h * st.current_a**2
+            if not self.rigid:
+                phi = st.motor_angle_rad - s.screw_angle_rad
+                e += 0.5 * self.motor_inertia * st.motor_speed_rad_s**2 + 0.5 * m.coupling_stiffness_nm_rad * phi * phi
+        return e
+
+    # -- sensors -------------------------------------------------------------------------
+    def _encoder_screw_angle(self, motor_angle_rad: float, screw_angle_rad: float) -> float:
+        counts = self.actuator.sensors.encoder_counts_per_rev
+        if counts == 0:
+            return screw_angle_rad if self.rigid else motor_angle_rad / self.ratio
+        return quantise(motor_angle_rad, 2.0 * math.pi / counts) / self.ratio
+
+    def _faulted(self, sensor: str, value: float, held: float, act: fl.Active, key: int) -> tuple[float, bool]:
+        """Apply the active faults of `sensor` to a fresh reading: (value, fresh?)."""
+        seed = self.actuator.sensors.seed
+        for s, kind, v in act.sensor:
+            if s != sensor:
+                continue
+            if kind == "sensor_bias":
+                value += v
+            elif kind == "sensor_noise":
+                value += v * normal(seed, key, 100 + STREAM[sensor])
+            elif kind == "sensor_stuck":
+                return held, False
+            elif kind == "sensor_dropout" and uniform(seed, key, 110 + STREAM[sensor]) <= v:
+                return held, False
+        return value, True
+
+    def _read_encoder(self, motor_angle_rad: float, screw_angle_rad: float, act: fl.Active, key: int,
+                      held: float) -> float:
+        v = self._encoder_screw_angle(motor_angle_rad, screw_angle_rad)
+        return self._faulted("motor_encoder", v, held, act, key)[0] if act.sensor else v
+
+    def _read_linear(self, nut_m: float, encoder_screw_rad: float, act: fl.Active, key: int) -> float:
+        res = self.actuator.sensors.linear_encoder_resolution_m
+        if res is None:
+            return self.p * encoder_screw_rad
+        v = quantise(nut_m, res)
+        return self._faulted("linear_encoder", v, v, act, key)[0] if act.sensor else v
+
+    def _sample(self, st: ActuatorState, screw: State, nut_force_n: float) -> tuple[float, ...]:
+        """The true values the sensors see: motor angle (motor shaft), screw angle/speed, nut position/velocity/force."""
+        p = self.p
+        return (st.motor_angle_rad * self.ratio, screw.screw_angle_rad,
+                screw.screw_speed_rad_s if self.rigid else st.motor_speed_rad_s,
+                p * screw.screw_angle_rad, p * screw.screw_speed_rad_s, nut_force_n)
+
+    def _measure(self, st: ActuatorState, now: tuple, before: tuple, act: fl.Active, first: bool = False) -> tuple:
+        """What the sensors report for the delayed true sample `now` (`before`: the one a step earlier)."""
+        sp, p, h = self.actuator.sensors, self.p, self.dt_s
+        prev = st.measured if st.measured else None
+        key = st.step
+        # motor encoder → screw angle and speed
+        ang = self._encoder_screw_angle(now[0], now[1])
+        if sp.encoder_counts_per_rev == 0:
+            spd = now[2]
+        else:
+            spd = 0.0 if first else (ang - self._encoder_screw_angle(before[0], before[1])) / h
+        fresh = [1.0, 1.0, 1.0]
+        out = [now[0] if sp.encoder_counts_per_rev == 0 else ang * self.ratio, ang, spd]
+        # nut position and velocity: linear encoder if fitted, else from the motor encoder
+        if sp.linear_encoder_resolution_m is None:
+            if sp.encoder_counts_per_rev == 0 and self.rigid:
+                out += [now[3], now[4]]
+            else:
+                out += [p * ang, p * spd]
+        else:
+            res = sp.linear_encoder_resolution_m
+            x = quantise(now[3], res)
+            v = now[4] if res == 0 else (0.0 if first else (x - quantise(before[3], res)) / h)
+            out += [x, v]
+        # load cell: first-order filter, bias, noise
+        filt = first_order(st.load_cell_filtered_n, now[5], sp.load_cell_bandwidth_hz, h) if not first else now[5]
+        f = filt + sp.load_cell_bias_n if sp.load_cell_bias_n else filt
+        if sp.load_cell_noise_n:
+            f += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
+        out.append(f)
+        if prev is not None:
+            lin = sp.linear_encoder_resolution_m is not None
+            for sensor, idx in _GROUPS.items():
+                if sensor == "linear_encoder" and not lin:
+                    continue
+                si = _SENSOR_INDEX[sensor]
+                dropped = sp.dropout_probability > 0 and uniform(sp.seed, key, DROPOUT_STREAM[sensor]) <= sp.dropout_probability
+                if not dropped and act.sensor:
+                    # bias and noise act on the primary reading (screw angle rad, nut position m, force N)
+                    primary = idx[1] if sensor == "motor_encoder" else idx[0]
+                    v, ok = self._faulted(sensor, out[primary], prev[primary], act, key)
+                    dropped = not ok
+                    if ok and v != out[primary]:
+                        out[primary] = v
+                        if sensor == "motor_encoder":
+                            out[0] = v * self.ratio
+                if dropped:
+                    for i in idx:
+                        out[i] = prev[i]
+                    fresh[si] = 0.0
+                if sensor == "motor_encoder" and not lin and (dropped or act.sensor):
+                    out[3], out[4] = p * out[1], p * out[2]
+        return tuple(out) + tuple(fresh) + (filt,)
