@@ -6,6 +6,7 @@ screw-side torque reference and the new memory. Loops run in screw coordinates.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 from prsm_sim.actuator.params import DriveParams
@@ -43,6 +44,7 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
     tau = max(-torque_limit_nm, min(torque_limit_nm, raw))
     limited = tau != raw
     if limited and raw * e > 0.0:
-        integ = integral_nm  # anti-windup: do not integrate further into the limit
-        tau = max(-torque_limit_nm, min(torque_limit_nm, drive.speed_kp_nm_s_rad * e + integ))
+        # anti-windup: the integrator stops where the output meets the limit (never beyond its new value)
+        edge = math.copysign(torque_limit_nm, raw) - drive.speed_kp_nm_s_rad * e
+        integ = min(integ, max(edge, integral_nm)) if raw > 0 else max(integ, min(edge, integral_nm))
     return DriveOut(tau, integ, limited, w_ref)
