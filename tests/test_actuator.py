@@ -384,3 +384,50 @@ def test_brake_release_refused_during_drive_fault():
     with pytest.raises(InputError, match="drive fault is active"):
         act.command_brake(st, False)
     assert st.brake_engaged
+
+
+def test_torque_limit_drop_and_drive_fault():
+    """Oracle: the limits themselves. A torque-limit drop to 30 % caps the current at 0.3 × the
+    peak; a drive fault takes the torque off (current decays to 0 with the current loop)."""
+    p = s30()
+    motor = MotorParams()
+    j = reflected_inertia(p) + motor.rotor_inertia_kgm2
+    faults = (Fault("torque_limit_drop", start_s=0.1, duration_s=0.1, value=0.3),
+              Fault("drive_fault", start_s=0.3, duration_s=0.1))
+    act = Actuator(p, DT, "ideal", ActuatorParams(motor=motor, faults=faults, drive=DriveParams(
+        mode="velocity", speed_kp_nm_s_rad=j * 300, speed_ki_nm_rad=0.0)))
+    st, outs = run(act, act.initial_state(0.0), 200.0, 5000.0, 400)
+    cur = np.array([block(act, o, "actuator", "motor_current_a") for o in outs])
+    i_peak = motor.peak_torque_nm / motor.torque_constant_nm_a
+    assert cur[5] == pytest.approx(i_peak, rel=1e-3)  # accelerating on the limit
+    assert cur[180] == pytest.approx(0.3 * i_peak, rel=1e-6)
+    assert abs(cur[350]) < 1e-9
+    assert block(act, outs[350], "actuator", "faults_active") == 1.0
+
+
+def test_slow_drive_loop_holds_its_output_between_updates():
+    """Oracle: a 250 Hz loop at a 1 kHz step updates the torque reference every 4th step only."""
+    p = s30()
+    j = reflected_inertia(p) + MotorParams().rotor_inertia_kgm2
+    act = Actuator(p, DT, "ideal", ActuatorParams(motor=MotorParams(), drive=DriveParams(
+        mode="velocity", loop_rate_hz=250.0, speed_kp_nm_s_rad=j * 60, speed_ki_nm_rad=j * 600)))
+    assert act.hold_steps == 4 and act.n_sub == 1
+    st, outs = run(act, act.initial_state(0.0), 10.0, 0.0, 40)
+    ref = np.array([block(act, o, "actuator", "torque_reference_nm") for o in outs])
+    assert np.all(ref.reshape(10, 4) == ref.reshape(10, 4)[:, :1])
+    assert len(np.unique(ref)) > 5
+
+
+def test_run_gives_a_trajectory_with_the_actuator_blocks_and_mode_switches():
+    """Oracle: `Model.run` over the same inputs equals stepping; switching modes keeps the torque (bumpless)."""
+    p = s30()
+    act = Actuator(p, DT, "jones2016", ActuatorParams(motor=MotorParams()))
+    st0 = act.initial_state(0.0)
+    tr = act.run(st0, np.full(50, 0.5), 100.0)
+    st, outs = run(act, st0, 0.5, 100.0, 50)
+    assert np.array_equal(tr.internal[-1], outs[-1].internal)
+    assert tr.internal_block("actuator").shape == (50, len(act.layout.blocks[-2].quantities))
+    v = act.set_mode(st, "velocity")
+    assert v.integral_nm == st.torque_ref_nm
+    nxt, out = act.step(v, st.screw.screw_speed_rad_s, 100.0)
+    assert block(act, out, "actuator", "torque_reference_nm") == pytest.approx(st.torque_ref_nm, rel=1e-3)

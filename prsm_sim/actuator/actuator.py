@@ -192,11 +192,10 @@ class Actuator(Model):
         screw = self._model(fl.NONE).initial_state(nut_position_m)
         th = screw.screw_angle_rad
         st = ActuatorState(screw=screw, mode=self.actuator.drive.mode, motor_angle_rad=th)
-        sample = self._sample(st, screw, 0.0)
+        sample = self._sample(th, 0.0, screw, 0.0)
         enc = self._encoder_screw_angle(th * self.ratio, th)
-        st = replace(st, encoder_rad=enc, history=(sample,), load_cell_filtered_n=0.0)
-        meas = self._measure(st, sample, sample, fl.NONE, first=True)
-        return replace(st, measured=meas)
+        *meas, filt = self._measure(0, (), 0.0, sample, sample, fl.NONE, first=True)
+        return replace(st, encoder_rad=enc, history=(sample,), measured=tuple(meas), load_cell_filtered_n=filt)
 
     def all_faults(self, state: ActuatorState) -> tuple[Fault, ...]:
         return self.actuator.faults + state.faults
@@ -348,31 +347,33 @@ class Actuator(Model):
             pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
             out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
                           power_dissipated_w=pd, efficiency=efficiency(pout, pd))
-        nxt = replace(st, screw=screw, step=st.step + 1, motor_angle_rad=th_r, motor_speed_rad_s=w_r, current_a=i_a,
-                      integral_nm=integ, torque_ref_nm=tau_ref, speed_ref_rad_s=w_ref, limited=limited,
-                      encoder_rad=enc, brake_level=level, ledger=led)
         # sensors: the true sample now, delivered `latency_steps` later
-        sample = self._sample(nxt, screw, out.nut_force_n)
+        sample = self._sample(th_r, w_r, screw, out.nut_force_n)
         lat = a.sensors.latency_steps
-        history = (st.history + (sample,))[-(lat + 1):]
-        nxt = replace(nxt, history=history)
-        meas = self._measure(nxt, history[0], st.history[0] if st.history else history[0], act)
-        nxt = replace(nxt, measured=meas[:-1], load_cell_filtered_n=meas[-1])
+        history = (st.history + (sample,))[-(lat + 1):] if lat else (sample,)
+        before = st.history[0] if st.history else history[0]
+        *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
+        meas = tuple(meas)
+        nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
+                            st.brake_engaged, level, st.faults, history, meas, filt, led)
         # the actuator block
+        x = p * screw.screw_angle_rad
+        stop_e = stop_stored_j(a.stops, x) if a.stops.fitted else 0.0
         stored = self.stored_energy(nxt)
-        diss = screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j \
-            - stop_stored_j(a.stops, p * screw.screw_angle_rad)
+        diss = screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_e
         cap_b = level * a.brake.holding_torque_nm
         cap_all = cap_b + act.jam_nm
         brake_t = tau_st * cap_b / cap_all if cap_all > 0 else 0.0
         motor_torque = 0.0 if m is None else m.torque_constant_nm_a * i_a
+        n_active = float(sum(f.active(st.time_s) for f in self.all_faults(st))) if act is not fl.NONE else 0.0
         block = (command, float(COMMAND_INTERFACES.index(st.mode)), w_ref, tau_ref, float(limited), i_a, motor_torque,
                  w_r * N, volt, (led.energy_in_j - st.ledger.energy_in_j) / self.dt_s, tau_c, level, brake_t,
-                 tau_st - brake_t, f_stop, stop_penetration(a.stops, p * screw.screw_angle_rad),
-                 led.stop_work_j - stop_stored_j(a.stops, p * screw.screw_angle_rad), led.energy_in_j,
-                 led.load_work_j, diss, stored, float(sum(f.active(st.time_s) for f in self.all_faults(st))))
-        internal = np.concatenate((out.internal, block, nxt.measured))
-        return nxt, replace(out, internal=internal)
+                 tau_st - brake_t, f_stop, stop_penetration(a.stops, x) if a.stops.fitted else 0.0,
+                 led.stop_work_j - stop_e, led.energy_in_j, led.load_work_j, diss, stored, n_active)
+        # `out` was made by the screw model for this call alone: completing its internal vector in
+        # place saves a copy of the whole record per step
+        object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
+        return nxt, out
 
     # -- energy --------------------------------------------------------------------------
     def stored_energy(self, st: ActuatorState) -> float:
@@ -423,18 +424,25 @@ class Actuator(Model):
         v = quantise(nut_m, res)
         return self._faulted("linear_encoder", v, v, act, key)[0] if act.sensor else v
 
-    def _sample(self, st: ActuatorState, screw: State, nut_force_n: float) -> tuple[float, ...]:
-        """The true values the sensors see: motor angle (motor shaft), screw angle/speed, nut position/velocity/force."""
+    def _sample(self, motor_angle_rad: float, motor_speed_rad_s: float, screw: State,
+                nut_force_n: float) -> tuple[float, ...]:
+        """The true values the sensors see: motor angle (motor shaft), screw angle/speed, nut position/velocity/force.
+
+        Motor angle and speed come in screw coordinates (motor / gear ratio)."""
         p = self.p
-        return (st.motor_angle_rad * self.ratio, screw.screw_angle_rad,
-                screw.screw_speed_rad_s if self.rigid else st.motor_speed_rad_s,
+        return (motor_angle_rad * self.ratio, screw.screw_angle_rad,
+                screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
                 p * screw.screw_angle_rad, p * screw.screw_speed_rad_s, nut_force_n)
 
-    def _measure(self, st: ActuatorState, now: tuple, before: tuple, act: fl.Active, first: bool = False) -> tuple:
-        """What the sensors report for the delayed true sample `now` (`before`: the one a step earlier)."""
+    def _measure(self, key: int, prev: tuple, filtered_n: float, now: tuple, before: tuple, act: fl.Active,
+                 first: bool = False) -> tuple:
+        """What the sensors report at step `key` for the delayed true sample `now` (`before`: a step earlier).
+
+        `prev`: the last reading (held on dropout or a stuck fault); `filtered_n`: the load
+        cell filter's memory. Returns the MEASURED_QUANTITIES values and the new filter memory.
+        """
         sp, p, h = self.actuator.sensors, self.p, self.dt_s
-        prev = st.measured if st.measured else None
-        key = st.step
+        prev = prev if prev else None
         # motor encoder → screw angle and speed
         ang = self._encoder_screw_angle(now[0], now[1])
         if sp.encoder_counts_per_rev == 0:
@@ -455,7 +463,7 @@ class Actuator(Model):
             v = now[4] if res == 0 else (0.0 if first else (x - quantise(before[3], res)) / h)
             out += [x, v]
         # load cell: first-order filter, bias, noise
-        filt = first_order(st.load_cell_filtered_n, now[5], sp.load_cell_bandwidth_hz, h) if not first else now[5]
+        filt = first_order(filtered_n, now[5], sp.load_cell_bandwidth_hz, h) if not first else now[5]
         f = filt + sp.load_cell_bias_n if sp.load_cell_bias_n else filt
         if sp.load_cell_noise_n:
             f += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
