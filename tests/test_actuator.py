@@ -431,3 +431,19 @@ def test_run_gives_a_trajectory_with_the_actuator_blocks_and_mode_switches():
     assert v.integral_nm == st.torque_ref_nm
     nxt, out = act.step(v, st.screw.screw_speed_rad_s, 100.0)
     assert block(act, out, "actuator", "torque_reference_nm") == pytest.approx(st.torque_ref_nm, rel=1e-3)
+
+
+def test_actuator_params_round_trip_and_refuse_unknown_keys():
+    """Oracle: to_dict → from_dict is the identity; unknown or mistyped keys name themselves."""
+    from prsm_sim.actuator import actuator_params_from_dict, actuator_params_to_dict, parse_fault
+    a = actuator_params_from_dict({"motor": {"gear_ratio": 2}, "drive": {"mode": "position"},
+                                   "sensors": {"encoder_counts_per_rev": 4096}, "stops": {"max_position_m": 0.3},
+                                   "faults": ["kind=jam,start_s=1,duration_s=0.5,value=50",
+                                              {"kind": "sensor_bias", "sensor": "load_cell", "value": 20}]})
+    assert actuator_params_from_dict(actuator_params_to_dict(a)) == a
+    assert a.faults[0] == parse_fault("kind=jam,start_s=1,duration_s=0.5,value=50")
+    for bad, says in (({"motr": {}}, "unknown actuator group 'motr'"), ({"motor": {"kt": 1}}, "unknown parameter motor.kt"),
+                      ({"sensors": {"encoder_counts_per_rev": 1.5}}, "sensors.encoder_counts_per_rev = 1.5"),
+                      ({"faults": ["kind=jam,value=oops"]}, "fault.value = 'oops'")):
+        with pytest.raises(ParamError, match=says):
+            actuator_params_from_dict(bad)

@@ -11,7 +11,8 @@ nut m); the motor turns `gear_ratio` times per screw turn (ideal, lossless gear 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
 
 from prsm_sim.errors import ParamError
 from prsm_sim.params import _check, _finite, _non_negative, _positive
@@ -280,3 +281,123 @@ class ActuatorParams:
         for f in self.faults:
             if not isinstance(f, Fault):
                 raise ParamError(f"faults: expected Fault records, got {type(f).__name__}")
+
+
+_SUBGROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sensors": SensorParams,
+                               "stops": StopParams, "brake": BrakeParams}
+_INT_FIELDS = {("sensors", "encoder_counts_per_rev"), ("sensors", "latency_steps"), ("sensors", "seed")}
+_STR_FIELDS = {("drive", "mode")}
+_BOOL_FIELDS = {("brake", "engage_on_watchdog")}
+
+
+def _coerce(group: str, key: str, value: Any) -> Any:
+    """YAML/ROS values to the field's type; anything else refused by name (ParamError)."""
+    if value is None:
+        return None
+    if (group, key) in _STR_FIELDS:
+        _check(group, key, value, isinstance(value, str), "must be a string")
+        return value
+    if (group, key) in _BOOL_FIELDS:
+        _check(group, key, value, isinstance(value, bool), "must be true or false")
+        return value
+    _check(group, key, value, isinstance(value, (int, float)) and not isinstance(value, bool), "must be a number")
+    if (group, key) in _INT_FIELDS:
+        _check(group, key, value, math.isfinite(value) and float(value) == int(value), "must be a whole number")
+        return int(value)
+    return float(value)
+
+
+def actuator_params_from_dict(data: Any, *, base: ActuatorParams | None = None) -> ActuatorParams:
+    """Build from a nested dict {motor: {...} | None, drive: {...}, ..., faults: [{...}]}; unknown keys refused.
+
+    Groups missing from `data` come from `base` (default: the ideal actuator); `motor: {}`
+    fits the default motor, `motor: null` removes it.
+    """
+    base = base if base is not None else ActuatorParams()
+    if not isinstance(data, dict):
+        raise ParamError(f"actuator: expected a mapping of groups ({', '.join(_SUBGROUPS)}, faults), "
+                         f"got {type(data).__name__}")
+    unknown = set(data) - set(_SUBGROUPS) - {"faults"}
+    if unknown:
+        raise ParamError(f"unknown actuator group {sorted(map(str, unknown))[0]!r}; "
+                         f"allowed: {', '.join(_SUBGROUPS)}, faults")
+    groups: dict[str, Any] = {}
+    for gname, gcls in _SUBGROUPS.items():
+        cur = getattr(base, gname)
+        if gname not in data:
+            groups[gname] = cur
+            continue
+        section = data[gname]
+        if section is None:
+            _check("actuator", gname, section, gname == "motor", "only the motor may be removed (null)")
+            groups[gname] = None
+            continue
+        _check("actuator", gname, section, isinstance(section, dict), "must be a mapping")
+        allowed = {f.name for f in fields(gcls)}
+        bad = set(section) - allowed
+        if bad:
+            raise ParamError(f"unknown parameter {gname}.{sorted(map(str, bad))[0]}; "
+                             f"allowed in {gname}: {', '.join(sorted(allowed))}")
+        values = asdict(cur) if cur is not None else {}
+        values.update({k: _coerce(gname, k, v) for k, v in section.items()})
+        groups[gname] = gcls(**values)
+    faults = base.faults
+    if "faults" in data:
+        items = data["faults"] or []
+        _check("actuator", "faults", items, isinstance(items, (list, tuple)), "must be a list of faults")
+        faults = tuple(fault_from_dict(f) for f in items)
+    return ActuatorParams(faults=faults, **groups)
+
+
+def actuator_params_to_dict(a: ActuatorParams) -> dict[str, Any]:
+    """Plain nested dict; round-trips through `actuator_params_from_dict`."""
+    out: dict[str, Any] = {g: (asdict(getattr(a, g)) if getattr(a, g) is not None else None) for g in _SUBGROUPS}
+    out["faults"] = [asdict(f) for f in a.faults]
+    return out
+
+
+_FAULT_KEYS = ("kind", "start_s", "duration_s", "value", "sensor", "roller")
+
+
+def fault_from_dict(data: Any) -> Fault:
+    """A Fault from {kind, start_s, duration_s, value, sensor, roller}; unknown keys refused."""
+    if isinstance(data, str):
+        return parse_fault(data)
+    _check("fault", "spec", data, isinstance(data, dict), "must be a mapping or a 'kind=…,start_s=…' string")
+    bad = set(data) - set(_FAULT_KEYS)
+    if bad:
+        raise ParamError(f"unknown fault field {sorted(map(str, bad))[0]!r}; allowed: {', '.join(_FAULT_KEYS)}")
+    _check("fault", "kind", data.get("kind"), "kind" in data, f"is required (one of {', '.join(FAULT_KINDS)})")
+    vals: dict[str, Any] = {}
+    for k, v in data.items():
+        if k in ("kind", "sensor"):
+            _check("fault", k, v, v is None or isinstance(v, str), "must be a string")
+        elif k == "roller":
+            _check("fault", k, v, v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                              and math.isfinite(v) and float(v) == int(v)), "must be a whole number")
+            v = None if v is None else int(v)
+        else:
+            _check("fault", k, v, isinstance(v, (int, float)) and not isinstance(v, bool), "must be a number")
+            v = float(v)
+        vals[k] = v
+    return Fault(**vals)
+
+
+def parse_fault(text: str) -> Fault:
+    """A Fault from 'kind=jam,start_s=1.0,duration_s=0.5,value=50' (ROS string parameters and services)."""
+    _check("fault", "spec", text, isinstance(text, str) and text.strip() != "", "must be a non-empty string")
+    d: dict[str, Any] = {}
+    for part in text.split(","):
+        key, sep, val = part.partition("=")
+        key, val = key.strip(), val.strip()
+        if not sep or not key:
+            raise ParamError(f"fault spec {text!r}: expected key=value pairs separated by commas, "
+                             f"e.g. kind=jam,start_s=1.0,duration_s=0.5,value=50")
+        if key in ("kind", "sensor"):
+            d[key] = val
+        else:
+            try:
+                d[key] = float(val)
+            except ValueError:
+                raise ParamError(f"fault.{key} = {val!r}: must be a number") from None
+    return fault_from_dict(d)
