@@ -228,10 +228,14 @@ class Actuator(Model):
         kept += tuple(f for f in state.faults if f.end_s <= t)
         return replace(state, faults=kept)
 
-    def events(self, before: ActuatorState | None, after: ActuatorState) -> list[fl.FaultEvent]:
-        """Faults that started or cleared between two states (`before` None: those active at the start)."""
-        t0 = -1.0 if before is None else before.time_s
-        return fl.fault_events(self.all_faults(after), t0, after.time_s)
+    def events(self, before: ActuatorState, after: ActuatorState) -> list[fl.FaultEvent]:
+        """Faults the step from `before` to `after` started or stopped using (relative to the step before it).
+
+        A step starting at t applies the faults active at t, so a fault injected now with
+        start_s = now is reported by the very next step.
+        """
+        t0 = before.time_s
+        return fl.fault_events(self.all_faults(after), t0 - self.dt_s, t0)
 
     # -- the step ------------------------------------------------------------------------
     def step(self, state: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:

@@ -114,9 +114,10 @@ class FaultEvent(NamedTuple):
 
 
 def fault_events(faults: tuple[Fault, ...], t0_s: float, t1_s: float) -> list[FaultEvent]:
-    """Faults that become active or clear between the step starting at `t0_s` and the one at `t1_s`.
+    """Faults active at `t1_s` but not at `t0_s` ("start") and the reverse ("clear").
 
-    A step starting at t uses the faults active at t; pass t0 < 0 to list those active from the start.
+    A step starting at t uses the faults active at t: with t0, t1 the start times of two
+    consecutive steps these are the faults the second step starts or stops applying.
     """
     ev = []
     for f in faults:

@@ -111,7 +111,8 @@ class SensorParams:
     - `linear_encoder_resolution_m`: None = not fitted; 0 = fitted and ideal.
     - load cell: additive `load_cell_bias_n`, Gaussian `load_cell_noise_n` (1σ), first-order
       `load_cell_bandwidth_hz` (None: none).
-    - `latency_steps`: every measurement is this many simulation steps old.
+    - `latency_steps`: every published measurement is this many simulation steps old (the
+      drive reads its own encoders fresh at its loop rate; their quantisation and faults apply).
     - `dropout_probability`: per sample and sensor; a dropped sample repeats the last one.
     - `seed`: noise and dropout draw from a counter-based generator keyed by (seed, step), so
       a step stays a pure function of (state, inputs) and lockstep runs repeat bit for bit.
