@@ -58,8 +58,8 @@ def test_effort_ideal_actuator_is_the_bare_model_bit_for_bit(model):
             assert v == w or (math.isnan(v) and math.isnan(w)), (k, name, v, w)
         assert np.array_equal(o1.internal, o2.internal[:n_screw])
     # ideal sensors: measured = true, exactly
-    assert block(act, o2, "measured", "nut_position_m") == o2.nut_position_m
-    assert block(act, o2, "measured", "screw_speed_rad_s") == o2.screw_speed_rad_s
+    for name in ("screw_angle_rad", "screw_speed_rad_s", "nut_position_m", "nut_velocity_m_s", "nut_force_n"):
+        assert getattr(act.measured(o2), name) == getattr(o2, name)
 
 
 def _velocity_actuator(params, kp, ki, model="ideal", **drive):

@@ -379,6 +379,18 @@ class Actuator(Model):
         object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
         return nxt, out
 
+    # -- what the sensors say -------------------------------------------------------------
+    def measured(self, out: Outputs) -> Outputs:
+        """`out` with the joint quantities replaced by what the sensors measured (for `joint_states`).
+
+        Screw angle and speed from the motor encoder, nut position and velocity from the
+        linear encoder (or the motor encoder), nut force from the load cell; every other field
+        is the true one. With ideal sensors this is `out`'s values exactly.
+        """
+        m = self.layout.view(out.internal, "measured")
+        return replace(out, screw_angle_rad=float(m[1]), screw_speed_rad_s=float(m[2]), nut_position_m=float(m[3]),
+                       nut_velocity_m_s=float(m[4]), nut_force_n=float(m[5]))
+
     # -- energy --------------------------------------------------------------------------
     def stored_energy(self, st: ActuatorState) -> float:
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27), a compliant rotor's,
