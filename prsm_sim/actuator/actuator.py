@@ -72,6 +72,7 @@ MEASURED_QUANTITIES = (
     ("linear_encoder_fresh", "1"),
     ("load_cell_fresh", "1"),
 )
+_MODE_CODE = {m: float(i) for i, m in enumerate(COMMAND_INTERFACES)}
 _SENSOR_INDEX = {"motor_encoder": 0, "linear_encoder": 1, "load_cell": 2}
 _GROUPS = {"motor_encoder": (0, 1, 2), "linear_encoder": (3, 4), "load_cell": (5,)}  # indices into MEASURED_QUANTITIES
 
@@ -159,6 +160,7 @@ class Actuator(Model):
         self.p = self.geo.lead_per_rad_m
         self.J = self._probe_inertia(base)
         self.M = mass_matrix(self.screw_params)
+        self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
         for f in a.faults:
             fl.check_fault(f, params, model, m is not None)
         self.layout = InternalLayout(blocks=base.layout.blocks + (
@@ -370,7 +372,7 @@ class Actuator(Model):
         brake_t = tau_st * cap_b / cap_all if cap_all > 0 else 0.0
         motor_torque = 0.0 if m is None else m.torque_constant_nm_a * i_a
         n_active = float(sum(f.active(st.time_s) for f in self.all_faults(st))) if act is not fl.NONE else 0.0
-        block = (command, float(COMMAND_INTERFACES.index(st.mode)), w_ref, tau_ref, float(limited), i_a, motor_torque,
+        block = (command, _MODE_CODE[st.mode], w_ref, tau_ref, float(limited), i_a, motor_torque,
                  w_r * N, volt, (led.energy_in_j - st.ledger.energy_in_j) / self.dt_s, tau_c, level, brake_t,
                  tau_st - brake_t, f_stop, stop_penetration(a.stops, x) if a.stops.fitted else 0.0,
                  led.stop_work_j - stop_e, led.energy_in_j, led.load_work_j, diss, stored, n_active)
@@ -396,8 +398,10 @@ class Actuator(Model):
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27), a compliant rotor's,
         magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
         s, m = st.screw, self.actuator.motor
-        q = np.array([s.screw_speed_rad_s, s.carrier_speed_rad_s])
-        e = 0.5 * float(q @ self.M @ q) + stop_stored_j(self.actuator.stops, self.p * s.screw_angle_rad)
+        ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
+        e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
+        if self.actuator.stops.fitted:
+            e += stop_stored_j(self.actuator.stops, self.p * s.screw_angle_rad)
         if m is not None:
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:
