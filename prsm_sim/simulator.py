@@ -38,8 +38,12 @@ class Simulator:
     """Stateful wrapper: current state, step counter, input checks."""
 
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
-                 nut_position_m: float = 0.0) -> None:
-        self.model = build_model(params, model, dt_s)
+                 nut_position_m: float = 0.0, actuator=None) -> None:
+        if actuator is None:
+            self.model = build_model(params, model, dt_s)
+        else:  # the actuator around the screw (prsm_sim.actuator): `step`'s first input is then its command
+            from prsm_sim.actuator import Actuator
+            self.model = Actuator(params, dt_s, model, actuator)
         self.params = params
         self.dt_s = self.model.dt_s
         self._initial_nut_position_m = float(nut_position_m)

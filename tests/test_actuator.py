@@ -451,3 +451,18 @@ def test_actuator_params_round_trip_and_refuse_unknown_keys():
                       ({"faults": ["kind=jam,value=oops"]}, "fault.value = 'oops'")):
         with pytest.raises(ParamError, match=says):
             actuator_params_from_dict(bad)
+
+
+def test_simulator_drives_an_actuator_like_a_model():
+    """Oracle: the Actuator stepped directly; Simulator adds only the state and the counter."""
+    p = s30()
+    a = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode="velocity"))
+    sim = Simulator(p, "ideal", DT, 0.0, actuator=a)
+    act = Actuator(p, DT, "ideal", a)
+    st, outs = run(act, act.initial_state(0.0), 5.0, 100.0, 30)
+    for _ in range(30):
+        out = sim.step(5.0, 100.0)
+    assert sim.nstep == 30 and np.array_equal(out.internal, outs[-1].internal)
+    assert sim.layout.blocks[-1].name == "measured"
+    sim.reset()
+    assert sim.state == act.initial_state(0.0)
