@@ -68,17 +68,19 @@ def _velocity_actuator(params, kp, ki, model="ideal", **drive):
         mode="velocity", speed_kp_nm_s_rad=kp, speed_ki_nm_rad=ki, **drive))), motor
 
 
-def test_velocity_step_rise_time_matches_the_closed_form():
+@pytest.mark.parametrize("loop_rate_hz", [None, 4000.0])
+def test_velocity_step_rise_time_matches_the_closed_form(loop_rate_hz):
     """Oracle: PI speed loop on an inertia, ω/ω_ref = (kp s + ki)/(J s² + kp s + ki), analytic step response.
 
     J = the screw's reflected inertia (ideal ratio) + the rotor's; lossless screw, no load.
-    The 1 kHz sampled loop lags the continuous one a little: within 10 % (seen: 3.6 %).
+    The 1 kHz sampled loop lags the continuous one a little: within 10 % (seen: 3.6 %); a 4 kHz
+    loop, sub-stepped inside the 1 ms step, comes closer (seen: 1.1 %).
     """
     p = s30(**LOSSLESS)
     j = reflected_inertia(p) + MotorParams().rotor_inertia_kgm2
     wb = 2 * math.pi * 10.0
     kp, ki = j * wb, j * wb * wb / 10
-    act, _ = _velocity_actuator(p, kp, ki)
+    act, _ = _velocity_actuator(p, kp, ki, loop_rate_hz=loop_rate_hz)
     st, outs = run(act, act.initial_state(0.0), 50.0, 0.0, 400)
     w = np.array([o.screw_speed_rad_s for o in outs]) / 50.0
     t = DT * np.arange(1, len(w) + 1)
@@ -96,7 +98,7 @@ def test_velocity_step_rise_time_matches_the_closed_form():
         return t[k - 1] + (level - w[k - 1]) / (w[k] - w[k - 1]) * DT
 
     sim_rise = cross(0.9) - cross(0.1)
-    assert sim_rise == pytest.approx(closed, rel=0.10)
+    assert sim_rise == pytest.approx(closed, rel=0.10 if loop_rate_hz is None else 0.03)
 
 
 @pytest.mark.parametrize("model", ["ideal", "jones2016"])
