@@ -448,6 +448,10 @@ def test_actuator_params_round_trip_and_refuse_unknown_keys():
                                               {"kind": "sensor_bias", "sensor": "load_cell", "value": 20}]})
     assert actuator_params_from_dict(actuator_params_to_dict(a)) == a
     assert a.faults[0] == parse_fault("kind=jam,start_s=1,duration_s=0.5,value=50")
+    from prsm_sim.actuator import parse_faults
+    assert parse_faults(" kind=jam,start_s=1,duration_s=0.5,value=50 ; kind=drive_fault,start_s=2") == (
+        a.faults[0], Fault("drive_fault", start_s=2.0))
+    assert parse_faults("") == ()
     for bad, says in (({"motr": {}}, "unknown actuator group 'motr'"), ({"motor": {"kt": 1}}, "unknown parameter motor.kt"),
                       ({"sensors": {"encoder_counts_per_rev": 1.5}}, "sensors.encoder_counts_per_rev = 1.5"),
                       ({"faults": ["kind=jam,value=oops"]}, "fault.value = 'oops'")):

@@ -402,3 +402,9 @@ def parse_fault(text: str) -> Fault:
             except ValueError:
                 raise ParamError(f"fault.{key} = {val!r}: must be a number") from None
     return fault_from_dict(d)
+
+
+def parse_faults(text: str) -> tuple[Fault, ...]:
+    """Faults from 'spec; spec; …' (each as `parse_fault`); '' gives none."""
+    _check("faults", "spec", text, isinstance(text, str), "must be a string of 'kind=…,start_s=…' specs separated by ';'")
+    return tuple(parse_fault(part) for part in text.split(";") if part.strip())
