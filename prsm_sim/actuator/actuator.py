@@ -267,7 +267,7 @@ class Actuator(Model):
             if loop_due:
                 enc_new = self._read_encoder(th_r * N, screw.screw_angle_rad, act, st.step * self.n_sub + j, enc)
                 h_loop = h * self.hold_steps
-                if a.sensors.encoder_counts_per_rev == 0 and not act.sensor:
+                if a.sensors.encoder_counts_per_rev == 0 and not any(x[0] == "motor_encoder" for x in act.sensor):
                     w_meas = w_r if not self.rigid else screw.screw_speed_rad_s
                 else:
                     w_meas = (enc_new - enc) / h_loop
