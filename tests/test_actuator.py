@@ -472,3 +472,24 @@ def test_simulator_drives_an_actuator_like_a_model():
     assert sim.layout.blocks[-1].name == "measured"
     sim.reset()
     assert sim.state == act.initial_state(0.0)
+
+
+def test_sensor_bias_noise_and_dropout_faults():
+    """Oracle: the fault values themselves — bias shifts the reading by its value, noise has its σ,
+    dropout holds the last reading with the probability given (binomial bounds, 4σ)."""
+    p = s30()
+    faults = (Fault("sensor_bias", start_s=0.1, duration_s=0.1, value=50.0, sensor="load_cell"),
+              Fault("sensor_noise", start_s=0.0, value=2e-6, sensor="linear_encoder"),
+              Fault("sensor_dropout", start_s=0.0, value=0.3, sensor="motor_encoder"))
+    act = Actuator(p, DT, "ideal", ActuatorParams(sensors=SensorParams(linear_encoder_resolution_m=0.0, seed=3),
+                                                 faults=faults))
+    st, outs = run(act, act.initial_state(0.0), 0.2, 1000.0, 1000)
+    f = np.array([block(act, o, "measured", "nut_force_n") - o.nut_force_n for o in outs])
+    t = np.array([o.time_s for o in outs])
+    assert np.allclose(f[(t > 0.1 + 1e-9) & (t <= 0.2)], 50.0, atol=1e-9)
+    assert np.allclose(f[t > 0.201], 0.0, atol=1e-9)
+    x = np.array([block(act, o, "measured", "nut_position_m") - o.nut_position_m for o in outs])
+    assert np.std(x) == pytest.approx(2e-6, rel=0.1) and abs(np.mean(x)) < 4 * 2e-6 / math.sqrt(len(x))
+    fresh = np.array([block(act, o, "measured", "motor_encoder_fresh") for o in outs])
+    n = len(fresh)
+    assert abs((1 - fresh.mean()) - 0.3) < 4 * math.sqrt(0.3 * 0.7 / n)
