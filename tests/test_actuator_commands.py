@@ -56,3 +56,22 @@ def test_unpacked_layout_indexed_by_name():
 def test_refused_with_a_reason(names, arrays, active, says):
     value, reason = decode_joint_command(names, arrays, active)
     assert value is None and says in reason and "\n" not in reason
+
+
+def test_gate_takes_the_active_interface_only_and_switches():
+    """Oracle: the rules in command_gate's docstring (issue 14)."""
+    from prsm_ros.node.command_gate import CommandGate
+    g = CommandGate(5.0, cmd_timeout_s=0.01, interface="velocity")
+    assert g.command(0.0) == 0.0
+    assert "active command interface is 'velocity'" in g.offer_torque(1.0, 0.0)
+    names, arrays = plugin_message(URDF, VALUES)
+    assert g.offer_joint_command(names, arrays["effort"], arrays["position"], arrays["velocity"], 0.0) is None
+    assert g.command(0.005) == 12.5 and g.offer("velocity", 400.0, 0.005) is None and g.command(0.005) == 400.0
+    assert g.command(0.05) == 0.0 and g.timed_out  # zero speed after the watchdog
+    g.set_interface("position", 0.03)
+    assert g.command(0.06) == 0.03  # starts from the present position; position never falls back to 0
+    assert g.offer("position", 0.04, 0.06) is None and g.command(0.2) == 0.04 and g.timed_out
+    assert g.counters.rejected_malformed == 1 and g.counters.accepted == 3
+    with pytest.raises(Exception, match="command_interface = 'torque'"):
+        g.set_interface("torque", 0.0)
+    assert g.interface == "position"
