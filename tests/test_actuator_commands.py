@@ -75,3 +75,31 @@ def test_gate_takes_the_active_interface_only_and_switches():
     with pytest.raises(Exception, match="command_interface = 'torque'"):
         g.set_interface("torque", 0.0)
     assert g.interface == "position"
+
+
+@pytest.mark.parametrize("change,says", [
+    ({"command_interface": "torque"}, "parameter command_interface = 'torque': must be one of effort, velocity, position"),
+    ({"actuator": "{sensors: {linear_encoder_resolution_m: -1e-6}}"},
+     "parameter actuator: sensors.linear_encoder_resolution_m = -1e-06: must be a finite number >= 0"),
+    ({"faults": "kind=jam,value=5,roller=12"}, "parameter faults: fault.roller = 12: beyond n_rollers = 10"),
+    ({"actuator": "{motr: {}}"}, "unknown actuator group 'motr'"),
+])
+def test_node_actuator_parameters_refused_in_one_line(change, says):
+    """Oracle: the house rule for bad input (one line naming the parameter, value and what is allowed)."""
+    from prsm_ros.node.parameters import ConfigError, NodeConfig, node_parameters
+    values = {p.name: p.default for p in node_parameters()}
+    with pytest.raises(ConfigError) as e:
+        NodeConfig.from_values({**values, **change})
+    assert says in str(e.value) and "\n" not in str(e.value)
+
+
+def test_node_actuator_parameters_build_the_actuator():
+    from prsm_ros.node.parameters import NodeConfig, node_parameters
+    values = {p.name: p.default for p in node_parameters()}
+    cfg = NodeConfig.from_values({**values, "command_interface": "position",
+                                  "actuator": "{motor: {gear_ratio: 2}, stops: {max_position_m: 0.3}}",
+                                  "faults": "kind=jam,start_s=1,value=5; kind=drive_fault,start_s=2,duration_s=0.1"})
+    a = cfg.actuator
+    assert a.drive.mode == "position" and a.motor.gear_ratio == 2.0 and a.stops.max_position_m == 0.3
+    assert [f.kind for f in a.faults] == ["jam", "drive_fault"]
+    assert NodeConfig.from_values(values).actuator.motor is None

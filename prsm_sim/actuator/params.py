@@ -301,6 +301,11 @@ def _coerce(group: str, key: str, value: Any) -> Any:
     if (group, key) in _BOOL_FIELDS:
         _check(group, key, value, isinstance(value, bool), "must be true or false")
         return value
+    if isinstance(value, str):  # YAML 1.1 reads "1e-6" (no dot) as a string
+        try:
+            value = float(value)
+        except ValueError:
+            raise ParamError(f"{group}.{key} = {value!r}: must be a number") from None
     _check(group, key, value, isinstance(value, (int, float)) and not isinstance(value, bool), "must be a number")
     if (group, key) in _INT_FIELDS:
         _check(group, key, value, math.isfinite(value) and float(value) == int(value), "must be a whole number")
