@@ -493,3 +493,21 @@ def test_sensor_bias_noise_and_dropout_faults():
     fresh = np.array([block(act, o, "measured", "motor_encoder_fresh") for o in outs])
     n = len(fresh)
     assert abs((1 - fresh.mean()) - 0.3) < 4 * math.sqrt(0.3 * 0.7 / n)
+
+
+@pytest.mark.parametrize("name,model", [("s30", "ideal"), ("s30", "fu2018"), ("jones2016", "jones2016")])
+@pytest.mark.parametrize("motor", [None, MotorParams(torque_limit_nm=50.0, current_limit_a=200.0)])
+def test_default_gains_are_tuned_on_the_inertia_and_settle(name, model, motor):
+    """Oracle: the tuning rule — kp = J·2πf, ki = kp·2πf/4 makes the speed loop critically damped
+    (ζ = kp / (2√(J ki)) = 1), so with the defaults a speed step settles without overshoot beyond
+    a few % and a position step reaches its target; the presets' inertias differ by 10⁴."""
+    p = preset(name)
+    for mode, cmd, steps in (("velocity", 5.0, 200), ("position", 2e-3, 500)):
+        act = Actuator(p, DT, model, ActuatorParams(motor=motor, drive=DriveParams(mode=mode)))
+        kp, ki = act.drive.speed_kp_nm_s_rad, act.drive.speed_ki_nm_rad
+        assert kp / (2 * math.sqrt(act.J * ki)) == pytest.approx(1.0, rel=1e-12)
+        st, outs = run(act, act.initial_state(0.0), cmd, 0.0, steps)
+        y = np.array([o.screw_speed_rad_s if mode == "velocity" else o.nut_position_m for o in outs])
+        assert np.all(np.isfinite(y))
+        assert y[-1] == pytest.approx(cmd, rel=0.02)
+        assert y.max() < 1.25 * cmd

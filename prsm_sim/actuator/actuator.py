@@ -159,6 +159,8 @@ class Actuator(Model):
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m
         self.J = self._probe_inertia(base)
+        # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
+        self.drive = a.drive.tuned(self.J + (0.0 if self.rigid else self.motor_inertia))
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
         for f in a.faults:
@@ -276,7 +278,7 @@ class Actuator(Model):
                 if act.drive_off:
                     tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
                 else:
-                    d = drive_update(a.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop)
+                    d = drive_update(self.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop)
                     tau_ref, integ, limited, w_ref = d
             # current loop and motor torque (screw side)
             if m is None:

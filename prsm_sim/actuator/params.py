@@ -75,18 +75,22 @@ class DriveParams:
     """Servo drive: mode, loops, limits and loop rate.
 
     Velocity loop (screw coordinates): τ_ref = kp (ω_ref − ω_meas) + ki ∫(ω_ref − ω_meas) dt,
-    ω from the motor encoder over the gear ratio; the integrator stops while the output is
-    limited (conditional integration). Position loop (cascade): ω_ref = kp_pos (x_ref − x_meas)
-    / (L/2π), x from the linear encoder if fitted, else the motor encoder × L/2π / gear ratio.
+    ω from the motor encoder over the gear ratio; the integrator stops where the output meets
+    the torque limit (anti-windup). Position loop (cascade): ω_ref = kp_pos (x_ref − x_meas) /
+    (L/2π), x from the linear encoder if fitted, else the motor encoder × L/2π / gear ratio.
+    Gains left None are tuned from the inertia J the drive sees (screw, nut, carrier and rotor)
+    for `speed_bandwidth_hz` = f: kp = J·2πf (the speed loop's crossover at 2πf), ki = kp·2πf/4,
+    kp_pos = 2πf/5 (the position loop a fifth of the speed loop's bandwidth).
     `loop_rate_hz` None runs the loops once per simulation step; a faster rate sub-steps the
     step (screw model at the sub-step), a slower one holds the output between updates.
     `speed_limit_rad_s` (screw) clamps the speed reference.
     """
 
     mode: str = "effort"
-    speed_kp_nm_s_rad: float = 0.5
-    speed_ki_nm_rad: float = 5.0
-    position_kp_1_s: float = 20.0
+    speed_bandwidth_hz: float = 30.0
+    speed_kp_nm_s_rad: float | None = None
+    speed_ki_nm_rad: float | None = None
+    position_kp_1_s: float | None = None
     speed_limit_rad_s: float = 300.0
     loop_rate_hz: float | None = None
 
@@ -96,10 +100,19 @@ class DriveParams:
             check_interface(self.mode)
         except ParamError:
             raise ParamError(f"drive.mode = {self.mode!r}: must be one of {', '.join(COMMAND_INTERFACES)}") from None
-        _non_negative(g, self, "speed_kp_nm_s_rad", "speed_ki_nm_rad", "position_kp_1_s")
-        _positive(g, self, "speed_limit_rad_s")
+        _non_negative(g, self, *(n for n in ("speed_kp_nm_s_rad", "speed_ki_nm_rad", "position_kp_1_s")
+                                 if getattr(self, n) is not None))
+        _positive(g, self, "speed_limit_rad_s", "speed_bandwidth_hz")
         if self.loop_rate_hz is not None:
             _positive(g, self, "loop_rate_hz")
+
+    def tuned(self, inertia_kgm2: float) -> DriveParams:
+        """These parameters with every gain left None tuned for `speed_bandwidth_hz` on `inertia_kgm2`."""
+        w = 2.0 * math.pi * self.speed_bandwidth_hz
+        kp = self.speed_kp_nm_s_rad if self.speed_kp_nm_s_rad is not None else inertia_kgm2 * w
+        ki = self.speed_ki_nm_rad if self.speed_ki_nm_rad is not None else kp * w / 4.0
+        kx = self.position_kp_1_s if self.position_kp_1_s is not None else w / 5.0
+        return DriveParams(self.mode, self.speed_bandwidth_hz, kp, ki, kx, self.speed_limit_rad_s, self.loop_rate_hz)
 
 
 @dataclass(frozen=True)
