@@ -286,19 +286,24 @@ def test_energy_ledger_closes_with_motor_and_drive(model, stiffness, rate):
         + block(act, outs2[-1], "actuator", "load_work_j") + model_res == pytest.approx(e_in, rel=1e-9)
 
 
-def test_stiff_compliant_coupling_is_stable_at_1ms():
-    """Oracle: the rigid limit. A 2e5 N·m/rad undamped coupling (mode ~ 3e4 rad/s, 30× the step rate)
-    stays bounded and tracks the rigid coupling's speed to 1 %."""
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
+def test_stiff_compliant_coupling_is_stable_at_1ms(model):
+    """Oracles: the rigid limit and energy conservation. An undamped 2e6 N·m/rad coupling (mode
+    ~1.6e5 rad/s, 160× the step rate) stays bounded through a speed reversal, tracks the rigid
+    coupling's speed, and its spring does no net work beyond ½ k φ² (the trapezoidal coupling
+    solved to consistency with the model: |coupling loss| < 1e-9 of the energy in)."""
     p = s30()
-    j = reflected_inertia(p) + MotorParams().rotor_inertia_kgm2
-    wb = 2 * math.pi * 15
-    drive = DriveParams(mode="velocity", speed_kp_nm_s_rad=j * wb, speed_ki_nm_rad=j * wb * wb / 4)
-    rigid = Actuator(p, DT, "ideal", ActuatorParams(motor=MotorParams(), drive=drive))
-    stiff = Actuator(p, DT, "ideal", ActuatorParams(motor=MotorParams(coupling_stiffness_nm_rad=2e5), drive=drive))
-    _, o1 = run(rigid, rigid.initial_state(0.0), 30.0, 1000.0, 600)
-    st, o2 = run(stiff, stiff.initial_state(0.0), 30.0, 1000.0, 600)
-    assert o2[-1].screw_speed_rad_s == pytest.approx(o1[-1].screw_speed_rad_s, rel=0.01)
-    assert abs(st.motor_angle_rad - st.screw.screw_angle_rad) < 1e-3
+    drive = DriveParams(mode="velocity")
+    rigid = Actuator(p, DT, model, ActuatorParams(motor=MotorParams(), drive=drive))
+    stiff = Actuator(p, DT, model, ActuatorParams(motor=MotorParams(coupling_stiffness_nm_rad=2e6), drive=drive))
+    s1, s2 = rigid.initial_state(0.0), stiff.initial_state(0.0)
+    for k in range(300):
+        cmd = 30.0 if k < 150 else -20.0
+        s1, o1 = rigid.step(s1, cmd, 1000.0)
+        s2, o2 = stiff.step(s2, cmd, 1000.0)
+    assert o2.screw_speed_rad_s == pytest.approx(o1.screw_speed_rad_s, rel=0.02)
+    assert abs(s2.motor_angle_rad - s2.screw.screw_angle_rad) < 1e-4
+    assert abs(s2.ledger.coupling_j) < 1e-9 * s2.ledger.energy_in_j
 
 
 def test_brake_holds_against_a_back_driving_load_and_ramps():

@@ -116,6 +116,7 @@ class ActuatorState:
     measured: tuple[float, ...] = ()
     load_cell_filtered_n: float = 0.0
     ledger: Ledger = Ledger()
+    coupling_nm: float = 0.0  # the compliant coupling's torque over the last step (its next linearisation point)
 
     @property
     def time_s(self) -> float:
@@ -191,6 +192,56 @@ class Actuator(Model):
         w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
         return self.h_sub / (w1 - w0)
 
+    def _response(self, model: Model, screw: State, tau_nm: float, load_n: float) -> tuple[float, float, float, float]:
+        """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from this state.
+
+        Returns (ω1, ∂ω1/∂τ, θ1, ∂θ1/∂τ); a load acts as τ = −(L/2π) F. Exact for the linear
+        models; for fu2018 the local slope (its effective inertia moves with the friction regime).
+        """
+        a = model.step(screw, tau_nm, load_n)[0]
+        d = 1e-3 * max(1.0, abs(tau_nm))
+        b = model.step(screw, tau_nm + d, load_n)[0]
+        s_w = (b.screw_speed_rad_s - a.screw_speed_rad_s) / d
+        s_th = (b.screw_angle_rad - a.screw_angle_rad) / d
+        if not (math.isfinite(s_w) and s_w > 0.0 and math.isfinite(s_th) and s_th > 0.0):
+            s_w, s_th = self.h_sub / self.J, 0.5 * self.h_sub**2 / self.J  # a stuck response: the probed inertia's
+        return a.screw_speed_rad_s, s_w, a.screw_angle_rad, s_th
+
+    def _coupling(self, model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
+                  phi0: float, k: float, c: float, th_sfree: float, s_th: float):
+        """The compliant coupling's torque held over the step, solved to consistency with the screw model.
+
+        τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
+        acceleration, the screw by the model itself. The residual is strictly increasing in τ_c
+        (the screw turns further, the motor less, the more torque the coupling carries), so the
+        root is unique: Newton from the linear estimate, then secant steps, to 1e-12 of the
+        torque scale (one model step for the linear models). Its work is then ΔV + c Δφ²/h:
+        the ledger stays exact and the scheme cannot gain energy, so a stiff coupling stays
+        stable at the step (trapezoidal rule). Returns (τ_c, screw state, outputs).
+        """
+        h, jr = self.h_sub, self.motor_inertia
+        G, H = 0.5 * k + c / h, 0.5 * k - c / h
+        q_r = 0.5 * h * h / jr
+
+        def residual(tau):
+            new, out = model.step(screw, tau + tau_st, load_n)
+            phi1 = th_r_free + q_r * (tau_d - tau) - new.screw_angle_rad
+            return tau - (G * phi1 + H * phi0), new, out
+
+        slope = 1.0 + G * (q_r + s_th)
+        t0 = (G * (th_r_free + q_r * tau_d - th_sfree) + H * phi0) / slope  # the linear solution
+        r0, new, out = residual(t0)
+        scale = 1e-12 * max(1.0, abs(t0), abs(tau_d))
+        if abs(r0) <= scale:
+            return t0, new, out
+        t1 = t0 - r0 / slope
+        for _ in range(30):
+            r1, new, out = residual(t1)
+            if abs(r1) <= scale or r1 == r0:
+                break
+            t0, t1, r0 = t1, t1 - r1 * (t1 - t0) / (r1 - r0), r1
+        return t1, new, out
+
     # -- state ---------------------------------------------------------------------------
     def initial_state(self, nut_position_m: float = 0.0) -> ActuatorState:
         screw = self._model(fl.NONE).initial_state(nut_position_m)
@@ -261,7 +312,8 @@ class Actuator(Model):
         integ, tau_ref, w_ref, limited, enc = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, st.limited, st.encoder_rad
         level = st.brake_level
         sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
-        volt = tau_c = tau_st = f_stop = 0.0
+        volt = tau_st = f_stop = 0.0
+        tau_c = st.coupling_nm
         tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
         loop_due = st.step % self.hold_steps == 0
         for j in range(self.n_sub):
@@ -295,30 +347,40 @@ class Actuator(Model):
             else:
                 k, c = m.coupling_stiffness_nm_rad, m.coupling_damping_nm_s_rad
                 phi0, dw0 = th_r - screw.screw_angle_rad, w_r - ws0
-                tau_drive_screw = k * phi0 + c * dw0  # first guess, for the stop and friction predictions
-            # end stops, then dry friction (brake, jam), on the screw's linear response
-            w_free = ws0 + h * (tau_drive_screw - p * load_n) / J
-            f_stop = 0.0
-            if a.stops.fitted:
-                f_stop = stop_force(a.stops, x0, p * ws0, p * w_free, h, h * p * p / J)
-                w_free += h * p * f_stop / J
-            cap = level * a.brake.holding_torque_nm + act.jam_nm
-            tau_st = stiction_torque(cap, w_free, J, h)
-            if not self.rigid:
-                w_sfree = ws0 + h * (tau_st - p * (load_n - f_stop)) / J
-                A = w_r + h * tau_d / self.motor_inertia - w_sfree
-                B = h * (1.0 / self.motor_inertia + 1.0 / J)
-                g = k * h / 4.0 + c / 2.0
-                tau_c = (k * phi0 + g * (dw0 + A)) / (1.0 + g * B)
+                # linearise where the last step ended: the explicit spring torque k φ0 would swing with
+                # the coupling's ringing and evaluate a set-valued friction on the wrong side
                 tau_drive_screw = tau_c
-            tau_in = tau_drive_screw + tau_st if tau_st != 0.0 else tau_drive_screw
+            # end stops, dry friction (brake, jam) and a compliant coupling are solved implicitly on
+            # the screw's local linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a): s comes
+            # from two model steps at this state (exact for the linear models; fu2018's effective
+            # inertia moves with its friction regime, so a fixed J would not do)
+            cap = level * a.brake.holding_torque_nm + act.jam_nm
+            f_stop = tau_st = 0.0
+            implicit = not self.rigid or cap > 0.0
+            if a.stops.fitted and not implicit:
+                w_guess = ws0 + h * (tau_drive_screw - p * load_n) / J
+                reach = 2.0 * h * p * max(abs(ws0), abs(w_guess))
+                implicit = stop_penetration(a.stops, x0 + reach) > 0.0 or stop_penetration(a.stops, x0 - reach) > 0.0
+            if implicit:
+                w_a, s_w, th_a, s_th = self._response(model, screw, tau_drive_screw, load_n)
+                w_pred = w_a
+                th_pred = th_a
+                if a.stops.fitted:
+                    f_stop = stop_force(a.stops, x0, p * ws0, p * w_pred, h, p * p * s_w)
+                    w_pred += p * s_w * f_stop
+                    th_pred += p * s_th * f_stop
+                tau_st = stiction_torque(cap, w_pred, h / s_w, h)
+                th_pred += s_th * tau_st
             load_in = load_n - f_stop if f_stop != 0.0 else load_n
-            new, out = model.step(screw, tau_in, load_in)
-            if cap > 0.0 and abs(tau_st) < cap and new.screw_speed_rad_s != 0.0:
-                # holding: one correction with the model's actual end speed (exact for the linear models)
-                tau_st = max(-cap, min(cap, tau_st - J * new.screw_speed_rad_s / h))
-                tau_in = tau_drive_screw + tau_st
+            if self.rigid:
+                tau_in = tau_drive_screw + tau_st if tau_st != 0.0 else tau_drive_screw
                 new, out = model.step(screw, tau_in, load_in)
+            else:
+                th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
+                tau_c, new, out = self._coupling(model, screw, tau_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+                                                 th_sfree, s_th)
+                tau_drive_screw = tau_c
+                tau_in = tau_c + tau_st
             dth = new.screw_angle_rad - screw.screw_angle_rad
             # motor side and the ledger
             if self.rigid:
@@ -363,7 +425,7 @@ class Actuator(Model):
         *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
         meas = tuple(meas)
         nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
-                            st.brake_engaged, level, st.faults, history, meas, filt, led)
+                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c)
         # the actuator block
         x = p * screw.screw_angle_rad
         stop_e = stop_stored_j(a.stops, x) if a.stops.fitted else 0.0
