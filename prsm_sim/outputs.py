@@ -100,25 +100,43 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
 class Outputs:
     """One step's outputs, SI units, at the step's end or averaged over it where a rate is meant.
 
-    Every model fills the same record; the unit of each scalar field is in `OUTPUT_FIELDS`
-    (and in its name). The fields in `OUTPUT_FIELDS` order are time, screw angle/speed/torque,
-    carrier angle/speed, roller spin, nut position/velocity/force, load force, slip speed,
-    powers in/out/dissipated, efficiency, speed ratio, then `internal`. Notes on some of them:
+    Every model fills the same record, so the node, the recorder and the viewer are written
+    once; `OUTPUT_FIELDS` lists the scalar fields in order with their units.
 
-    - `screw_torque_nm`: the applied screw torque held over the step (the input).
-    - `roller_spin_rad_s`: roller spin relative to the carrier (ω_r = −g ω_C).
-    - `nut_force_n`: axial force the threads deliver to the nut, positive in +x_nut
-      (load force plus the moved mass times its acceleration).
-    - `slip_speed_m_s`: magnitude of the screw–roller sliding velocity at the contact.
-    - `power_in_w` = screw torque × screw speed, `power_out_w` = load force × nut velocity,
-      `power_dissipated_w` = friction power; step averages, so their sum balances with ΔT/Δt.
-    - `efficiency`: of the mechanism, from the power through it (`models.base.efficiency`):
-      P_out / (P_out + P_diss) when the screw drives the load, 1 − P_diss / |P_out| when the
-      load drives the screw (≤ 0: self-locking), NaN when no power reaches the load. Equal to
-      the port ratios at constant speed, never above 1. Consumers must treat NaN here as
-      "undefined", not as a fault.
-    - `speed_ratio`: ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
-    - `internal`: flat internal-load vector described by the model's `InternalLayout`.
+    Attributes
+    ----------
+    time_s : float
+        Simulation time at the end of the step, s.
+    screw_angle_rad, screw_speed_rad_s : float
+        Screw angle θ_S, rad, and speed ω_S, rad/s, right-handed about +z.
+    screw_torque_nm : float
+        The applied screw torque held over the step (the input), N·m.
+    carrier_angle_rad, carrier_speed_rad_s : float
+        Carrier (roller orbit) angle, rad, and speed ω_C, rad/s.
+    roller_spin_rad_s : float
+        Roller spin relative to the carrier, ω_r = −g ω_C, rad/s.
+    nut_position_m, nut_velocity_m_s : float
+        x_nut = (L/2π) θ_S, m, and its rate, m/s (positive where a positive torque drives the nut).
+    nut_force_n : float
+        Axial force the threads deliver to the nut along +x_nut, N (load force plus the moved
+        mass times its acceleration; fu2018: the solved thread force).
+    load_force_n : float
+        The external load held over the step (the input), N, positive when it resists positive
+        nut motion.
+    slip_speed_m_s : float
+        Magnitude of the screw–roller sliding velocity at the contact, m/s.
+    power_in_w, power_out_w, power_dissipated_w : float
+        Screw torque × screw speed, load force × nut velocity and friction power, W; step
+        averages (the step's works / dt), so they balance with ΔT/dt.
+    efficiency : float
+        Of the mechanism, from the power through it (`models.base.efficiency`):
+        P_out / (P_out + P_diss) when the screw drives the load, 1 − P_diss / |P_out| when the
+        load drives the screw (≤ 0: self-locking), NaN when no power reaches the load. Equal to
+        the port ratios at constant speed, never above 1. NaN means "undefined", not a fault.
+    speed_ratio : float
+        ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
+    internal : numpy.ndarray
+        The flat internal-load vector, labelled by the model's `InternalLayout`.
     """
 
     time_s: float
