@@ -131,10 +131,6 @@ class Actuator(Model):
     def __init__(self, params: Params, dt_s: float, model: str = "jones2016",
                  actuator: ActuatorParams | None = None) -> None:
         super().__init__(params, dt_s)
-        from prsm_sim.simulator import MODELS  # late: the simulator may build actuators
-        if model not in MODELS:
-            raise ValueError(f"unknown model {model!r}; known models: {', '.join(MODELS)}")
-        self._cls = MODELS[model]
         self.model_name = model
         self.actuator = a = actuator if actuator is not None else ActuatorParams()
         if not isinstance(a, ActuatorParams):
@@ -178,7 +174,8 @@ class Actuator(Model):
         mod = self._models.get(key)
         if mod is None:
             p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
-            mod = self._models[key] = self._cls(p, self.h_sub)
+            from prsm_sim.simulator import build_model  # late: the simulator builds actuators
+            mod = self._models[key] = build_model(p, self.model_name, self.h_sub)
         return mod
 
     def _probe_inertia(self, model: Model) -> float:
