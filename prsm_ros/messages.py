@@ -10,7 +10,11 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | screw_torque           | ~/screw_torque              | std_msgs/Float64 (N·m)        | in  |
 | joint_commands         | ~/joint_commands            | sensor_msgs/JointState        | in  |
 | nut_position_reference | ~/nut_position_reference    | std_msgs/Float64 (m)          | in (recorded only) |
-| joint_states           | joint_states                | sensor_msgs/JointState        | out |
+| velocity_command       | ~/velocity_command          | std_msgs/Float64 (rad/s)      | in (command_interface velocity) |
+| position_command       | ~/position_command          | std_msgs/Float64 (m)          | in (command_interface position) |
+| inject_fault           | ~/inject_fault              | std_msgs/String ('kind=…,start_s=…') | in (with an actuator) |
+| joint_states           | joint_states                | sensor_msgs/JointState        | out (measured, with an actuator) |
+| ground_truth           | ~/ground_truth/joint_states | sensor_msgs/JointState        | out (with an actuator) |
 | wrench                 | ~/nut/wrench                | geometry_msgs/WrenchStamped   | out |
 | internal_loads         | ~/internal_loads            | std_msgs/Float64MultiArray    | out |
 | labels                 | ~/internal_loads/labels     | std_msgs/String (JSON)        | out, latched |
@@ -85,8 +89,12 @@ class TopicSpec:
 TOPICS: dict[str, TopicSpec] = {t.key: t for t in (
     TopicSpec("screw_torque", "~/screw_torque", Float64, _qos(1), "in"),
     TopicSpec("joint_commands", "~/joint_commands", JointState, _qos(1), "in"),
+    TopicSpec("velocity_command", "~/velocity_command", Float64, _qos(1), "in"),
+    TopicSpec("position_command", "~/position_command", Float64, _qos(1), "in"),
+    TopicSpec("inject_fault", "~/inject_fault", String, _qos(10), "in"),
     TopicSpec("nut_position_reference", "~/nut_position_reference", Float64, _qos(10), "in"),
     TopicSpec("joint_states", "joint_states", JointState, _qos(10), "out"),
+    TopicSpec("ground_truth", "~/ground_truth/joint_states", JointState, _qos(10), "out"),
     TopicSpec("wrench", "~/nut/wrench", WrenchStamped, _qos(10), "out"),
     TopicSpec("internal_loads", "~/internal_loads", Float64MultiArray, _qos(10), "out"),
     TopicSpec("labels", "~/internal_loads/labels", String, _qos(1, latched=True), "out"),

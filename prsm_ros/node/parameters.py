@@ -167,6 +167,13 @@ class NodeConfig:
     def dt_s(self) -> float:
         return 1.0 / self.values["update_rate"]
 
+    @property
+    def with_actuator(self) -> bool:
+        """Run the actuator around the screw: asked for by `actuator`, `faults` or a non-effort interface.
+        Otherwise the node runs the bare model, publishing exactly what it did before the actuator existed."""
+        v = self.values
+        return bool(v["actuator"].strip() or v["faults"].strip()) or v["command_interface"] != "effort"
+
     @classmethod
     def from_values(cls, values: dict[str, Any]) -> NodeConfig:
         """Validate a full name → value mapping (node and physics parameters); ConfigError on the first problem."""
