@@ -117,6 +117,7 @@ class ActuatorState:
     load_cell_filtered_n: float = 0.0
     ledger: Ledger = Ledger()
     coupling_nm: float = 0.0  # the compliant coupling's torque over the last step (its next linearisation point)
+    command_prev: float = math.nan  # the position command at the drive's last loop update (its feed-forward)
 
     @property
     def time_s(self) -> float:
@@ -255,7 +256,8 @@ class Actuator(Model):
     def set_mode(self, state: ActuatorState, mode: str) -> ActuatorState:
         """Switch the command interface; the speed integrator restarts from the present torque (bumpless)."""
         check_interface(mode)
-        return replace(state, mode=mode, integral_nm=state.torque_ref_nm if mode != "effort" else 0.0)
+        return replace(state, mode=mode, integral_nm=state.torque_ref_nm if mode != "effort" else 0.0,
+                       command_prev=math.nan)
 
     def command_brake(self, state: ActuatorState, engage: bool) -> ActuatorState:
         """Engage or release the holding brake; refused (InputError, nothing changed) where unsupported."""
@@ -311,6 +313,7 @@ class Actuator(Model):
         sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
         volt = tau_st = f_stop = 0.0
         tau_c = st.coupling_nm
+        cmd_prev = st.command_prev
         tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
         loop_due = st.step % self.hold_steps == 0
         for j in range(self.n_sub):
@@ -327,7 +330,12 @@ class Actuator(Model):
                 if act.drive_off:
                     tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
                 else:
-                    d = drive_update(self.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop)
+                    ff = 0.0
+                    if st.mode == "position" and self.drive.position_feedforward:
+                        if math.isfinite(cmd_prev):
+                            ff = (command - cmd_prev) / (p * h_loop)
+                        cmd_prev = command
+                    d = drive_update(self.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop, ff)
                     tau_ref, integ, limited, w_ref = d
             # current loop and motor torque (screw side)
             if m is None:
@@ -422,7 +430,7 @@ class Actuator(Model):
         *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
         meas = tuple(meas)
         nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
-                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c)
+                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, cmd_prev)
         # the actuator block
         x = p * screw.screw_angle_rad
         stop_e = stop_stored_j(a.stops, x) if a.stops.fitted else 0.0

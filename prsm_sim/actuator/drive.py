@@ -20,12 +20,13 @@ class DriveOut(NamedTuple):
 
 
 def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: float, speed_meas_rad_s: float,
-                 nut_meas_m: float, lead_per_rad_m: float, torque_limit_nm: float, h_s: float) -> DriveOut:
+                 nut_meas_m: float, lead_per_rad_m: float, torque_limit_nm: float, h_s: float,
+                 feedforward_rad_s: float = 0.0) -> DriveOut:
     """One loop update.
 
     effort: the command is the screw torque (N·m). velocity: the command is the screw speed
     (rad/s); τ = kp e + ∫ ki e dt. position: the command is the nut position (m);
-    ω_ref = kp_pos (x_ref − x) / (L/2π), then the speed loop. The speed reference is clamped
+    ω_ref = kp_pos (x_ref − x) / (L/2π) + `feedforward_rad_s`, then the speed loop. The speed reference is clamped
     to ±speed_limit; the torque to ±torque_limit, and the integrator holds while the output
     sits on the limit and the error would push it further (conditional integration).
     """
@@ -33,7 +34,7 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
         tau = max(-torque_limit_nm, min(torque_limit_nm, command))
         return DriveOut(tau, integral_nm, tau != command, 0.0)
     if mode == "position":
-        w_ref = drive.position_kp_1_s * (command - nut_meas_m) / lead_per_rad_m
+        w_ref = drive.position_kp_1_s * (command - nut_meas_m) / lead_per_rad_m + feedforward_rad_s
     else:
         w_ref = command
     lim = drive.speed_limit_rad_s

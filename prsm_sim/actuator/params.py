@@ -11,7 +11,7 @@ nut m); the motor turns `gear_ratio` times per screw turn (ideal, lossless gear 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from prsm_sim.errors import ParamError
@@ -83,7 +83,9 @@ class DriveParams:
     kp_pos = 2πf/5 (the position loop a fifth of the speed loop's bandwidth).
     `loop_rate_hz` None runs the loops once per simulation step; a faster rate sub-steps the
     step (screw model at the sub-step), a slower one holds the output between updates.
-    `speed_limit_rad_s` (screw) clamps the speed reference.
+    `speed_limit_rad_s` (screw) clamps the speed reference. `position_feedforward` adds the
+    command's own rate, Δx_ref / (Δt L/2π), to the speed reference (no lag on a moving
+    reference; a jump in the command is clipped by the speed limit).
     """
 
     mode: str = "effort"
@@ -93,9 +95,12 @@ class DriveParams:
     position_kp_1_s: float | None = None
     speed_limit_rad_s: float = 300.0
     loop_rate_hz: float | None = None
+    position_feedforward: bool = True
 
     def __post_init__(self) -> None:
         g = "drive"
+        _check(g, "position_feedforward", self.position_feedforward, isinstance(self.position_feedforward, bool),
+               "must be true or false")
         try:
             check_interface(self.mode)
         except ParamError:
@@ -112,7 +117,7 @@ class DriveParams:
         kp = self.speed_kp_nm_s_rad if self.speed_kp_nm_s_rad is not None else inertia_kgm2 * w
         ki = self.speed_ki_nm_rad if self.speed_ki_nm_rad is not None else kp * w / 4.0
         kx = self.position_kp_1_s if self.position_kp_1_s is not None else w / 5.0
-        return DriveParams(self.mode, self.speed_bandwidth_hz, kp, ki, kx, self.speed_limit_rad_s, self.loop_rate_hz)
+        return replace(self, speed_kp_nm_s_rad=kp, speed_ki_nm_rad=ki, position_kp_1_s=kx)
 
 
 @dataclass(frozen=True)
@@ -301,7 +306,7 @@ _SUBGROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sens
                                "stops": StopParams, "brake": BrakeParams}
 _INT_FIELDS = {("sensors", "encoder_counts_per_rev"), ("sensors", "latency_steps"), ("sensors", "seed")}
 _STR_FIELDS = {("drive", "mode")}
-_BOOL_FIELDS = {("brake", "engage_on_watchdog")}
+_BOOL_FIELDS = {("brake", "engage_on_watchdog"), ("drive", "position_feedforward")}
 
 
 def _coerce(group: str, key: str, value: Any) -> Any:
