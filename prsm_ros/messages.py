@@ -21,9 +21,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, String
 
 from prsm_sim import InternalLayout
-from prsm_ros.interface import (  # noqa: F401  (re-exported: the node imports them from here)
+from prsm_ros.interface import (
     LABELS_FORMAT, NODE_NAME, NUT_FRAME, NUT_JOINT, SCALAR_SEGMENT, SCREW_JOINT, STEP_TOPICS, TOPIC_DEFS,
     MessageBuilder, QosSpec, labels_document, parse_labels, time_ns, unpack_internal)
+
+# The interface's names are re-exported: the node and the tests import them from here.
+__all__ = ["CLASSES", "LABELS_FORMAT", "NODE_NAME", "NUT_FRAME", "NUT_JOINT", "SCALAR_SEGMENT", "SCREW_JOINT",
+           "STEP_TOPICS", "TOPICS", "TOPIC_DEFS", "MessageMapper", "TopicSpec", "labels_document", "parse_labels",
+           "qos_profile", "stamp", "time_ns", "unpack_internal", "with_depth"]
 
 # The rclpy class of every type the interface uses (the message kit of `MessageBuilder`).
 CLASSES: dict[str, type] = {f"{c.__module__.split('.')[0]}/msg/{c.__name__}": c for c in (
