@@ -404,10 +404,13 @@ class Bag:
             from mcap.reader import SeekingReader
             with open(self.path, "rb") as f:
                 reader = SeekingReader(f)
-                for schema, channel, message in reader.iter_messages(
-                        topics=None if wanted is None else sorted(wanted), log_time_order=True):
-                    if keep(channel, message):
-                        yield schema, channel, message
+                try:
+                    for schema, channel, message in reader.iter_messages(
+                            topics=None if wanted is None else sorted(wanted), log_time_order=True):
+                        if keep(channel, message):
+                            yield schema, channel, message
+                except damaged_data_errors() as e:  # a finished file whose chunk was damaged after writing
+                    raise BagError(f"{self.path.name}: damaged chunk data ({type(e).__name__}: {e})") from None
             return
         for schema, channel, message in walk_records(self.path, Scan()):
             if keep(channel, message):
