@@ -28,9 +28,10 @@ from prsm_ros.cli.json_out import dumps
 RERUN_BIN = pytest.importorskip("rerun_cli")
 RERUN_BIN = Path(RERUN_BIN.__file__).parent / "rerun"
 
-# The child: block ROS at import time, then run a module as `python -m` would.
+# The child: block ROS at import time, then run each command as `python -m MODULE ARGS` would, in
+# one interpreter (one import of numpy/scipy for all), and print each one's exit code and output.
 _BLOCKING_RUNNER = textwrap.dedent('''
-    import importlib.abc, runpy, sys
+    import contextlib, importlib.abc, io, json, runpy, sys
 
     EXACT = {"rclpy", "rpyutils", "builtin_interfaces", "std_msgs", "sensor_msgs", "geometry_msgs",
              "diagnostic_msgs", "rosgraph_msgs", "std_srvs", "rcl_interfaces", "rosidl_runtime_py"}
@@ -51,8 +52,19 @@ _BLOCKING_RUNNER = textwrap.dedent('''
     if already:
         sys.exit(f"ROS modules imported before the blocker: {already}")
     sys.meta_path.insert(0, RefuseRos())
-    module, sys.argv = sys.argv[1], sys.argv[1:]
-    runpy.run_module(module, run_name="__main__", alter_sys=True)
+    results = []
+    for module, *args in json.loads(sys.argv[1]):
+        out, err, code = io.StringIO(), io.StringIO(), 0
+        sys.argv = [module, *args]
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                runpy.run_module(module, run_name="__main__", alter_sys=True)
+            except SystemExit as e:
+                code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+            except BaseException as e:
+                code, _ = 1, err.write(f"{type(e).__name__}: {e}")
+        results.append({"command": [module, *args], "code": code, "stdout": out.getvalue(), "stderr": err.getvalue()})
+    print(json.dumps(results))
 ''')
 
 
@@ -64,25 +76,35 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _run(module: str, *args, ok: bool = True) -> subprocess.CompletedProcess:
-    res = subprocess.run([sys.executable, "-c", _BLOCKING_RUNNER, module, *map(str, args)],
+def _run(*commands: list) -> list[dict]:
+    """Run the commands (module, args…) in one ROS-blocked child; each must exit 0."""
+    res = subprocess.run([sys.executable, "-c", _BLOCKING_RUNNER, json.dumps([[str(a) for a in c] for c in commands])],
                          capture_output=True, text=True, env=_env(), timeout=300)
-    if ok:
-        assert res.returncode == 0, f"{module} {args}: exit {res.returncode}\n{res.stderr}"
-    return res
+    assert res.returncode == 0, res.stderr
+    results = json.loads(res.stdout)
+    for r in results:
+        assert r["code"] == 0, f"{r['command']}: exit {r['code']}\n{r['stderr']}"
+    return results
 
 
 def test_the_blocker_refuses_ros():
     """The guard itself: importing the rclpy side must fail in the child, or the test below proves nothing."""
-    res = _run("prsm_ros.messages", ok=False)
-    assert res.returncode != 0 and "is blocked: this run has no ROS" in res.stderr
+    res = subprocess.run([sys.executable, "-c", _BLOCKING_RUNNER, json.dumps([["prsm_ros.messages"]])],
+                         capture_output=True, text=True, env=_env(), timeout=120)
+    [r] = json.loads(res.stdout)
+    assert r["code"] == 1 and "builtin_interfaces is blocked: this run has no ROS" in r["stderr"]
 
 
 def test_sim_mcap_and_bag_tools_run_without_ros(tmp_path):
-    bag, sim_csv = tmp_path / "run.mcap", tmp_path / "run.csv"
-    res = _run("prsm_ros.cli.sim", "run", "--preset", "s30", "--model", "jones2016", "--scenario", "step",
-               "--duration", "0.05", "--dt", "0.001", "--mcap", bag, "--csv", sim_csv, "--json", "--no-progress")
-    summary = json.loads(res.stdout)
+    bag, sim_csv, loads, rdir, rrd = (tmp_path / n for n in ("run.mcap", "run.csv", "loads.csv", "report", "run.rrd"))
+    sim, info, export, rep, to_rrd = _run(
+        ["prsm_ros.cli.sim", "run", "--preset", "s30", "--model", "jones2016", "--scenario", "step",
+         "--duration", "0.05", "--dt", "0.001", "--mcap", bag, "--csv", sim_csv, "--json", "--no-progress"],
+        ["prsm_ros.bag.cli", "info", bag, "--json"],
+        ["prsm_ros.bag.cli", "export", bag, "-t", "/prsm_actuator/internal_loads", "-o", loads],
+        ["prsm_ros.bag.cli", "report", bag, "--json", "--no-plots", "-o", rdir],
+        ["prsm_ros.bag.cli", "to-rrd", bag, "-o", rrd])
+    summary = json.loads(sim["stdout"])
     steps = summary["steps"]
     assert steps == 50 and summary["mcap"] == str(bag)
 
@@ -91,38 +113,28 @@ def test_sim_mcap_and_bag_tools_run_without_ros(tmp_path):
     rows = [ln.split() for ln in check.stdout.splitlines() if ln.split() and ln.split()[0] in ("ok", "warn", "error")]
     assert check.returncode == 0 and len(rows) == 6 and all(r[0] == "ok" and r[-1] == "—" for r in rows), check.stdout
 
-    info = json.loads(_run("prsm_ros.bag.cli", "info", bag, "--json").stdout)
-    counts = {t["topic"]: t["count"] for t in info["topics"]} if isinstance(info["topics"], list) else \
-        {k: v["count"] for k, v in info["topics"].items()}
+    counts = {t["topic"]: t["count"] for t in json.loads(info["stdout"])["topics"]}
     assert counts == {"/prsm_actuator/internal_loads/labels": 1, "/prsm_actuator/screw_torque": steps,
                       "/joint_states": steps, "/prsm_actuator/nut/wrench": steps,
                       "/prsm_actuator/internal_loads": steps, "/clock": steps}
 
     # export: the internal loads by their labels, equal to the simulator's own CSV of the same run
-    out = tmp_path / "loads.csv"
-    _run("prsm_ros.bag.cli", "export", bag, "-t", "/prsm_actuator/internal_loads", "-o", out)
-    with open(out, newline="") as f:
+    with open(loads, newline="") as f:
         exported = list(csv.reader(f))
     with open(sim_csv, newline="") as f:
         simulated = list(csv.reader(f))
-    sim_names = [h.rpartition(" [")[0] for h in simulated[0]]
     # time_s then every element, labelled like the simulator's CSV (the row's own time_s fills the time column)
-    assert exported[0] == sim_names
+    assert exported[0] == [h.rpartition(" [")[0] for h in simulated[0]]
     got = np.array(exported[1:], dtype=float)
     want = np.array(simulated[1:], dtype=float)
-    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-300)  # the CSV keeps 10 significant digits
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-300)  # the simulator's CSV keeps 10 significant digits
 
     # report: the same metrics as computed here, where ROS is importable
-    rdir = tmp_path / "report"
-    _run("prsm_ros.bag.cli", "report", bag, "--json", "--no-plots", "-o", rdir)
     child = json.loads((rdir / "report.json").read_text())
     here = json.loads(dumps(report(open_bag(bag), tmp_path / "report_here", plots=False, progress=False)))
-    child.pop("bag", None), here.pop("bag", None)
-    assert child == here
+    assert json.loads(rep["stdout"]) == child and child == here and "efficiency" in child
 
     # to-rrd: a recording the Rerun CLI verifies
-    rrd = tmp_path / "run.rrd"
-    res = _run("prsm_ros.bag.cli", "to-rrd", bag, "-o", rrd)
     verify = subprocess.run([str(RERUN_BIN), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
     assert verify.returncode == 0, verify.stderr
-    assert "source: internal_loads" in res.stdout and f"rows: {steps}" in res.stdout
+    assert "source: internal_loads" in to_rrd["stdout"] and f"rows: {steps}" in to_rrd["stdout"]
