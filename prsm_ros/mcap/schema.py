@@ -28,6 +28,8 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
+from prsm_sim.errors import PrsmError
+
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
 PROFILE = "ros2"
@@ -48,7 +50,7 @@ _LIVELINESS_AUTOMATIC = 1
 _HISTORY_KEEP_LAST = 1
 
 
-class SchemaError(LookupError):
+class SchemaError(PrsmError, LookupError):
     """A message definition could not be found or understood; the message names the type and where it looked."""
 
 
