@@ -76,14 +76,14 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _run(*commands: list) -> list[dict]:
-    """Run the commands (module, args…) in one ROS-blocked child; each must exit 0."""
+def _run(*commands: list, codes: tuple[int, ...] | None = None) -> list[dict]:
+    """Run the commands (module, args…) in one ROS-blocked child; each must exit 0, or with its entry of `codes`."""
     res = subprocess.run([sys.executable, "-c", _BLOCKING_RUNNER, json.dumps([[str(a) for a in c] for c in commands])],
                          capture_output=True, text=True, env=_env(), timeout=300)
     assert res.returncode == 0, res.stderr
     results = json.loads(res.stdout)
-    for r in results:
-        assert r["code"] == 0, f"{r['command']}: exit {r['code']}\n{r['stderr']}"
+    for r, code in zip(results, codes or (0,) * len(results)):
+        assert r["code"] == code, f"{r['command']}: exit {r['code']}\n{r['stderr']}"
     return results
 
 
@@ -97,13 +97,15 @@ def test_the_blocker_refuses_ros():
 
 def test_sim_mcap_and_bag_tools_run_without_ros(tmp_path):
     bag, sim_csv, loads, rdir, rrd = (tmp_path / n for n in ("run.mcap", "run.csv", "loads.csv", "report", "run.rrd"))
-    sim, info, export, rep, to_rrd = _run(
+    sim, info, export, rep, to_rrd, play = _run(
         ["prsm_ros.cli.sim", "run", "--preset", "s30", "--model", "jones2016", "--scenario", "step",
          "--duration", "0.05", "--dt", "0.001", "--mcap", bag, "--csv", sim_csv, "--json", "--no-progress"],
         ["prsm_ros.bag.cli", "info", bag, "--json"],
         ["prsm_ros.bag.cli", "export", bag, "-t", "/prsm_actuator/internal_loads", "-o", loads],
         ["prsm_ros.bag.cli", "report", bag, "--json", "--no-plots", "-o", rdir],
-        ["prsm_ros.bag.cli", "to-rrd", bag, "-o", rrd])
+        ["prsm_ros.bag.cli", "to-rrd", bag, "-o", rrd],
+        ["prsm_ros.bag.cli", "play", bag],  # the one bag command that needs ROS: it says so and exits 1
+        codes=(0, 0, 0, 0, 0, 1))
     summary = json.loads(sim["stdout"])
     steps = summary["steps"]
     assert steps == 50 and summary["mcap"] == str(bag)
@@ -138,3 +140,6 @@ def test_sim_mcap_and_bag_tools_run_without_ros(tmp_path):
     verify = subprocess.run([str(RERUN_BIN), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
     assert verify.returncode == 0, verify.stderr
     assert "source: internal_loads" in to_rrd["stdout"] and f"rows: {steps}" in to_rrd["stdout"]
+    assert play["stderr"].strip().splitlines() == [
+        "prsm-bag play: error: play publishes on ROS topics and needs rclpy and the ROS message packages "
+        "(rclpy is not installed): pip install 'prsm[ros]'"]

@@ -62,8 +62,12 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
     bag.require_topics(selected)
     start_ns, end_ns = bag.window_ns(start_s, end_s)
 
-    import rclpy
-    from rosgraph_msgs.msg import Clock
+    try:
+        import rclpy
+        from rosgraph_msgs.msg import Clock
+    except ModuleNotFoundError as e:  # an install without the ros extra (pip install 'prsm[bag]')
+        raise BagError(f"play publishes on ROS topics and needs rclpy and the ROS message packages "
+                       f"({e.name} is not installed): pip install 'prsm[ros]'") from None
 
     classes = {t: message_class(bag.topics[t].type) for t in selected}
     skipped = {t: bag.topics[t].type for t, c in classes.items() if c is None}
