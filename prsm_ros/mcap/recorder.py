@@ -2,7 +2,7 @@
 
 The file follows the ROS 2 MCAP profile as rosbag2 writes it (see `mcap_schema`): profile `ros2`,
 `ros2msg` schemas with their dependent definitions, `cdr` messages (`rclpy.serialization.serialize_message`
-by default; `mcap.codec` for writing without ROS), `offered_qos_profiles` channel metadata, zstd chunks
+by default; `prsm_ros.mcap.codec` for writing without ROS), `offered_qos_profiles` channel metadata, zstd chunks
 with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
 metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
 
