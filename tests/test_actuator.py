@@ -15,7 +15,7 @@ from prsm_sim import InputError, ParamError, Simulator, preset
 from prsm_sim.actuator import (Actuator, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams, SensorParams,
                                StopParams)
 from prsm_sim.models.ideal import reflected_inertia
-from prsm_sim.models.jones2016 import mass_matrix
+from prsm_sim.physics.inertia import mass_matrix
 
 DT = 1e-3
 LOSSLESS = {"ideal.efficiency_forward": 1.0, "ideal.efficiency_backward": 1.0}

@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-SCREW_JOINT = "screw_joint"
-NUT_JOINT = "nut_joint"
+from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
+
 # which joint takes which command interface (ROS conventions: the nut is prismatic, the screw revolute)
 INTERFACE_JOINT = {"position": NUT_JOINT, "velocity": SCREW_JOINT, "effort": SCREW_JOINT}
 INTERFACE_UNIT = {"position": "m (nut position)", "velocity": "rad/s (screw speed)", "effort": "N·m (screw torque)"}

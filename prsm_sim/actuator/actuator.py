@@ -33,7 +33,7 @@ from prsm_sim.actuator.sensors import DROPOUT_STREAM, STREAM, first_order, norma
 from prsm_sim.actuator.stops import stop_force, stop_penetration, stop_stored_j
 from prsm_sim.errors import InputError
 from prsm_sim.models.base import Model, efficiency
-from prsm_sim.models.jones2016 import mass_matrix
+from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
 
