@@ -49,7 +49,6 @@ def test_unpacked_layout_indexed_by_name():
     (["screw_joint", "nut_joint"], {"velocity": [3.0]}, "effort", "active command interface is 'effort'"),
     (["screw_joint"], {"position": [0.1]}, "position", "no 'nut_joint'"),
     (["screw_joint", "nut_joint", "x"], {"effort": [1.0, 2.0]}, "effort", "3 names but 2 effort values"),
-    (["screw_joint"], {"effort": [math.inf]}, "effort", "not a finite number"),
     (["screw_joint", "screw_joint"], {"effort": [1.0]}, "effort", "repeat"),
     (["screw_joint"], {}, "velocity", "no velocity value"),
 ])
@@ -72,6 +71,8 @@ def test_gate_takes_the_active_interface_only_and_switches():
     assert g.command(0.06) == 0.03  # starts from the present position; position never falls back to 0
     assert g.offer("position", 0.04, 0.06) is None and g.command(0.2) == 0.04 and g.timed_out
     assert g.counters.rejected_malformed == 1 and g.counters.accepted == 3
+    assert "not a finite number" in g.offer_joint_command(["nut_joint"], [], [math.inf], [], 0.3)
+    assert g.counters.rejected_non_finite == 1 and g.command(0.3) == 0.04
     with pytest.raises(Exception, match="command_interface = 'torque'"):
         g.set_interface("torque", 0.0)
     assert g.interface == "position"

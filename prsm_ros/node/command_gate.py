@@ -121,10 +121,7 @@ class CommandGate:
                                              self.interface)
         if reason is not None:
             self.counters.received += 1
-            if "not a finite number" in reason:
-                self.counters.rejected_non_finite += 1
-            else:
-                self.counters.rejected_malformed += 1
+            self.counters.rejected_malformed += 1
             return reason
         return self.offer(self.interface, value, now_s)
 
