@@ -104,3 +104,32 @@ def test_node_actuator_parameters_build_the_actuator():
     assert a.drive.mode == "position" and a.motor.gear_ratio == 2.0 and a.stops.max_position_m == 0.3
     assert [f.kind for f in a.faults] == ["jam", "drive_fault"]
     assert NodeConfig.from_values(values).actuator.motor is None
+
+
+def test_stepper_engages_the_brake_on_watchdog_and_reports_fault_events():
+    """Oracle: the node's rules, without DDS — after cmd_timeout the brake engages (engage_on_watchdog);
+    a fault injected now is reported by the next step; the bare model refuses a velocity interface."""
+    from prsm_sim import preset
+    from prsm_sim.actuator import ActuatorParams, BrakeParams, Fault, MotorParams
+    from prsm_ros.node.command_gate import CommandGate
+    from prsm_ros.node.stepping import SimStepper
+
+    a = ActuatorParams(motor=MotorParams(), brake=BrakeParams(holding_torque_nm=5.0, engage_on_watchdog=True))
+    gate = CommandGate(10.0, cmd_timeout_s=0.005)
+    st = SimStepper(preset("s30"), "ideal", 1e-3, gate, load_n=500.0, actuator=a)
+    gate.offer_torque(1.0, 0.0)
+    for _ in range(5):
+        st.step()
+    assert not st.sim.state.brake_engaged
+    for _ in range(3):
+        st.step()
+    assert gate.timed_out and st.sim.state.brake_engaged
+    assert st.inject(Fault("drive_fault", start_s=st.time_s, duration_s=0.002)) is None
+    for _ in range(4):
+        st.step()
+    assert [(e.what, e.fault.kind) for e in st.take_events()] == [("start", "drive_fault"), ("clear", "drive_fault")]
+    assert "no brake fitted" not in (st.brake(False) or "")
+    assert st.set_interface("velocity") is None and gate.interface == "velocity"
+    bare = SimStepper(preset("s30"), "ideal", 1e-3, CommandGate(10.0))
+    assert "runs the bare model" in bare.set_interface("velocity") and bare.gate.interface == "effort"
+    assert "no actuator" in bare.inject(Fault("jam", value=1.0))
