@@ -128,7 +128,7 @@ def test_stepper_engages_the_brake_on_watchdog_and_reports_fault_events():
     for _ in range(4):
         st.step()
     assert [(e.what, e.fault.kind) for e in st.take_events()] == [("start", "drive_fault"), ("clear", "drive_fault")]
-    assert "no brake fitted" not in (st.brake(False) or "")
+    assert st.brake(False) is None and not st.sim.state.brake_engaged
     assert st.set_interface("velocity") is None and gate.interface == "velocity"
     bare = SimStepper(preset("s30"), "ideal", 1e-3, CommandGate(10.0))
     assert "runs the bare model" in bare.set_interface("velocity") and bare.gate.interface == "effort"
