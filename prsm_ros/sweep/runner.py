@@ -147,14 +147,6 @@ def connect(address: str | None, workers: int | None):
     return ray, True, tmp
 
 
-def _ray_initialized() -> bool:
-    try:
-        import ray
-    except ImportError:
-        return False
-    return ray.is_initialized()
-
-
 def disconnect(ray, owned: bool, tmp: str | None) -> None:
     if owned:
         ray.shutdown()
@@ -172,7 +164,7 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
               runs_per_task="auto", decimate: int | None = None, retry_failed: bool = False,
               progress: bool = True, source_text: str | None = None) -> dict:
     """Run every run of `norm` not yet recorded in `out`; returns counts and the wall time."""
-    if address and address != "auto" and not _ray_initialized():
+    if address and address != "auto":
         _reachable(address)  # before anything is written
     h = prepare_dir(out, norm, source_text)
     specs = run_specs(norm)

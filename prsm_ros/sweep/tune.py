@@ -22,7 +22,9 @@ so the gain is judged on plants it was not tuned on.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import sys
 import tempfile
 from pathlib import Path
 
@@ -118,9 +120,11 @@ def run_tune(norm: dict, ts: dict, *, address: str | None = None, workers: int |
         with tempfile.TemporaryDirectory(prefix="prsmtune-") as storage:
             tuner = tune.Tuner(trainable, param_space=space,
                                tune_config=tune.TuneConfig(metric="objective", mode="min", num_samples=ts["trials"],
-                                                           search_alg=BasicVariantGenerator(random_state=ts["seed"])),
+                                                           search_alg=BasicVariantGenerator(random_state=ts["seed"]),
+                                                           reuse_actors=True),  # one process per CPU, not per trial
                                run_config=tune.RunConfig(storage_path=storage, name="prsm-tune", verbose=0))
-            grid = tuner.fit()
+            with contextlib.redirect_stdout(sys.stderr):  # Tune's banners; stdout is for our result
+                grid = tuner.fit()
             best = grid.get_best_result()
             trials = grid.get_dataframe()
         best_gains = {k: float(best.config[k]) for k in ts["space"]}
