@@ -180,6 +180,9 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
     ray, owned, tmp = connect(address, workers)
     try:
         n_workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        # --workers N: at most N tasks at once (a cap on a shared cluster too); otherwise two per CPU,
+        # so a CPU never waits for the driver to hand it the next batch
+        window = workers or 2 * n_workers
         size = batch_size(len(todo), n_workers, runs_per_task)
         batches = [todo[i:i + size] for i in range(0, len(todo), size)]
         task = ray.remote(num_cpus=1)(execute.run_batch)
@@ -191,7 +194,7 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
         queue = list(batches)
         try:
             while queue or pending:
-                while queue and len(pending) < 2 * n_workers:  # a bounded window: memory stays flat
+                while queue and len(pending) < window:  # a bounded window: memory stays flat
                     b = queue.pop(0)
                     pending[task.remote(norm_ref, b, decimate)] = b
                 ready, _ = ray.wait(list(pending), num_returns=1)
