@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prsm_sim.errors import InputError
 from prsm_sim.models.base import trajectory_from_rows
 from prsm_sim.outputs import Trajectory
 
@@ -86,10 +87,10 @@ def run_position_loop(sim, ctl: PositionController, duration_s: float, load_n: f
     forward its own `ctl.load_n` (the nominal one), so a load spread is a disturbance.
     """
     if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration_s = {duration_s!r}: must be a finite number > 0")
+        raise InputError(f"duration_s = {duration_s!r}: must be a finite number > 0")
     n = int(round(duration_s / sim.dt_s))
     if n < 1:
-        raise ValueError(f"duration_s = {duration_s} is shorter than one step ({sim.dt_s} s)")
+        raise InputError(f"duration_s = {duration_s} is shorter than one step ({sim.dt_s} s)")
     p = sim.params.geometry.lead_per_rad_m
     track = Tracking()
     rows = []

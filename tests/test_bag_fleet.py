@@ -10,16 +10,16 @@ from __future__ import annotations
 import io
 import json
 import math
-import shutil
 import subprocess
 import sys
-import tempfile
 import tomllib
 from contextlib import redirect_stdout
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from ray_local import embedded_ray  # noqa: F401 (a fixture)
 
 pytest.importorskip("mcap")
 pq = pytest.importorskip("pyarrow.parquet")
@@ -58,17 +58,6 @@ def groups(tmp_path_factory):
             _bag(root / name / ("nested" if i % 2 else ".") / f"run{i}.mcap", bw, mu)
     (root / "a" / "broken.mcap").write_bytes(b"not an mcap file")  # one unreadable bag in group A
     return root
-
-
-@pytest.fixture(scope="module")
-def embedded_ray():
-    tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
-    ray.init(num_cpus=2, _temp_dir=tmp, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
-    try:
-        yield
-    finally:
-        ray.shutdown()
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _cli(argv) -> tuple[int, str]:

@@ -24,11 +24,13 @@ from pathlib import Path
 
 import pytest
 
+from ray_local import embedded_ray  # noqa: F401 (a fixture)
+
 ray = pytest.importorskip("ray")
 pa_parquet = pytest.importorskip("pyarrow.parquet")
 pd = pytest.importorskip("pandas")
 
-from prsm_ros.sweep import report, runner, study  # noqa: E402
+from prsm_ros.sweep import study  # noqa: E402
 from prsm_ros.sweep.cli import main as sweep_main  # noqa: E402
 
 # the smallest study of issue 16, exactly as written there
@@ -51,17 +53,6 @@ SLIDING_ONLY = """\
   friction.lubricant_viscosity_m2_s: 0.0
 """
 SUBPROCESS_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0", "PYTHONUNBUFFERED": "1"}
-
-
-@pytest.fixture(scope="module")
-def embedded_ray():
-    tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
-    ray.init(num_cpus=2, _temp_dir=tmp, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
-    try:
-        yield
-    finally:
-        ray.shutdown()
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _write(path: Path, text: str) -> Path:

@@ -20,7 +20,7 @@ from prsm_sim.models.jones2016 import mass_matrix
 from prsm_sim.outputs import Trajectory
 from prsm_sim.scenarios import default_spec, run_scenario, summarise
 
-from prsm_ros.sweep.study import POSITION, base_params, controller_defaults
+from prsm_ros.sweep.study import POSITION, StudyError, base_params, controller_defaults
 
 TAIL_FRACTION = 0.1  # as `prsm-sim run --json` (prsm_sim.scenarios.summarise)
 # bare metric → the key `prsm-sim run --json` reports it under
@@ -53,7 +53,7 @@ def simulate(norm: dict, scenario: str, inputs: dict) -> tuple[Trajectory, dict]
         return run_scenario(sim, spec, norm["duration_s"]), {"params": params}
     unknown = sorted(set(scen) - {"load_n"})
     if unknown:
-        raise ValueError(f"scenario.{unknown[0]}: the position scenario takes scenario.load_n only")
+        raise StudyError(f"scenario.{unknown[0]}: the position scenario takes scenario.load_n only")
     settings = {**controller_defaults(), **loop}
     load = float(scen.get("load_n", 0.0))  # the demo's default load
     # the controller is tuned on the nominal design (the demo's model-based tuning); the plant may differ

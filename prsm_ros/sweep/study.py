@@ -202,6 +202,11 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
     both = sorted(set(out["set"]) & set(out["vary"]))
     if both:
         raise StudyError(f"{both[0]}: both set and varied; give it in one of them")
+    if POSITION in out["scenarios"]:
+        extra = sorted(k for k in [*out["set"], *out["vary"]] if k.startswith("scenario.") and k != "scenario.load_n")
+        if extra:
+            raise StudyError(f"{extra[0]}: the {POSITION} scenario takes scenario.load_n only (its motion is the "
+                             f"reference.* settings)")
     out["samples"] = _number("samples", data.get("samples", 1), whole=True, lo=1)
     out["seed"] = _number("seed", data.get("seed", 0), whole=True, lo=0)
     metrics = data.get("metrics", list(DEFAULT_METRICS))
