@@ -120,10 +120,17 @@ def run_one(norm: dict, spec: dict, decimate: int | None = None) -> tuple[dict, 
         if decimate:
             frame = traj.to_dataframe().iloc[::decimate].reset_index()
     except Exception as e:  # a failed run is data, not the end of the study
-        row.update({m: math.nan for m in norm["metrics"]})
-        row["status"], row["error"] = "failed", f"{type(e).__name__}: {e}"
+        return failed_row(norm, spec, e, time.perf_counter() - t0), None
     row["wall_time_s"] = time.perf_counter() - t0
     return row, frame
+
+
+def failed_row(norm: dict, spec: dict, error: BaseException, wall_time_s: float = math.nan) -> dict:
+    """The row of a run that did not finish: its inputs, NaN metrics, status "failed" and the error."""
+    return {"run_id": spec["run_id"], "grid_point": spec["grid_point"], "sample": spec["sample"],
+            "scenario": spec["scenario"], **spec["inputs"], **{m: math.nan for m in norm["metrics"]},
+            "status": "failed", "error": f"{type(error).__name__}: {error}".splitlines()[0],
+            "wall_time_s": wall_time_s}
 
 
 def run_batch(norm: dict, specs: list[dict], decimate: int | None = None) -> list[tuple[dict, object]]:

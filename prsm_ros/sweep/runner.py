@@ -200,7 +200,11 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
                     batch = pending.pop(ref)
-                    results = ray.get(ref)
+                    try:
+                        results = ray.get(ref)
+                    except (ray.exceptions.RayTaskError, ray.exceptions.WorkerCrashedError,
+                            ray.exceptions.TaskCancelledError) as e:  # the task died, not a run: its runs failed
+                        results = [(execute.failed_row(norm, spec, e), None) for spec in batch]
                     _record(out, batch[0]["run_id"], results)
                     summary["ran"] += len(results)
                     summary["failed"] += sum(1 for row, _ in results if row["status"] != "ok")
