@@ -46,8 +46,8 @@ def cmd_run(args) -> int:
     if args.json:
         print(dumps(s))
     else:
-        rate = s["ran"] / s["wall_time_s"] if s["wall_time_s"] > 0 else float("nan")
-        print(f"study {s['study']}: {s['runs']} runs, {s['ran']} run now ({rate:.1f} runs/s incl. Ray start), "
+        rate = f" ({s['ran'] / s['wall_time_s']:.1f} runs/s incl. Ray start)" if s["ran"] else ""
+        print(f"study {s['study']}: {s['runs']} runs, {s['ran']} run now{rate}, "
               f"{s['skipped']} already recorded, {s['failed']} failed → {out / runner.RUNS}")
     return 0
 
