@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prsm_ros.bench.core import figure
+from prsm_ros.bench.common import area_main, figure
 from prsm_ros.sweep import execute, runner, study
 
 TARGET_SCALING = 1.7
@@ -95,8 +95,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("sweep", argv)
+    return area_main("sweep", measure, argv)
 
 
 if __name__ == "__main__":
