@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from prsm_ros.bag.fleet import expand, report_many
+from prsm_ros.bag.reader import BagError
 
 # better direction by metric name: −1 lower is better, +1 higher is better (first match wins)
 DIRECTIONS = (("error", -1), ("peak", -1), ("slip", -1), ("efficiency", +1), ("life.l10", +1))
@@ -30,9 +31,17 @@ def direction(metric: str) -> int:
     return 0
 
 
+def _check(threshold: float, alpha: float) -> None:
+    if not (math.isfinite(threshold) and threshold >= 0):
+        raise BagError(f"--threshold {threshold!r}: must be a relative change >= 0 (e.g. 0.05 for 5 %)")
+    if not (0 < alpha < 1):
+        raise BagError(f"--alpha {alpha!r}: must lie in (0, 1)")
+
+
 def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: float = 0.05) -> dict:
     """Statistics per metric and regression flags for rows of group A (before) and B (after)."""
     from scipy.stats import mannwhitneyu
+    _check(threshold, alpha)
     ok_a = [r for r in a if r["status"] == "ok"]
     ok_b = [r for r in b if r["status"] == "ok"]
     names = sorted({k for r in ok_a for k in r} & {k for r in ok_b for k in r})
@@ -67,6 +76,7 @@ def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: f
 
 def compare(a_dir: str, b_dir: str, options: dict, *, threshold: float = 0.05, alpha: float = 0.05,
             address: str | None = None, use_ray: bool | None = None, progress: bool = True) -> dict:
+    _check(threshold, alpha)  # before any bag is read
     a_paths, b_paths = expand(a_dir), expand(b_dir)
     rows = report_many(a_paths + b_paths, options, address=address, use_ray=use_ray, progress=progress)
     out = compare_rows(rows[:len(a_paths)], rows[len(a_paths):], threshold, alpha)

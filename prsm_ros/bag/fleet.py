@@ -88,6 +88,8 @@ def ray_available() -> bool:
 def report_many(paths: list[Path], options: dict, *, address: str | None = None, use_ray: bool | None = None,
                 workers: int | None = None, progress: bool = True) -> list[dict]:
     """Rows for every bag, in `paths` order: on Ray when it is installed (or `use_ray`), else in turn."""
+    if address and not ray_available():
+        raise BagError(f"--address {address}: reporting on a Ray cluster needs Ray: pip install 'prsm[sweep]'")
     use_ray = ray_available() if use_ray is None else use_ray
     from tqdm import tqdm
     bar = tqdm(total=len(paths), unit="bag", disable=not progress, desc="bags")
