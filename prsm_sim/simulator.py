@@ -62,6 +62,16 @@ class Simulator:
         self.nstep = 0
         return self.state
 
+    def restore(self, state: State, nstep: int) -> None:
+        """Continue from `state` reached after `nstep` steps (undo a step, or carry a run over to
+        a simulator with new parameters); the state is the model's own, kept as given."""
+        if not isinstance(state, State):
+            raise TypeError(f"state = {state!r}: must be a prsm_sim State")
+        if not isinstance(nstep, (int, np.integer)) or isinstance(nstep, bool) or nstep < 0:
+            raise ValueError(f"nstep = {nstep!r}: must be a whole number >= 0")
+        self.state = state
+        self.nstep = int(nstep)
+
     def step(self, torque_nm: float, load_n: float = 0.0) -> Outputs:
         """One step; a non-finite input is refused (ValueError) and the state is left unchanged."""
         for name, v in (("torque_nm", torque_nm), ("load_n", load_n)):
