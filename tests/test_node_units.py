@@ -203,7 +203,6 @@ def test_stepper_equals_simulator_and_rebuild_keeps_state():
     assert st.sim.state == sim.state and st.nstep == 5 and st.sim.params == p2
 
 
-@pytest.mark.skipif("fu2018" not in MODELS, reason="needs fu2018")
 def test_stepper_faults_on_non_finite_state_and_reset_clears_it():
     p = preset("s30").with_overrides({"mass.moved_mass_kg": 1e-300, "mass.screw_inertia_kgm2": 0.0,
                                       "mass.roller_mass_kg": 0.0, "mass.roller_inertia_kgm2": 0.0})
