@@ -263,7 +263,17 @@ class _StallingFile:
         return getattr(self._f, name)
 
 
-def test_stalled_disk_cannot_hang_close_and_what_was_lost_is_counted(tmp_path, monkeypatch):
+@pytest.fixture
+def stalling_files(monkeypatch) -> list[_StallingFile]:
+    """The recorder's files, opened as `_StallingFile`s (in the order the recorders open them)."""
+    import prsm_ros.mcap.recorder as recorder_module
+    files: list[_StallingFile] = []
+    monkeypatch.setattr(recorder_module, "open", lambda p, m: files.append(_StallingFile(p, m)) or files[-1],
+                        raising=False)
+    return files
+
+
+def test_stalled_disk_cannot_hang_close_and_what_was_lost_is_counted(tmp_path, stalling_files):
     """The disk stalls under the writer thread. close() must give up within its timeout, say so,
     and account for every message offered: written (handed to the MCAP writer) + dropped = offered,
     also for a write after close. When the disk comes back the thread finishes the file on its own,
@@ -271,14 +281,9 @@ def test_stalled_disk_cannot_hang_close_and_what_was_lost_is_counted(tmp_path, m
     from mcap.reader import make_reader
     from std_msgs.msg import Float64
 
-    import prsm_ros.mcap.recorder as recorder_module
-
-    files: list[_StallingFile] = []
-    monkeypatch.setattr(recorder_module, "open", lambda p, m: files.append(_StallingFile(p, m)) or files[-1],
-                        raising=False)
     path = tmp_path / "stalled.mcap"
     rec = McapRecorder(path, flush_interval_s=0.01)
-    disk = files[0]
+    disk = stalling_files[0]
     rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
     disk.stalled.set()
     offered = 6_000
@@ -307,7 +312,7 @@ def test_stalled_disk_cannot_hang_close_and_what_was_lost_is_counted(tmp_path, m
 
 
 @pytest.mark.parametrize("halfway", ["close", "disk_full"])
-def test_drop_counts_are_exact_under_concurrent_writers(tmp_path, monkeypatch, halfway):
+def test_drop_counts_are_exact_under_concurrent_writers(tmp_path, stalling_files, halfway):
     """Four threads write while, halfway, the main thread closes the recorder or the disk fills up
     under the writer thread (thousands of messages queued). Every message offered is in exactly
     one count (written or dropped); after a clean close the file (read back by our reader) holds
@@ -319,14 +324,9 @@ def test_drop_counts_are_exact_under_concurrent_writers(tmp_path, monkeypatch, h
 
     from std_msgs.msg import Float64
 
-    import prsm_ros.mcap.recorder as recorder_module
-
-    files: list[_StallingFile] = []
-    monkeypatch.setattr(recorder_module, "open", lambda p, m: files.append(_StallingFile(p, m)) or files[-1],
-                        raising=False)
     path = tmp_path / "concurrent.mcap"
     rec = McapRecorder(path, flush_interval_s=0.01)
-    disk = files[0]
+    disk = stalling_files[0]
     rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
     per_thread, n_threads = 25_000, 4
     middle = threading.Barrier(n_threads + 1)
