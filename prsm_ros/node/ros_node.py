@@ -53,8 +53,9 @@ from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, N
 from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
-# fast mode: a thread that never sleeps keeps the GIL and the lock from the executor (services,
-# commands) for a switch interval at a time, so it really sleeps briefly every few steps.
+# fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
+# the GIL and the lock from the executor (services, commands) — it re-takes the lock before a waiting
+# thread wakes — so it really sleeps briefly every few steps that did not sleep.
 FAST_YIELD_EVERY = 32
 FAST_YIELD_S = 2e-5
 OVERRIDABLE_QOS = (QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY, QoSPolicyKind.DURABILITY)
@@ -351,6 +352,7 @@ class PrsmNode(Node):
             self.scheduling["step_thread"] = request_realtime_priority(self.config.realtime_priority)
         self.pacer.restart()
         was_running = False
+        unslept = 0  # steps since the thread last slept (and so let the executor take the lock)
         while not self._stop.is_set():
             if self.stepper.paused or self.stepper.fault is not None:
                 was_running = False
@@ -360,10 +362,15 @@ class PrsmNode(Node):
                 self.pacer.restart()
                 was_running = True
             if realtime:
-                self.pacer.wait()
+                # half a period late: this step was not slept for (catch-up), nor will the next one be
+                behind = self.pacer.wait() > 0.5 * self.pacer.period_s
             else:
-                if self.pacer.count_step() % FAST_YIELD_EVERY == 0:
-                    time.sleep(FAST_YIELD_S)
+                self.pacer.count_step()
+                behind = True
+            unslept = unslept + 1 if behind else 0
+            if unslept >= FAST_YIELD_EVERY:  # an overloaded machine must not starve the services
+                time.sleep(FAST_YIELD_S)
+                unslept = 0
             try:
                 with self._lock:
                     if not self.stepper.paused:
