@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from prsm_ros.bench import common, core, node, recorder, soak, viz
+from prsm_ros.bench import common, core, node, recorder, soak, sweep, viz
 
 AREAS: dict[str, common.Measure] = {
     "core": core.measure,
@@ -19,6 +19,7 @@ AREAS: dict[str, common.Measure] = {
     "recorder": recorder.measure,
     "rerun": viz.measure,
     "soak": soak.measure,
+    "sweep": sweep.measure,
 }
 
 
