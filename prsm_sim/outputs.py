@@ -45,6 +45,10 @@ class State:
     # integrator memory (fu2018: its frozen Jacobian and the steps since it was formed), kept in
     # the state so that a step stays a pure function of (state, inputs)
     solver: tuple[float, ...] = ()
+    # energy guard (`models.base`): ∫|P_in| dt, and the cumulative residual
+    # work_in − work_out − Δ(stored energy) − dissipated, both since the state was made
+    energy_flow_j: float = 0.0
+    energy_residual_j: float = 0.0
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun
@@ -67,6 +71,10 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("power_dissipated_w", "W"),
     ("efficiency", "1"),
     ("speed_ratio", "1"),
+    ("stored_energy_j", "J"),
+    ("energy_flow_j", "J"),
+    ("energy_residual_j", "J"),
+    ("energy_fault", "1"),
 )
 
 
@@ -87,6 +95,11 @@ class Outputs:
       the port ratios at constant speed, never above 1. Consumers must treat NaN here as
       "undefined", not as a fault.
     - `speed_ratio`: ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
+    - Energy guard (`models.base.energy_fault`): `stored_energy_j` (kinetic, plus potential in
+      models that store it), `energy_flow_j` = ∫|P_in| dt and `energy_residual_j` = work_in −
+      work_out − Δstored − dissipated, cumulative since the run started; `energy_fault` is 1.0
+      while |residual| > 1e-3 · flow once the flow exceeds 1 J (the model's energy books do not
+      close: its results are not to be trusted), else 0.0.
     - `internal`: flat internal-load vector described by the model's `InternalLayout`.
     """
 
@@ -107,6 +120,10 @@ class Outputs:
     power_dissipated_w: float
     efficiency: float
     speed_ratio: float
+    stored_energy_j: float
+    energy_flow_j: float
+    energy_residual_j: float
+    energy_fault: float
     internal: np.ndarray
 
     def scalars(self) -> dict[str, float]:

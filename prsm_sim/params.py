@@ -331,6 +331,8 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
         if not isinstance(value, str):
             raise ParamError(f"{gname}.{key} = {value!r}: must be a string")
         return value
+    if isinstance(value, str) and (gname, key) not in _INT_FIELDS:
+        value = parse_float(value, f"{gname}.{key}")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParamError(f"{gname}.{key} = {value!r}: must be a number")
     if (gname, key) in _INT_FIELDS:
@@ -338,3 +340,16 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
             raise ParamError(f"{gname}.{key} = {value!r}: must be a whole number")
         return int(value)
     return float(value)
+
+
+def parse_float(text: str, name: str) -> float:
+    """A float from any spelling Python's float() accepts ("1e-5", "1E-5", "1_000.0", " 2.5 ").
+
+    YAML 1.1 (PyYAML, ROS parameter files) reads "1e-5" as a string because it wants a dot in
+    the mantissa; this is the one place such strings become numbers. Raises ParamError naming
+    `name` when the text is not a number.
+    """
+    try:
+        return float(text)
+    except ValueError:
+        raise ParamError(f"{name} = {text!r}: must be a number") from None

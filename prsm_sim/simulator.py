@@ -31,6 +31,7 @@ def build_model(params: Params, model: str, dt_s: float) -> Model:
         cls = MODELS[model]
     except KeyError:
         raise ValueError(f"unknown model {model!r}; known models: {', '.join(MODELS)}") from None
+    cls.check_params(params)
     return cls(params, dt_s)
 
 

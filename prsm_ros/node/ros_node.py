@@ -176,9 +176,14 @@ class PrsmNode(Node):
         try:
             return self.declare_parameter(name, default, desc).value
         except ParameterException as e:
-            given = getattr(self, "_parameter_overrides", {}).get(name)  # rclpy keeps them here; no getter
+            overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps them here; no getter
+            given = overrides.get(name)
             if spec is not None and given is not None:
-                check_value(spec, given.value)  # raises ConfigError in the words of node_params
+                value = check_value(spec, given.value)  # raises ConfigError in the words of node_params
+                if isinstance(given.value, str) and isinstance(value, float):
+                    # a float spelled as YAML 1.1 reads it ("1e-5" is a string there): declare the number
+                    del overrides[name]
+                    return self.declare_parameter(name, value, desc).value
             raise ConfigError(f"parameter {name}: {e}") from None
 
     def _check_unknown_overrides(self) -> None:
