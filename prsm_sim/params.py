@@ -180,10 +180,13 @@ class Friction:
     drag_gap_m: float = 1e-4
     load_distribution: str = "uniform"  # ζ_T profile over the teeth: "uniform" or "exponential"
     load_distribution_decay: float = 0.05  # per-tooth decay rate of the "exponential" profile
+    # fu2018: Coulomb friction where the nut–roller contact slides (g ≠ r_N/r_R: roller migration,
+    # docs/model.md §2); the standard design rolls there and this does not act
+    mu_nut_roller_sliding: float = 0.05
 
     def __post_init__(self) -> None:
         f = "friction"
-        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin",
+        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin", "mu_nut_roller_sliding",
                       "lubricant_viscosity_m2_s", "lubricant_density_kg_m3", "load_distribution_decay")
         _positive(f, self, "coulomb_regularisation_m_s", "drag_width_m", "drag_gap_m")
         if self.drag_radius_m is not None:
@@ -195,6 +198,7 @@ class Friction:
         _check(f, "load_distribution", self.load_distribution, self.load_distribution in ("uniform", "exponential"),
                "must be one of uniform, exponential")
         _check(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
+        _check(f, "mu_nut_roller_sliding", self.mu_nut_roller_sliding, self.mu_nut_roller_sliding < 1, "must be < 1")
 
 
 @dataclass(frozen=True)
