@@ -16,6 +16,12 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | labels                 | ~/internal_loads/labels     | std_msgs/String (JSON)        | out, latched |
 | clock                  | /clock                      | rosgraph_msgs/Clock           | out |
 | diagnostics            | /diagnostics                | diagnostic_msgs/DiagnosticArray | out |
+| events                 | ~/events                    | std_msgs/String (JSON)        | out, latched history |
+
+`~/events`: one JSON object per event (`event_message`): time_s (simulation time), source (what
+raised it, e.g. "energy_guard"), severity ("info", "warn", "error"), code (a stable identifier),
+message (one line for people), details (an object). Latched with a history of EVENTS_DEPTH, so
+a late subscriber still gets the recent events; the recorder writes them into the bag.
 
 `/clock` is published reliable, keep last 1: a reliable writer matches both the best-effort
 readers of rclcpp's TimeSource and reliable readers (a best-effort writer would match only the
@@ -92,7 +98,21 @@ TOPICS: dict[str, TopicSpec] = {t.key: t for t in (
     TopicSpec("labels", "~/internal_loads/labels", String, _qos(1, latched=True), "out"),
     TopicSpec("clock", "/clock", Clock, _qos(1), "out"),
     TopicSpec("diagnostics", "/diagnostics", DiagnosticArray, qos_profile_system_default, "out"),
+    TopicSpec("events", "~/events", String, _qos(100, latched=True), "out"),
 )}
+
+EVENT_SEVERITIES = ("info", "warn", "error")
+
+
+def event_message(time_s: float, source: str, severity: str, code: str, message: str,
+                  details: dict[str, Any] | None = None) -> String:
+    """One event for `~/events` (see the module doc): a std_msgs/String holding one JSON object."""
+    if severity not in EVENT_SEVERITIES:
+        raise ValueError(f"severity = {severity!r}: must be one of {', '.join(EVENT_SEVERITIES)}")
+    doc = {"time_s": float(time_s), "source": source, "severity": severity, "code": code, "message": message,
+           "details": details or {}}
+    return String(data=json.dumps(doc, allow_nan=False, default=float))
+
 
 def with_depth(qos: QoSProfile, depth: int) -> QoSProfile:
     """The same policies with a deeper keep-last history.

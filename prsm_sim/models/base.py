@@ -34,6 +34,17 @@ def energy_fault(flow_j, residual_j):
     return (flow_j > ENERGY_GUARD_MIN_FLOW_J) & (abs(residual_j) > ENERGY_GUARD_REL * flow_j)
 
 
+def energy_guard_summary(columns) -> dict:
+    """The energy guard over a run (a Trajectory or its columns): final residual, flow, their ratio,
+    whether and when the guard tripped (`energy_fault` first 1.0)."""
+    res, flow, fault = columns["energy_residual_j"], columns["energy_flow_j"], columns["energy_fault"]
+    hit = np.flatnonzero(fault > 0.0)
+    return {"fault": bool(hit.size), "first_fault_time_s": float(columns["time_s"][hit[0]]) if hit.size else None,
+            "residual_j": float(res[-1]), "flow_j": float(flow[-1]),
+            "relative_residual": float(res[-1] / flow[-1]) if flow[-1] > 0 else None,
+            "limit": ENERGY_GUARD_REL}
+
+
 class Model:
     """Base class: subclasses set `name`, `layout`, `kinetic` and implement `_advance`."""
 

@@ -83,8 +83,15 @@ GEAR_PRESSURE_ANGLE_RAD = math.radians(20.0)  # standard involute spur/ring gear
 # regularisation speeds of zero, where the regularised Coulomb law is far from saturated and
 # stiff) the step is checked by step doubling and halved, down to dt / 2**MAX_HALVINGS.
 MAX_HALVINGS = 10
+MIN_REGULARISATION_M_S = 1e-5  # smallest ε fu2018 accepts (`Fu2018.check_params`)
+ZONE_HALVINGS = 4  # slow slip alone refines to dt/16
 SLIP_ZONE = 10.0
 SUBSTEP_TOL = 0.05  # step-doubling agreement in the transition zone, in regularisation speeds ε of slip
+SUBSTEP_TOL_FLOOR_M_S = 1e-5  # ... but never tighter than this (≈ 0.01 rad/s of screw speed on s30): below a
+# regularisation of 2e-4 m/s the layer is too thin and stiff to resolve, and the L-stable step's quasi-static
+# answer is the one wanted
+STEP_BALANCE_TOL = 1e-3  # a step whose own energy balance misses by more than this share goes to error control
+STEP_BALANCE_FLOOR_J = 1e-7  # ... or by more than this (creep at a few ε moves little energy per step)
 
 
 def load_distribution(params: Params) -> np.ndarray:
@@ -195,6 +202,14 @@ class Fu2018(Model):
                              "(a line-of-centres point with the contact normal lets the normal force do work; "
                              "line_of_centres is for jones2016)")
 
+        if fr.screw_roller_law == "coulomb" and fr.coulomb_regularisation_m_s < MIN_REGULARISATION_M_S:
+            # below this the regularised layer is ~1e-7 s thick: near the stick band's edge the error-controlled
+            # sub-steps cost up to 100× a plain step (1e-6 m/s: ~10 s per simulated second) for no gain in
+            # the figures a controller sees; 1e-5 closes the energy balance to 1e-6 of the energy that flowed
+            raise ParamError(f"friction.coulomb_regularisation_m_s = {fr.coulomb_regularisation_m_s!r}: model fu2018 "
+                             f"needs at least {MIN_REGULARISATION_M_S:g} m/s (stick is modelled exactly at rest; "
+                             "the regularisation only shapes slip through zero)")
+
     def __init__(self, params: Params, dt_s: float) -> None:
         self.check_params(params)
         super().__init__(params, dt_s)
@@ -242,6 +257,8 @@ class Fu2018(Model):
         M = mass_matrix(params)
         self.kinetic = (float(M[0, 0]), float(M[0, 1]), float(M[1, 1]))  # energy guard
         self._h_min = self.dt_s / 2**MAX_HALVINGS
+        self._h_zone = self.dt_s / 2**ZONE_HALVINGS
+        self._slip_tol = max(SUBSTEP_TOL * self.eps_v, SUBSTEP_TOL_FLOOR_M_S)
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
@@ -488,6 +505,17 @@ class Fu2018(Model):
         v2 = f.vx * f.vx + f.vy * f.vy + f.vz * f.vz
         return v2 < (SLIP_ZONE * self.eps_v) ** 2
 
+    def _books_open(self, ws, wc, ws1, wc1, f0, f1, h, tau, load) -> bool:
+        """The step's own energy balance misses by more than STEP_BALANCE_TOL of the energy it moved:
+        a cheap error indicator (the same ledger as the energy guard, per step) that sends the step
+        to error control."""
+        dth = 0.5 * h * (ws + ws1)
+        w_in, w_out = tau * dth, load * self.p * dth
+        d_e = self.stored_energy_j(ws1, wc1) - self.stored_energy_j(ws, wc)
+        diss = 0.5 * h * (f0.dissipated_w + f1.dissipated_w)
+        return abs(w_in - w_out - d_e - diss) > (STEP_BALANCE_TOL * (abs(w_in) + abs(w_out) + abs(d_e) + abs(diss))
+                                                 + STEP_BALANCE_FLOOR_J)
+
     def _step(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
         """One output step: error-controlled ROS2 sub-steps where the friction state changes, stick at rest.
 
@@ -520,14 +548,20 @@ class Fu2018(Model):
             ws1, wc1, f1, f0, _ = full
             subs = ((ws, wc, hs, full),)
             if hs > self._h_min and (ws * ws1 < 0.0 or wc * wc1 < 0.0 or f1.sign != f0.sign or f0.sign != sign
-                                     or f0.vx * f0.vx + f0.vy * f0.vy + f0.vz * f0.vz < zone2
-                                     or f1.vx * f1.vx + f1.vy * f1.vy + f1.vz * f1.vz < zone2):
+                                     # the start slope carries a speed through zero within the step
+                                     or ws * (ws + hs * f0.acc_s) < 0.0 or wc * (wc + hs * f0.acc_c) < 0.0
+                                     or self._books_open(ws, wc, ws1, wc1, f0, f1, hs, tau, load)
+                                     # slow slip: refined less deep (creep near the stick band's edge can
+                                     # last many steps, and the layer is resolved by the checks above)
+                                     or (hs > self._h_zone
+                                         and (f0.vx * f0.vx + f0.vy * f0.vy + f0.vz * f0.vz < zone2
+                                              or f1.vx * f1.vx + f1.vy * f1.vy + f1.vz * f1.vz < zone2))):
                 first = ros(ws, wc, sign, pin_abs, gear, (), tau, load, 0.5 * hs)
                 fa = first[2]
                 second = ros(first[0], first[1], int(fa.sign), fa.pin_force_sum_n, fa.f_gt, (), tau, load, 0.5 * hs)
                 fb = second[2]
                 err = math.sqrt((fb.vx - f1.vx) ** 2 + (fb.vy - f1.vy) ** 2 + (fb.vz - f1.vz) ** 2)
-                if err > SUBSTEP_TOL * self.eps_v + 1e-6 * math.sqrt(fb.vx ** 2 + fb.vy ** 2 + fb.vz ** 2):
+                if err > self._slip_tol + 1e-6 * math.sqrt(fb.vx ** 2 + fb.vy ** 2 + fb.vz ** 2):
                     hs *= 0.5
                     continue
                 subs = ((ws, wc, 0.5 * hs, first), (first[0], first[1], 0.5 * hs, second))
