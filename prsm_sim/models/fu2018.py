@@ -16,7 +16,7 @@ the nut and the carriers are solved together for the accelerations and the inter
 3. roller axial      m_R a_R,z = F_RS,z + F_RN,z
 4. roller radial     −m_R a ω_C² = F_RS,r + F_RN,r + F_g,r + F_pin,r
 5. roller tangential m_R a ω̇_C = F_RS,t + F_RN,t + F_gt + F_pin,t
-6. roller spin       I_R (1 − g) ω̇_C = (r_S × F_RS)_z + (r_N × F_RN)_z + r_R F_gt + M_pin + M_rr
+6. roller spin       I_R (1 − g) ω̇_C = (r_S × F_RS)_z + (r_N × F_RN)_z + r_g F_gt + M_pin + M_rr
 7. carriers          I_C ω̇_C = N_R (−a F_pin,t − M_pin) + M_drag
 
 with F_RS = N_S n_S + f_S (screw on roller, at the exact contact of docs/model.md §3),
@@ -202,6 +202,9 @@ class Fu2018(Model):
                              "(a line-of-centres point with the contact normal lets the normal force do work; "
                              "line_of_centres is for jones2016)")
 
+        if params.geometry.gear_ratio == 1.0:
+            raise ParamError("geometry.gear_ratio = 1.0: model fu2018 needs g ≠ 1 (at g = 1 the roller does not spin "
+                             "and its gear, of pitch radius a/(g − 1), cannot mesh with the ring)")
         if fr.screw_roller_law == "coulomb" and fr.coulomb_regularisation_m_s < MIN_REGULARISATION_M_S:
             # below this the regularised layer is ~1e-7 s thick: near the stick band's edge the error-controlled
             # sub-steps cost up to 100× a plain step (1e-6 m/s: ~10 s per simulated second) for no gain in
@@ -228,6 +231,9 @@ class Fu2018(Model):
         self._coulomb = fr.screw_roller_law == "coulomb"
         self._c_nt = fr.viscous_n_s_m * nt
         self._nr, self._r_r, self._g = nr, geo.roller_radius_m, geo.gear_ratio
+        # pitch radius of the roller's gear: its mesh with the fixed ring rolls, a ω_C + (1 − g) ω_C r_g = 0, so
+        # r_g = a/(g − 1) (= r_R in the standard design g = r_N/r_R); the gear force's lever about the roller axis
+        self._r_gear = self.a / (geo.gear_ratio - 1.0)
         self._mp = m.moved_mass_kg * self.p
         self._i_s, self._i_c = m.screw_inertia_kgm2, m.carrier_inertia_kgm2
         self._mr_p = m.roller_mass_kg * self.p
@@ -237,8 +243,8 @@ class Fu2018(Model):
         self._mu_rr_r = fr.mu_nut_roller_rolling * geo.roller_radius_m
         self._tan_gear = math.tan(GEAR_PRESSURE_ANGLE_RAD)
         # I_R (1 − g) − r_R m_R a − r_R I_C / (N_R a): the carrier-mode inertia of the spin equation
-        self._j_spin = (m.roller_inertia_kgm2 * (1.0 - geo.gear_ratio) - geo.roller_radius_m * self._mr_a
-                        - geo.roller_radius_m * m.carrier_inertia_kgm2 / (nr * self.a))
+        self._j_spin = (m.roller_inertia_kgm2 * (1.0 - geo.gear_ratio) - self._r_gear * self._mr_a
+                        - self._r_gear * m.carrier_inertia_kgm2 / (nr * self.a))
         self._zeta_share = self.zeta / nt
         self._gather = self._gather_index()
         self._side_k = {sg: _side_tuple(side, self.a) for sg, side in self.sides.items()}
@@ -251,7 +257,7 @@ class Fu2018(Model):
         self._span = geo.roller_length_m
         self._zbar = load_centroid_m(params)
         self._k = (self._coulomb, fr.mu_screw_roller, mu_nut, self.eps_v**2, self.eps_w**2, self._c_nt,
-                   self._mu_pin_r, self.k_drag, self._mu_rr_r, nr, self.a, self._r_r, self._mp, self._i_s, self._i_c,
+                   self._mu_pin_r, self.k_drag, self._mu_rr_r, nr, self.a, self._r_gear, self._mp, self._i_s, self._i_c,
                    self._mr_p, self._mr_kmig, self._mr_a, self._j_spin, self._tan_gear, self._g, s_1g, self._span,
                    self._zbar)
         M = mass_matrix(params)
@@ -316,7 +322,7 @@ class Fu2018(Model):
         # constants unpacked from two tuples: one bytecode each instead of ~30 attribute lookups
         (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, rnx, rny,
          h00, h01, h10, h11, h20, h21) = self._side_k[sign]
-        (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_r, mp, i_s, i_c, mr_p, mr_kmig,
+        (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_g, mp, i_s, i_c, mr_p, mr_kmig,
          mr_a, j_spin, tan_gear, g, s_1g, span, zbar) = self._k
         w_s, w_c = u
         vx = g00 * w_s + g01 * w_c
@@ -361,11 +367,11 @@ class Fu2018(Model):
         a12 = mr_kmig
         b1 = f0z + esz * beta_s + enz * beta_n
         # roller spin (6) with F_gt from (5) and F_pt from (7)
-        cs = r_r * esy - spin_s
-        cn = r_r * eny - (spin_n - mu_rr)  # M_rr moved to the left-hand side
+        cs = r_g * esy - spin_s
+        cn = r_g * eny - (spin_n - mu_rr)  # M_rr moved to the left-hand side
         a21 = cs * alpha_s + cn * alpha_n
         a22 = j_spin
-        b2 = spin_f0 + m_pin - r_r * f0y - r_r * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
+        b2 = spin_f0 + m_pin - r_g * f0y - r_g * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
         det = a11 * a22 - a12 * a21
         acc_s = (b1 * a22 - a12 * b2) / det
         acc_c = (a11 * b2 - a21 * b1) / det
@@ -417,19 +423,19 @@ class Fu2018(Model):
         return f, r
 
     def _stick(self, tau, load, sign, pin_abs, gear_sign):
-        (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_r, mp, i_s, i_c, mr_p, mr_kmig,
+        (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_g, mp, i_s, i_c, mr_p, mr_kmig,
          mr_a, j_spin, tan_gear, g, s_1g, span, zbar) = self._k
         for sg in (sign, -sign):
             (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, rnx, rny,
              *_) = self._side_k[sg]
             n_n = load / (nr * nnz)
             spin_n = rnx * nny - rny * nnx
-            k = r_r - rsx
+            k = r_g - rsx
             A = ((nr * (psx * nsy - psy * nsx), nr * (psx * g10 - psy * g00), nr * (psx * g11 - psy * g01)),
                  (nsz, g20, g21),
                  (k * nsy + rsy * nsx, k * g10 + rsy * g00, k * g11 + rsy * g01))
-            rhs0 = (tau, -nnz * n_n, -(r_r * nny - spin_n) * n_n)
-            rhs1 = (0.0, 0.0, mu_pin_r * pin_abs * (1.0 + r_r / a) - mu_rr_r * s_1g * n_n)
+            rhs0 = (tau, -nnz * n_n, -(r_g * nny - spin_n) * n_n)
+            rhs1 = (0.0, 0.0, mu_pin_r * pin_abs * (1.0 + r_g / a) - mu_rr_r * s_1g * n_n)
             x0, x1 = _solve3(A, rhs0), _solve3(A, rhs1)
             if x0 is None:
                 continue
