@@ -259,7 +259,7 @@ class Fu2018(Model):
         self._k = (self._coulomb, fr.mu_screw_roller, mu_nut, self.eps_v**2, self.eps_w**2, self._c_nt,
                    self._mu_pin_r, self.k_drag, self._mu_rr_r, nr, self.a, self._r_gear, self._mp, self._i_s, self._i_c,
                    self._mr_p, self._mr_kmig, self._mr_a, self._j_spin, self._tan_gear, self._g, s_1g, self._span,
-                   self._zbar)
+                   self._zbar, nut_slides)
         M = mass_matrix(params)
         self.kinetic = (float(M[0, 0]), float(M[0, 1]), float(M[1, 1]))  # energy guard
         self._h_min = self.dt_s / 2**MAX_HALVINGS
@@ -323,7 +323,7 @@ class Fu2018(Model):
         (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, rnx, rny,
          h00, h01, h10, h11, h20, h21) = self._side_k[sign]
         (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_g, mp, i_s, i_c, mr_p, mr_kmig,
-         mr_a, j_spin, tan_gear, g, s_1g, span, zbar) = self._k
+         mr_a, j_spin, tan_gear, g, s_1g, span, zbar, nut_slides) = self._k
         w_s, w_c = u
         vx = g00 * w_s + g01 * w_c
         vy = g10 * w_s + g11 * w_c
@@ -338,9 +338,12 @@ class Fu2018(Model):
             esx, esy, esz = nsx, nsy, nsz
             f0x, f0y, f0z = -c_nt * vx, -c_nt * vy, -c_nt * vz
         # nut–roller sliding (roller migration, g ≠ r_N/r_R): regularised Coulomb as on the screw side
-        wx = h00 * w_s + h01 * w_c
-        wy = h10 * w_s + h11 * w_c
-        wz = h20 * w_s + h21 * w_c
+        if nut_slides:
+            wx = h00 * w_s + h01 * w_c
+            wy = h10 * w_s + h11 * w_c
+            wz = h20 * w_s + h21 * w_c
+        else:  # standard design: the nut contact rolls
+            wx = wy = wz = 0.0
         if mu_n != 0.0 and stick is None:
             kn = mu_n / math.sqrt(wx * wx + wy * wy + wz * wz + eps_v2)
             enx, eny, enz = nnx - kn * wx, nny - kn * wy, nnz - kn * wz
@@ -424,7 +427,7 @@ class Fu2018(Model):
 
     def _stick(self, tau, load, sign, pin_abs, gear_sign):
         (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_g, mp, i_s, i_c, mr_p, mr_kmig,
-         mr_a, j_spin, tan_gear, g, s_1g, span, zbar) = self._k
+         mr_a, j_spin, tan_gear, g, s_1g, span, zbar, nut_slides) = self._k
         for sg in (sign, -sign):
             (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, rnx, rny,
              *_) = self._side_k[sg]
