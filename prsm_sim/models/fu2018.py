@@ -540,12 +540,21 @@ class Fu2018(Model):
         static friction impulse.
         """
         h = self.dt_s
+        ros = self._rosenbrock
+        zone2 = (SLIP_ZONE * self.eps_v) ** 2
+        if ws != 0.0 or wc != 0.0:  # fast path: one plain step when nothing about the friction changes
+            ws1, wc1, f1, f0, m1 = ros(ws, wc, sign, pin_abs, gear, mem, tau, load, h)
+            if not (ws * ws1 < 0.0 or wc * wc1 < 0.0 or f1.sign != f0.sign or f0.sign != sign
+                    or f0.vx * f0.vx + f0.vy * f0.vy + f0.vz * f0.vz < zone2
+                    or f1.vx * f1.vx + f1.vy * f1.vy + f1.vz * f1.vz < zone2
+                    or ws * (ws + h * f0.acc_s) < 0.0 or wc * (wc + h * f0.acc_c) < 0.0
+                    or self._books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load)):
+                return (ws1, wc1, 0.5 * h * (ws + ws1), 0.5 * h * (wc + wc1),
+                        0.5 * h * (f0.dissipated_w + f1.dissipated_w), f1, int(f1.sign), f1.pin_force_sum_n, f1.f_gt, m1)
         left = h
         hs = h
         dth_s = dth_c = diss = 0.0
         f_end = None
-        ros = self._rosenbrock
-        zone2 = (SLIP_ZONE * self.eps_v) ** 2
         while left > 1e-9 * h:
             if ws == 0.0 and wc == 0.0:
                 st, r = self.stick_forces(tau, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0)
