@@ -483,6 +483,11 @@ class Fu2018(Model):
         """
         gsign = 1.0 if gear_force >= 0.0 else -1.0
         f0 = self.solve_forces((ws, wc), tau, load, flank_sign, pin_abs, gsign)
+        if abs(f0.pin_force_sum_n - pin_abs) > 1e-2 * f0.pin_force_sum_n:
+            # the pin forces follow the inputs (the tilting couple scales with the load): take them at this
+            # step's inputs rather than the last step's, or the lag is a first-order error in the carrier
+            pin_abs = f0.pin_force_sum_n
+            f0 = self.solve_forces((ws, wc), tau, load, int(f0.sign), pin_abs, gsign)
         sign = int(f0.sign)
         fs, fc = f0.acc_s, f0.acc_c
         if len(mem) == 6 and mem[4] == sign and mem[5] < JACOBIAN_REFRESH_STEPS:
