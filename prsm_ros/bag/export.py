@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from prsm_ros.bag.reader import Bag, BagError, resolve_topics
+from prsm_ros.interface import parse_labels
 
 
 def _is_time(obj) -> bool:
@@ -111,7 +112,6 @@ def _labels_for(bag: Bag, roles: dict) -> list[str] | None:
     """Element labels of ~/internal_loads from its latched labels topic, None when unavailable."""
     if not roles.get("labels"):
         return None
-    from prsm_ros.messages import parse_labels
     for m in bag.messages([roles["labels"]]):
         try:
             return [el["label"] for el in parse_labels(m.msg.data)["elements"]]
@@ -193,8 +193,8 @@ def csv_name(topic: str) -> str:
 
 def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, end_s: float | None = None,
            resample_hz: float | None = None, method: str = "linear", merge: bool = False,
-           progress: bool = True) -> list[Path]:
-    """Write CSV files; returns their paths.
+           progress: bool = True, fmt: str = "csv") -> list[Path]:
+    """Write CSV (or, with fmt="parquet", Parquet) files; returns their paths.
 
     `out`: a .csv file for one topic (or with `merge`), else a directory (one file per topic).
     `merge` puts all topics on one resampled grid, columns prefixed with the topic name.
@@ -202,20 +202,20 @@ def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, en
     if not topics:
         raise BagError("export: name at least one topic with -t/--topic; topics in the bag: "
                        + ", ".join(sorted(bag.topics)))
-    for t in topics:
-        if t not in bag.topics:
-            raise BagError(f"{bag.path.name}: no topic {t!r}; topics: {', '.join(sorted(bag.topics))}")
+    bag.require_topics(topics)
     if merge and resample_hz is None:
         raise BagError("--merge needs --resample HZ: topics at different times share one grid only after resampling")
-    if start_s is not None and end_s is not None and end_s < start_s:
-        raise BagError(f"--end {end_s} is before --start {start_s}")
-    base = bag.start_ns or 0
-    start_ns = None if start_s is None else base + int(round(start_s * 1e9))
-    end_ns = None if end_s is None else base + int(round(end_s * 1e9))
+    start_ns, end_ns = bag.window_ns(start_s, end_s)
     out = Path(out)
-    single_file = out.suffix.lower() == ".csv"
+    if fmt not in ("csv", "parquet"):
+        raise BagError(f"--format {fmt!r}: must be csv or parquet")
+    suffix, write = ".csv", write_csv
+    if fmt == "parquet":
+        from prsm_ros.bag.parquet import write_parquet as write
+        suffix = ".parquet"
+    single_file = out.suffix.lower() == suffix
     if single_file and len(topics) > 1 and not merge:
-        raise BagError(f"{out}: one .csv file holds one topic; give a directory for {len(topics)} topics, or --merge")
+        raise BagError(f"{out}: one {suffix} file holds one topic; give a directory for {len(topics)} topics, or --merge")
     if not single_file:
         out.mkdir(parents=True, exist_ok=True)
     roles = resolve_topics(bag)
@@ -241,15 +241,15 @@ def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, en
             blocks.append(res[:, 1:] if res is not None else np.full((grid_len, len(names) - 1), np.nan))
             columns += [f"{tb.topic}:{n}" for n in names[1:]]
         grid = t0 + np.arange(blocks[0].shape[0]) / resample_hz
-        path = out if single_file else out / "merged.csv"
-        write_csv(path, columns, np.column_stack([grid, *blocks]).tolist())
+        path = out if single_file else out / f"merged{suffix}"
+        write(path, columns, np.column_stack([grid, *blocks]).tolist())
         return [path]
     for tb in tables:
-        path = out if single_file else out / csv_name(tb.topic)
+        path = out if single_file else out / (csv_name(tb.topic).removesuffix(".csv") + suffix)
         if resample_hz is not None:
             names, data = tb.numeric()
-            write_csv(path, names, resample(names, data, resample_hz, method, t0, t1).tolist() if len(data) else [])
+            write(path, names, resample(names, data, resample_hz, method, t0, t1).tolist() if len(data) else [])
         else:
-            write_csv(path, tb.columns, tb.rows)
+            write(path, tb.columns, tb.rows)
         written.append(path)
     return written

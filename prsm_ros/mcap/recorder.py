@@ -1,8 +1,8 @@
 """ROS 2 messages to MCAP: `McapFile` (the format, synchronous) and `McapRecorder` (off-thread).
 
 The file follows the ROS 2 MCAP profile as rosbag2 writes it (see `mcap_schema`): profile `ros2`,
-`ros2msg` schemas with their dependent definitions, `cdr` messages
-(`rclpy.serialization.serialize_message`), `offered_qos_profiles` channel metadata, zstd chunks
+`ros2msg` schemas with their dependent definitions, `cdr` messages (`rclpy.serialization.serialize_message`
+by default; `prsm_ros.mcap.codec` for writing without ROS), `offered_qos_profiles` channel metadata, zstd chunks
 with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
 metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
 
@@ -11,7 +11,10 @@ caller only appends `(channel, message, stamp)` to a bounded queue; a background
 writes, and flushes a finished chunk at least every `flush_interval_s`, so a killed process loses
 at most that much. An unwritable path or a full disk sets `.error`, stops recording and counts
 what could not be written in `messages_dropped`; the caller is never interrupted. `close()`
-writes the summary and footer; it is idempotent and also runs at interpreter exit.
+writes the summary and footer within a timeout (a stalled disk cannot hang the caller: it gives up,
+sets `.error` and counts what was still queued as dropped); it is idempotent and also runs at
+interpreter exit. Every message offered ends up in exactly one of `messages_written` and
+`messages_dropped`.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ DEFAULT_CHUNK_SIZE = 1 << 20  # bytes before compression; a flush usually closes
 # writer sleeps for real after each slice of work: the step loop then waits at most one slice.
 WORK_SLICE_S = 2e-4
 YIELD_S = 5e-5
+CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
 
 
 def package_version() -> str:
@@ -71,16 +75,20 @@ class McapFile:
 
     Opening writes the header and the metadata records (plus the `rosbag2` record, see
     `mcap_schema.rosbag2_metadata`) and flushes them; OSError propagates to the caller.
+    `codec`: where schemas, type hashes and CDR bytes come from (`prsm_ros.mcap.codec`): rclpy
+    messages and the installed definitions by default; a `TypestoreCodec` writes without ROS.
     """
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, codec=None) -> None:
         from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
-        from rclpy.serialization import serialize_message
 
-        self._serialize = serialize_message
+        from prsm_ros.mcap.codec import RclpyCodec
+
+        self._codec = codec if codec is not None else RclpyCodec()
+        self._serialize = self._codec.serialize
         self.path = Path(path)
-        records = {"rosbag2": mcap_schema.rosbag2_metadata()}
+        records = {"rosbag2": mcap_schema.rosbag2_metadata(self._codec.ros_distro)}
         for name, data in (metadata or {}).items():
             records[str(name)] = {str(k): str(v) for k, v in data.items()}
         self._schema_ids: dict[str, int] = {}
@@ -102,19 +110,20 @@ class McapFile:
     def add_channel(self, topic: str, msg_class, qos) -> int:
         """Declare `topic` (schema and QoS metadata); returns its channel id. Re-adding is a no-op."""
         known = self._channels.get(topic)
-        name = mcap_schema.type_name(msg_class)
+        codec = self._codec
+        name = codec.type_name(msg_class)
         if known is not None:
             if known[1] is not msg_class:
-                raise ValueError(f"topic {topic!r} was added as {mcap_schema.type_name(known[1])}; "
+                raise ValueError(f"topic {topic!r} was added as {codec.type_name(known[1])}; "
                                  f"cannot add it again as {name}")
             return known[0]
         sid = self._schema_ids.get(name)
         if sid is None:
             sid = self._writer.register_schema(name, mcap_schema.SCHEMA_ENCODING,
-                                               mcap_schema.full_definition(name).encode("utf-8"))
+                                               codec.definition(name).encode("utf-8"))
             self._schema_ids[name] = sid
         meta = {"offered_qos_profiles": mcap_schema.offered_qos_profiles_yaml(qos)}
-        type_hash = mcap_schema.type_hash(name)
+        type_hash = codec.type_hash(name)
         if type_hash:
             meta["topic_type_hash"] = type_hash
         cid = self._writer.register_channel(topic, mcap_schema.MESSAGE_ENCODING, sid, meta)
@@ -133,8 +142,9 @@ class McapFile:
         """Serialize `msg` to CDR and add it at log_time = publish_time = stamp_ns."""
         seq = self._sequence[channel_id] + 1
         self._sequence[channel_id] = seq
-        self._writer.add_message(channel_id, stamp_ns, self._serialize(msg), stamp_ns, seq)
-        self.messages_written += 1
+        data = self._serialize(msg)
+        self.messages_written += 1  # counted once handed over: a stalled disk blocks inside add_message
+        self._writer.add_message(channel_id, stamp_ns, data, stamp_ns, seq)
 
     def flush(self) -> None:
         """Close the chunk in progress (with its message index) and push it to the OS."""
@@ -175,6 +185,12 @@ class McapRecorder:
             raise ValueError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
         self.path = Path(path)
         self.error: str | None = None
+        # `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
+        # append. The caller holds it for a check and an append; the writer thread takes it only
+        # to stop admission and to count what it discards. So a message is either queued before
+        # admission stops (and then written or counted by whoever empties the queue) or counted
+        # at once: the counts are exact whatever the threads do.
+        self._lock = threading.Lock()
         self._dropped_full = 0
         self._lost = 0
         self._queue: deque = deque()
@@ -205,7 +221,8 @@ class McapRecorder:
     @property
     def messages_dropped(self) -> int:
         """Messages not recorded: queue full, or not yet written when recording stopped."""
-        return self._dropped_full + self._lost
+        with self._lock:
+            return self._dropped_full + self._lost
 
     @property
     def queue_length(self) -> int:
@@ -228,22 +245,49 @@ class McapRecorder:
             raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._classes) or 'none'}")
         if type(msg) is not cls:
             raise TypeError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
-        if not self._writing:
-            self._lost += 1
-        elif len(self._queue) >= self._queue_size:
-            self._dropped_full += 1
-        else:
-            self._queue.append((topic, msg, stamp_ns))
+        with self._lock:
+            if not self._writing:
+                self._lost += 1
+            elif len(self._queue) >= self._queue_size:
+                self._dropped_full += 1
+            else:
+                self._queue.append((topic, msg, stamp_ns))
 
-    def close(self) -> None:
-        """Write what is queued, then the summary and footer. Idempotent; safe after an error."""
-        if self._closed:
-            return
-        self._closed = True
-        self._writing = False  # later writes are counted as dropped; queued ones are still written
-        atexit.unregister(self.close)
-        self._stop.set()
-        self._thread.join()
+    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Write what is queued, then the summary and footer; True when the file was finished cleanly.
+
+        Writes after close are counted as dropped. If the writer thread has not finished within
+        `timeout_s` (a stalled disk or network file system), close gives up waiting: what is
+        still queued is counted as dropped, `error` says so, and the file is left to the thread
+        (it finishes the file if the disk recovers; otherwise it is readable up to its last
+        chunk). Idempotent (a second call returns the first's verdict); safe after an error.
+        """
+        if not self._closed:
+            self._closed = True
+            with self._lock:
+                self._writing = False  # later writes are counted as dropped; queued ones are still written
+            atexit.unregister(self.close)
+            self._stop.set()
+            self._thread.join(timeout=timeout_s)
+            if self._thread.is_alive():
+                lost = self._discard_queued()
+                self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
+                                            f"{timeout_s:g} s (stalled disk?); {lost} queued messages were not "
+                                            "written and the file has no summary")
+        return self.error is None
+
+    def _discard_queued(self) -> int:
+        """Empty the queue, counting the messages in it as dropped; returns how many (either thread)."""
+        n = 0
+        while True:
+            try:
+                item = self._queue.popleft()
+            except IndexError:
+                break
+            n += item[2] is not None  # channel declarations are not messages
+        with self._lock:
+            self._lost += n
+        return n
 
     def __enter__(self) -> McapRecorder:
         return self
@@ -256,7 +300,8 @@ class McapRecorder:
     def _fail(self, e: BaseException) -> None:
         what = e.strerror if isinstance(e, OSError) and e.strerror else (str(e) or type(e).__name__)
         self.error = f"recording to {self.path} stopped: {what}"
-        self._writing = False
+        with self._lock:
+            self._writing = False
         if self._file is not None:
             self._final_written = self._file.messages_written
             self._file.abort()
@@ -292,8 +337,7 @@ class McapRecorder:
                         last_flush = now
             except Exception as e:  # disk full, I/O error: recording stops, the caller does not
                 self._fail(e)
-            if self._file is None:
-                self._lost += sum(1 for item in queue if item[2] is not None)
-                queue.clear()
+            if self._file is None:  # admission is closed (`_fail` or close): nothing lands after this drain
+                self._discard_queued()
             if stopping:
                 return
