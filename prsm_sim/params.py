@@ -242,10 +242,13 @@ class Friction:
     drag_gap_m: float = 1e-4
     load_distribution: str = "uniform"  # ζ_T profile over the teeth: "uniform" or "exponential"
     load_distribution_decay: float = 0.05  # per-tooth decay rate of the "exponential" profile
+    # fu2018: Coulomb friction where the nut–roller contact slides (g ≠ r_N/r_R: roller migration,
+    # docs/model.md §2); the standard design rolls there and this does not act
+    mu_nut_roller_sliding: float = 0.05
 
     def __post_init__(self) -> None:
         f = "friction"
-        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin",
+        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin", "mu_nut_roller_sliding",
                       "lubricant_viscosity_m2_s", "lubricant_density_kg_m3", "load_distribution_decay")
         _positive(f, self, "coulomb_regularisation_m_s", "drag_width_m", "drag_gap_m")
         if self.drag_radius_m is not None:
@@ -257,6 +260,7 @@ class Friction:
         _check(f, "load_distribution", self.load_distribution, self.load_distribution in ("uniform", "exponential"),
                "must be one of uniform, exponential")
         _check(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
+        _check(f, "mu_nut_roller_sliding", self.mu_nut_roller_sliding, self.mu_nut_roller_sliding < 1, "must be < 1")
 
 
 @dataclass(frozen=True)
@@ -441,6 +445,8 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
         if not isinstance(value, str):
             raise ParamError(f"{gname}.{key} = {value!r}: must be a string")
         return value
+    if isinstance(value, str) and (gname, key) not in _INT_FIELDS:
+        value = parse_float(value, f"{gname}.{key}")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParamError(f"{gname}.{key} = {value!r}: must be a number")
     if (gname, key) in _INT_FIELDS:
@@ -448,3 +454,16 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
             raise ParamError(f"{gname}.{key} = {value!r}: must be a whole number")
         return int(value)
     return float(value)
+
+
+def parse_float(text: str, name: str) -> float:
+    """A float from any spelling Python's float() accepts ("1e-5", "1E-5", "1_000.0", " 2.5 ").
+
+    YAML 1.1 (PyYAML, ROS parameter files) reads "1e-5" as a string because it wants a dot in
+    the mantissa; this is the one place such strings become numbers. Raises ParamError naming
+    `name` when the text is not a number.
+    """
+    try:
+        return float(text)
+    except ValueError:
+        raise ParamError(f"{name} = {text!r}: must be a number") from None

@@ -52,6 +52,7 @@ def build_model(params: Params, model: str, dt_s: float) -> Model:
         cls = MODELS[model]
     except (KeyError, TypeError):
         raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
+    cls.check_params(params)
     return cls(params, dt_s)
 
 

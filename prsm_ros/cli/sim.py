@@ -195,7 +195,10 @@ def cmd_run(args) -> None:
         f"tail: ζ_PS = ω_C/ω_S {summary['tail_mean_speed_ratio']:.5f}, efficiency {summary['tail_efficiency']:.4f}, "
         f"slip {summary['tail_mean_slip_speed_m_s']:.5f} m/s",
     ] + ([f"peak tooth normal force {summary['peak_tooth_normal_force_n']:.2f} N"]
-         if "peak_tooth_normal_force_n" in summary else []))
+         if "peak_tooth_normal_force_n" in summary else [])
+      + ([f"ENERGY GUARD: the energy balance was violated from t = {summary['energy_guard']['first_fault_time_s']:.6f} s "
+          f"(residual {summary['energy_guard']['residual_j']:.6g} J of {summary['energy_guard']['flow_j']:.6g} J); "
+          "do not trust these results"] if summary["energy_guard"]["fault"] else []))
     _emit(args, summary, text)
 
 
