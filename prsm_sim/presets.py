@@ -34,7 +34,10 @@ def _jones2016_literal() -> Params:
                                           "screw_length_m": None, "pin_radius_m": None},
                              "mass": {"screw_inertia_kgm2": None, "roller_mass_kg": None,
                                       "roller_inertia_kgm2": None, "carrier_inertia_kgm2": None},
-                             "friction": {"drag_radius_m": None}},
+                             "friction": {"drag_radius_m": None},
+                             "elastic": {"bearing_position_m": None, "root_diameter_m": None,
+                                         "nut_outer_diameter_m": None, "tooth_effective_width_m": None},
+                             "ratings": {"static_load_rating_n": None}},
                             base=base)
 
 

@@ -97,16 +97,16 @@ def test_exact_solution_satisfies_elasticity(f_rho):
 
     Integrating Boussinesq's kernel over the ellipsoidal pressure with the computed a, b, p0 must give
     the computed approach δ at the centre, and the gap profile A x², B y² (A, B the relative
-    curvatures from Σρ and F(ρ)) inside the ellipse. Within 0.5 % (achieved: ~1e-9).
+    curvatures from Σρ and F(ρ)) inside the ellipse. The issue asks for 0.5 %; achieved ~1e-15, held to 1e-9.
     """
     s, q = 300.0, 94.0
     c = H.point_contact(s, f_rho, CE)
     u0 = _displacement_at(c, q, 0.0, 0.0)
-    assert u0 == pytest.approx(float(c.approach_m(q)), rel=5e-3)
+    assert u0 == pytest.approx(float(c.approach_m(q)), rel=1e-9)
     a, b = (float(v) for v in c.semi_axes_m(q))
     A, B = s * (1 - f_rho) / 4, s * (1 + f_rho) / 4
-    assert (u0 - _displacement_at(c, q, 0.6 * a, 0.0)) / (0.6 * a) ** 2 == pytest.approx(A, rel=5e-3)
-    assert (u0 - _displacement_at(c, q, 0.0, 0.6 * b)) / (0.6 * b) ** 2 == pytest.approx(B, rel=5e-3)
+    assert (u0 - _displacement_at(c, q, 0.6 * a, 0.0)) / (0.6 * a) ** 2 == pytest.approx(A, rel=1e-9)
+    assert (u0 - _displacement_at(c, q, 0.0, 0.6 * b)) / (0.6 * b) ** 2 == pytest.approx(B, rel=1e-9)
     # and the pressure integrates to the load: ∫∫ p0 √(…) dA = (2/3) π a b p0
     assert 2 / 3 * math.pi * a * b * float(c.max_pressure_pa(q)) == pytest.approx(q, rel=1e-12)
 
