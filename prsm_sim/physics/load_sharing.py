@@ -361,3 +361,78 @@ class AxialChain:
                           nut_stiffness_n_per_m=k_nut, shaft_stiffness_n_per_m=self.k_shaft,
                           housing_stiffness_n_per_m=self.k_housing, row_loads_n=d.row_loads_n, shares=d.shares,
                           unloaded_side_n=unloaded)
+
+
+# -- linearised axial dynamics ----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Mode:
+    frequency_hz: float  # damped natural frequency
+    undamped_frequency_hz: float
+    damping_ratio: float
+
+
+def axial_masses_kg(params: Params) -> tuple[float, float]:
+    """(M_S, m): the rotating side reflected to the nut axis and the axially moving side (docs/model.md §4.3).
+
+    M_S = J (2π/L)² with J the screw inertia plus the carrier and roller rotations carried at the
+    ideal carrier ratio (`jones2016.mass_matrix`, its moved-mass part removed) [assumed: the rollers
+    roll without slip in the mode]; m = moved mass plus the rollers, which move axially with the nut.
+    """
+    from prsm_sim.models.jones2016 import mass_matrix
+    from prsm_sim.physics.kinematics import ideal_carrier_ratio
+    g, m = params.geometry, params.mass
+    mm = mass_matrix(params)
+    r = ideal_carrier_ratio(g)
+    v = np.array([1.0, r])
+    m_axial = m.moved_mass_kg + g.n_rollers * m.roller_mass_kg
+    j_rot = float(v @ mm @ v) - m_axial * g.lead_per_rad_m**2
+    return j_rot / g.lead_per_rad_m**2, m_axial
+
+
+def linear_modes(mass_kg: np.ndarray, damping_n_s_m: np.ndarray, stiffness_n_m: np.ndarray) -> list[Mode]:
+    """Modes of M q̈ + C q̇ + K q = 0 from the eigenvalues of its first-order form, lowest first.
+
+    Rigid-body modes come out at 0 Hz; each oscillating pair is reported once.
+    """
+    n = len(mass_kg)
+    minv = np.linalg.inv(mass_kg)
+    a = np.block([[np.zeros((n, n)), np.eye(n)], [-minv @ stiffness_n_m, -minv @ damping_n_s_m]])
+    lam = np.linalg.eigvals(a)
+    tiny = 1e-6 * float(np.max(np.abs(lam)))
+    lam = np.where(np.abs(lam) < tiny, 0.0, lam)  # the rigid-body double zero, rounded
+    modes = []
+    if np.any(lam == 0.0):
+        modes.append(Mode(0.0, 0.0, 0.0))
+    for ev in sorted((z for z in lam if z.imag > tiny), key=abs):  # one of each conjugate pair
+        w = abs(ev)
+        modes.append(Mode(frequency_hz=ev.imag / (2 * math.pi), undamped_frequency_hz=w / (2 * math.pi),
+                          damping_ratio=-ev.real / w))
+    return modes
+
+
+@dataclass(frozen=True)
+class ModalAnalysis:
+    load_n: float
+    stiffness_n_per_m: float
+    damping_n_s_per_m: float
+    screw_side_mass_kg: float
+    nut_side_mass_kg: float
+    free: list[Mode]  # screw free to rotate (torque-controlled): a rigid-body mode and the axial mode
+    held: list[Mode]  # screw held by a stiff servo
+
+
+def axial_modes(params: Params, load_n: float, nut_position_m: float = 0.0) -> ModalAnalysis:
+    """Linearised axial modes about an operating load (docs/model.md §4.3, first axial mode).
+
+    Two masses (M_S, m) joined by the chain's tangent stiffness K at the load and a damper sized
+    by `elastic.contact_damping_ratio` on the free mode: c = 2 ζ √(K M_S m / (M_S + m)).
+    Closed form of the free mode: f = (1/2π) √(K (1/m + 1/M_S)); held: f = (1/2π) √(K/m).
+    """
+    k = AxialChain(params, nut_position_m).at(load_n).stiffness_n_per_m
+    ms, m = axial_masses_kg(params)
+    c = 2 * params.elastic.contact_damping_ratio * math.sqrt(k * ms * m / (ms + m))
+    spring = np.array([[1.0, -1.0], [-1.0, 1.0]])
+    free = linear_modes(np.diag([ms, m]), c * spring, k * spring)
+    held = linear_modes(np.array([[m]]), np.array([[c]]), np.array([[k]]))
+    return ModalAnalysis(float(load_n), k, c, ms, m, free, held)
