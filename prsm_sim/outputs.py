@@ -45,6 +45,9 @@ class State:
     # integrator memory (fu2018: its frozen Jacobian and the steps since it was formed), kept in
     # the state so that a step stays a pure function of (state, inputs)
     solver: tuple[float, ...] = ()
+    # `elastic`: the nut's own axial position and velocity (the other models tie it to θ_S)
+    nut_axial_m: float = 0.0
+    nut_speed_m_s: float = 0.0
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun

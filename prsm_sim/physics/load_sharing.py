@@ -375,9 +375,10 @@ class Mode:
 def axial_masses_kg(params: Params) -> tuple[float, float]:
     """(M_S, m): the rotating side reflected to the nut axis and the axially moving side (docs/model.md §4.3).
 
-    M_S = J (2π/L)² with J the screw inertia plus the carrier and roller rotations carried at the
+    M_S = J (2π/L)² with J the screw inertia plus the carrier and roller motion carried at the
     ideal carrier ratio (`jones2016.mass_matrix`, its moved-mass part removed) [assumed: the rollers
-    roll without slip in the mode]; m = moved mass plus the rollers, which move axially with the nut.
+    roll without slip in the mode]; the rollers ride the screw's thread axially (as in the `elastic`
+    model, where the compliance sits between them and the nut); m = the moved mass.
     """
     from prsm_sim.models.jones2016 import mass_matrix
     from prsm_sim.physics.kinematics import ideal_carrier_ratio
@@ -385,7 +386,7 @@ def axial_masses_kg(params: Params) -> tuple[float, float]:
     mm = mass_matrix(params)
     r = ideal_carrier_ratio(g)
     v = np.array([1.0, r])
-    m_axial = m.moved_mass_kg + g.n_rollers * m.roller_mass_kg
+    m_axial = m.moved_mass_kg
     j_rot = float(v @ mm @ v) - m_axial * g.lead_per_rad_m**2
     return j_rot / g.lead_per_rad_m**2, m_axial
 
