@@ -100,7 +100,7 @@ def test_stiff_elastic_reproduces_fu2018():
     reproduces fu2018 within 0.1 % (speeds, efficiency, per-roller resultants).
 
     The reference is fu2018 at the elastic core's sub-step (fu2018's own step error at 1 ms is 0.7 % in this
-    run-up, larger than the comparison itself). Seen: 0.01 % speeds, 0.02 % efficiency, 0.002 % forces.
+    run-up from rest, larger than the comparison itself). Seen: 2e-6 speeds, 1.3e-4 efficiency, 3e-7 forces.
     """
     p = preset("s30").with_overrides({"material.youngs_modulus_pa": 30 * 206e9, "ratings.static_load_rating_n": 236e3})
     n, dt = 200, 1e-3
@@ -111,9 +111,9 @@ def test_stiff_elastic_reproduces_fu2018():
     ns = sim.model.substeps
     a = Simulator(p, "fu2018", dt / ns).run(np.repeat(tau, ns), np.repeat(load, ns))
     for k in ("screw_speed_rad_s", "carrier_speed_rad_s", "nut_velocity_m_s", "efficiency"):
-        assert b[k][-1] == pytest.approx(a[k][-1], rel=1e-3), k
+        assert b[k][-1] == pytest.approx(a[k][-1], rel=5e-4 if k == "efficiency" else 2e-5), k
     ra, rb = a.internal_block("per_roller")[-1], b.internal_block("per_roller")[-1]
-    assert np.max(np.abs(rb[:, :5] - ra[:, :5])) <= 1e-3 * np.max(np.abs(ra[:, :5]))
+    assert np.max(np.abs(rb[:, :5] - ra[:, :5])) <= 2e-5 * np.max(np.abs(ra[:, :5]))
 
 
 def test_first_mode_matches_spectrum_of_impulse_response():
@@ -162,10 +162,14 @@ def _viscous_load_run(p, n, dt, c_v, torque):
     return sim, e0, rows
 
 
-def test_energy_closes_through_reversals_and_backlash():
+@pytest.mark.parametrize("overrides", [{"elastic.axial_clearance_m": 20e-6},
+                                       {"elastic.preload_n": 2000.0, "elastic.preload_kind": "oversize_rollers"}])
+def test_energy_closes_through_reversals_and_backlash(overrides):
     """docs/model.md §5 item 5: input work = output work + ΔT + ΔV + dissipated, within 0.1 % of the work through
-    the screw, over reversals and backlash crossings (20 µm clearance)."""
-    p = preset("s30").with_overrides({"elastic.axial_clearance_m": 20e-6})
+    the screw, over reversals and backlash crossings (20 µm clearance) or with a preloaded pair.
+    Seen: 1.2e-4 with the clearance (the dead-zone edges), 1e-7 preloaded."""
+    p = preset("s30").with_overrides(overrides)
+    backlash = "elastic.axial_clearance_m" in overrides
     dt, n = 1e-3, 400
     t = np.arange(n) * dt
     torque = 2.0 * np.sin(2 * math.pi * 5 * t)
@@ -174,7 +178,8 @@ def test_energy_closes_through_reversals_and_backlash():
     v = np.array([r.nut_velocity_m_s for r in rows])
     assert np.sum(np.diff(np.sign(v[v != 0])) != 0) >= 3  # it did reverse
     lost = np.array([sim.model.layout.view(r.internal, "elastic")[1] for r in rows])
-    assert np.any(lost > 0) and np.any(lost < 0)  # and crossed the clearance both ways
+    if backlash:
+        assert np.any(lost > 0) and np.any(lost < 0)  # and crossed the clearance both ways
     through = sum(abs(r.power_in_w) for r in rows) * dt
     gap = st.work_in_j - st.work_out_j - st.dissipated_j - (sim.model.total_stored_energy_j(st) - e0)
     assert abs(gap) <= 1e-3 * through
