@@ -7,23 +7,15 @@ held, √(K/m)/2π (docs/model.md §4.3, first axial mode); the chain's own stif
 
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from prsm_sim import Simulator
 from prsm_sim.physics import load_sharing as L
 from prsm_sim.presets import preset
 
-CLI = [sys.executable, "-m", "prsm_ros.cli.sim"]
-
-
-def run(*args, ok=True):
-    r = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120)
-    if ok:
-        assert r.returncode == 0, r.stderr
-    return r
+from test_sim_cli import run  # prsm-sim as a real process, exit code checked (one helper for the CLI tests)
 
 
 def test_stiffness_json_one_record_per_load_point():
@@ -88,7 +80,6 @@ def test_screw_side_mass_is_reflected_inertia():
 
 # -- the dynamic model (prsm_sim.models.elastic) ----------------------------------------------------
 
-from prsm_sim import Simulator  # noqa: E402
 
 
 def _ramp(n, dt, t_ramp):
