@@ -339,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         args.func(args)
-    except (ParamError, ValueError, CliError) as e:
+    except (PrsmError, ValueError) as e:  # every deliberate error (ModelError included) is one line, exit 2
         print(f"prsm-sim: error: {e}", file=sys.stderr)
         return 2
     except ImportError as e:

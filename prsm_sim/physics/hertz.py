@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
 
+from prsm_sim.errors import InputError
 from prsm_sim.params import Geometry
 
 _KAPPA_MAX = 1e4  # F(ρ) = 1 − O(1e-8): a line contact for every purpose here
@@ -46,12 +47,12 @@ def ellipticity(f_rho: float) -> tuple[float, float, float]:
     Solves the F(ρ) relation above for ln κ by Brent's method to machine precision.
     """
     if not (math.isfinite(f_rho) and 0.0 <= f_rho < 1.0):
-        raise ValueError(f"curvature difference F(rho) = {f_rho!r}: must lie in [0, 1)")
+        raise InputError(f"curvature difference F(rho) = {f_rho!r}: must lie in [0, 1)")
     if f_rho < 1e-12:
         return 1.0, math.pi / 2, math.pi / 2
     hi = math.log(_KAPPA_MAX)
     if f_rho >= curvature_difference(_KAPPA_MAX):
-        raise ValueError(f"curvature difference F(rho) = {f_rho!r}: ellipse ratio beyond {_KAPPA_MAX:g} (a line contact)")
+        raise InputError(f"curvature difference F(rho) = {f_rho!r}: ellipse ratio beyond {_KAPPA_MAX:g} (a line contact)")
     # near κ = 1, F ≈ (3/4)(κ² − 1)/2 … bracket from just above 1
     t = brentq(lambda t: curvature_difference(math.exp(t)) - f_rho, 1e-9, hi, xtol=1e-15, rtol=1e-15, maxiter=200)
     kappa = math.exp(t)
@@ -66,7 +67,7 @@ def hamrock_brewe(f_rho: float) -> tuple[float, float, float]:
     "simplified solution"; a few per cent from the exact values).
     """
     if not (math.isfinite(f_rho) and 0.0 <= f_rho < 1.0):
-        raise ValueError(f"curvature difference F(rho) = {f_rho!r}: must lie in [0, 1)")
+        raise InputError(f"curvature difference F(rho) = {f_rho!r}: must lie in [0, 1)")
     alpha = (1.0 + f_rho) / (1.0 - f_rho)
     return 1.0339 * alpha**0.6360, 1.0003 + 0.5968 / alpha, 1.5277 + 0.6023 * math.log(alpha)
 
@@ -131,15 +132,15 @@ def point_contact(sum_rho_per_m: float, f_rho: float, elastic_constant_per_pa: f
                   method: str = "exact") -> HertzContact:
     """The Hertz contact of this geometry, κ exact (elliptic integrals) or by Hamrock–Brewe."""
     if not (math.isfinite(sum_rho_per_m) and sum_rho_per_m > 0):
-        raise ValueError(f"curvature sum = {sum_rho_per_m!r}: must be a finite number > 0 (bodies must touch convexly)")
+        raise InputError(f"curvature sum = {sum_rho_per_m!r}: must be a finite number > 0 (bodies must touch convexly)")
     if not (math.isfinite(elastic_constant_per_pa) and elastic_constant_per_pa > 0):
-        raise ValueError(f"elastic constant = {elastic_constant_per_pa!r}: must be a finite number > 0")
+        raise InputError(f"elastic constant = {elastic_constant_per_pa!r}: must be a finite number > 0")
     if method == "exact":
         kappa, e, k = ellipticity(f_rho)
     elif method == "hamrock_brewe":
         kappa, e, k = hamrock_brewe(f_rho)
     else:
-        raise ValueError(f"method = {method!r}: must be exact or hamrock_brewe")
+        raise InputError(f"method = {method!r}: must be exact or hamrock_brewe")
     return HertzContact(sum_rho_per_m, f_rho, elastic_constant_per_pa, kappa, e, k, method)
 
 

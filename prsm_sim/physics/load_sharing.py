@@ -28,6 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from prsm_sim.errors import ModelError
 from prsm_sim.params import Geometry, Params
 
 ISO76_PEAK_PRESSURE_PA = 4.2e9  # ISO 76 static-rating contact pressure for point contacts
@@ -122,12 +123,12 @@ def solve_distribution(joint: Joint, load_n: float, *, tol: float = 1e-12, max_i
         while np.any(f + t * step <= 0.0):  # loads stay positive (the Hertz law has no tension)
             t *= 0.5
             if t < 1e-12:
-                raise RuntimeError("load distribution: a tooth row unloads completely; the joint is too soft")
+                raise ModelError("load distribution: a tooth row unloads completely; the joint is too soft")
         f = f + t * step
         if np.max(np.abs(step)) <= tol * load_n:
             break
     else:
-        raise RuntimeError(f"load distribution did not converge at {load_n} N")
+        raise ModelError(f"load distribution did not converge at {load_n} N")
     # approach at the load point and its derivative (implicit differentiation of the system)
     jac = _jacobian(joint, f, tri, a1 + a2)
     rhs = np.zeros(n)
