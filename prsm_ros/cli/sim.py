@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from prsm_sim.errors import PrsmError
-from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, ParamError, Params, Simulator
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.jones2016 import steady_state

@@ -36,9 +36,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from prsm_sim.models.base import Model, _inputs, efficiency
+from prsm_sim.models.base import Model, efficiency
 from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018
-from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State, Trajectory
+from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
 
