@@ -434,10 +434,12 @@ STICTION_LAWS = ("stribeck",)
 
 @dataclass(frozen=True)
 class Stiction:
-    """Breakaway beyond the running friction (`elastic` level): μ_static = breakaway_ratio · μ (Stribeck curve).
+    """Breakaway beyond the running friction (`elastic` level): μ_static = breakaway_ratio · μ.
 
-    `breakaway_ratio` 1 gives `fu2018`'s friction; `stribeck_speed_m_s` is the sliding speed over
-    which the friction falls from breakaway to running [assumed typical of lubricated steel].
+    Karnopp-type stick (models/elastic.py): below the stick window the screw holds while the torque
+    stays inside the breakaway band. `breakaway_ratio` 1 gives `fu2018`'s friction;
+    `stribeck_speed_m_s` is the screw–roller slip speed of the stick window [assumed, typical of
+    lubricated steel]; law "stribeck" names this breakaway-then-running form.
     """
 
     law: str = "stribeck"

@@ -93,7 +93,8 @@ def test_stiff_elastic_reproduces_fu2018():
     The reference is fu2018 at the elastic core's sub-step (fu2018's own step error at 1 ms is 0.7 % in this
     run-up from rest, larger than the comparison itself). Seen: 2e-6 speeds, 1.3e-4 efficiency, 3e-7 forces.
     """
-    p = preset("s30").with_overrides({"material.youngs_modulus_pa": 30 * 206e9, "ratings.static_load_rating_n": 236e3})
+    p = preset("s30").with_overrides({"material.youngs_modulus_pa": 30 * 206e9, "ratings.static_load_rating_n": 236e3,
+                                      "stiction.breakaway_ratio": 1.0})  # breakaway = running: fu2018's friction
     n, dt = 200, 1e-3
     r = _ramp(n, dt, 0.1)
     tau, load = 6.0 * r, 5000.0 * r
@@ -216,3 +217,30 @@ def test_elastic_outputs_are_labelled_internal_blocks():
     assert th[:, 1].sum() == pytest.approx(30, rel=1e-9)  # ζ_T sums to N_T
     assert np.all(np.diff(th[:, 1]) > 0)  # same-end mounting: the finite shaft loads the loaded end most
     assert th[:, 0].sum() == pytest.approx(abs(sim.layout.view(out.internal, "elastic")[2]), rel=1e-9)
+
+
+def test_breakaway_holds_without_creep_and_releases_beyond_it():
+    """Stiction: at rest the screw holds while the torque lies in the breakaway band [p F η_b,s, p F/η_f,s], the
+    sliding-only efficiencies of docs/model.md §4.2 at μ_s = 1.3 μ, with no creep at all; just outside the band it
+    moves. The same torque inside the static band but below the running band back-drives a screw whose breakaway
+    equals its running friction (fu2018's friction: regularised Coulomb, it slides)."""
+    from prsm_sim.models.elastic import sliding_efficiencies
+    p = preset("s30")
+    g, f = p.geometry, 5000.0
+    t = g.lead_per_rad_m * f
+    eta_f, eta_b = sliding_efficiencies(g, 1.3 * p.friction.mu_screw_roller)
+    assert t * eta_b < t * sliding_efficiencies(g, p.friction.mu_screw_roller)[1]  # the static band is wider
+    n = 400
+    r = np.clip(np.arange(n) * 1e-3 / 0.05, 0, 1)
+
+    def final_motion(params, torque):
+        tr = Simulator(params, "elastic", 1e-3).run(torque * r, f * r)
+        return tr["screw_angle_rad"][-1] - tr["screw_angle_rad"][-200], tr["screw_speed_rad_s"][-1]
+
+    for torque in (1.02 * t * eta_b, 0.98 * t / eta_f):  # inside the band: stuck, exactly
+        assert final_motion(p, torque) == (0.0, 0.0)
+    moved_back, _ = final_motion(p, 0.98 * t * eta_b)
+    moved_fwd, _ = final_motion(p, 1.02 * t / eta_f)
+    assert moved_back < -1e-3 and moved_fwd > 1e-3
+    creep, _ = final_motion(p.with_overrides({"stiction.breakaway_ratio": 1.0}), 1.02 * t * eta_b)
+    assert creep < -1e-3

@@ -25,8 +25,12 @@ the stiffest axial mode (several hundred Hz at a 1 ms step: 8 sub-steps for `s30
 (velocity Verlet) for the nut with one `fu2018` ROS2 step (L-stable, its own stiff carrier mode)
 for the rotating core under the thread force.
 
-Not (yet) here: the breakaway (Stribeck) friction of the `stiction` parameter group — the core
-uses `fu2018`'s friction as it stands (its stick included).
+Stiction (the `stiction` group, Karnopp type): a screw slower than the stick window (the screw
+speed at which the screw–roller slip equals `stribeck_speed_m_s`) sticks while the torque lies in
+the breakaway band [p F η_b,s, p F/η_f,s] (sliding-only efficiencies of docs/model.md §4.2 at
+μ_s = breakaway_ratio · μ); held, it does not creep at all; outside the band it runs with
+`fu2018`'s friction (the drop from breakaway to running is immediate [assumed]). The core's kinetic
+energy at the moment it sticks is booked as dissipated. `breakaway_ratio` 1 turns this off.
 """
 
 from __future__ import annotations
@@ -86,6 +90,16 @@ def fit_side(joint: ls.Joint, rating_n: float) -> PowerLaw:
     basis = np.column_stack([loads ** (2.0 / 3.0), loads]) / d[:, None]
     (a, b), *_ = np.linalg.lstsq(basis, np.ones_like(d), rcond=None)
     return PowerLaw(float(a), float(max(b, 0.0)))
+
+
+def sliding_efficiencies(geo, mu: float) -> tuple[float, float]:
+    """(η_f, η_b) of screw–roller sliding alone at friction coefficient μ (docs/model.md §4.2):
+    η_f = 1 / (1 + μ / (sin β (c_zS − μ sin β))), η_b = 1 − μ / (sin β (c_zS + μ sin β)),
+    c_zS = cos α_nS cos λ_S, α_nS = atan(tan β cos λ_S)."""
+    lam, beta = geo.screw_lead_angle_rad, geo.flank_angle_rad
+    czs = math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam)
+    sb = math.sin(beta)
+    return 1.0 / (1.0 + mu / (sb * (czs - mu * sb))), 1.0 - mu / (sb * (czs + mu * sb))
 
 
 class AxialLaw:
@@ -184,6 +198,15 @@ class Elastic(Model):
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
         self.core = Fu2018(core_params, self.dt_s / self.substeps)
+        from prsm_sim.models.jones2016 import mass_matrix
+        self._m_core = mass_matrix(core_params)
+        # breakaway (the `stiction` group): a hold band of screw torque wider than the running one
+        st = params.stiction
+        self.breakaway = st.breakaway_ratio > 1.0
+        self.eta_static = sliding_efficiencies(self.geo, st.breakaway_ratio * params.friction.mu_screw_roller)
+        # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is the
+        # Stribeck speed
+        self.w_stick = st.stribeck_speed_m_s * math.sin(self.geo.flank_angle_rad) / self.p
         nr, nt = self.geo.n_rollers, self.geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
@@ -196,6 +219,18 @@ class Elastic(Model):
     def initial_state(self, nut_position_m: float = 0.0) -> State:
         s = super().initial_state(nut_position_m)
         return replace(s, nut_axial_m=nut_position_m, nut_speed_m_s=0.0)
+
+    def _holds(self, torque_nm: float, thread_force_n: float) -> bool:
+        """Static friction holds the screw at rest: the torque lies inside the breakaway band
+        [p F η_b,s, p F/η_f,s] (mirrored for F < 0), efficiencies at μ_s = breakaway_ratio · μ."""
+        eta_f, eta_b = self.eta_static
+        t = self.p * thread_force_n
+        lo, hi = (t * eta_b, t / eta_f) if t >= 0 else (t / eta_f, t * eta_b)
+        return lo <= torque_nm <= hi
+
+    def _core_kinetic_j(self, ws: float, wc: float) -> float:
+        mm = self._m_core
+        return 0.5 * (mm[0, 0] * ws * ws + 2 * mm[0, 1] * ws * wc + mm[1, 1] * wc * wc)
 
     # -- energy ---------------------------------------------------------------------------
     def total_stored_energy_j(self, state: State) -> float:
@@ -231,10 +266,21 @@ class Elastic(Model):
             a_n = (f_th - load_n + self.law.nut_side_force(f_th, x_n)) / m
             f_mid, _, _, _, _, _, p_damp = self._force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
                                                        x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n, v_n + 0.5 * hs * a_n)
-            ws1, wc1, f1, f0, mem = core._rosenbrock(ws, wc, sign, pin_abs, gear, mem, torque_nm, f_mid)
+            stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
+            if stuck:  # static friction holds the screw: no creep below breakaway
+                f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
+                f0, ws1, wc1 = f1._replace(dissipated_w=0.0), 0.0, 0.0
+                f1 = f0
+            else:
+                ws1, wc1, f1, f0, mem = core._rosenbrock(ws, wc, sign, pin_abs, gear, mem, torque_nm, f_mid)
             acc = (ws1 - ws) / hs
             th_s += 0.5 * hs * (ws + ws1)
             th_c += 0.5 * hs * (wc + wc1)
+            if self.breakaway and not stuck and abs(ws1) < self.w_stick and self._holds(torque_nm, f_mid):
+                # Karnopp: slower than the stick window with the torque inside the breakaway band, the screw
+                # sticks; its kinetic energy (and the carrier's) goes to friction, counted in the ledger
+                diss += self._core_kinetic_j(ws1, wc1)
+                ws1 = wc1 = acc = 0.0
             v1 = v_n + hs * (f_mid - load_n + self.law.nut_side_force(f_mid, x_n + 0.5 * hs * v_n)) / m
             dx = 0.5 * hs * (v_n + v1)
             x_n += dx
