@@ -42,7 +42,7 @@ import numpy as np
 
 from prsm_sim.models.base import Model, efficiency
 from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018
-from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
 
@@ -55,6 +55,7 @@ ELASTIC_QUANTITIES = (
     ("nut_velocity_m_s", "m/s"),
 )
 PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
+_OUTPUT_NAMES = {n for n, _ in OUTPUT_FIELDS}
 OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
 FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
 
@@ -220,6 +221,21 @@ class Elastic(Model):
         s = super().initial_state(nut_position_m)
         return replace(s, nut_axial_m=nut_position_m, nut_speed_m_s=0.0)
 
+    def _core_step(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
+        """One `fu2018` step of the core (length core.dt_s) under a held thread force.
+
+        Returns (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces, flank sign, pin force, gear force,
+        solver memory): `Fu2018._step` where the core has it (its stick and its error-controlled
+        sub-steps at friction transitions), else one ROS2 step with trapezoidal angles and work.
+        """
+        core = self.core
+        if hasattr(core, "_step"):
+            return core._step(ws, wc, sign, pin_abs, gear, mem, tau, load)
+        h = core.dt_s
+        ws1, wc1, f1, f0, mem = core._rosenbrock(ws, wc, sign, pin_abs, gear, mem, tau, load)
+        return (ws1, wc1, 0.5 * h * (ws + ws1), 0.5 * h * (wc + wc1), 0.5 * h * (f0.dissipated_w + f1.dissipated_w),
+                f1, int(f1.sign), math.hypot(f1.f_pr, f1.f_pt), f1.f_gt, mem)
+
     def _holds(self, torque_nm: float, thread_force_n: float) -> bool:
         """Static friction holds the screw at rest: the torque lies inside the breakaway band
         [p F η_b,s, p F/η_f,s] (mirrored for F < 0), efficiencies at μ_s = breakaway_ratio · μ."""
@@ -235,12 +251,10 @@ class Elastic(Model):
     # -- energy ---------------------------------------------------------------------------
     def total_stored_energy_j(self, state: State) -> float:
         """Kinetic energy of the core and the nut plus the chain's elastic energy (J)."""
-        from prsm_sim.models.jones2016 import mass_matrix
-        u = np.array([state.screw_speed_rad_s, state.carrier_speed_rad_s])
-        t_core = 0.5 * float(u @ mass_matrix(self.core.params) @ u)
         delta = self.p * state.screw_angle_rad - state.nut_axial_m
         _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m)
-        return t_core + 0.5 * self.m * state.nut_speed_m_s**2 + v
+        return (self._core_kinetic_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
+                + 0.5 * self.m * state.nut_speed_m_s**2 + v)
 
     # -- stepping -------------------------------------------------------------------------
     def _force(self, th_s, w_s, x_n, v_n):
@@ -269,13 +283,14 @@ class Elastic(Model):
             stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
             if stuck:  # static friction holds the screw: no creep below breakaway
                 f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
-                f0, ws1, wc1 = f1._replace(dissipated_w=0.0), 0.0, 0.0
-                f1 = f0
+                ws1 = wc1 = dth_s = dth_c = d_core = 0.0
             else:
-                ws1, wc1, f1, f0, mem = core._rosenbrock(ws, wc, sign, pin_abs, gear, mem, torque_nm, f_mid)
+                ws1, wc1, dth_s, dth_c, d_core, f1, sign, pin_abs, gear, mem = self._core_step(
+                    ws, wc, sign, pin_abs, gear, mem, torque_nm, f_mid)
             acc = (ws1 - ws) / hs
-            th_s += 0.5 * hs * (ws + ws1)
-            th_c += 0.5 * hs * (wc + wc1)
+            th_s += dth_s
+            th_c += dth_c
+            diss += d_core
             if self.breakaway and not stuck and abs(ws1) < self.w_stick and self._holds(torque_nm, f_mid):
                 # Karnopp: slower than the stick window with the torque inside the breakaway band, the screw
                 # sticks; its kinetic energy (and the carrier's) goes to friction, counted in the ledger
@@ -286,9 +301,8 @@ class Elastic(Model):
             x_n += dx
             v_n = v1
             w_out += load_n * dx
-            diss += 0.5 * hs * (f0.dissipated_w + f1.dissipated_w) + hs * p_damp
+            diss += hs * p_damp
             ws, wc = ws1, wc1
-            sign, pin_abs, gear = int(f1.sign), math.hypot(f1.f_pr, f1.f_pt), f1.f_gt
             f_th, f_el, k, v_el, lost, delta, _ = self._force(th_s, ws, x_n, v_n)
         after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
                         flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
@@ -326,12 +340,21 @@ class Elastic(Model):
         state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
                         work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j)
         p_out, p_d = work_out_j / h, dissipated_j / h
-        w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
+        extra = {}
+        if "energy_residual_j" in _OUTPUT_NAMES:  # the energy guard of models/base (where the tree has it)
+            from prsm_sim.models.base import energy_fault
+            e1 = self.total_stored_energy_j(state)
+            flow = before.energy_flow_j + abs(w_in)
+            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j
+                                                   - (e1 - self.total_stored_energy_j(before)))
+            state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
+            extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
+                     "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
         out = Outputs(time_s=state.time_s, screw_angle_rad=state.screw_angle_rad, screw_speed_rad_s=w_s,
                       screw_torque_nm=torque_nm, carrier_angle_rad=state.carrier_angle_rad, carrier_speed_rad_s=w_c,
                       roller_spin_rad_s=-self.geo.gear_ratio * w_c, nut_position_m=state.nut_axial_m,
                       nut_velocity_m_s=state.nut_speed_m_s, nut_force_n=thread_force, load_force_n=load_n,
                       slip_speed_m_s=slip, power_in_w=w_in / h, power_out_w=p_out, power_dissipated_w=p_d,
                       efficiency=efficiency(p_out, p_d), speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
-                      internal=internal)
+                      internal=internal, **extra)
         return state, out
