@@ -335,7 +335,7 @@ class Elastic(Model):
     def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
                 work_out_j: float, slip: float, thread_force: float, internal: np.ndarray):
         """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply)."""
-        h, p = self.dt_s, self.p
+        h = self.dt_s
         w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
         state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
                         work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j)
@@ -350,6 +350,7 @@ class Elastic(Model):
             state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
             extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
                      "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
+        w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
         out = Outputs(time_s=state.time_s, screw_angle_rad=state.screw_angle_rad, screw_speed_rad_s=w_s,
                       screw_torque_nm=torque_nm, carrier_angle_rad=state.carrier_angle_rad, carrier_speed_rad_s=w_c,
                       roller_spin_rad_s=-self.geo.gear_ratio * w_c, nut_position_m=state.nut_axial_m,
