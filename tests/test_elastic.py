@@ -7,6 +7,7 @@ held, √(K/m)/2π (docs/model.md §4.3, first axial mode); the chain's own stif
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -87,23 +88,31 @@ def _ramp(n, dt, t_ramp):
 
 
 def test_stiff_elastic_reproduces_fu2018():
-    """docs/model.md §5 item 8: with stiff contacts and shaft (E × 30), no clearance, no preload, the elastic level
-    reproduces fu2018 within 0.1 % (speeds, efficiency, per-roller resultants).
+    """docs/model.md §5 item 8: with stiff contacts and shaft (E × 30), no clearance, no preload and breakaway =
+    running friction, the elastic level reproduces fu2018 within 0.1 % (speeds, efficiency, per-roller resultants).
 
-    The reference is fu2018 at the elastic core's sub-step (fu2018's own step error at 1 ms is 0.7 % in this
-    run-up from rest, larger than the comparison itself). Seen: 2e-6 speeds, 1.3e-4 efficiency, 3e-7 forces.
+    Both start moving at 200 rad/s (carrier at the kinematic ratio) and ramp torque and load, so the comparison is
+    not about when a stuck mechanism breaks loose (the elastic nut takes a fraction of a mode period to feel the
+    load). The reference is fu2018 at the elastic core's sub-step. Seen: 2e-6 speeds, 1.5e-5 efficiency.
     """
+    from prsm_sim.physics.kinematics import ideal_carrier_ratio
     p = preset("s30").with_overrides({"material.youngs_modulus_pa": 30 * 206e9, "ratings.static_load_rating_n": 236e3,
-                                      "stiction.breakaway_ratio": 1.0})  # breakaway = running: fu2018's friction
+                                      "stiction.breakaway_ratio": 1.0})
     n, dt = 200, 1e-3
     r = _ramp(n, dt, 0.1)
     tau, load = 6.0 * r, 5000.0 * r
+    w0 = 200.0
+    wc0 = w0 * ideal_carrier_ratio(p.geometry)
     sim = Simulator(p, "elastic", dt)
+    sim.state = replace(sim.state, screw_speed_rad_s=w0, carrier_speed_rad_s=wc0,
+                        nut_speed_m_s=w0 * p.geometry.lead_per_rad_m)
     b = sim.run(tau, load)
     ns = sim.model.substeps
-    a = Simulator(p, "fu2018", dt / ns).run(np.repeat(tau, ns), np.repeat(load, ns))
+    ref = Simulator(p, "fu2018", dt / ns)
+    ref.state = replace(ref.state, screw_speed_rad_s=w0, carrier_speed_rad_s=wc0)
+    a = ref.run(np.repeat(tau, ns), np.repeat(load, ns))
     for k in ("screw_speed_rad_s", "carrier_speed_rad_s", "nut_velocity_m_s", "efficiency"):
-        assert b[k][-1] == pytest.approx(a[k][-1], rel=5e-4 if k == "efficiency" else 2e-5), k
+        assert b[k][-1] == pytest.approx(a[k][-1], rel=2e-4 if k == "efficiency" else 2e-5), k
     ra, rb = a.internal_block("per_roller")[-1], b.internal_block("per_roller")[-1]
     assert np.max(np.abs(rb[:, :5] - ra[:, :5])) <= 2e-5 * np.max(np.abs(ra[:, :5]))
 
