@@ -75,6 +75,10 @@ class State:
     # work_in − work_out − Δ(stored energy) − dissipated, both since the state was made
     energy_flow_j: float = 0.0
     energy_residual_j: float = 0.0
+    # `elastic`: the nut's own axial position and velocity (the other models tie it to θ_S)
+    nut_axial_m: float = 0.0
+    nut_speed_m_s: float = 0.0
+    screw_accel_rad_s2: float = 0.0  # last sub-step's, for the coupling's midpoint prediction
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun
