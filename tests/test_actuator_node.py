@@ -103,12 +103,13 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
     from prsm_ros.bag.reader import open_bag
     from prsm_ros.bag.report import report, summary_text
     r = report(open_bag(tmp_path / "act.mcap"), tmp_path / "report", plots=False, progress=False)
-    assert [(e["event"], e["kind"]) for e in r["fault_events"]] == [("start", "jam")]
-    assert r["fault_events"][0]["time_s"] == round(outs[-STEPS - 1].time_s, 6)
-    assert "fault events: 1" in summary_text(r)
+    faults = [e for e in r["events"] if e.get("source") == "actuator"]
+    assert [(e["code"], e["details"]["kind"]) for e in faults] == [("fault_start", "jam")]
+    assert faults[0]["time_s"] == outs[-STEPS - 1].time_s
+    assert "actuator/fault_start" in summary_text(r)
     bag = open_bag(tmp_path / "act.mcap")
     assert {"/prsm_actuator/ground_truth/joint_states", "/prsm_actuator/position_command",
-            "/prsm_actuator/inject_fault"} <= set(bag.topics)
+            "/prsm_actuator/inject_fault", "/prsm_actuator/events"} <= set(bag.topics)
 
 
 def test_bare_node_refuses_a_velocity_interface_at_runtime(tmp_path):

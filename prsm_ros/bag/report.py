@@ -15,15 +15,14 @@ when our topics are there:
   where and when it peaked;
 - L10 life (`prsm_sim.life`, docs/model.md §5 item 10) from the axial load |nut force| and the screw
   speed, the recorded cycle repeated, for a dynamic load rating C_a
-  (`DEFAULT_DYNAMIC_LOAD_RATING_N` unless given);
-- fault events: every injected fault's start and clear, from the node's "actuator fault"
-  statuses on /diagnostics.
+  (`DEFAULT_DYNAMIC_LOAD_RATING_N` unless given).
 
 Times are the messages' log times (simulation time for our bags).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -263,26 +262,21 @@ def report(bag: Bag, out_dir, *, dynamic_load_rating_n: float = DEFAULT_DYNAMIC_
                           "speed_source": f"{screw_joint} velocity on {roles['joint_states']}"}
     else:
         result["life"] = None
-    result["fault_events"] = fault_events(bag, progress)
+    result["events"] = _events(bag)
     result["plots"] = [str(p) for p in _plots(Path(out_dir), joints, internal, ref_t, ref_v, err)] if plots else []
     return result
 
 
-FAULT_STATUS_SUFFIX = ": actuator fault"  # the node's DiagnosticStatus name for a fault start or clear
-
-
-def fault_events(bag: Bag, progress: bool = False) -> list[dict]:
-    """Every injected fault's start and clear the node put on /diagnostics (time in simulation s)."""
-    topic = "/diagnostics"
-    if topic not in {t for t in bag.topics_of_type("diagnostic_msgs/msg/DiagnosticArray")}:
-        return []
+def _events(bag: Bag) -> list[dict]:
+    """Every ~/events entry (std_msgs/String, one JSON object each; prsm_ros.messages.event_message)."""
     out = []
-    for m in bag.messages([topic], progress=progress, desc=topic):
-        for st in m.msg.status:
-            if st.name.endswith(FAULT_STATUS_SUFFIX):
-                v = {kv.key: kv.value for kv in st.values}
-                out.append({"time_s": float(v.get("time_s", m.log_time_ns * 1e-9)), "event": v.get("event", ""),
-                            "kind": v.get("kind", ""), "fault": v.get("fault", st.message)})
+    for topic in (t for t in bag.topics_of_type("std_msgs/msg/String") if t.endswith("/events")):
+        for m in bag.messages([topic]):
+            try:
+                doc = json.loads(m.msg.data)
+            except (ValueError, AttributeError):
+                doc = {"message": str(getattr(m.msg, "data", m.msg)), "code": "unparsed"}
+            out.append({"topic": topic, **doc} if isinstance(doc, dict) else {"topic": topic, "message": str(doc)})
     return out
 
 
@@ -417,9 +411,9 @@ def summary_text(r: dict) -> str:
         lines.append(f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')}, F_m = {_fmt(life['mean_load_n'], 'N')}): "
                      f"{_fmt(life['l10_revolutions'], 'revolutions')} = {_fmt(life['l10_hours'], 'h')} at the recorded "
                      f"cycle ({_fmt(life['l10_cycles'], 'cycles')} of {_fmt(life['cycle_duration_s'], 's')})")
-    events = r.get("fault_events") or []
-    lines.append(f"fault events: {len(events)}" if events else "fault events: none recorded")
-    lines += [f"  t = {_fmt(e['time_s'], 's')}: {e['event']} {e['fault']}" for e in events]
+    for ev in r.get("events", []):
+        lines.append(f"event t = {_fmt(ev.get('time_s'), 's')} [{ev.get('severity', '?')}] {ev.get('source', '?')}/"
+                     f"{ev.get('code', '?')}: {ev.get('message', '')}")
     if r["plots"]:
         lines.append("plots: " + ", ".join(r["plots"]))
     return "\n".join(lines)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from prsm_ros.bench import common, core, node, recorder, soak, sweep, viz
+from prsm_ros.bench import common, core, elastic, node, recorder, soak, sweep, viz
 
 AREAS: dict[str, common.Measure] = {
     "core": core.measure,
@@ -20,6 +20,7 @@ AREAS: dict[str, common.Measure] = {
     "rerun": viz.measure,
     "soak": soak.measure,
     "sweep": sweep.measure,
+    "elastic": elastic.measure,
 }
 
 

@@ -49,7 +49,7 @@ from std_srvs.srv import SetBool, Trigger
 from prsm_sim import PrsmError
 
 from prsm_ros.node.command_gate import CommandGate
-from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, stamp, time_ns
+from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
 from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority
@@ -101,8 +101,8 @@ class PrsmNode(Node):
         try:
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
-                        for k in ("joint_states", "wrench", "internal_loads", "labels", "clock", "diagnostics")
-                        + (("ground_truth",) if self.stepper.actuator is not None else ())}
+                        for k in ("joint_states", "wrench", "internal_loads", "labels", "clock", "diagnostics",
+                                  "events") + (("ground_truth",) if self.stepper.actuator is not None else ())}
             self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
                                                     qos_overriding_options=qos_opts())
                         for k, cb in (("screw_torque", self._on_screw_torque),
@@ -143,6 +143,7 @@ class PrsmNode(Node):
         self._diag_last = (time.perf_counter(), 0.0, 0)  # wall s, sim s, overruns at the last report
         self._warned_at: dict[str, float] = {}
         self.publish_failures = 0
+        self._energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
@@ -192,9 +193,14 @@ class PrsmNode(Node):
         try:
             return self.declare_parameter(name, default, desc).value
         except ParameterException as e:
-            given = getattr(self, "_parameter_overrides", {}).get(name)  # rclpy keeps them here; no getter
+            overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps them here; no getter
+            given = overrides.get(name)
             if spec is not None and given is not None:
-                check_value(spec, given.value)  # raises ConfigError in the words of node_params
+                value = check_value(spec, given.value)  # raises ConfigError in the words of node_params
+                if isinstance(given.value, str) and isinstance(value, float):
+                    # a float spelled as YAML 1.1 reads it ("1e-5" is a string there): declare the number
+                    del overrides[name]
+                    return self.declare_parameter(name, value, desc).value
             raise ConfigError(f"parameter {name}: {e}") from None
 
     def _check_unknown_overrides(self) -> None:
@@ -362,6 +368,8 @@ class PrsmNode(Node):
                 break
             done += 1
             try:
+                if out.energy_fault and not self._energy_fault_reported:
+                    self._report_energy_fault(out)
                 self._publish_step(out, force_state=publish_last_state and i == n - 1)
             except Exception as e:  # never let a publishing failure take the process down
                 if not rclpy.ok(context=self.context):
@@ -371,6 +379,18 @@ class PrsmNode(Node):
                 break
             self._step_wall_max_s = max(self._step_wall_max_s, time.perf_counter() - t0)
         return done
+
+    def _report_energy_fault(self, out) -> None:
+        """The model's energy books stopped closing (models.base energy guard): one event, an error log;
+        /diagnostics says ERROR while it lasts. Stepping goes on: the user decides."""
+        self._energy_fault_reported = True
+        text = (f"energy balance violated at t = {out.time_s:.6f} s: residual {out.energy_residual_j:.6g} J "
+                f"of {out.energy_flow_j:.6g} J that flowed (limit 1e-3); results of model {self.config.model} "
+                "are not trustworthy from here")
+        self._publish(self.pub["events"], "events", event_message(
+            out.time_s, "energy_guard", "error", "energy_balance", text,
+            {"residual_j": out.energy_residual_j, "flow_j": out.energy_flow_j, "model": self.config.model}))
+        self.get_logger().error(text)
 
     def _publish_step(self, out, force_state: bool = False) -> None:
         k = self.stepper.nstep
@@ -458,6 +478,7 @@ class PrsmNode(Node):
     def _srv_reset(self, request, response):
         with self._lock:
             self.stepper.reset(self.config.initial_nut_position)
+            self._energy_fault_reported = False
             self.pacer.restart()
             response.success = True
             response.message = f"reset to t = 0, nut at {self.config.initial_nut_position:g} m"
@@ -480,7 +501,7 @@ class PrsmNode(Node):
         return response
 
     def _publish_fault_events(self, events) -> None:
-        """Each fault start or clear: logged, and on /diagnostics at once (so the bag has it at its time)."""
+        """Each fault start or clear: logged, on ~/events and on /diagnostics at once (the bag has both)."""
         for e in events:
             text = f"t = {e.time_s:.6f} s: {e.describe()}"
             self.get_logger().warning(text) if e.what == "start" else self.get_logger().info(text)
@@ -494,6 +515,10 @@ class PrsmNode(Node):
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = stamp(self.stepper.time_s)
             self._publish(self.pub["diagnostics"], "diagnostics", msg)
+            self._publish(self.pub["events"], "events", event_message(
+                e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
+                {"kind": e.fault.kind, "start_s": e.fault.start_s, "duration_s": e.fault.duration_s,
+                 "value": e.fault.value, "sensor": e.fault.sensor, "roller": e.fault.roller}))
 
     # -- diagnostics -----------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
@@ -502,6 +527,10 @@ class PrsmNode(Node):
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = stamp(self.stepper.time_s)
             self._publish(self.pub["diagnostics"], "diagnostics", msg)
+            self._publish(self.pub["events"], "events", event_message(
+                e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
+                {"kind": e.fault.kind, "start_s": e.fault.start_s, "duration_s": e.fault.duration_s,
+                 "value": e.fault.value, "sensor": e.fault.sensor, "roller": e.fault.roller}))
 
     def _diagnostic_status(self) -> DiagnosticStatus:
         cfg, st, gate = self.config, self.stepper, self.gate
@@ -551,8 +580,14 @@ class PrsmNode(Node):
                             + ("zero torque" if cfg.timeout_behaviour == "zero" else "holding the last command"))
         if ps.overruns > over0:
             problems.append(f"{ps.overruns - over0} step overruns since the last report")
+        last = st.last
+        if last is not None:
+            values.update(energy_residual_j=f"{last.energy_residual_j:.6g}", energy_flow_j=f"{last.energy_flow_j:.6g}")
         if st.fault is not None:
             level, text = DiagnosticStatus.ERROR, st.fault
+        elif last is not None and last.energy_fault:
+            level, text = DiagnosticStatus.ERROR, (f"energy balance violated: residual {last.energy_residual_j:.6g} J of "
+                                                   f"{last.energy_flow_j:.6g} J that flowed (limit 1e-3)")
         elif problems:
             level, text = DiagnosticStatus.WARN, "; ".join(problems)
         else:
