@@ -6,8 +6,9 @@ fault lasts) or, for a jam, add a dry-friction torque on the screw. None of the 
 models resolves one roller: `ideal` has no rollers, `jones2016` and `fu2018` carry N_R
 identical rollers with one symmetric load share (their per-roller outputs are copies), so a
 fault naming one roller is refused with that reason rather than applied to all of them.
-Growing backlash needs a model with a thread clearance (the `elastic` level); none of the
-models here has one, so it is refused too.
+Growing backlash needs a model with a thread clearance (the `elastic` level, which arrived
+late in this turn); its growth as a fault is not implemented, so it is refused too (a fixed
+clearance is the parameter `elastic.axial_clearance_m`).
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ def check_fault(fault: Fault, params: Params, model_name: str, has_motor: bool) 
             raise ParamError(f"fault.roller = {fault.roller}: model {model_name!r} treats all rollers alike "
                              f"(none of ideal, jones2016, fu2018 resolves one roller); use roller None for all")
     if fault.kind == "backlash" and model_name not in MODELS_WITH_BACKLASH:
-        raise ParamError(f"fault.kind = 'backlash': model {model_name!r} has no thread clearance; growing backlash "
-                         "needs the elastic model, which is not available in this build")
+        raise ParamError(f"fault.kind = 'backlash': growing backlash is not implemented for model {model_name!r} "
+                         "(it needs the elastic model's thread clearance; set elastic.axial_clearance_m as a "
+                         "parameter for a fixed backlash)")
     if fault.kind in ("torque_limit_drop",) and not has_motor:
         raise ParamError("fault.kind = 'torque_limit_drop': the ideal actuator (no motor) has no torque limit; "
                          "configure a motor")
