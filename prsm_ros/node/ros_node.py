@@ -527,10 +527,6 @@ class PrsmNode(Node):
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = stamp(self.stepper.time_s)
             self._publish(self.pub["diagnostics"], "diagnostics", msg)
-            self._publish(self.pub["events"], "events", event_message(
-                e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
-                {"kind": e.fault.kind, "start_s": e.fault.start_s, "duration_s": e.fault.duration_s,
-                 "value": e.fault.value, "sensor": e.fault.sensor, "roller": e.fault.roller}))
 
     def _diagnostic_status(self) -> DiagnosticStatus:
         cfg, st, gate = self.config, self.stepper, self.gate
