@@ -517,7 +517,8 @@ class PrsmNode(Node):
             self._publish(self.pub["diagnostics"], "diagnostics", msg)
             self._publish(self.pub["events"], "events", event_message(
                 e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
-                {"kind": e.fault.kind, "start_s": e.fault.start_s, "duration_s": e.fault.duration_s,
+                {"kind": e.fault.kind, "start_s": e.fault.start_s,  # duration null: until cleared (JSON has no inf)
+                 "duration_s": e.fault.duration_s if math.isfinite(e.fault.duration_s) else None,
                  "value": e.fault.value, "sensor": e.fault.sensor, "roller": e.fault.roller}))
 
     # -- diagnostics -----------------------------------------------------------------------
