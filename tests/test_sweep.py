@@ -124,7 +124,8 @@ runs_per_task: 10
     assert good["efficiency"].between(0.5, 1.0).all() and good["error"].isna().all()
     # docs/model.md §5 item 5: the energy ledger closes (test_fu2018 holds it to 0.1 % over 1.2 s); over these
     # 0.25 s break-aways and start-ups at μ_SR up to 0.11 (the stick band holds the screw for the first ~0.1 s)
-    assert good["energy_residual_rel"].abs().max() < 2e-3
+    print("max energy residual", good["energy_residual_rel"].abs().max())
+    assert good["energy_residual_rel"].abs().max() < 1e-5  # seen 6.4e-7; the energy guard trips at 1e-3
     assert not (tmp_path / "out" / "parts").exists()
 
 
