@@ -21,6 +21,10 @@ HERMETIC_ENV = {
     "ROS_DOMAIN_ID": str(1 + os.getpid() % 232),  # ros_procs picks per-module domains from the pid too
     "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
     "RMW_IMPLEMENTATION": RMW,
+    # Fast DDS's shared-memory transport logs "Failed init_port …: open_and_lock_file failed" to stderr
+    # when many participants start at once (it then picks another port): harmless, but it breaks the
+    # tests that read a refused start-up's stderr as exactly one line. Loopback UDP has no such race.
+    "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
 }
 
 # Removed: each changes what a test sees (discovery peers, a DDS profile, security enclaves, log
@@ -30,7 +34,7 @@ CLEARED = (
     "ROS_LOCALHOST_ONLY", "ROS_STATIC_PEERS", "ROS_DISCOVERY_SERVER", "ROS_SUPER_CLIENT",
     "ROS_SECURITY_ENABLE", "ROS_SECURITY_STRATEGY", "ROS_SECURITY_KEYSTORE", "ROS_SECURITY_ENCLAVE_OVERRIDE",
     "ROS_DISABLE_LOANED_MESSAGES", "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
-    "RMW_FASTRTPS_USE_QOS_FROM_XML", "RMW_FASTRTPS_PUBLICATION_MODE", "FASTDDS_BUILTIN_TRANSPORTS",
+    "RMW_FASTRTPS_USE_QOS_FROM_XML", "RMW_FASTRTPS_PUBLICATION_MODE",
     "CYCLONEDDS_URI", "RCUTILS_LOGGING_USE_STDOUT", "RCUTILS_LOGGING_BUFFERED_STREAM",
     "RCUTILS_CONSOLE_OUTPUT_FORMAT", "RCUTILS_COLORIZED_OUTPUT",
 )
