@@ -24,6 +24,7 @@ AREAS = {
     "recorder": "prsm_ros.bench.recorder",
     "rerun": "prsm_ros.bench.viz",
     "soak": "prsm_ros.bench.soak",
+    "realtime": "prsm_ros.bench.realtime",
 }
 
 
