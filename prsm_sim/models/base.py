@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.outputs import OUTPUT_FIELDS, InternalLayout, Outputs, State, Trajectory
+from prsm_sim.outputs import OUTPUT_FIELDS, InternalLayout, Outputs, PackedOutputs, State, Trajectory
 from prsm_sim.params import Params
 
 
@@ -41,6 +41,42 @@ class Model:
 
     def _advance(self, state: State, torque_nm: float, load_n: float) -> tuple[State, Outputs]:
         raise NotImplementedError
+
+    # -- per-step fast path (optional) ------------------------------------------------------
+    # A model whose step is a few float operations sets `packed = True` and implements
+    # `advance_packed(x, torque, load) -> (x, PackedOutputs)` on the packed state
+    # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss) (`pack_state`), finishing with
+    # `finish_packed`. `Simulator.step` then keeps the state packed between steps; results match
+    # `step` to rounding (tests/test_step_paths.py).
+    packed = False
+
+    @staticmethod
+    def pack_state(s: State) -> tuple[float, ...]:
+        return (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad, s.carrier_speed_rad_s,
+                s.work_in_j, s.work_out_j, s.dissipated_j)
+
+    @staticmethod
+    def unpack_state(x: tuple[float, ...]) -> State:
+        return State(time_s=x[0], screw_angle_rad=x[1], screw_speed_rad_s=x[2], carrier_angle_rad=x[3],
+                     carrier_speed_rad_s=x[4], work_in_j=x[5], work_out_j=x[6], dissipated_j=x[7])
+
+    def advance_packed(self, x: tuple[float, ...], torque_nm: float, load_n: float):
+        raise NotImplementedError
+
+    def finish_packed(self, x, th_s: float, w_s: float, th_c: float, w_c: float, torque_nm: float, load_n: float,
+                      dissipated_j: float, slip_speed_m_s: float, nut_force_n: float, internal_src):
+        """`finish_step` on packed floats: the same ledger and outputs, no records built."""
+        h, p = self.dt_s, self.geo.lead_per_rad_m
+        dtheta = th_s - x[1]
+        w_in = torque_nm * dtheta
+        w_out = load_n * p * dtheta
+        t = x[0] + h
+        p_out, p_d = w_out / h, dissipated_j / h
+        xn = (t, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j)
+        return xn, PackedOutputs((
+            t, th_s, w_s, torque_nm, th_c, w_c, -self.geo.gear_ratio * w_c, p * th_s, p * w_s, nut_force_n, load_n,
+            slip_speed_m_s, w_in / h, p_out, p_d, efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan),
+            internal_src)
 
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """Advance len(torque_nm) steps; input k is held over step k, output k is at its end."""
