@@ -14,12 +14,19 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | wrench                 | ~/nut/wrench                | geometry_msgs/WrenchStamped   | out |
 | internal_loads         | ~/internal_loads            | std_msgs/Float64MultiArray    | out |
 | labels                 | ~/internal_loads/labels     | std_msgs/String (JSON)        | out, latched |
+| command_echo           | ~/command_echo              | sensor_msgs/TimeReference     | out |
 | clock                  | /clock                      | rosgraph_msgs/Clock           | out |
 | diagnostics            | /diagnostics                | diagnostic_msgs/DiagnosticArray | out |
 
 `/clock` is published reliable, keep last 1: a reliable writer matches both the best-effort
 readers of rclcpp's TimeSource and reliable readers (a best-effort writer would match only the
 former).
+
+`joint_states` is reliable keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no
+state; a slower one loses the oldest. `~/command_echo` carries, with the step that first applied
+a command (`header.stamp`, the same stamp as that step's joint_states), the command's own stamp
+(`time_ref`: DDS source timestamp for Float64 commands, header stamp for JointState ones, system
+clock) and its topic (`source`), so a controller can measure its loop latency.
 
 `~/internal_loads` layout: `data` = every scalar output in `OUTPUT_FIELDS` order, `time_s`
 included (Float64MultiArray has no header, so the row carries its own simulation time), then the
@@ -43,7 +50,7 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_system_default)
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Float64, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, String
 
 from prsm_sim import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs
@@ -86,10 +93,11 @@ TOPICS: dict[str, TopicSpec] = {t.key: t for t in (
     TopicSpec("screw_torque", "~/screw_torque", Float64, _qos(1), "in"),
     TopicSpec("joint_commands", "~/joint_commands", JointState, _qos(1), "in"),
     TopicSpec("nut_position_reference", "~/nut_position_reference", Float64, _qos(10), "in"),
-    TopicSpec("joint_states", "joint_states", JointState, _qos(10), "out"),
+    TopicSpec("joint_states", "joint_states", JointState, _qos(100), "out"),
     TopicSpec("wrench", "~/nut/wrench", WrenchStamped, _qos(10), "out"),
     TopicSpec("internal_loads", "~/internal_loads", Float64MultiArray, _qos(10), "out"),
     TopicSpec("labels", "~/internal_loads/labels", String, _qos(1, latched=True), "out"),
+    TopicSpec("command_echo", "~/command_echo", TimeReference, _qos(100), "out"),
     TopicSpec("clock", "/clock", Clock, _qos(1), "out"),
     TopicSpec("diagnostics", "/diagnostics", DiagnosticArray, qos_profile_system_default, "out"),
 )}

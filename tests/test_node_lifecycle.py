@@ -75,7 +75,11 @@ def test_realtime_run_services_and_sigint(tmp_path):
                        "5 stepped states and /clock 5 ms on")
         assert [m.header.stamp.nanosec for m in js[n_js:]] == [(paused_at + k * 1_000_000) % 10**9 for k in range(1, 6)]
 
+        n_js = len(js)
         assert cli.call("/prsm_actuator/reset", Trigger).success
+        # reset while paused publishes the reset state at once (issue 15), though nothing steps
+        cli.spin_until(lambda: len(js) > n_js, 5.0, "the reset state while paused")
+        assert js[n_js].header.stamp.sec == js[n_js].header.stamp.nanosec == 0 and clock_ns(clock[-1]) == 0
         assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=False)).success
         res = cli.call("/prsm_actuator/step", Trigger)
         assert not res.success and "not paused" in res.message
@@ -93,10 +97,12 @@ def test_realtime_run_services_and_sigint(tmp_path):
     assert "Traceback" not in proc.stderr
     topics = read_bag(bag)
     clocks = [clock_ns(m) for _, m in topics["/clock"]]
-    assert len(clocks) == len(topics["/joint_states"]) == len(topics["/prsm_actuator/internal_loads"])
-    # one /clock per step, each 1 ms after the previous, except back to 1 ms after the reset
+    # every step's internal loads are in the bag (DDS carries them decimated); the reset state adds
+    # one /clock and one joint_states at t = 0, without internal loads
+    assert len(clocks) == len(topics["/joint_states"]) == len(topics["/prsm_actuator/internal_loads"]) + 1
+    # one /clock per step, each 1 ms after the previous, except back to 0 (the reset state) after the reset
     restarts = [k for k in range(1, len(clocks)) if clocks[k] != clocks[k - 1] + 1_000_000]
-    assert len(restarts) == 1 and clocks[restarts[0]] == 1_000_000 and clocks[0] == 1_000_000
+    assert len(restarts) == 1 and clocks[restarts[0]] == 0 and clocks[0] == 1_000_000
     assert [ts for ts, _ in topics["/clock"]] == clocks  # log time = simulation time
     assert len(topics["/prsm_actuator/internal_loads/labels"]) == 1 and "/diagnostics" in topics
 
@@ -115,9 +121,9 @@ def test_fast_mode_and_sigterm(tmp_path):
     topics = read_bag(bag)
     clocks = [clock_ns(m) for _, m in topics["/clock"]]
     assert clocks == [1_000_000 * (k + 1) for k in range(len(clocks))] and len(clocks) > 1000
-    # decimated: joint_states every 10th step, internal loads every 100th
+    # decimated: joint_states every 10th step; internal loads every 100th on DDS but every step in the bag
     assert len(topics["/joint_states"]) == len(clocks) // 10
-    assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks) // 100
+    assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks)
 
 
 def test_rerun_save_writes_an_rrd_that_the_rerun_cli_verifies(tmp_path):

@@ -44,13 +44,18 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from sensor_msgs.msg import TimeReference
 from std_srvs.srv import SetBool, Trigger
 
+from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.node.ownership import CommandOwnership, participant_of
+from prsm_ros.node.record_path import RecordPathError, claim_record_path
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, stamp, time_ns
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
-from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority
+from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority,
+                                    rest_outputs)
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode: a thread that never sleeps keeps the GIL and the lock from the executor (services,
@@ -80,6 +85,8 @@ class PrsmNode(Node):
         cfg = self.config
         self._lock = threading.Lock()
         self.gate = CommandGate(cfg.max_effort, cfg.cmd_timeout, cfg.timeout_behaviour)
+        self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
+        self.echo = CommandEcho()
         self.stepper = SimStepper(cfg.params, cfg.model, cfg.dt_s, self.gate,
                                   nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force)
         self.stepper.paused = cfg.start_paused
@@ -91,7 +98,8 @@ class PrsmNode(Node):
         try:
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
-                        for k in ("joint_states", "wrench", "internal_loads", "labels", "clock", "diagnostics")}
+                        for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics")
+                        + (("clock",) if cfg.publish_clock else ())}
             self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
                                                     qos_overriding_options=qos_opts())
                         for k, cb in (("screw_torque", self._on_screw_torque),
@@ -119,6 +127,7 @@ class PrsmNode(Node):
         self.create_service(SetBool, "~/pause", self._srv_pause)
         self.create_service(Trigger, "~/step", self._srv_step)
         self.create_service(Trigger, "~/reset", self._srv_reset)
+        self.create_service(Trigger, "~/release_control", self._srv_release_control)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)  # diagnostics follow wall time, never /clock
@@ -220,7 +229,8 @@ class PrsmNode(Node):
     def _set_decimation(self) -> None:
         cfg = self.config
         self._js_every = every_n_steps(cfg.joint_states_rate, cfg.update_rate)
-        self._il_every = every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
+        # heavy outputs are decimated on DDS only in realtime and fast mode; the bag records every step
+        self._il_every = 1 if cfg.time_mode == "lockstep" else every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
 
     def _topic(self, key: str) -> str:
         return self.config.topics.get(key, TOPICS[key].name)
@@ -230,12 +240,16 @@ class PrsmNode(Node):
         cfg = self.config
         if not cfg.record:
             return None
-        from prsm_ros.mcap.recorder import McapRecorder, default_record_path, run_metadata
+        from prsm_ros.mcap.recorder import McapRecorder, run_metadata
         node_params = {k: v for k, v in cfg.values.items()}
         node_params.update(physics_parameters(cfg.params))
         meta = run_metadata(cfg.params, preset=cfg.preset, model=cfg.model, dt_s=cfg.dt_s,
                             node_parameters=node_params)
-        rec = McapRecorder(cfg.record_path or default_record_path(), metadata=meta)
+        try:
+            path = claim_record_path(cfg.record_path, self.get_fully_qualified_name())
+        except RecordPathError as e:
+            raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {e}") from None
+        rec = McapRecorder(path, metadata=meta)
         if rec.error:
             rec.close()
             raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {rec.error}")
@@ -272,18 +286,38 @@ class PrsmNode(Node):
             self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s))
 
     # -- commands in -----------------------------------------------------------------------
-    def _on_screw_torque(self, msg) -> None:
+    def _on_screw_torque(self, msg, info) -> None:
         with self._lock:
             self._record_input("screw_torque", msg)
+            who = participant_of(info)
+            reason = self.ownership.admit(who)
+            if reason is not None:
+                self._warn_throttled("ownership", f"{self._topic_names['screw_torque']}: {reason}")
+                return  # refused: counted, and in lockstep it does not advance time
             reason = self.gate.offer_torque(msg.data, self.stepper.time_s)
+            self._command_taken("screw_torque", reason, who, stamp_of(None, info.get("source_timestamp")))
             self._after_command("screw_torque", reason)
 
-    def _on_joint_commands(self, msg) -> None:
+    def _on_joint_commands(self, msg, info) -> None:
         with self._lock:
             self._record_input("joint_commands", msg)
+            who = participant_of(info)
+            reason = self.ownership.admit(who)
+            if reason is not None:
+                self._warn_throttled("ownership", f"{self._topic_names['joint_commands']}: {reason}")
+                return
             reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
                                                    self.stepper.time_s)
+            hs = msg.header.stamp
+            self._command_taken("joint_commands", reason, who,
+                                stamp_of(hs.sec * 1_000_000_000 + hs.nanosec, info.get("source_timestamp")))
             self._after_command("joint_commands", reason)
+
+    def _command_taken(self, key: str, reason: str | None, who, stamp_ns: int | None) -> None:
+        """Lock held: a command the gate accepted (saturated or not) makes its sender the owner and is echoed."""
+        if reason is None:
+            self.ownership.accepted(who)
+            self.echo.offer(stamp_ns, self._topic_names[key])
 
     def _on_reference(self, msg) -> None:
         with self._lock:
@@ -333,11 +367,36 @@ class PrsmNode(Node):
         if force_state or k % self._js_every == 0:
             self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
             self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
-        self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
+        echoed = self.echo.take()
+        if echoed is not None:
+            self._publish_echo(echoed, st, ns)
+        if "clock" in self.pub:
+            self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
         if k % self._il_every == 0:
             self._publish(self.pub["internal_loads"], "internal_loads", self.mapper.internal_loads(out), ns)
+        elif self.recorder is not None:  # decimated on DDS, every step in the bag
+            self.recorder.write(self._topic_names["internal_loads"], self.mapper.internal_loads(out), ns)
         if self.rerun is not None:
             self.rerun.submit(out)
+
+    def _publish_echo(self, echoed: tuple[int, str], step_stamp, ns: int) -> None:
+        """~/command_echo for the step that first applied a command; its latency for /diagnostics."""
+        cmd_ns, source = echoed
+        sec, nanosec = divmod(cmd_ns, 1_000_000_000)
+        msg = TimeReference(source=source)
+        msg.header.stamp = step_stamp
+        msg.time_ref.sec, msg.time_ref.nanosec = sec, nanosec
+        self._publish(self.pub["command_echo"], "command_echo", msg, ns)
+        self.echo.record_latency(cmd_ns, time.time_ns())
+
+    def _publish_rest_state(self) -> None:
+        """Lock held: the state just set (reset) on the state topics at once, though no step ran."""
+        out = rest_outputs(self.stepper)
+        st, ns = stamp(out.time_s), time_ns(out.time_s)
+        self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
+        self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+        if "clock" in self.pub:
+            self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
 
     def _loop(self) -> None:
         """realtime / fast: the step thread (lockstep steps in the command callback instead)."""
@@ -399,10 +458,20 @@ class PrsmNode(Node):
     def _srv_reset(self, request, response):
         with self._lock:
             self.stepper.reset(self.config.initial_nut_position)
+            self.echo.reset()
             self.pacer.restart()
+            if self.stepper.paused:  # nothing steps while paused: a controller still sees the reset now
+                self._publish_rest_state()
             response.success = True
             response.message = f"reset to t = 0, nut at {self.config.initial_nut_position:g} m"
         self.get_logger().info(response.message)
+        return response
+
+    def _srv_release_control(self, request, response):
+        with self._lock:
+            response.message = self.ownership.release()
+            response.success = True
+        self.get_logger().info(f"~/release_control: {response.message}")
         return response
 
     # -- diagnostics -----------------------------------------------------------------------
@@ -435,6 +504,7 @@ class PrsmNode(Node):
             "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
             "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
             "fault": st.fault or "",
+            **self.ownership.diagnostics(), **self.echo.report(),
         }
         self._step_wall_max_s = 0.0
         problems = []
@@ -458,7 +528,8 @@ class PrsmNode(Node):
             level, text = DiagnosticStatus.WARN, "; ".join(problems)
         else:
             level, text = DiagnosticStatus.OK, "paused" if st.paused else "running"
-        return DiagnosticStatus(level=level, name=f"{self.get_name()}: simulation", message=text,
+        # the fully qualified name: two actuators in two namespaces report under two names
+        return DiagnosticStatus(level=level, name=f"{self.get_fully_qualified_name()}: simulation", message=text,
                                 hardware_id=f"prsm_sim/{cfg.model}",
                                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 

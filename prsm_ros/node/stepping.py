@@ -90,6 +90,23 @@ class SimStepper:
         self.sim = sim
 
 
+def rest_outputs(stepper: SimStepper) -> Outputs:
+    """Outputs for the stepper's current state as it stands, no step taken (after `reset`, at rest).
+
+    Speeds come from the state; the torque is the gate's command, the nut force the load (nothing
+    accelerates before a step), no power flows and the internal loads are zero.
+    """
+    s, geo = stepper.sim.state, stepper.sim.params.geometry
+    p = geo.lead_per_rad_m
+    return Outputs(time_s=s.time_s, screw_angle_rad=s.screw_angle_rad, screw_speed_rad_s=s.screw_speed_rad_s,
+                   screw_torque_nm=stepper.gate.command_nm, carrier_angle_rad=s.carrier_angle_rad,
+                   carrier_speed_rad_s=s.carrier_speed_rad_s, roller_spin_rad_s=-geo.gear_ratio * s.carrier_speed_rad_s,
+                   nut_position_m=p * s.screw_angle_rad, nut_velocity_m_s=p * s.screw_speed_rad_s,
+                   nut_force_n=stepper.load_n, load_force_n=stepper.load_n, slip_speed_m_s=0.0, power_in_w=0.0,
+                   power_out_w=0.0, power_dissipated_w=0.0, efficiency=math.nan, speed_ratio=math.nan,
+                   internal=np.zeros(stepper.sim.layout.size))
+
+
 def every_n_steps(rate_hz: float, update_rate_hz: float) -> int:
     """Publish every n-th step for `rate_hz` (0 or >= update rate: every step)."""
     if rate_hz <= 0 or rate_hz >= update_rate_hz:
