@@ -17,3 +17,7 @@ class ParamError(PrsmError, ValueError):
 
 class InputError(PrsmError, ValueError):
     """A step or run input was refused (non-finite, wrong shape or type); the state is unchanged."""
+
+
+class ModelError(PrsmError, RuntimeError):
+    """A model could not be built or advanced for valid-looking parameters (e.g. no thread contact found)."""

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prsm_sim.errors import InputError
+
 LIFE_EXPONENT = 3.0  # catalogue exponent for screws with line/point contact as rated by vendors
 MILLION_REVOLUTIONS = 1e6
 
@@ -32,9 +34,9 @@ def cubic_mean_load(load_n, revolutions) -> float:
     f = np.abs(np.asarray(load_n, dtype=float))
     n = np.abs(np.asarray(revolutions, dtype=float))
     if f.shape != n.shape:
-        raise ValueError(f"load_n has shape {f.shape}, revolutions {n.shape}: they must match")
+        raise InputError(f"load_n has shape {f.shape}, revolutions {n.shape}: they must match")
     if not (np.all(np.isfinite(f)) and np.all(np.isfinite(n))):
-        raise ValueError("load_n and revolutions must be finite")
+        raise InputError("load_n and revolutions must be finite")
     total = float(n.sum())
     if total <= 0.0:
         return math.nan
@@ -45,7 +47,7 @@ def l10_revolutions(dynamic_load_rating_n: float, mean_load_n: float) -> float:
     """L10 = (C_a / F_m)³ · 10⁶ revolutions; infinite for F_m = 0, NaN for an undefined F_m."""
     c = float(dynamic_load_rating_n)
     if not (math.isfinite(c) and c > 0):
-        raise ValueError(f"dynamic_load_rating_n = {dynamic_load_rating_n!r}: must be a finite number > 0")
+        raise InputError(f"dynamic_load_rating_n = {dynamic_load_rating_n!r}: must be a finite number > 0")
     if math.isnan(mean_load_n):
         return math.nan
     if mean_load_n <= 0.0:
@@ -79,13 +81,13 @@ def life_from_samples(time_s, axial_load_n, screw_speed_rad_s, dynamic_load_rati
     f = np.asarray(axial_load_n, dtype=float)
     w = np.asarray(screw_speed_rad_s, dtype=float)
     if not (t.shape == f.shape == w.shape) or t.ndim != 1:
-        raise ValueError(f"time_s, axial_load_n, screw_speed_rad_s must be 1-D of one length; "
+        raise InputError(f"time_s, axial_load_n, screw_speed_rad_s must be 1-D of one length; "
                          f"got {t.shape}, {f.shape}, {w.shape}")
     if t.size < 2:
-        raise ValueError("at least two samples are needed to count revolutions")
+        raise InputError("at least two samples are needed to count revolutions")
     dt = np.diff(t)
     if np.any(dt < 0):
-        raise ValueError("time_s must not decrease")
+        raise InputError("time_s must not decrease")
     revs = np.abs(w[:-1]) * dt / (2 * math.pi)
     fm = cubic_mean_load(f[:-1], revs)
     l10 = l10_revolutions(dynamic_load_rating_n, fm)

@@ -19,14 +19,40 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from prsm_sim.errors import InputError
+
 
 @dataclass(frozen=True, slots=True)
 class State:
-    """Generalised coordinates and velocities plus the energy ledger (pure data).
+    """Generalised coordinates and velocities plus the energy ledger (pure data, frozen).
 
-    Carrier angle/speed are kinematic for the `ideal` model. The energy accumulators make the
-    balance `work_in = work_out + ΔT + dissipated` checkable over any run.
-    (`time_s` and the accumulators are filled by `Model.finish_step`.)
+    A model step maps (State, inputs) to the next State; nothing else carries memory. The
+    energy accumulators make the balance ``work_in_j = work_out_j + ΔT + dissipated_j``
+    checkable over any run (docs/model.md §4, "The energy ledger"); `time_s` and the
+    accumulators are filled by `Model.finish_step`.
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time, s.
+    screw_angle_rad, screw_speed_rad_s : float
+        Screw angle θ_S (rad) and speed ω_S (rad/s), right-handed about +z.
+    carrier_angle_rad, carrier_speed_rad_s : float
+        Carrier (roller orbit) angle θ_C (rad) and speed ω_C (rad/s); kinematic for `ideal`.
+    work_in_j : float
+        Work done by the screw torque since the start, J.
+    work_out_j : float
+        Work done on the nut load since the start, J (negative when the load drives the screw).
+    dissipated_j : float
+        Work dissipated by friction since the start, J.
+    flank_sign : int
+        `fu2018`: the loaded flank pair (+1: load resisting positive nut motion); lagged.
+    pin_force_n, gear_force_n : float
+        `fu2018`: |F_pin| and the gear's tangential force of the last step, N; they enter the
+        friction laws lagged by one step (docs/model.md §4.2).
+    solver : tuple of float
+        Integrator memory (`fu2018`: its frozen Jacobian and its age), kept here so that a step
+        stays a pure function of (state, inputs).
     """
 
     time_s: float = 0.0
@@ -72,22 +98,45 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
 
 @dataclass(frozen=True, slots=True)
 class Outputs:
-    """One step's outputs, SI units, averaged over the step where a rate is meant.
+    """One step's outputs, SI units, at the step's end or averaged over it where a rate is meant.
 
-    - `screw_torque_nm`: the applied screw torque held over the step (the input).
-    - `roller_spin_rad_s`: roller spin relative to the carrier (ω_r = −g ω_C).
-    - `nut_force_n`: axial force the threads deliver to the nut, positive in +x_nut
-      (load force plus the moved mass times its acceleration).
-    - `slip_speed_m_s`: magnitude of the screw–roller sliding velocity at the contact.
-    - `power_in_w` = screw torque × screw speed, `power_out_w` = load force × nut velocity,
-      `power_dissipated_w` = friction power; step averages, so their sum balances with ΔT/Δt.
-    - `efficiency`: of the mechanism, from the power through it (`model_base.efficiency`):
-      P_out / (P_out + P_diss) when the screw drives the load, 1 − P_diss / |P_out| when the
-      load drives the screw (≤ 0: self-locking), NaN when no power reaches the load. Equal to
-      the port ratios at constant speed, never above 1. Consumers must treat NaN here as
-      "undefined", not as a fault.
-    - `speed_ratio`: ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
-    - `internal`: flat internal-load vector described by the model's `InternalLayout`.
+    Every model fills the same record, so the node, the recorder and the viewer are written
+    once; `OUTPUT_FIELDS` lists the scalar fields in order with their units.
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time at the end of the step, s.
+    screw_angle_rad, screw_speed_rad_s : float
+        Screw angle θ_S, rad, and speed ω_S, rad/s, right-handed about +z.
+    screw_torque_nm : float
+        The applied screw torque held over the step (the input), N·m.
+    carrier_angle_rad, carrier_speed_rad_s : float
+        Carrier (roller orbit) angle, rad, and speed ω_C, rad/s.
+    roller_spin_rad_s : float
+        Roller spin relative to the carrier, ω_r = −g ω_C, rad/s.
+    nut_position_m, nut_velocity_m_s : float
+        x_nut = (L/2π) θ_S, m, and its rate, m/s (positive where a positive torque drives the nut).
+    nut_force_n : float
+        Axial force the threads deliver to the nut along +x_nut, N (load force plus the moved
+        mass times its acceleration; fu2018: the solved thread force).
+    load_force_n : float
+        The external load held over the step (the input), N, positive when it resists positive
+        nut motion.
+    slip_speed_m_s : float
+        Magnitude of the screw–roller sliding velocity at the contact, m/s.
+    power_in_w, power_out_w, power_dissipated_w : float
+        Screw torque × screw speed, load force × nut velocity and friction power, W; step
+        averages (the step's works / dt), so they balance with ΔT/dt.
+    efficiency : float
+        Of the mechanism, from the power through it (`models.base.efficiency`):
+        P_out / (P_out + P_diss) when the screw drives the load, 1 − P_diss / |P_out| when the
+        load drives the screw (≤ 0: self-locking), NaN when no power reaches the load. Equal to
+        the port ratios at constant speed, never above 1. NaN means "undefined", not a fault.
+    speed_ratio : float
+        ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
+    internal : numpy.ndarray
+        The flat internal-load vector, labelled by the model's `InternalLayout`.
     """
 
     time_s: float
@@ -110,7 +159,7 @@ class Outputs:
     internal: np.ndarray
 
     def scalars(self) -> dict[str, float]:
-        """The scalar outputs by name, in OUTPUT_FIELDS order."""
+        """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return {name: getattr(self, name) for name, _ in OUTPUT_FIELDS}
 
 
@@ -121,8 +170,20 @@ assert tuple(f.name for f in fields(Outputs))[:-1] == tuple(n for n, _ in OUTPUT
 class InternalBlock:
     """A named block of the internal-load vector: an array of `shape` with named axes.
 
-    The last axis is `quantity`: one entry per (name, unit) in `quantities`. Example: the
-    per-roller block of fu2018 has dims ("roller", "quantity") and shape (N_R, 14).
+    Attributes
+    ----------
+    name : str
+        Block name, e.g. ``"per_roller"``.
+    dims : tuple of str
+        Axis names; the last is always ``"quantity"``.
+    shape : tuple of int
+        Block shape; ``shape[-1] == len(quantities)``.
+    quantities : tuple of (str, str)
+        (name, unit) of each entry along the last axis, e.g. ``("screw_normal_force_n", "N")``.
+
+    Examples
+    --------
+    The per-roller block of fu2018 has dims ("roller", "quantity") and shape (N_R, 14).
     """
 
     name: str
@@ -132,20 +193,33 @@ class InternalBlock:
 
     @property
     def size(self) -> int:
+        """Number of elements in the block."""
         return int(np.prod(self.shape))
 
 
 @dataclass(frozen=True)
 class InternalLayout:
-    """Labels every element of a model's flat internal-load vector (blocks concatenated, C order)."""
+    """Labels every element of a model's flat internal-load vector.
+
+    The vector is the model's blocks concatenated, each flattened in C order. Use `view` on
+    one step's vector, `Trajectory.internal_block` / `Trajectory.internal_quantity` on a run,
+    `labels` for one name per element (the column names of ``Trajectory.to_dataframe(internal=True)``).
+
+    Attributes
+    ----------
+    blocks : tuple of InternalBlock
+        The blocks in vector order (empty for the `ideal` model).
+    """
 
     blocks: tuple[InternalBlock, ...]
 
     @property
     def size(self) -> int:
+        """Length of the flat vector."""
         return sum(b.size for b in self.blocks)
 
     def offsets(self) -> dict[str, int]:
+        """Start index of each block in the flat vector, by block name."""
         out, at = {}, 0
         for b in self.blocks:
             out[b.name] = at
@@ -180,11 +254,37 @@ class InternalLayout:
 
 
 class Trajectory:
-    """Columnar results of a batch run: each OUTPUT_FIELDS name → 1-D array, plus `internal` (steps × layout.size).
+    """Columnar results of a batch run (`Simulator.run`): one row per step, one column per output.
 
-    `internal` may be given as a zero-argument callable: a model whose internal vector is a
-    cheap expansion of a compact per-step record (fu2018's per-tooth loads) builds the full
-    array only when someone reads it.
+    Parameters
+    ----------
+    columns : dict of str to numpy.ndarray
+        Every `OUTPUT_FIELDS` name → 1-D array of length steps (units: `OUTPUT_FIELDS`).
+    internal : numpy.ndarray or callable
+        Internal loads, shape (steps, layout.size), or a zero-argument callable returning them:
+        a model whose internal vector is a cheap expansion of a compact per-step record
+        (fu2018's per-tooth loads) builds the full array only when someone reads it.
+    layout : InternalLayout
+        Labels of the internal-load vector.
+    final_state : State
+        The state after the last step (a `Simulator` continues from it).
+
+    Notes
+    -----
+    Row k holds the outputs at the end of step k (time ``time_s[k]``), with the inputs held
+    over that step. `keys()` and ``traj[name]`` make it usable wherever a mapping of columns
+    is (``dict(traj)``, ``pandas.DataFrame(dict(traj))``); `to_dataframe` does the latter with
+    a time index and, on request, the labelled internal loads.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from prsm_sim import Simulator, preset
+    >>> traj = Simulator(preset("jones2016")).run(np.full(100, 0.0922), load_n=100.0)
+    >>> traj.keys()[:3]
+    ['time_s', 'screw_angle_rad', 'screw_speed_rad_s']
+    >>> traj.internal_quantity("per_roller", "screw_slip_axial_m_s").shape
+    (100, 10)
     """
 
     __slots__ = ("columns", "layout", "final_state", "_internal")
@@ -197,6 +297,7 @@ class Trajectory:
 
     @property
     def internal(self) -> np.ndarray:
+        """Internal loads of every step, shape (steps, layout.size); `layout.labels()` names the columns."""
         if callable(self._internal):
             self._internal = self._internal()
         return self._internal
@@ -205,7 +306,14 @@ class Trajectory:
         return len(self.columns["time_s"])
 
     def __getitem__(self, name: str) -> np.ndarray:
-        return self.columns[name]
+        """The named scalar column (a 1-D array over the steps); a KeyError lists the known names."""
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise KeyError(f"{name!r}: Trajectory columns are {', '.join(self.columns)}") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.columns
 
     def __repr__(self) -> str:
         n = len(self)
@@ -214,7 +322,7 @@ class Trajectory:
                 f"internal {n}×{self.layout.size} in blocks {[b.name for b in self.layout.blocks]})")
 
     def keys(self) -> list[str]:
-        """The scalar column names, in OUTPUT_FIELDS order (units: `OUTPUT_FIELDS`)."""
+        """The scalar column names, in `OUTPUT_FIELDS` order (their units are listed there)."""
         return list(self.columns)
 
     @property
@@ -222,29 +330,95 @@ class Trajectory:
         """Simulation time at the end of each step, s."""
         return self.columns["time_s"]
 
+    def _block(self, name: str) -> InternalBlock:
+        for b in self.layout.blocks:
+            if b.name == name:
+                return b
+        known = ", ".join(b.name for b in self.layout.blocks) or "none (this model reports no internal loads)"
+        raise InputError(f"internal block {name!r}: this model's blocks are {known}")
+
     def internal_block(self, name: str) -> np.ndarray:
-        """One internal-load block over the run: shape (steps, *block.shape), labelled by `layout`."""
+        """One block of the internal loads over the run.
+
+        Parameters
+        ----------
+        name : str
+            Block name, one of ``[b.name for b in layout.blocks]`` (fu2018: ``"per_roller"``,
+            ``"per_tooth"``, ``"carrier"``).
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape ``(steps, *block.shape)``; the last axis runs over ``block.quantities``
+            (name, unit). A view into `internal` where possible.
+
+        Raises
+        ------
+        InputError
+            An unknown block name (the message lists the model's blocks).
+        """
+        b = self._block(name)
         at = self.layout.offsets()[name]
-        b = next(b for b in self.layout.blocks if b.name == name)
         return self.internal[:, at:at + b.size].reshape(len(self), *b.shape)
 
-    def to_dataframe(self, internal: bool = False):
-        """The scalar columns as a pandas DataFrame indexed by `time_s` (pandas is optional).
+    def internal_quantity(self, block: str, quantity: str) -> np.ndarray:
+        """One named quantity of an internal-load block over the run.
 
-        With `internal=True` every internal-load element is added as a column named by its
-        label (e.g. ``per_roller[2].screw_normal_force_n [N]``).
+        Parameters
+        ----------
+        block : str
+            Block name (see `internal_block`).
+        quantity : str
+            Quantity name within the block, e.g. ``"screw_normal_force_n"`` (unit in the name,
+            and in ``block.quantities``).
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape ``(steps, *block.shape[:-1])``, e.g. (steps, rollers) for ``per_roller``.
+
+        Raises
+        ------
+        InputError
+            An unknown block or quantity (the message lists the known ones).
+        """
+        b = self._block(block)
+        names = [q for q, _ in b.quantities]
+        if quantity not in names:
+            raise InputError(f"quantity {quantity!r} of internal block {block!r}: known quantities are "
+                             f"{', '.join(names)}")
+        return self.internal_block(block)[..., names.index(quantity)]
+
+    def to_dataframe(self, internal: bool = False):
+        """The run as a pandas DataFrame indexed by ``time_s`` (pandas is an optional dependency).
+
+        Parameters
+        ----------
+        internal : bool, default False
+            Also add every internal-load element as a column named by its label, e.g.
+            ``"per_roller[2].screw_normal_force_n [N]"`` (`InternalLayout.labels`).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per step; the scalar columns of `keys()` except ``time_s``, which is the index.
+
+        Raises
+        ------
+        ImportError
+            pandas is not installed (the message says how to install it).
         """
         try:
             import pandas as pd
         except ImportError as e:  # optional dependency: say how to get it
-            raise ImportError("Trajectory.to_dataframe needs pandas: pip install pandas "
-                              "(or the 'sweep' extra)") from e
+            raise ImportError("Trajectory.to_dataframe needs pandas: pip install pandas") from e
         data = {k: v for k, v in self.columns.items() if k != "time_s"}
         if internal and self.layout.size:
             data.update(zip(self.layout.labels(), self.internal.T))
         return pd.DataFrame(data, index=pd.Index(self.columns["time_s"], name="time_s"))
 
     def row(self, k: int) -> Outputs:
+        """Step k as an `Outputs` record (the same record `Simulator.step` returns)."""
         return Outputs(**{n: float(self.columns[n][k]) for n, _ in OUTPUT_FIELDS}, internal=self.internal[k])
 
 

@@ -42,7 +42,34 @@ def _set(obj: Any, name: str, value: Any) -> None:
 
 @dataclass(frozen=True)
 class Geometry:
-    """Thread and carrier geometry (docs/model.md §1). Radii are pitch (nominal) radii."""
+    """Thread and carrier geometry (docs/model.md §1). Radii are pitch (nominal) radii.
+
+    Attributes
+    ----------
+    screw_radius_m, roller_radius_m : float
+        Pitch radii r_S and r_R, m.
+    starts : int
+        Starts n of screw and nut (≥ 3); rollers are single-start. Lead L = n P.
+    pitch_m : float
+        Thread pitch P, m, the same on screw, roller and nut.
+    n_rollers, n_teeth : int
+        Rollers N_R (≥ 3, as many as fit on the pin circle) and engaged teeth N_T per roller and side.
+    flank_angle_deg : float, default 45
+        Flank angle β in the axial section, degrees, in (0, 90).
+    nut_radius_m : float, optional
+        Pitch radius r_N, m; default r_S + 2 r_R (planetary fit).
+    gear_ratio : float, optional
+        Ring/spur gear tooth ratio g; default r_N / r_R (no roller migration, docs/model.md §2).
+    screw_length_m : float, optional
+        Screw length for its inertia, m; default 4 × the threaded roller length.
+    pin_radius_m : float, optional
+        Roller journal radius in the carrier, m (pin friction lever); default r_R / 2.
+
+    Raises
+    ------
+    ParamError
+        A value out of range; the message names the field, the value and what is allowed.
+    """
 
     screw_radius_m: float
     roller_radius_m: float
@@ -122,7 +149,17 @@ class Geometry:
 
 @dataclass(frozen=True)
 class MassProperties:
-    """Masses and inertias; None means derived from geometry and density (docs/model.md §1, Jones 2016 eq. 14)."""
+    """Masses and inertias; None means derived from geometry and density (docs/model.md §1, Jones 2016 eq. 14).
+
+    Attributes
+    ----------
+    moved_mass_kg : float
+        Nut plus everything attached to it, kg.
+    density_kg_m3 : float, default 7850
+        Density for the derived masses and inertias, kg/m³.
+    screw_inertia_kgm2, roller_mass_kg, roller_inertia_kgm2, carrier_inertia_kgm2 : float, optional
+        kg·m², kg, kg·m², kg·m² (carrier: both plates); `Params` stores them resolved.
+    """
 
     moved_mass_kg: float  # nut plus everything attached to it
     density_kg_m3: float = 7850.0
@@ -159,11 +196,36 @@ CONTACT_EVALUATIONS = ("exact", "line_of_centres")
 
 @dataclass(frozen=True)
 class Friction:
-    """Friction and lubrication parameters of the `jones2016` and `fu2018` models.
+    """Friction and lubrication parameters of the `jones2016` and `fu2018` models (docs/model.md §4.1–4.2).
 
     `viscous_n_s_m` is Jones 2016's c, per screw–roller thread contact. `contact_evaluation`
     selects where the screw–roller slip is evaluated: at the exact tangency point (docs/model.md §3)
     or on the line of centres as the seed's equations (20), (28) do.
+
+    Attributes
+    ----------
+    viscous_n_s_m : float
+        Viscous coefficient c per screw–roller contact, N·s/m.
+    contact_evaluation : str
+        ``"exact"`` or ``"line_of_centres"``.
+    mu_screw_roller : float
+        Coulomb coefficient μ_SR at the screw–roller contacts (fu2018), in [0, 1).
+    coulomb_regularisation_m_s : float
+        ε in f = −μN v/√(|v|² + ε²), m/s.
+    screw_roller_law : str
+        fu2018's screw–roller law: ``"coulomb"`` or ``"viscous"`` (the Jones limit).
+    mu_nut_roller_rolling : float
+        Rolling-resistance coefficient μ_NR at the nut–roller contacts (moment μ_NR N r_R).
+    mu_pin : float
+        Pin friction coefficient (moment μ_pin |F_pin| r_pin).
+    lubricant_viscosity_m2_s, lubricant_density_kg_m3 : float
+        Kinematic viscosity ν, m²/s, and density ρ, kg/m³, for the carrier drag.
+    drag_radius_m, drag_width_m, drag_gap_m : float
+        Ring gear–carrier gap radius R (default r_N), width b and gap h, m (Couette drag).
+    load_distribution : str
+        ζ_T profile over the teeth: ``"uniform"`` or ``"exponential"``.
+    load_distribution_decay : float
+        Per-tooth decay rate d of the exponential profile, 1/tooth.
     """
 
     viscous_n_s_m: float = 25.0
@@ -202,6 +264,17 @@ class IdealLoss:
     """Loss parameters of the `ideal` model: Simscape Leadscrew / Modelica LossyGear set.
 
     `efficiency_backward <= 0` makes the screw self-locking: a load alone cannot back-drive it.
+
+    Attributes
+    ----------
+    efficiency_forward : float
+        η_f, screw → nut power transfer, in (0, 1].
+    efficiency_backward : float
+        η_b, nut → screw power transfer, in [−1, η_f]; ≤ 0 is self-locking.
+    power_threshold_w : float
+        P_th, W: below it the loss fades as tanh(|P|/P_th).
+    viscous_nm_s_rad : float
+        Screw bearing viscous torque per screw speed, N·m·s/rad.
     """
 
     efficiency_forward: float = 0.85  # screw → nut power transfer
@@ -221,7 +294,15 @@ class IdealLoss:
 
 @dataclass(frozen=True)
 class Loads:
-    """Nominal operating point used by presets, scenarios and the steady-state command."""
+    """Nominal operating point used by presets, scenarios and the steady-state command.
+
+    Attributes
+    ----------
+    nut_load_n : float
+        Nut load force, N, positive when it resists positive nut motion.
+    screw_speed_rad_s : float
+        Screw speed, rad/s.
+    """
 
     nut_load_n: float = 100.0
     screw_speed_rad_s: float = 1.0
@@ -243,7 +324,36 @@ _GROUPS: dict[str, type] = {
 
 @dataclass(frozen=True)
 class Params:
-    """A complete, validated parameter set. `mass` is stored resolved (no None left)."""
+    """A complete, validated parameter set (frozen). `mass` is stored resolved (no None left).
+
+    Build one with `prsm_sim.preset`, `Params.from_dict` (a nested dict, as in a YAML file),
+    `with_overrides` (dotted keys, as `--set` takes them) or `dataclasses.replace` on a group;
+    each group checks its values where it is built.
+
+    Attributes
+    ----------
+    geometry : Geometry
+    mass : MassProperties
+    friction : Friction
+    ideal : IdealLoss
+    loads : Loads
+    name : str
+        Preset or user label, carried into recordings.
+
+    Raises
+    ------
+    ParamError
+        A group of the wrong type, or any value its group refuses.
+
+    Examples
+    --------
+    >>> from dataclasses import replace
+    >>> from prsm_sim import preset
+    >>> p = preset("s30")
+    >>> q = replace(p, friction=replace(p.friction, mu_screw_roller=0.1))
+    >>> q == p.with_overrides({"friction.mu_screw_roller": 0.1})
+    True
+    """
 
     geometry: Geometry
     mass: MassProperties

@@ -54,7 +54,25 @@ PRESETS = {"jones2016": _jones2016, "jones2016_literal": _jones2016_literal, "s3
 
 
 def preset(name: str) -> Params:
-    """The named preset; an unknown name is refused with the list of known ones."""
+    """A named, validated parameter set (docs/model.md §1, "Presets").
+
+    Parameters
+    ----------
+    name : str
+        One of `PRESETS`: ``"jones2016"`` (Jones 2016's worked example, radii read as
+        diameters), ``"jones2016_literal"`` (its numbers as printed), ``"s30"`` (a catalogue-sized
+        standard design).
+
+    Returns
+    -------
+    Params
+        A fresh parameter set with every derived value resolved.
+
+    Raises
+    ------
+    ParamError
+        An unknown name; the message lists the known ones.
+    """
     try:
         return PRESETS[name]()
     except KeyError:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prsm_sim.errors import InputError, ParamError
 from prsm_sim.models.base import efficiency, trajectory_from_rows
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.models.jones2016 import steady_state
@@ -41,9 +42,9 @@ def default_spec(params: Params, name: str, *, load_n: float | None = None, torq
                  speed_rad_s: float | None = None, frequency_hz: float = 1.0) -> ScenarioSpec:
     """A scenario's defaults from the preset's operating point (`params.loads`)."""
     if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; known scenarios: {', '.join(SCENARIOS)}")
+        raise ParamError(f"unknown scenario {name!r}; known scenarios: {', '.join(SCENARIOS)}")
     if not (math.isfinite(frequency_hz) and frequency_hz > 0):
-        raise ValueError(f"frequency_hz = {frequency_hz!r}: must be a finite number > 0")
+        raise ParamError(f"frequency_hz = {frequency_hz!r}: must be a finite number > 0")
     speed = params.loads.screw_speed_rad_s if speed_rad_s is None else speed_rad_s
     if name in ("heavy", "light", "sine-motion"):
         load = {"heavy": HEAVY_LOAD_N, "light": LIGHT_LOAD_N}.get(name, params.loads.nut_load_n)
@@ -64,7 +65,7 @@ def torque_profile(spec: ScenarioSpec, n_steps: int, dt_s: float) -> np.ndarray:
         return spec.torque_nm * t / max(t[-1], dt_s) if n_steps else t
     if spec.name == "sine":
         return spec.torque_nm * np.sin(2 * math.pi * spec.frequency_hz * t)
-    raise ValueError(f"scenario {spec.name!r} is speed-controlled, not a torque profile")
+    raise InputError(f"scenario {spec.name!r} is speed-controlled, not a torque profile")
 
 
 def speed_reference(spec: ScenarioSpec, t_s: float) -> float:
@@ -77,10 +78,10 @@ def speed_reference(spec: ScenarioSpec, t_s: float) -> float:
 def run_scenario(sim: Simulator, spec: ScenarioSpec, duration_s: float, progress=None) -> Trajectory:
     """Run `spec` for `duration_s`; `progress(steps_done)` is called now and then on long runs."""
     if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration_s = {duration_s!r}: must be a finite number > 0")
+        raise InputError(f"duration_s = {duration_s!r}: must be a finite number > 0")
     n = int(round(duration_s / sim.dt_s))
     if n < 1:
-        raise ValueError(f"duration_s = {duration_s} is shorter than one step ({sim.dt_s} s)")
+        raise InputError(f"duration_s = {duration_s} is shorter than one step ({sim.dt_s} s)")
     chunk = 5000
     if spec.torque_nm is not None:
         tau = torque_profile(spec, n, sim.dt_s)

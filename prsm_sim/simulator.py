@@ -14,28 +14,87 @@ import math
 
 import numpy as np
 
-from prsm_sim.errors import InputError
+from prsm_sim.errors import InputError, ParamError
 from prsm_sim.models.base import Model
 from prsm_sim.models.fu2018 import Fu2018
 from prsm_sim.models.ideal import Ideal
 from prsm_sim.models.jones2016 import Jones2016
-from prsm_sim.outputs import Outputs, State, Trajectory
+from prsm_sim.outputs import InternalLayout, Outputs, State, Trajectory
 from prsm_sim.params import Params
 
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018}
 
 
 def build_model(params: Params, model: str, dt_s: float) -> Model:
-    """The named model for these parameters; an unknown name is refused with the known ones."""
+    """Build the named model for a parameter set and a fixed step.
+
+    Parameters
+    ----------
+    params : Params
+        A validated parameter set, e.g. ``preset("s30")``.
+    model : str
+        One of `MODELS`: ``"ideal"`` (rigid lead with efficiencies), ``"jones2016"`` (2-DOF
+        viscous, docs/model.md §4.1) or ``"fu2018"`` (spatial force system, docs/model.md §4.2).
+    dt_s : float
+        Fixed step, s, in (0, 0.1].
+
+    Returns
+    -------
+    Model
+        The pure model: ``step(state, torque_nm, load_n) -> (State, Outputs)``.
+
+    Raises
+    ------
+    ParamError
+        Unknown model name (the message lists the known ones) or a step out of range.
+    """
     try:
         cls = MODELS[model]
-    except KeyError:
-        raise ValueError(f"unknown model {model!r}; known models: {', '.join(MODELS)}") from None
+    except (KeyError, TypeError):
+        raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
     return cls(params, dt_s)
 
 
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
 class Simulator:
-    """Stateful wrapper: current state, step counter, input checks."""
+    """A model with its current state and step counter: the object a script or a node drives.
+
+    Parameters
+    ----------
+    params : Params
+        A validated parameter set (`preset` or `Params.from_dict`).
+    model : str, default "jones2016"
+        Model name, one of `MODELS` (see `build_model`).
+    dt_s : float, default 1e-3
+        Fixed step, s. Inputs are held constant over each step (zero-order hold).
+    nut_position_m : float, default 0.0
+        Initial nut position x_nut, m (the screw angle follows from x_nut = (L/2π) θ_S).
+
+    Attributes
+    ----------
+    model : Model
+        The pure model (state in, state out).
+    params : Params
+        The parameter set the model was built from.
+    dt_s : float
+        The fixed step, s.
+    state : State
+        The current state (angles rad, speeds rad/s, energy ledger J).
+    nstep : int
+        Steps taken since construction or the last `reset`.
+
+    Examples
+    --------
+    >>> from prsm_sim import Simulator, preset
+    >>> sim = Simulator(preset("jones2016"), "jones2016", dt_s=1e-3)
+    >>> out = sim.step(torque_nm=0.0922, load_n=100.0)
+    >>> traj = sim.run([0.0922] * 500, load_n=100.0)
+    >>> len(traj), sim.nstep
+    (500, 501)
+    """
 
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
                  nut_position_m: float = 0.0) -> None:
@@ -45,6 +104,10 @@ class Simulator:
         self._initial_nut_position_m = float(nut_position_m)
         self.state = self.model.initial_state(nut_position_m)
         self.nstep = 0
+
+    def __repr__(self) -> str:
+        return (f"Simulator(model={self.model.name!r}, params={self.params.name!r}, dt_s={self.dt_s:g}, "
+                f"time_s={self.time_s:.6g}, nstep={self.nstep})")
 
     # The current state is a `State`, or for models with a packed step (Model.advance_packed) the
     # packed tuple between steps, turned into a `State` only when someone reads it.
@@ -60,15 +123,28 @@ class Simulator:
         self._packed = self.model.pack_state(value) if self.model.packed else None
 
     @property
-    def layout(self):
+    def layout(self) -> InternalLayout:
+        """Labels of the model's internal-load vector (`Outputs.internal`, `Trajectory.internal`)."""
         return self.model.layout
 
     @property
     def time_s(self) -> float:
+        """Simulation time of the current state, s."""
         return self._packed[0] if self._state is None else self._state.time_s
 
     def reset(self, nut_position_m: float | None = None) -> State:
-        """Back to rest at the initial (or given) nut position, time zero, counters cleared."""
+        """Back to rest at the initial (or the given) nut position, time zero, counters cleared.
+
+        Parameters
+        ----------
+        nut_position_m : float, optional
+            New initial nut position, m; kept for later resets.
+
+        Returns
+        -------
+        State
+            The new current state.
+        """
         if nut_position_m is not None:
             self._initial_nut_position_m = float(nut_position_m)
         self.state = self.model.initial_state(self._initial_nut_position_m)
@@ -76,11 +152,29 @@ class Simulator:
         return self.state
 
     def step(self, torque_nm: float, load_n: float = 0.0) -> Outputs:
-        """One step; a non-finite input is refused (InputError) and the state is left unchanged."""
+        """Advance one step with the screw torque and the nut load held over it.
+
+        Parameters
+        ----------
+        torque_nm : float
+            Screw torque, N·m, positive right-handed about +z (drives the nut toward +x_nut).
+        load_n : float, default 0.0
+            Nut load force, N, positive when it resists positive nut motion.
+
+        Returns
+        -------
+        Outputs
+            The step's outputs at its end (powers and efficiency are step averages).
+
+        Raises
+        ------
+        InputError
+            A non-finite or non-numeric input; the state is left unchanged.
+        """
         # (x + y) * 0 is 0 only for finite floats: one test for the common case, the full check otherwise
         if not (type(torque_nm) is float and type(load_n) is float and (torque_nm + load_n) * 0.0 == 0.0):
             for name, v in (("torque_nm", torque_nm), ("load_n", load_n)):
-                if not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v):
+                if not _is_number(v) or not math.isfinite(v):
                     raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
             torque_nm, load_n = float(torque_nm), float(load_n)
         if self._packed is not None:
@@ -92,8 +186,46 @@ class Simulator:
         return out
 
     def run(self, torque_nm, load_n=0.0) -> Trajectory:
-        """len(torque_nm) steps in one call (the model's batch form where it has one)."""
-        traj = self.model.run(self.state, torque_nm, load_n)
+        """Advance one step per element of `torque_nm` (the model's batch form where it has one).
+
+        Parameters
+        ----------
+        torque_nm : array_like, shape (steps,)
+            Screw torque held over each step, N·m. A scalar is refused: use `step` for one
+            step, or ``np.full(steps, torque)`` for a constant torque.
+        load_n : float or array_like, shape (steps,), default 0.0
+            Nut load force, N (positive resists positive nut motion): one value for the whole
+            run or one per step.
+
+        Returns
+        -------
+        Trajectory
+            Columns of every output, one row per step, plus the labelled internal loads.
+
+        Raises
+        ------
+        InputError
+            A scalar or non-1-D torque, a load of another length, non-numeric or non-finite
+            values; the state is left unchanged.
+        """
+        tau = self._column("torque_nm", torque_nm)
+        if tau.ndim != 1:
+            got = f"torque_nm = {torque_nm!r}" if tau.ndim == 0 else f"torque_nm has shape {tau.shape}"
+            raise InputError(f"{got}: run() takes a 1-D array with one torque per step (N·m); "
+                             f"use step() for one step, np.full(steps, torque) for a constant torque")
+        load = self._column("load_n", load_n)
+        if load.ndim > 1 or (load.ndim == 1 and load.shape != tau.shape):
+            raise InputError(f"load_n has shape {load.shape}: must be a number or a 1-D array of "
+                             f"{len(tau)} values, one per torque")
+        traj = self.model.run(self.state, tau, load)
         self.state = traj.final_state
         self.nstep += len(traj)
         return traj
+
+    @staticmethod
+    def _column(name: str, value) -> np.ndarray:
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"{name} = {value!r}: must be a number or an array of numbers") from None
+        return arr

@@ -1,1 +1,4 @@
-"""The model levels behind the one stepping contract (`base.Model`): ideal, jones2016, fu2018."""
+"""The model levels behind the one stepping contract (`base.Model`): ideal, jones2016, fu2018.
+
+.. include:: ../../docs/model.md
+"""

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from prsm_sim.errors import InputError
+from prsm_sim.errors import InputError, ParamError
 from prsm_sim.outputs import OUTPUT_FIELDS, InternalLayout, Outputs, PackedOutputs, State, Trajectory
 from prsm_sim.params import Params
 
@@ -25,7 +25,7 @@ class Model:
 
     def __init__(self, params: Params, dt_s: float) -> None:
         if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.1):
-            raise ValueError(f"dt_s = {dt_s!r}: the step must be a finite number in (0, 0.1] s")
+            raise ParamError(f"dt_s = {dt_s!r}: the step must be a finite number in (0, 0.1] s")
         self.params = params
         self.geo = params.geometry
         self.dt_s = float(dt_s)

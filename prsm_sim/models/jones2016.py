@@ -19,6 +19,7 @@ import math
 import numpy as np
 from scipy.signal import lfilter
 
+from prsm_sim.errors import InputError
 from prsm_sim.physics.contact import ContactPoint, contact_for
 from prsm_sim.models.base import Model, _inputs, columns_to_trajectory
 from prsm_sim.outputs import InternalBlock, InternalLayout, State, Trajectory
@@ -182,7 +183,7 @@ def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torq
     of `screw_speed_rad_s` and `torque_nm` may be given; default: the preset's screw speed.
     """
     if screw_speed_rad_s is not None and torque_nm is not None:
-        raise ValueError("give screw_speed_rad_s or torque_nm, not both")
+        raise InputError(f"screw_speed_rad_s = {screw_speed_rad_s!r}, torque_nm = {torque_nm!r}: give one of them, not both")
     geo, fr = params.geometry, params.friction
     f = params.loads.nut_load_n if load_n is None else load_n
     contact = contact_for(geo, "screw", fr.contact_evaluation)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import fsolve
 
+from prsm_sim.errors import InputError, ModelError, ParamError
 from prsm_sim.physics.kinematics import sliding_matrix
 from prsm_sim.params import Geometry
 
@@ -58,9 +59,9 @@ def _flank_signs(side: str, load_sign: int) -> tuple[int, int]:
 def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
     """Exact tangency contact for one side (docs/model.md §3)."""
     if side not in ("screw", "nut"):
-        raise ValueError(f"side must be 'screw' or 'nut', got {side!r}")
+        raise InputError(f"side must be 'screw' or 'nut', got {side!r}")
     if load_sign not in (1, -1):
-        raise ValueError(f"load_sign must be +1 or -1, got {load_sign!r}")
+        raise InputError(f"load_sign must be +1 or -1, got {load_sign!r}")
     beta = geo.flank_angle_rad
     tb = math.tan(beta)
     a = geo.carrier_radius_m
@@ -95,7 +96,8 @@ def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
     x0 = np.array([r_body0, 0.0, r_r, psi0, -p_roll * psi0 - s_arc * r_r / tb])
     x, _, ier, msg = fsolve(residual, x0, full_output=True, xtol=1e-13)
     if ier != 1 or np.max(np.abs(residual(x))) > 1e-9:
-        raise RuntimeError(f"{side}–roller contact did not converge: {msg}")
+        raise ModelError(f"geometry: the {side}–roller tangency contact was not found for these radii, pitch "
+                         f"and flank angle ({msg.strip()})")
     r, phi, rho, psi, _ = x
     body, _, _, n_roll = surfaces(x)
     # the arc's material lies toward its centre: outward normal is +n_roll for the upper arc
@@ -133,7 +135,7 @@ def contact_for(geo: Geometry, side: str, evaluation: str, load_sign: int = 1) -
         return solve_contact(geo, side, load_sign)
     if evaluation == "line_of_centres":
         return line_of_centres_contact(geo, side, load_sign)
-    raise ValueError(f"contact evaluation must be 'exact' or 'line_of_centres', got {evaluation!r}")
+    raise ParamError(f"friction.contact_evaluation = {evaluation!r}: must be 'exact' or 'line_of_centres'")
 
 
 def predicted_screw_offset_rad(geo: Geometry) -> float:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from prsm_sim.errors import InputError
 from prsm_sim.params import Geometry
 
 
@@ -74,7 +75,7 @@ def sliding_velocity(geo: Geometry, side: str, point_m: np.ndarray, screw_speed_
         return v_roller - np.cross([0.0, 0.0, screw_speed_rad_s], p)
     if side == "nut":  # the nut translates along z at −(L/2π) ω_S and does not rotate
         return v_roller - np.array([0.0, 0.0, -nut_velocity(geo, screw_speed_rad_s)])
-    raise ValueError(f"side must be 'screw' or 'nut', got {side!r}")
+    raise InputError(f"side must be 'screw' or 'nut', got {side!r}")
 
 
 def sliding_matrix(geo: Geometry, side: str, point_m: np.ndarray) -> np.ndarray:
