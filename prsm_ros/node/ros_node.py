@@ -51,6 +51,7 @@ from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_ros.node.command_gate import CommandGate
 from prsm_ros.node.ownership import CommandOwnership, participant_of
 from prsm_ros.node.record_path import RecordPathError, claim_record_path
+from prsm_ros.node.scheduling import raise_process_threads
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, stamp, time_ns
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
@@ -621,6 +622,9 @@ def main(argv: list[str] | None = None) -> int:
             _exit_now(1, f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)")
         executor = rclpy.executors.SingleThreadedExecutor()
         executor.add_node(node)
+        if node.config.time_mode == "realtime" and node.config.realtime_priority > 1:
+            # our own process: the middleware's threads too (not done when PrsmNode is embedded elsewhere)
+            node.scheduling["middleware_threads"] = raise_process_threads(node.config.realtime_priority - 1)
         # Python runs signal handlers only between bytecodes, so spin in short slices.
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
