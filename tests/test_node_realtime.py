@@ -158,5 +158,36 @@ def test_two_actuators_one_clock_two_names_two_complete_bags(tmp_path):
             assert counts[js_id] > 100
 
 
+def test_a_stalled_reader_loses_nothing_within_the_queue_and_only_the_oldest_beyond(tmp_path):
+    """joint_states is reliable keep-last 100: a reader that stalls for less than 100 states loses
+    none; one that stalls far longer gets the newest 100 and loses the oldest, while the node
+    keeps stepping on time (its writer never waits for the reader). At update_rate 200 Hz the 100
+    states span 0.5 s, so a Python client on a loaded machine is not what limits the test."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    params = {"time_mode": "realtime", "record": False, "update_rate": 200}
+    period_ns = 5_000_000
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        js = cli.subscribe("/joint_states", JointState, qos)
+        cli.wait_for_node(proc, timeout=60.0)
+        cli.spin_until(lambda: len(js) > 20, 30.0, "states")
+        n0 = len(js)
+        time.sleep(0.1)  # the stall under test (20 states), not a wait for an event
+        cli.spin_until(lambda: len(js) > n0 + 60, 30.0, "states after a short stall")
+        t = [stamp_ns(m.header.stamp) for m in js]
+        assert all(b - a == period_ns for a, b in zip(t[n0 - 5:], t[n0 - 5 + 1:])), "a state was lost"
+
+        n1, last = len(js), stamp_ns(js[-1].header.stamp)
+        time.sleep(2.0)  # 400 states: far more than the queue holds
+        cli.spin_until(lambda: stamp_ns(js[-1].header.stamp) >= last + 1_500_000_000, 30.0, "states after a long stall")
+        after = [stamp_ns(m.header.stamp) for m in js[n1:]]
+        # the node stepped on through the stall; the reader got the newest states, not the oldest
+        assert after[0] > last + period_ns
+        lost = (after[-1] - last) // period_ns - len(after)
+        assert lost > 0
+        assert proc.stop(signal.SIGINT) == 0, proc.stderr
+
+
 if __name__ == "__main__":
     raise SystemExit(pytest.main([__file__, "-q"]))
