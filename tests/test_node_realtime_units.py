@@ -90,3 +90,22 @@ def test_record_paths_are_claimed_and_never_overwritten(tmp_path):
     assert given.read_bytes() == b"precious"
     with pytest.raises(RecordPathError):
         claim_record_path(str(tmp_path / "no_such_dir" / "x.mcap"), "/prsm_actuator")
+
+
+def test_the_bench_controller_reads_cdr_as_rclpy_writes_it():
+    """The reference controller's raw CDR readers against rclpy's own serializer."""
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState, TimeReference
+
+    from prsm_ros.bench.rt_controller import joint_state_stamp_effort0, time_reference_stamps
+    for frame, names, effort in (("", ["screw_joint", "nut_joint"], [0.25, -3.0]), ("nut_link", ["a"], []),
+                                 ("x" * 7, ["screw_joint", "nut_joint", "c"], [1e-300, 2.0, 3.0])):
+        m = JointState(name=names, position=[1.0] * len(names), velocity=[], effort=effort)
+        m.header.frame_id = frame
+        m.header.stamp.sec, m.header.stamp.nanosec = 12, 345
+        assert joint_state_stamp_effort0(serialize_message(m)) == (12_000_000_345, effort[0] if effort else None)
+    t = TimeReference(source="/prsm_actuator/screw_torque")
+    t.header.stamp.sec, t.header.stamp.nanosec = 3, 4
+    t.header.frame_id = "abc"
+    t.time_ref.sec, t.time_ref.nanosec = 1_795_000_000, 999_999_999
+    assert time_reference_stamps(serialize_message(t)) == (3_000_000_004, 1_795_000_000_999_999_999)
