@@ -69,3 +69,15 @@ def test_state_assignment_and_refusal_keep_the_packed_state_consistent():
     sim.state = State(time_s=5.0, screw_speed_rad_s=1.0)  # what the node does to roll back a step
     out = sim.step(0, 0)  # integers are accepted as numbers
     assert out.time_s == pytest.approx(5.001)
+
+
+def test_ideal_batch_run_is_the_packed_step_repeated():
+    """`Simulator.run` of a packed model without a batch form of its own gives the steps' outputs."""
+    p = preset("s30")
+    torque = 0.05 * np.sin(np.arange(400) * 0.05)
+    traj = Simulator(p, "ideal", 1e-3).run(torque, 30.0)
+    sim = Simulator(p, "ideal", 1e-3)
+    outs = [sim.step(float(t), 30.0) for t in torque]
+    for f, _ in OUTPUT_FIELDS:
+        np.testing.assert_array_equal(traj[f], [getattr(o, f) for o in outs])
+    assert traj.internal.shape == (400, 0) and traj.final_state == sim.state

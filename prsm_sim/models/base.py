@@ -81,6 +81,17 @@ class Model:
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """Advance len(torque_nm) steps; input k is held over step k, output k is at its end."""
         torque_nm, load_n = _inputs(torque_nm, load_n)
+        if self.packed:  # the packed step; columns straight from its value tuples
+            x, outs = self.pack_state(state), []
+            for tau, f in zip(torque_nm.tolist(), load_n.tolist()):
+                x, out = self.advance_packed(x, tau, f)
+                outs.append(out)
+            n = len(outs)
+            table = np.array([o._values for o in outs], dtype=float).reshape(n, len(OUTPUT_FIELDS))
+            cols = {name: table[:, i].copy() for i, (name, _) in enumerate(OUTPUT_FIELDS)}
+            size = self.layout.size
+            return Trajectory(columns=cols, layout=self.layout, final_state=self.unpack_state(x),
+                              internal=lambda: np.array([o.internal for o in outs], dtype=float).reshape(n, size))
         rows = []
         for tau, f in zip(torque_nm.tolist(), load_n.tolist()):
             state, out = self._advance(state, tau, f)
