@@ -63,9 +63,14 @@ def test_realtime_run_services_and_sigint(tmp_path):
         assert 0.25 < sim_advance < 0.75, sim_advance  # paced on wall time (a function check, not a speed figure)
         assert len(clock) > n0
 
-        assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True)).success
-        cli.spin_for(0.1)
-        paused_at, n_js = clock_ns(clock[-1]), len(js)
+        res = cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True))
+        assert res.success
+        # "paused at t = X s": wait for that state (a loaded client lags behind the node), not for a time
+        paused_at = round(float(res.message.split("t = ")[1].split()[0]) * 1e9)
+        cli.spin_until(lambda: clock_ns(clock[-1]) >= paused_at and js and
+                       js[-1].header.stamp.sec * 10**9 + js[-1].header.stamp.nanosec >= paused_at, 30.0, "the paused state")
+        assert clock_ns(clock[-1]) == paused_at
+        n_js = len(js)
         cli.spin_for(0.3)
         assert clock_ns(clock[-1]) == paused_at and len(js) == n_js  # nothing steps while paused
 

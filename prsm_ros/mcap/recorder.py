@@ -130,10 +130,10 @@ class McapFile:
                            f"added: {', '.join(self._channels) or 'none'}") from None
 
     def write(self, channel_id: int, msg, stamp_ns: int) -> None:
-        """Serialize `msg` to CDR and add it at log_time = publish_time = stamp_ns."""
+        """Serialize `msg` to CDR (bytes: already CDR) and add it at log_time = publish_time = stamp_ns."""
         seq = self._sequence[channel_id] + 1
         self._sequence[channel_id] = seq
-        self._writer.add_message(channel_id, stamp_ns, self._serialize(msg), stamp_ns, seq)
+        self._writer.add_message(channel_id, stamp_ns, msg if type(msg) is bytes else self._serialize(msg), stamp_ns, seq)
         self.messages_written += 1
 
     def flush(self) -> None:
@@ -226,7 +226,7 @@ class McapRecorder:
         cls = self._classes.get(topic)
         if cls is None:
             raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._classes) or 'none'}")
-        if type(msg) is not cls:
+        if type(msg) is not cls and type(msg) is not bytes:  # bytes: serialised once by the caller for DDS and MCAP
             raise TypeError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
         if not self._writing:
             self._lost += 1

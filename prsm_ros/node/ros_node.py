@@ -44,6 +44,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import TimeReference
 from std_srvs.srv import SetBool, Trigger
 
@@ -271,6 +272,8 @@ class PrsmNode(Node):
             raise ConfigError(str(e)) from None
 
     def _publish(self, pub, key: str, msg, stamp_ns: int | None = None) -> None:
+        """Serialise once, publish the bytes on DDS and record the same bytes."""
+        msg = serialize_message(msg)
         try:
             pub.publish(msg)
         except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
@@ -376,7 +379,7 @@ class PrsmNode(Node):
         if k % self._il_every == 0:
             self._publish(self.pub["internal_loads"], "internal_loads", self.mapper.internal_loads(out), ns)
         elif self.recorder is not None:  # decimated on DDS, every step in the bag
-            self.recorder.write(self._topic_names["internal_loads"], self.mapper.internal_loads(out), ns)
+            self.recorder.write(self._topic_names["internal_loads"], serialize_message(self.mapper.internal_loads(out)), ns)
         if self.rerun is not None:
             self.rerun.submit(out)
 
