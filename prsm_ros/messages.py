@@ -239,6 +239,12 @@ class MessageMapper:
     def labels(self) -> String:
         return String(data=self._labels_json)
 
+    def encoder(self):
+        """The same per-step messages as CDR bytes, without message objects (`prsm_ros.node.cdr`)."""
+        from prsm_ros.node.cdr import StepEncoder
+        return StepEncoder(self.layout, tuple(self._names), NUT_FRAME,
+                           [(d.label, d.size) for d in self._multiarray_layout.dim])
+
     @staticmethod
     def clock(time_s: float) -> Clock:
         return Clock(clock=stamp(time_s))

@@ -109,3 +109,32 @@ def test_the_bench_controller_reads_cdr_as_rclpy_writes_it():
     t.header.frame_id = "abc"
     t.time_ref.sec, t.time_ref.nanosec = 1_795_000_000, 999_999_999
     assert time_reference_stamps(serialize_message(t)) == (3_000_000_004, 1_795_000_000_999_999_999)
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
+def test_step_encoder_bytes_decode_to_the_mapper_messages(model):
+    """The node's CDR templates, decoded by rclpy's own deserialiser, equal MessageMapper's messages."""
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.serialization import deserialize_message
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState, TimeReference
+    from std_msgs.msg import Float64MultiArray
+
+    from prsm_ros.messages import MessageMapper, stamp, time_ns
+    from prsm_ros.node.cdr import StepEncoder
+    from prsm_sim import Simulator, preset
+    sim = Simulator(preset("s30"), model, 1e-3)
+    mapper = MessageMapper(sim.layout, model)
+    enc = mapper.encoder()
+    for k in range(3):
+        out = sim.step(0.01 * (k + 1), 20.0)
+        ns, st = time_ns(out.time_s), stamp(out.time_s)
+        assert deserialize_message(enc.joint_state(out, ns), JointState) == mapper.joint_state(out, st)
+        assert deserialize_message(enc.wrench(out, ns), WrenchStamped) == mapper.wrench(out, st)
+        assert deserialize_message(enc.clock(ns), Clock) == mapper.clock(out.time_s)
+        assert deserialize_message(enc.internal_loads(out), Float64MultiArray) == mapper.internal_loads(out)
+    ref = TimeReference(source="/prsm_actuator/screw_torque")
+    ref.header.stamp = stamp(2.5)
+    ref.time_ref.sec, ref.time_ref.nanosec = 1_795_000_000, 123
+    assert deserialize_message(StepEncoder.time_reference(2_500_000_000, 1_795_000_000_000_000_123,
+                                                          "/prsm_actuator/screw_torque"), TimeReference) == ref

@@ -45,7 +45,6 @@ from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import serialize_message
-from sensor_msgs.msg import TimeReference
 from std_srvs.srv import SetBool, Trigger
 
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
@@ -93,6 +92,7 @@ class PrsmNode(Node):
                                   nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force)
         self.stepper.paused = cfg.start_paused
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
+        self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
         self._set_decimation()
 
         def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
@@ -272,8 +272,9 @@ class PrsmNode(Node):
             raise ConfigError(str(e)) from None
 
     def _publish(self, pub, key: str, msg, stamp_ns: int | None = None) -> None:
-        """Serialise once, publish the bytes on DDS and record the same bytes."""
-        msg = serialize_message(msg)
+        """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
+        if type(msg) is not bytes:
+            msg = serialize_message(msg)
         try:
             pub.publish(msg)
         except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
@@ -365,33 +366,25 @@ class PrsmNode(Node):
 
     def _publish_step(self, out, force_state: bool = False) -> None:
         k = self.stepper.nstep
-        st = stamp(out.time_s)
         ns = time_ns(out.time_s)
+        enc = self.encoder
         # joint_states first: a lockstep controller computes its next command while the rest goes out
         if force_state or k % self._js_every == 0:
-            self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
-            self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+            self._publish(self.pub["joint_states"], "joint_states", enc.joint_state(out, ns), ns)
+            self._publish(self.pub["wrench"], "wrench", enc.wrench(out, ns), ns)
         echoed = self.echo.take()
         if echoed is not None:
-            self._publish_echo(echoed, st, ns)
+            cmd_ns, source = echoed
+            self._publish(self.pub["command_echo"], "command_echo", enc.time_reference(ns, cmd_ns, source), ns)
+            self.echo.record_latency(cmd_ns, time.time_ns())
         if "clock" in self.pub:
-            self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
+            self._publish(self.pub["clock"], "clock", enc.clock(ns), ns)
         if k % self._il_every == 0:
-            self._publish(self.pub["internal_loads"], "internal_loads", self.mapper.internal_loads(out), ns)
+            self._publish(self.pub["internal_loads"], "internal_loads", enc.internal_loads(out), ns)
         elif self.recorder is not None:  # decimated on DDS, every step in the bag
-            self.recorder.write(self._topic_names["internal_loads"], serialize_message(self.mapper.internal_loads(out)), ns)
+            self.recorder.write(self._topic_names["internal_loads"], enc.internal_loads(out), ns)
         if self.rerun is not None:
             self.rerun.submit(out)
-
-    def _publish_echo(self, echoed: tuple[int, str], step_stamp, ns: int) -> None:
-        """~/command_echo for the step that first applied a command; its latency for /diagnostics."""
-        cmd_ns, source = echoed
-        sec, nanosec = divmod(cmd_ns, 1_000_000_000)
-        msg = TimeReference(source=source)
-        msg.header.stamp = step_stamp
-        msg.time_ref.sec, msg.time_ref.nanosec = sec, nanosec
-        self._publish(self.pub["command_echo"], "command_echo", msg, ns)
-        self.echo.record_latency(cmd_ns, time.time_ns())
 
     def _publish_rest_state(self) -> None:
         """Lock held: the state just set (reset) on the state topics at once, though no step ran."""
