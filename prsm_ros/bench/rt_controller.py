@@ -185,11 +185,13 @@ def main(argv: list[str] | None = None) -> int:
     with lock:
         sent.clear()
     measuring.set()
+    print("measuring", flush=True)  # the bench samples the node's CPU from here to the summary
     pub0 = published[0]
     end = time.monotonic() + a.duration
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.01)
     measuring.clear()
+    print("measured", flush=True)
     stop.set()
     pacer_thread.join(timeout=5.0)
     n_pub = published[0] - pub0
