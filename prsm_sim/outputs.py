@@ -162,6 +162,10 @@ class Outputs:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return {name: getattr(self, name) for name, _ in OUTPUT_FIELDS}
 
+    def scalar_values(self) -> tuple[float, ...]:
+        """The scalar outputs as one tuple, in OUTPUT_FIELDS order (cheap on `PackedOutputs`)."""
+        return tuple(getattr(self, name) for name, _ in OUTPUT_FIELDS)
+
 
 assert tuple(f.name for f in fields(Outputs))[:-1] == tuple(n for n, _ in OUTPUT_FIELDS)
 
@@ -448,6 +452,9 @@ class PackedOutputs(Outputs):
 
     def scalars(self) -> dict[str, float]:
         return dict(zip(_FIELD_NAMES, self._values))
+
+    def scalar_values(self) -> tuple[float, ...]:
+        return self._values
 
 
 def _packed_field(i: int) -> property:

@@ -121,7 +121,7 @@ class StepEncoder:
         return bytes(buf)
 
     def internal_loads(self, out: Outputs) -> bytes:
-        row = array.array("d", [getattr(out, f) for f in self._fields])
+        row = array.array("d", out.scalar_values())
         if self.layout.size:
             row.frombytes(out.internal.astype("<f8", copy=False).tobytes())
         return self._il_head + row.tobytes()

@@ -126,7 +126,10 @@ class Jones2016(Model):
                                   (self._internal_packed, (v0, v1, v2)))
 
     def _internal_packed(self, v_s: tuple[float, float, float]) -> np.ndarray:
-        return self._internal(np.array(v_s))
+        """`_internal` of one step from plain floats (np.tile costs more than the values)."""
+        k = -self.params.friction.viscous_n_s_m * self.geo.n_teeth
+        v0, v1, v2 = v_s
+        return np.array((v0, v1, v2, k * v0, k * v1, k * v2) * self.geo.n_rollers)
 
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
         """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
