@@ -158,6 +158,28 @@ def loop_figures(quick: bool) -> list[dict]:
                            s["node_cpu_pct"] <= 15, None,
                            "all threads of the node process (step loop, executor, middleware, recorder) over "
                            "the measured window"))
+    figs.extend(model_cpu_figures(quick))
+    return figs
+
+
+def model_cpu_figures(quick: bool) -> list[dict]:
+    """Node CPU with each other model (the target holds for every model), unloaded, with the controller."""
+    seconds = 3.0 if quick else 10.0
+    figs = []
+    for model in MODELS:
+        if model == "jones2016":  # the default: measured above
+            continue
+        try:
+            s = loop_run(seconds, loaded=False, node_params={"model": model})
+        except Exception as e:
+            figs.append(figure(f"node CPU share of one core ({model})", math.nan, "%", "≤ 15", False, None,
+                               f"{type(e).__name__}: {e}"))
+            continue
+        delivered = 100 * s["states_received"] / s["states_expected"] if s["states_expected"] else math.nan
+        figs.append(figure(f"node CPU share of one core ({model}, unloaded)", s["node_cpu_pct"], "%", "≤ 15",
+                           s["node_cpu_pct"] <= 15, None,
+                           f"node defaults but model {model}; controller at 1 kHz; {seconds:g} s; states delivered "
+                           f"{delivered:.2f} %"))
     return figs
 
 
