@@ -10,7 +10,8 @@
   on `~/command_echo` to the receipt of the first state of the step that applied it; when the
   node has no echo, the controller's own publish time to the first state carrying that torque),
   states delivered to the reliable reader, the long-run rate error as the reader sees it, and
-  the node process's CPU (all its threads) over the measured window.
+  the node process's CPU (all its threads) over the measured window; then the node's CPU with
+  each other model (unloaded, shorter runs), since the CPU target holds for every model.
 - Step cost: one `Simulator.step` per model, the path the node calls each tick, in the same
   Python loop form as MuJoCo's `mj_step` on the rigid screw–nut (`mujoco` from the `bench`
   extra): one slide joint for the nut, the rotating inertia reflected as armature, which is
