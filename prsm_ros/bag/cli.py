@@ -18,6 +18,7 @@ import os
 import sys
 
 from prsm_ros.bag.reader import BagError, open_bag
+from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 from prsm_ros.cli.json_out import dumps
 
 EXIT_ERROR = 1
@@ -132,7 +133,7 @@ def _cmd_to_rrd(args) -> int:
     try:
         from prsm_ros.viz.from_bag import bag_to_rrd
     except ImportError as e:
-        raise BagError(f"to-rrd needs prsm_ros.viz.from_bag and the Rerun SDK (pip install 'prsm[rerun]'): {e}") from None
+        raise BagError(f"to-rrd needs the Rerun SDK (pip install 'prsm[bag]'): {e}") from None
     try:
         summary = bag_to_rrd(bag.path, args.output)
     except (ValueError, LookupError) as e:
@@ -179,8 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dynamic-load-rating-n", type=float, default=DEFAULT_DYNAMIC_LOAD_RATING_N, metavar="N",
                    help=f"dynamic axial load rating C_a for the L10 life (default {DEFAULT_DYNAMIC_LOAD_RATING_N:g} N, "
                         "a catalogue value for a ~30 mm × 5 mm lead roller screw; give your screw's)")
-    p.add_argument("--screw-joint", default="screw_joint", help="JointState name of the screw (default screw_joint)")
-    p.add_argument("--nut-joint", default="nut_joint", help="JointState name of the nut (default nut_joint)")
+    p.add_argument("--screw-joint", default=SCREW_JOINT, help=f"JointState name of the screw (default {SCREW_JOINT})")
+    p.add_argument("--nut-joint", default=NUT_JOINT, help=f"JointState name of the nut (default {NUT_JOINT})")
     p.add_argument("--joint-states-topic", help="JointState topic (default: /joint_states or the only one)")
     p.add_argument("--reference-topic", help="Float64 nut position reference (default: .../nut_position_reference)")
     p.add_argument("--internal-loads-topic", help="Float64MultiArray internal loads (default: .../internal_loads)")

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from prsm_ros.bag.reader import Bag, BagError, resolve_topics
+from prsm_ros.interface import parse_labels
 
 
 def _is_time(obj) -> bool:
@@ -111,7 +112,6 @@ def _labels_for(bag: Bag, roles: dict) -> list[str] | None:
     """Element labels of ~/internal_loads from its latched labels topic, None when unavailable."""
     if not roles.get("labels"):
         return None
-    from prsm_ros.messages import parse_labels
     for m in bag.messages([roles["labels"]]):
         try:
             return [el["label"] for el in parse_labels(m.msg.data)["elements"]]
@@ -202,16 +202,10 @@ def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, en
     if not topics:
         raise BagError("export: name at least one topic with -t/--topic; topics in the bag: "
                        + ", ".join(sorted(bag.topics)))
-    for t in topics:
-        if t not in bag.topics:
-            raise BagError(f"{bag.path.name}: no topic {t!r}; topics: {', '.join(sorted(bag.topics))}")
+    bag.require_topics(topics)
     if merge and resample_hz is None:
         raise BagError("--merge needs --resample HZ: topics at different times share one grid only after resampling")
-    if start_s is not None and end_s is not None and end_s < start_s:
-        raise BagError(f"--end {end_s} is before --start {start_s}")
-    base = bag.start_ns or 0
-    start_ns = None if start_s is None else base + int(round(start_s * 1e9))
-    end_ns = None if end_s is None else base + int(round(end_s * 1e9))
+    start_ns, end_ns = bag.window_ns(start_s, end_s)
     out = Path(out)
     single_file = out.suffix.lower() == ".csv"
     if single_file and len(topics) > 1 and not merge:

@@ -59,15 +59,15 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
     if delay_s < 0:
         raise BagError(f"--delay {delay_s!r}: must be >= 0 s")
     selected = list(topics) if topics else sorted(bag.topics)
-    for t in selected:
-        if t not in bag.topics:
-            raise BagError(f"{bag.path.name}: no topic {t!r}; topics: {', '.join(sorted(bag.topics))}")
-    base = bag.start_ns or 0
-    start_ns = None if start_s is None else base + int(round(start_s * 1e9))
-    end_ns = None if end_s is None else base + int(round(end_s * 1e9))
+    bag.require_topics(selected)
+    start_ns, end_ns = bag.window_ns(start_s, end_s)
 
-    import rclpy
-    from rosgraph_msgs.msg import Clock
+    try:
+        import rclpy
+        from rosgraph_msgs.msg import Clock
+    except ModuleNotFoundError as e:  # an install without the ros extra (pip install 'prsm[bag]')
+        raise BagError(f"play publishes on ROS topics and needs rclpy and the ROS message packages "
+                       f"({e.name} is not installed): pip install 'prsm[ros]'") from None
 
     classes = {t: message_class(bag.topics[t].type) for t in selected}
     skipped = {t: bag.topics[t].type for t, c in classes.items() if c is None}

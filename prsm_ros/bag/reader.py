@@ -21,6 +21,8 @@ from typing import Iterator
 
 from prsm_sim.errors import PrsmError
 
+from prsm_ros.interface import TOPIC_DEFS
+
 MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -82,6 +84,25 @@ def resolve_path(path) -> Path:
     return p
 
 
+def damaged_data_errors() -> tuple[type[BaseException], ...]:
+    """What the mcap library raises on bytes that are not valid records: a damaged or cut file, not a bug.
+
+    McapError (bad magic, end of data, a record longer than its file, CRC mismatch is a
+    ValueError), struct.error (a field cut short), ValueError (UnicodeDecodeError in a string,
+    an unknown enum), zstandard.ZstdError (a chunk that does not decompress). Anything else — a
+    TypeError, AttributeError, KeyError — is a bug in the reading code and propagates.
+    """
+    from mcap.exceptions import McapError
+    errors: list[type[BaseException]] = [McapError, struct.error, ValueError, EOFError]
+    try:
+        import zstandard
+    except ImportError:  # mcap then reports a zstd chunk as UnsupportedCompressionError (a McapError)
+        pass
+    else:
+        errors.append(zstandard.ZstdError)
+    return tuple(errors)
+
+
 def _require_magic(f, path) -> None:
     if f.read(8) != MAGIC:
         raise BagError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
@@ -134,6 +155,7 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 return scan.schemas.get(ch.schema_id), ch, rec
         return None
 
+    damaged = damaged_data_errors()
     with open(path, "rb") as f:
         _require_magic(f, path)
         pos = 8
@@ -166,7 +188,7 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 elif opcode == Opcode.FOOTER:
                     scan.complete = f.read(8) == MAGIC
                     break
-            except Exception as e:  # a damaged record: keep what came before it
+            except damaged as e:  # a damaged record: keep what came before it
                 scan.stopped_at = pos
                 scan.problem = f"damaged record at byte {pos} ({type(e).__name__})"
                 break
@@ -213,7 +235,7 @@ class Bag:
                     return None  # nothing to seek by: scanning gives the per-topic times too
                 metadata = list(reader.iter_metadata())
                 message_index_times = self._channel_time_ranges(f, summary)
-        except Exception:  # no footer, damaged summary: fall back to scanning the records
+        except damaged_data_errors():  # no footer, damaged summary: fall back to scanning the records
             return None
         self.profile, self.library = header.profile, header.library
         self._schemas, self._channels = dict(summary.schemas), dict(summary.channels)
@@ -309,6 +331,23 @@ class Bag:
         """The `prsm_run` record (empty for bags recorded elsewhere)."""
         return self.metadata.get("prsm_run", {})
 
+    def require_topics(self, topics) -> None:
+        """BagError naming the topics the bag has when one of `topics` is not in it."""
+        for t in topics:
+            if t not in self.topics:
+                raise BagError(f"{self.path.name}: no topic {t!r}; topics: {', '.join(sorted(self.topics)) or 'none'}")
+
+    def window_ns(self, start_s: float | None, end_s: float | None) -> tuple[int | None, int | None]:
+        """Log-time bounds (ns) for a range given in seconds from the bag's first message; None = open.
+
+        BagError when `end_s` is before `start_s`.
+        """
+        if start_s is not None and end_s is not None and end_s < start_s:
+            raise BagError(f"--end {end_s} is before --start {start_s}")
+        base = self.start_ns or 0
+        return (None if start_s is None else base + int(round(start_s * 1e9)),
+                None if end_s is None else base + int(round(end_s * 1e9)))
+
     def topics_of_type(self, type_name: str) -> list[str]:
         t = normalise_type(type_name)
         return [name for name, info in self.topics.items() if info.type == t]
@@ -316,17 +355,19 @@ class Bag:
     def _decode(self, schema, channel, message):
         dec = self._decoders.get(channel.id, False)
         if dec is False:
+            from mcap_ros2._vendor.rosidl_adapter.parser import InvalidSpecification, InvalidValue
             from mcap_ros2.decoder import DecoderFactory
             try:
                 dec = DecoderFactory().decoder_for(channel.message_encoding, schema)
-            except Exception:  # a schema mcap_ros2 cannot parse: the raw bytes are still available
+            # a schema mcap_ros2 cannot parse or does not implement (wstring): the raw bytes are still available
+            except (InvalidSpecification, InvalidValue, ValueError, NotImplementedError, *damaged_data_errors()):
                 dec = None
             self._decoders[channel.id] = dec
         if dec is None:
             return None
         try:
             return dec(message.data)
-        except Exception as e:
+        except (IndexError, *damaged_data_errors()) as e:  # CDR cut short or not matching its schema
             raise BagError(f"{self.path.name}: a message on {channel.topic} at log time {message.log_time} ns "
                            f"does not decode with its schema {schema.name if schema else '(none)'} "
                            f"({type(e).__name__}: {e})") from None
@@ -341,9 +382,7 @@ class Bag:
         from tqdm import tqdm
 
         wanted = None if topics is None else set(topics)
-        for t in wanted or ():
-            if t not in self.topics:
-                raise BagError(f"{self.path.name}: no topic {t!r}; topics: {', '.join(sorted(self.topics)) or 'none'}")
+        self.require_topics(sorted(wanted or ()))
         total = sum(i.count for n, i in self.topics.items() if wanted is None or n in wanted)
         bar = tqdm(total=total, desc=desc, unit="msg", disable=(not progress) or None, mininterval=0.5, leave=False)
         try:
@@ -365,10 +404,13 @@ class Bag:
             from mcap.reader import SeekingReader
             with open(self.path, "rb") as f:
                 reader = SeekingReader(f)
-                for schema, channel, message in reader.iter_messages(
-                        topics=None if wanted is None else sorted(wanted), log_time_order=True):
-                    if keep(channel, message):
-                        yield schema, channel, message
+                try:
+                    for schema, channel, message in reader.iter_messages(
+                            topics=None if wanted is None else sorted(wanted), log_time_order=True):
+                        if keep(channel, message):
+                            yield schema, channel, message
+                except damaged_data_errors() as e:  # a finished file whose chunk was damaged after writing
+                    raise BagError(f"{self.path.name}: damaged chunk data ({type(e).__name__}: {e})") from None
             return
         for schema, channel, message in walk_records(self.path, Scan()):
             if keep(channel, message):
@@ -395,16 +437,18 @@ def open_bag(path) -> Bag:
 
 # ---- topics prsm-bag works with --------------------------------------------------------------
 
-# role → (message type, name suffix that identifies it in our interface, default full name)
+def _role(key: str) -> tuple[str, str, str]:
+    """(message type, name suffix that identifies it in our interface, default full name) of a topic."""
+    t = TOPIC_DEFS[key]
+    return t.type_name, "/" + t.name.removeprefix("~/").lstrip("/"), t.resolved()
+
+
+# role → (message type, name suffix, default full name), from the node's interface
 ROLES: dict[str, tuple[str, str, str]] = {
-    "joint_states": ("sensor_msgs/msg/JointState", "/joint_states", "/joint_states"),
-    "joint_commands": ("sensor_msgs/msg/JointState", "/joint_commands", "/prsm_actuator/joint_commands"),
-    "wrench": ("geometry_msgs/msg/WrenchStamped", "/nut/wrench", "/prsm_actuator/nut/wrench"),
-    "internal_loads": ("std_msgs/msg/Float64MultiArray", "/internal_loads", "/prsm_actuator/internal_loads"),
-    "labels": ("std_msgs/msg/String", "/internal_loads/labels", "/prsm_actuator/internal_loads/labels"),
-    "reference": ("std_msgs/msg/Float64", "/nut_position_reference", "/prsm_actuator/nut_position_reference"),
-    "screw_torque": ("std_msgs/msg/Float64", "/screw_torque", "/prsm_actuator/screw_torque"),
-    "clock": ("rosgraph_msgs/msg/Clock", "/clock", "/clock"),
+    role: _role(key) for role, key in (
+        ("joint_states", "joint_states"), ("joint_commands", "joint_commands"), ("wrench", "wrench"),
+        ("internal_loads", "internal_loads"), ("labels", "labels"), ("reference", "nut_position_reference"),
+        ("screw_torque", "screw_torque"), ("clock", "clock"))
 }
 # Roles that may fall back to the only topic of their type when no name matches (other recorders).
 _BY_TYPE_ALONE = ("joint_states", "wrench")

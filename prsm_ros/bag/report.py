@@ -31,14 +31,13 @@ import numpy as np
 from prsm_sim.life import life_from_samples
 
 from prsm_ros.bag.reader import Bag, BagError, resolve_topics
+from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, parse_labels, unpack_internal
 
 # C_a of a catalogue planetary roller screw of about 30 mm diameter and 5 mm lead, the size of the
 # `s30` preset: vendor catalogues list roughly 50–90 kN for that size. Give your screw's own
 # catalogue value with --dynamic-load-rating-n; the life scales with its cube.
 DEFAULT_DYNAMIC_LOAD_RATING_N = 60_000.0
 NEGLIGIBLE_ENERGY_FRACTION = 1e-9
-SCREW_JOINT = "screw_joint"
-NUT_JOINT = "nut_joint"
 
 
 @dataclass
@@ -87,7 +86,6 @@ def _internal_series(bag: Bag, roles: dict, progress: bool) -> tuple[Series, dic
     """~/internal_loads unpacked by its labels: scalars by name and blocks by name (rows first)."""
     if not roles.get("internal_loads") or not roles.get("labels"):
         return None
-    from prsm_ros.messages import parse_labels, unpack_internal
     labels = None
     for m in bag.messages([roles["labels"]]):
         try:

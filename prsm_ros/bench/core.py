@@ -18,6 +18,8 @@ from scipy.integrate import solve_ivp
 from prsm_sim import Simulator, preset
 from prsm_sim.models.jones2016 import Jones2016, input_matrix, steady_state
 
+from prsm_ros.bench.common import area_main, figure
+
 DT = 1e-3
 
 
@@ -35,12 +37,6 @@ def _error(x: np.ndarray, ref: np.ndarray) -> float:
     """Max deviation relative to the reference's range."""
     scale = float(np.max(np.abs(ref))) or 1.0
     return float(np.max(np.abs(x - ref))) / scale
-
-
-def figure(name, value, unit, target, ok, spread=None, notes=""):
-    """One benchmark figure; `ok` None means not judged (an indicative smoke figure)."""
-    return {"figure": name, "value": value, "unit": unit, "target": target, "ok": None if ok is None else bool(ok),
-            "spread": spread, "notes": notes}
 
 
 def jones2016_figures(quick: bool = False) -> list[dict]:
@@ -171,8 +167,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("core", argv)
+    return area_main("core", measure, argv)
 
 
 if __name__ == "__main__":

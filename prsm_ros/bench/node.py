@@ -27,7 +27,7 @@ import numpy as np
 
 from prsm_sim import MODELS
 
-from prsm_ros.bench.core import figure
+from prsm_ros.bench.common import area_main, figure
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
 
@@ -135,8 +135,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("node", argv)
+    return area_main("node", measure, argv)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ import numpy as np
 from prsm_sim import MODELS, Simulator, preset
 from prsm_sim.models.ideal import reflected_inertia
 
-from prsm_ros.bench.core import figure
+from prsm_ros.bench.common import area_main, figure
 from prsm_ros.ros_env import isolated_env, start_module
 
 DT = 1e-3
@@ -318,8 +318,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("realtime", argv)
+    return area_main("realtime", measure, argv)
 
 
 if __name__ == "__main__":

@@ -18,9 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-from prsm_ros.bench.core import figure
+from prsm_ros.bench.common import area_main, figure, paced_loop
 
 THROUGHPUT_TARGET = 50_000.0  # messages/s (issue 5)
 
@@ -83,27 +81,6 @@ def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, floa
     return med, (max(rates) - min(rates)) / med, statistics.median(sizes), n_msgs
 
 
-def paced_loop(steps: int, work, period_s: float = 1e-3) -> dict:
-    """Call `work(k)` on absolute deadlines k·period (the node's pacing) and measure the loop.
-
-    Returns process CPU seconds per wall second (all threads: a writer thread counts too) and the
-    lateness of the wake-ups against their deadlines (p50, p99, max in ms).
-    """
-    late = np.empty(steps)
-    cpu0, t0 = time.process_time(), time.perf_counter()
-    for k in range(steps):
-        due = t0 + (k + 1) * period_s
-        now = time.perf_counter()
-        if due > now:
-            time.sleep(due - now)
-        late[k] = time.perf_counter() - due
-        work(k)
-    wall = time.perf_counter() - t0
-    cpu = time.process_time() - cpu0
-    return {"cpu_per_wall": cpu / wall, "late_p50_ms": float(np.percentile(late, 50) * 1e3),
-            "late_p99_ms": float(np.percentile(late, 99) * 1e3), "late_max_ms": float(np.max(late) * 1e3)}
-
-
 def loop_cost(model: str, seconds: float, record: bool) -> dict:
     """A 1 kHz loop mapping (and optionally recording) each step's messages, as the node does."""
     from std_msgs.msg import Float64
@@ -159,8 +136,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("recorder", argv)
+    return area_main("recorder", measure, argv)
 
 
 if __name__ == "__main__":

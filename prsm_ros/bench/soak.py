@@ -15,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from prsm_ros.bench.common import area_main, figure
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
 TARGET_GROWTH_MB = 20.0
@@ -89,7 +90,6 @@ def soak(sim_seconds: float, *, model: str = "jones2016", timeout_s: float = 360
 
 
 def measure(quick: bool = False) -> list[dict]:
-    from prsm_ros.bench.core import figure
     sim_s = 30.0 if quick else 3600.0
     r = soak(sim_s, timeout_s=120.0 if quick else 3 * 3600.0)
     # a 30 s quick run sees only start-up allocations (RSS levels off after about 70 s simulated):
@@ -103,8 +103,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("soak", argv)
+    return area_main("soak", measure, argv)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prsm_ros.bench.core import figure
+from prsm_ros.bench.common import area_main, figure, paced_loop
 
 CPU_TARGET_PCT = 10.0
 MODEL = "fu2018"
@@ -36,10 +36,9 @@ def _torque(k: int) -> float:
 
 
 def loop_cost(seconds: float, sink_mode: str, path: Path, **sink_options) -> dict:
-    """One paced 1 kHz run (the recorder bench's `paced_loop`): CPU per wall second, submit() cost, lateness."""
+    """One paced 1 kHz run (`common.paced_loop`): CPU per wall second, submit() cost, lateness."""
     from prsm_sim import Simulator, preset
 
-    from prsm_ros.bench.recorder import paced_loop
     from prsm_ros.viz.sink import RerunSink
 
     params = preset(PRESET)
@@ -151,8 +150,7 @@ def measure(quick: bool = False) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from prsm_ros.bench.cli import area_main
-    return area_main("rerun", argv)
+    return area_main("rerun", measure, argv)
 
 
 if __name__ == "__main__":

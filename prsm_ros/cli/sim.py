@@ -179,9 +179,12 @@ def cmd_run(args) -> None:
         _write_csv(args.csv, traj)
         summary["csv"] = args.csv
     if args.mcap:
-        from prsm_ros.mcap.offline import write_trajectory_mcap
-        write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
-                              progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
+        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
+        try:
+            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
+                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
+        except OSError as e:
+            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
         summary["mcap"] = args.mcap
     f = summary["final"]
     text = "\n".join([
@@ -256,8 +259,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"prsm-sim: error: {e}", file=sys.stderr)
         return 2
     except ImportError as e:
-        print(f"prsm-sim: error: {e.name or e} is not installed; install the extras: pip install 'prsm[all]'",
-              file=sys.stderr)
+        print(f"prsm-sim: error: {e.name or e} is not installed; install the extras: pip install 'prsm[bag]' "
+              "(MCAP writing and bag tools, no ROS) or 'prsm[all]'", file=sys.stderr)
         return 2
     except BrokenPipeError:
         return 0

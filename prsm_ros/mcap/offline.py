@@ -1,8 +1,10 @@
 """Offline runs to MCAP without DDS: the same topics and messages a node run records.
 
-`write_trajectory_mcap` maps each step of a `Trajectory` through `messages.MessageMapper` (the
+`write_trajectory_mcap` maps each step of a `Trajectory` through `interface.MessageBuilder` (the
 node's own mapping) and writes it with `recorder.McapFile`, so a bag from `prsm-sim run --mcap`
-and one from `prsm-node` read the same. Per step (stamped with the step's end time, as the node
+and one from `prsm-node` read the same. No ROS package is needed: the messages are a rosbags
+typestore's and `codec.TypestoreCodec` serializes and describes them (the same CDR bytes and type
+hashes as rclpy's; see `prsm_ros.mcap.codec`). Per step (stamped with the step's end time, as the node
 stamps its outputs): `/joint_states`, `~/nut/wrench`, `~/internal_loads`, `/clock`; the applied
 torque as the `~/screw_torque` command the node would have received, stamped at the step's start
 (the simulation time at which the node takes a command); once at t = 0 the latched labels; and,
@@ -21,17 +23,19 @@ from prsm_ros.mcap.recorder import McapFile, run_metadata
 
 def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: str, progress: bool = True,
                           dt_s: float | None = None, reference_m=None,
-                          extra_metadata: dict[str, dict[str, str]] | None = None) -> Path:
+                          extra_metadata: dict[str, dict[str, str]] | None = None,
+                          ros_distro: str | None = None) -> Path:
     """Write `traj` (from `Simulator.run` or collected steps) as a ROS 2 MCAP file; returns the path.
 
     `dt_s`: the step (inferred from the time column when omitted). `reference_m`: optional nut
     position reference per step (m), recorded as a controller under test would publish it.
-    `extra_metadata`: more MCAP metadata records, e.g. a scenario description.
+    `extra_metadata`: more MCAP metadata records, e.g. a scenario description. `ros_distro`: whose
+    message definitions to write (default: `codec.typestore_distro()`).
     """
-    from std_msgs.msg import Float64
     from tqdm import tqdm
 
-    from prsm_ros.messages import TOPICS, MessageMapper, STEP_TOPICS, time_ns
+    from prsm_ros.interface import STEP_TOPICS, TOPIC_DEFS, MessageBuilder, time_ns
+    from prsm_ros.mcap.codec import TypestoreCodec
 
     n = len(traj)
     t = np.asarray(traj["time_s"], dtype=float)
@@ -43,17 +47,17 @@ def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: s
         reference_m = np.asarray(reference_m, dtype=float)
         if reference_m.shape != (n,):
             raise ValueError(f"reference_m has shape {reference_m.shape}; expected ({n},), one value per step")
-    mapper = MessageMapper(traj.layout, model_name)
+    codec = TypestoreCodec(ros_distro)
+    mapper = MessageBuilder(traj.layout, model_name, codec.classes, codec.float_array)
     metadata = run_metadata(params, preset=preset_name, model=model_name, dt_s=dt_s)
     metadata.update(extra_metadata or {})
     path = Path(path)
-    f = McapFile(path, metadata=metadata)
+    f = McapFile(path, metadata=metadata, codec=codec)
     try:
-        ids = {key: f.add_channel(TOPICS[key].resolved(), TOPICS[key].msg_class, TOPICS[key].qos)
-               for key in ("labels", "screw_torque", *STEP_TOPICS)}
-        if reference_m is not None:
-            spec = TOPICS["nut_position_reference"]
-            ids["nut_position_reference"] = f.add_channel(spec.resolved(), spec.msg_class, spec.qos)
+        keys = ("labels", "screw_torque", *STEP_TOPICS) + (("nut_position_reference",) if reference_m is not None else ())
+        ids = {key: f.add_channel(TOPIC_DEFS[key].resolved(), codec.classes[TOPIC_DEFS[key].type_name],
+                                  TOPIC_DEFS[key].qos)
+               for key in keys}
         f.write(ids["labels"], mapper.labels(), 0)
         step_ids = [ids[k] for k in STEP_TOPICS]
         torque = np.asarray(traj["screw_torque_nm"], dtype=float)
@@ -62,9 +66,9 @@ def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: s
             out = traj.row(k)
             stamp = time_ns(out.time_s)
             command_stamp = time_ns(max(out.time_s - dt_s, 0.0))
-            f.write(ids["screw_torque"], Float64(data=float(torque[k])), command_stamp)
+            f.write(ids["screw_torque"], mapper.float64(torque[k]), command_stamp)
             if reference_m is not None:
-                f.write(ids["nut_position_reference"], Float64(data=float(reference_m[k])), command_stamp)
+                f.write(ids["nut_position_reference"], mapper.float64(reference_m[k]), command_stamp)
             for cid, (_, msg) in zip(step_ids, mapper.messages(out)):
                 f.write(cid, msg, stamp)
         f.finish()

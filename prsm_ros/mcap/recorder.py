@@ -1,8 +1,8 @@
 """ROS 2 messages to MCAP: `McapFile` (the format, synchronous) and `McapRecorder` (off-thread).
 
 The file follows the ROS 2 MCAP profile as rosbag2 writes it (see `mcap_schema`): profile `ros2`,
-`ros2msg` schemas with their dependent definitions, `cdr` messages
-(`rclpy.serialization.serialize_message`), `offered_qos_profiles` channel metadata, zstd chunks
+`ros2msg` schemas with their dependent definitions, `cdr` messages (`rclpy.serialization.serialize_message`
+by default; `prsm_ros.mcap.codec` for writing without ROS), `offered_qos_profiles` channel metadata, zstd chunks
 with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
 metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
 
@@ -71,16 +71,20 @@ class McapFile:
 
     Opening writes the header and the metadata records (plus the `rosbag2` record, see
     `mcap_schema.rosbag2_metadata`) and flushes them; OSError propagates to the caller.
+    `codec`: where schemas, type hashes and CDR bytes come from (`prsm_ros.mcap.codec`): rclpy
+    messages and the installed definitions by default; a `TypestoreCodec` writes without ROS.
     """
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, codec=None) -> None:
         from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
-        from rclpy.serialization import serialize_message
 
-        self._serialize = serialize_message
+        from prsm_ros.mcap.codec import RclpyCodec
+
+        self._codec = codec if codec is not None else RclpyCodec()
+        self._serialize = self._codec.serialize
         self.path = Path(path)
-        records = {"rosbag2": mcap_schema.rosbag2_metadata()}
+        records = {"rosbag2": mcap_schema.rosbag2_metadata(self._codec.ros_distro)}
         for name, data in (metadata or {}).items():
             records[str(name)] = {str(k): str(v) for k, v in data.items()}
         self._schema_ids: dict[str, int] = {}
@@ -102,19 +106,20 @@ class McapFile:
     def add_channel(self, topic: str, msg_class, qos) -> int:
         """Declare `topic` (schema and QoS metadata); returns its channel id. Re-adding is a no-op."""
         known = self._channels.get(topic)
-        name = mcap_schema.type_name(msg_class)
+        codec = self._codec
+        name = codec.type_name(msg_class)
         if known is not None:
             if known[1] is not msg_class:
-                raise ValueError(f"topic {topic!r} was added as {mcap_schema.type_name(known[1])}; "
+                raise ValueError(f"topic {topic!r} was added as {codec.type_name(known[1])}; "
                                  f"cannot add it again as {name}")
             return known[0]
         sid = self._schema_ids.get(name)
         if sid is None:
             sid = self._writer.register_schema(name, mcap_schema.SCHEMA_ENCODING,
-                                               mcap_schema.full_definition(name).encode("utf-8"))
+                                               codec.definition(name).encode("utf-8"))
             self._schema_ids[name] = sid
         meta = {"offered_qos_profiles": mcap_schema.offered_qos_profiles_yaml(qos)}
-        type_hash = mcap_schema.type_hash(name)
+        type_hash = codec.type_hash(name)
         if type_hash:
             meta["topic_type_hash"] = type_hash
         cid = self._writer.register_channel(topic, mcap_schema.MESSAGE_ENCODING, sid, meta)

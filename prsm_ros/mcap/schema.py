@@ -13,8 +13,10 @@ Rerun, mcap_ros2, rosbags) expects (MCAP spec, "ROS 2" profile; rosbag2_storage_
 - channel metadata `topic_type_hash`: the RIHS01 type hash (Iron and later), read from the
   package's generated type description.
 
-Message definitions are read at run time from the installed packages' share directories
-(ament index, else `<prefix>/share/<pkg>/msg/`), never copied into this code.
+For rclpy messages (the node) the definitions are read at run time from the installed packages'
+share directories (ament index, else `<prefix>/share/<pkg>/msg/`), never copied into this code;
+offline writing without ROS takes them from a rosbags typestore (`prsm_ros.mcap.codec`). Nothing
+here imports rclpy except `qos_from_yaml`, which builds an rclpy QoSProfile for `prsm-bag play`.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ import re
 import sys
 from functools import lru_cache
 from pathlib import Path
+
+from prsm_sim.errors import PrsmError
 
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
@@ -46,7 +50,7 @@ _LIVELINESS_AUTOMATIC = 1
 _HISTORY_KEEP_LAST = 1
 
 
-class SchemaError(LookupError):
+class SchemaError(PrsmError, LookupError):
     """A message definition could not be found or understood; the message names the type and where it looked."""
 
 
@@ -74,10 +78,14 @@ def share_dirs(package: str) -> list[Path]:
     out: list[Path] = []
     if os.environ.get("AMENT_PREFIX_PATH"):
         try:
-            from ament_index_python.packages import get_package_share_directory
-            out.append(Path(get_package_share_directory(package)))
-        except Exception:  # not indexed there: fall through to the prefixes
+            from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+        except ImportError:  # the ament index is not installed: only the prefixes below
             pass
+        else:
+            try:
+                out.append(Path(get_package_share_directory(package)))
+            except PackageNotFoundError:  # not indexed there: fall through to the prefixes
+                pass
     for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
         out.append(Path(prefix) / "share" / package)
     return out
@@ -156,25 +164,29 @@ def type_hash(name: str) -> str:
 
 
 def _duration(d) -> dict[str, int]:
-    ns = int(d.nanoseconds)
+    ns = 0 if d is None else int(d.nanoseconds)
     if ns <= 0:  # 0 = "default": the middleware offers infinity
         return dict(_DURATION_INFINITE)
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
 def qos_dict(qos) -> dict:
-    """One rclpy QoSProfile as rosbag2 records an offer (integer enums, {sec, nsec} durations)."""
+    """One QoS profile as rosbag2 records an offer (integer enums, {sec, nsec} durations).
+
+    `qos`: an rclpy QoSProfile, or an `interface.QosSpec` (plain data: deadline, lifespan and
+    liveliness at their defaults, as for every topic of our interface).
+    """
     history = int(qos.history) or _HISTORY_KEEP_LAST  # 0 = system default, which is keep last
     return {
         "history": history,
         "depth": int(qos.depth),
         "reliability": int(qos.reliability),
         "durability": int(qos.durability),
-        "deadline": _duration(qos.deadline),
-        "lifespan": _duration(qos.lifespan),
-        "liveliness": int(qos.liveliness) or _LIVELINESS_AUTOMATIC,
-        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
-        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+        "deadline": _duration(getattr(qos, "deadline", None)),
+        "lifespan": _duration(getattr(qos, "lifespan", None)),
+        "liveliness": int(getattr(qos, "liveliness", 0)) or _LIVELINESS_AUTOMATIC,
+        "liveliness_lease_duration": _duration(getattr(qos, "liveliness_lease_duration", None)),
+        "avoid_ros_namespace_conventions": bool(getattr(qos, "avoid_ros_namespace_conventions", False)),
     }
 
 
@@ -239,14 +251,17 @@ def rosbag2_metadata(ros_distro: str | None = None) -> dict[str, str]:
     any `rosbag2` record it would assume its newest version and expect enum names. Humble and Iron
     wrote exactly this record.
     """
-    return {"ROS_DISTRO": ros_distro or os.environ.get("ROS_DISTRO") or _distro_of_rclpy()}
+    return {"ROS_DISTRO": ros_distro or os.environ.get("ROS_DISTRO") or distro_of_rclpy()}
 
 
-def _distro_of_rclpy() -> str:
-    """The ROS 2 distribution of the installed rclpy (major version → distro), "" if unknown."""
+def distro_of_rclpy() -> str:
+    """The ROS 2 distribution of the installed rclpy (major version → distro), "" if unknown.
+
+    Read from the package metadata: rclpy itself is not imported.
+    """
+    from importlib.metadata import PackageNotFoundError, version
     try:
-        from importlib.metadata import version
         major = int(version("rclpy").split(".")[0])
-    except Exception:
+    except (PackageNotFoundError, ValueError):  # not installed, or a version we cannot read
         return ""
     return {3: "humble", 4: "iron", 7: "jazzy", 9: "kilted", 10: "rolling"}.get(major, "")

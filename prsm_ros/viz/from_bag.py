@@ -3,7 +3,7 @@
 What a bag gives, in order of preference:
 
 1. `…/internal_loads` + `…/internal_loads/labels` (our node, `prsm-sim run --mcap`): every scalar
-   output and the internal loads, decoded with `prsm_ros.messages.parse_labels`/`unpack_internal`
+   output and the internal loads, decoded with `prsm_ros.interface.parse_labels`/`unpack_internal`
    — the same recording `RerunSink` makes live.
 2. otherwise `…joint_states` (sensor_msgs/JointState): `screw_joint` and `nut_joint` give the screw
    angle/speed/torque and nut position/velocity/force series and move the screw and the nut in 3D;
@@ -29,13 +29,14 @@ import yaml
 
 from prsm_sim import InternalLayout, ParamError, Params, preset
 
+from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, parse_labels, unpack_internal
 from prsm_ros.viz.sink import APPLICATION_ID, RecordingWriter, rerun_forced_off
 
 RUN_METADATA = "prsm_run"
 SCHEMATIC_PRESET = "s30"
 _JOINT_COLUMNS = {  # joint → (position, velocity, effort) output names
-    "screw_joint": ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm"),
-    "nut_joint": ("nut_position_m", "nut_velocity_m_s", "nut_force_n"),
+    SCREW_JOINT: ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm"),
+    NUT_JOINT: ("nut_position_m", "nut_velocity_m_s", "nut_force_n"),
 }
 _UNITS = {"nut_position_reference": "m", "screw_torque": "N·m"}
 
@@ -118,7 +119,6 @@ class _Conversion:
     def flush(self) -> None:
         if not self.rows:
             return
-        from prsm_ros.messages import unpack_internal
         t = np.array([r[0] for r in self.rows])
         if self.source == "internal_loads":
             data = np.asarray([r[1] for r in self.rows], dtype=float)
@@ -155,7 +155,6 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
     import rerun as rr
 
     from prsm_ros.bag.reader import open_bag, resolve_topics
-    from prsm_ros.messages import parse_labels
 
     if rerun_forced_off():  # the SDK would silently write nothing
         raise ValueError("the environment variable RERUN=off turns the Rerun SDK off, so no .rrd can be written; "

@@ -22,9 +22,9 @@ import math
 
 import numpy as np
 
+from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.physics.kinematics import ideal_carrier_ratio
 from prsm_sim.models.base import Model
-from prsm_sim.models.jones2016 import mass_matrix
 from prsm_sim.outputs import State
 from prsm_sim.params import Params
 

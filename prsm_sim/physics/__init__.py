@@ -1,1 +1,1 @@
-"""Geometry and contact mechanics shared by the models: kinematics and thread contact points."""
+"""Geometry and mechanics shared by the models: kinematics, inertia and thread contact points."""

@@ -1,0 +1,114 @@
+"""What every benchmark area shares: the figure record, the paced 1 kHz loop and the runner.
+
+An area is a module with `measure(quick) -> list[figure]`; `prsm-bench` (`bench.cli`) names the
+areas it runs, and each area's `python -m prsm_ros.bench.<area>` runs itself through `area_main`,
+so no area imports the command back.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import sys
+import time
+from typing import Callable, Mapping
+
+import numpy as np
+
+from prsm_ros.cli.json_out import dumps
+
+Measure = Callable[..., list]
+
+
+def figure(name, value, unit, target, ok, spread=None, notes=""):
+    """One benchmark figure; `ok` None means not judged (an indicative smoke figure)."""
+    return {"figure": name, "value": value, "unit": unit, "target": target, "ok": None if ok is None else bool(ok),
+            "spread": spread, "notes": notes}
+
+
+def paced_loop(steps: int, work, period_s: float = 1e-3) -> dict:
+    """Call `work(k)` on absolute deadlines k·period (the node's pacing) and measure the loop.
+
+    Returns process CPU seconds per wall second (all threads: a writer thread counts too) and the
+    lateness of the wake-ups against their deadlines (p50, p99, max in ms).
+    """
+    late = np.empty(steps)
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    for k in range(steps):
+        due = t0 + (k + 1) * period_s
+        now = time.perf_counter()
+        if due > now:
+            time.sleep(due - now)
+        late[k] = time.perf_counter() - due
+        work(k)
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
+    return {"cpu_per_wall": cpu / wall, "late_p50_ms": float(np.percentile(late, 50) * 1e3),
+            "late_p99_ms": float(np.percentile(late, 99) * 1e3), "late_max_ms": float(np.max(late) * 1e3)}
+
+
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    if abs(v) >= 1000:
+        return f"{v:,.0f}"
+    if abs(v) >= 10:
+        return f"{v:.1f}"
+    return f"{v:.3g}"
+
+
+def run(areas: Mapping[str, Measure], quick: bool) -> list[dict]:
+    """Every area's figures in turn, each tagged with its area."""
+    figures = []
+    for area, measure in areas.items():
+        t0 = time.perf_counter()
+        try:
+            figs = measure(quick=quick)
+        except Exception as e:  # one broken area must not hide the others' figures; its error is the figure
+            figs = [{"figure": f"{area}: could not be measured", "value": math.nan, "unit": "", "target": "",
+                     "ok": False, "spread": None, "notes": f"{type(e).__name__}: {e}"}]
+        for f in figs:
+            f["area"] = area
+        figures.extend(figs)
+        print(f"[{area}: {time.perf_counter() - t0:.1f} s]", file=sys.stderr)
+    return figures
+
+
+def table(figures: list[dict]) -> str:
+    rows = [("area", "figure", "value", "target", "", "spread", "notes")]
+    for f in figures:
+        spread = f.get("spread")
+        rows.append((f["area"], f["figure"], f"{_fmt(f['value'])} {f['unit']}".strip(), f["target"],
+                     "not judged" if f["ok"] is None else "ok" if f["ok"] else "MISSED", f"±{spread * 50:.0f} %" if spread else "", f.get("notes", "")))
+    widths = [max(len(r[i]) for r in rows) for i in range(6)]
+    lines = []
+    for r in rows:
+        lines.append("  ".join(c.ljust(w) for c, w in zip(r[:6], widths)) + "  " + r[6])
+    return "\n".join(lines)
+
+
+def main(areas: Mapping[str, Measure], argv: list[str] | None = None, *, prog: str = "prsm-bench",
+         description: str = "") -> int:
+    """The command line over `areas`: --quick, --json, --only AREA (repeatable)."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("--quick", action="store_true", help="smoke run, under a minute; figures indicative only")
+    ap.add_argument("--json", action="store_true", help="machine-readable figures")
+    ap.add_argument("--only", action="append", choices=list(areas), help="measure only these areas (repeatable)")
+    a = ap.parse_args(argv)
+    figures = run({k: areas[k] for k in (a.only or areas)}, a.quick)
+    meta = {"machine": platform.machine(), "python": platform.python_version(), "quick": a.quick,
+            "cpus": os.cpu_count()}
+    if a.json:
+        print(dumps({"meta": meta, "figures": figures}))
+    else:
+        print(f"prsm-bench on {meta['machine']}, {meta['cpus']} CPUs, Python {meta['python']}"
+              f"{' (quick: indicative only)' if a.quick else ''}")
+        print(table(figures))
+    return 0
+
+
+def area_main(area: str, measure: Measure, argv: list[str] | None = None) -> int:
+    """`python -m prsm_ros.bench.<module>`: the same as `prsm-bench --only <area>` (same options)."""
+    return main({area: measure}, sys.argv[1:] if argv is None else argv, prog=f"prsm-bench ({area})")
