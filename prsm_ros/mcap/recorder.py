@@ -20,7 +20,6 @@ import atexit
 import threading
 import time
 from collections import deque
-from datetime import datetime, timezone
 from pathlib import Path
 
 from prsm_ros.mcap import schema as mcap_schema
@@ -58,12 +57,6 @@ def run_metadata(params, *, preset: str, model: str, dt_s: float,
         "parameters_yaml": yaml.safe_dump(params.to_dict(), sort_keys=False),
         "node_parameters_yaml": yaml.safe_dump(dict(node_parameters or {}), sort_keys=True),
     }}
-
-
-def default_record_path(now: datetime | None = None) -> Path:
-    """./prsm_<UTC yyyymmdd_HHMMSS>.mcap, the node's file for an empty `record_path`."""
-    now = now or datetime.now(timezone.utc)
-    return Path(f"prsm_{now.strftime('%Y%m%d_%H%M%S')}.mcap")
 
 
 class McapFile:
