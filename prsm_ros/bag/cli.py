@@ -3,6 +3,8 @@
     prsm-bag info BAG [--json] [--parameters]
     prsm-bag export BAG -t TOPIC [-t TOPIC ...] -o OUT [--start S] [--end S] [--resample HZ] [--method linear|hold] [--merge]
     prsm-bag report BAG -o DIR [--json] [--dynamic-load-rating-n N] [--screw-joint NAME] [--nut-joint NAME]
+    prsm-bag report DIR|GLOB -o DIR [--address HOST:PORT]   (many bags → DIR/fleet.parquet; on Ray if installed)
+    prsm-bag compare A_DIR B_DIR [--threshold 0.05] [--json] [--fail-on-regression]
     prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
     prsm-bag to-rrd BAG -o FILE.rrd
 
@@ -22,6 +24,7 @@ from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 from prsm_ros.cli.json_out import dumps
 
 EXIT_ERROR = 1
+EXIT_REGRESSION = 3  # compare --fail-on-regression found one
 
 
 def _print_json(obj) -> None:
@@ -88,13 +91,30 @@ def _cmd_export(args) -> int:
     bag = open_bag(args.bag)
     _note(bag)
     paths = export(bag, args.topic or [], args.output, start_s=args.start, end_s=args.end,
-                   resample_hz=args.resample, method=args.method, merge=args.merge)
+                   resample_hz=args.resample, method=args.method, merge=args.merge, fmt=args.format)
     for p in paths:
         print(p)
     return 0
 
 
+def _report_options(args) -> dict:
+    return {"dynamic_load_rating_n": args.dynamic_load_rating_n, "screw_joint": args.screw_joint,
+            "nut_joint": args.nut_joint, "topics": {"joint_states": args.joint_states_topic,
+                                                    "reference": args.reference_topic,
+                                                    "internal_loads": args.internal_loads_topic}}
+
+
 def _cmd_report(args) -> int:
+    from prsm_ros.bag.fleet import fleet_report, is_fleet
+    if is_fleet(args.bag):
+        s = fleet_report(args.bag, args.output, _report_options(args), address=args.address)
+        if args.json:
+            _print_json(s)
+        else:
+            print(f"{s['bags']} bags ({s['engine']}), {s['ok']} reported, {s['failed']} failed → {s['table']}")
+            for f in s["failures"]:
+                print(f"  failed {f['bag']}: {f['error']}")
+        return 0
     from prsm_ros.bag.report import report, summary_text
     bag = open_bag(args.bag)
     _note(bag)
@@ -111,6 +131,14 @@ def _cmd_report(args) -> int:
     else:
         print(summary_text(r))
     return 0
+
+
+def _cmd_compare(args) -> int:
+    from prsm_ros.bag.compare import compare, text
+    c = compare(args.a, args.b, _report_options(args), threshold=args.threshold, alpha=args.alpha,
+                address=args.address)
+    _print_json(c) if args.json else print(text(c))
+    return EXIT_REGRESSION if args.fail_on_regression and c["regressions"] else 0
 
 
 def _cmd_play(args) -> int:
@@ -154,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
     ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
                                  "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{info,export,report,play,to-rrd}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{info,export,report,compare,play,to-rrd}")
 
     p = sub.add_parser("info", help="topics, counts, rates, duration, run metadata")
     p.add_argument("bag")
@@ -171,10 +199,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("linear", "hold"), default="linear",
                    help="resampling: linear interpolation or zero-order hold (default linear)")
     p.add_argument("--merge", action="store_true", help="all topics in one CSV on the resampled grid")
+    p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="file format (parquet needs pyarrow)")
     p.set_defaults(func=_cmd_export)
 
-    p = sub.add_parser("report", help="metrics and PNG plots into a folder, summary on stdout")
-    p.add_argument("bag")
+    p = sub.add_parser("report", help="metrics and PNG plots into a folder (many bags: one Parquet table)")
+    p.add_argument("bag", help="a bag, or a directory / glob of many bags")
     p.add_argument("-o", "--output", required=True, help="folder for the plots and report.json")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--dynamic-load-rating-n", type=float, default=DEFAULT_DYNAMIC_LOAD_RATING_N, metavar="N",
@@ -186,7 +215,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference-topic", help="Float64 nut position reference (default: .../nut_position_reference)")
     p.add_argument("--internal-loads-topic", help="Float64MultiArray internal loads (default: .../internal_loads)")
     p.add_argument("--no-plots", action="store_true", help="metrics only")
+    p.add_argument("--address", metavar="HOST:PORT", help="many bags: report on this Ray cluster")
     p.set_defaults(func=_cmd_report)
+    report_opts = p
+
+    p = sub.add_parser("compare", help="what changed between two groups of bags, with regression flags")
+    p.add_argument("a", metavar="A_DIR", help="the baseline group (a directory or glob of bags)")
+    p.add_argument("b", metavar="B_DIR", help="the group compared with it")
+    p.add_argument("--threshold", type=float, default=0.05, help="relative worsening of a median flagged (default 0.05)")
+    p.add_argument("--alpha", type=float, default=0.05, help="significance of the rank test (default 0.05)")
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    p.add_argument("--fail-on-regression", action="store_true", help=f"exit {EXIT_REGRESSION} when a regression is flagged")
+    for a in report_opts._actions:  # the same per-bag options as report
+        if a.dest in ("dynamic_load_rating_n", "screw_joint", "nut_joint", "joint_states_topic", "reference_topic",
+                      "internal_loads_topic", "address"):
+            p._add_action(a)
+    p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("play", help="republish onto ROS topics at a rate factor, with /clock")
     p.add_argument("bag")

@@ -193,8 +193,8 @@ def csv_name(topic: str) -> str:
 
 def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, end_s: float | None = None,
            resample_hz: float | None = None, method: str = "linear", merge: bool = False,
-           progress: bool = True) -> list[Path]:
-    """Write CSV files; returns their paths.
+           progress: bool = True, fmt: str = "csv") -> list[Path]:
+    """Write CSV (or, with fmt="parquet", Parquet) files; returns their paths.
 
     `out`: a .csv file for one topic (or with `merge`), else a directory (one file per topic).
     `merge` puts all topics on one resampled grid, columns prefixed with the topic name.
@@ -207,9 +207,15 @@ def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, en
         raise BagError("--merge needs --resample HZ: topics at different times share one grid only after resampling")
     start_ns, end_ns = bag.window_ns(start_s, end_s)
     out = Path(out)
-    single_file = out.suffix.lower() == ".csv"
+    if fmt not in ("csv", "parquet"):
+        raise BagError(f"--format {fmt!r}: must be csv or parquet")
+    suffix, write = ".csv", write_csv
+    if fmt == "parquet":
+        from prsm_ros.bag.parquet import write_parquet as write
+        suffix = ".parquet"
+    single_file = out.suffix.lower() == suffix
     if single_file and len(topics) > 1 and not merge:
-        raise BagError(f"{out}: one .csv file holds one topic; give a directory for {len(topics)} topics, or --merge")
+        raise BagError(f"{out}: one {suffix} file holds one topic; give a directory for {len(topics)} topics, or --merge")
     if not single_file:
         out.mkdir(parents=True, exist_ok=True)
     roles = resolve_topics(bag)
@@ -235,15 +241,15 @@ def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, en
             blocks.append(res[:, 1:] if res is not None else np.full((grid_len, len(names) - 1), np.nan))
             columns += [f"{tb.topic}:{n}" for n in names[1:]]
         grid = t0 + np.arange(blocks[0].shape[0]) / resample_hz
-        path = out if single_file else out / "merged.csv"
-        write_csv(path, columns, np.column_stack([grid, *blocks]).tolist())
+        path = out if single_file else out / f"merged{suffix}"
+        write(path, columns, np.column_stack([grid, *blocks]).tolist())
         return [path]
     for tb in tables:
-        path = out if single_file else out / csv_name(tb.topic)
+        path = out if single_file else out / (csv_name(tb.topic).removesuffix(".csv") + suffix)
         if resample_hz is not None:
             names, data = tb.numeric()
-            write_csv(path, names, resample(names, data, resample_hz, method, t0, t1).tolist() if len(data) else [])
+            write(path, names, resample(names, data, resample_hz, method, t0, t1).tolist() if len(data) else [])
         else:
-            write_csv(path, tb.columns, tb.rows)
+            write(path, tb.columns, tb.rows)
         written.append(path)
     return written

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from prsm_ros.bench import common, core, node, realtime, recorder, soak, viz
+from prsm_ros.bench import common, core, node, realtime, recorder, soak, sweep, viz
 
 AREAS: dict[str, common.Measure] = {
     "core": core.measure,
@@ -20,6 +20,7 @@ AREAS: dict[str, common.Measure] = {
     "rerun": viz.measure,
     "soak": soak.measure,
     "realtime": realtime.measure,
+    "sweep": sweep.measure,
 }
 
 

@@ -9,11 +9,8 @@ header stamps), so the loop behaves the same in realtime, fast and lockstep mode
 controller's first command starts the simulation. At the end it prints one JSON line with the
 tracking summary, which `prsm-demo` reads.
 
-Control law (nut coordinates x, lead per radian p, reflected inertia J about the screw):
-    τ = (J/p)·(a_ref + 2ζω ė + ω² e + (ω³/κ) ∫e) + p·F_load
-with e = x_ref − x: critically damped (ζ = 1) error dynamics at `bandwidth_hz`, a slow integral
-(κ = 10) for friction, and the load's static torque fed forward. The inertia is the `ideal` model's
-reflected inertia of the preset (`prsm_sim.models.ideal.reflected_inertia`), i.e. model-based tuning.
+The control law and its reference live in the pure core (`prsm_sim.control`, where its equation
+is documented) so that studies and gain tuning (`prsm-sweep tune`) run the very same law offline.
 """
 
 from __future__ import annotations
@@ -23,56 +20,11 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
 
 from prsm_sim import preset
+from prsm_sim.control import DEFAULT_AMPLITUDE_M, DEFAULT_FREQUENCY_HZ, DEFAULT_GAINS, DEFAULT_MAX_TORQUE_NM
+from prsm_sim.control import PositionController, Tracking, reference
 from prsm_sim.models.ideal import reflected_inertia
-
-
-def reference(t_s: float, amplitude_m: float, frequency_hz: float) -> tuple[float, float, float]:
-    """x_ref = A/2 (1 − cos 2πft): starts at rest at 0, smooth; returns position, velocity, acceleration."""
-    w = 2 * math.pi * frequency_hz
-    return (0.5 * amplitude_m * (1 - math.cos(w * t_s)), 0.5 * amplitude_m * w * math.sin(w * t_s),
-            0.5 * amplitude_m * w * w * math.cos(w * t_s))
-
-
-@dataclass
-class PositionController:
-    """Nut-position PID with acceleration and load feed-forward; output clamped to ±max_torque_nm."""
-
-    inertia_kgm2: float
-    lead_per_rad_m: float
-    bandwidth_hz: float = 8.0
-    damping: float = 1.0
-    integral_ratio: float = 10.0
-    load_n: float = 0.0
-    max_torque_nm: float = 50.0
-    integral_ms: float = 0.0  # ∫e dt, m·s
-
-    def torque(self, e_m: float, de_m_s: float, a_ref_m_s2: float, dt_s: float) -> float:
-        w = 2 * math.pi * self.bandwidth_hz
-        self.integral_ms += e_m * dt_s
-        accel = a_ref_m_s2 + 2 * self.damping * w * de_m_s + w * w * e_m + w ** 3 / self.integral_ratio * self.integral_ms
-        tau = self.inertia_kgm2 / self.lead_per_rad_m * accel + self.lead_per_rad_m * self.load_n
-        return max(-self.max_torque_nm, min(self.max_torque_nm, tau))
-
-
-@dataclass
-class Tracking:
-    """Running tracking statistics."""
-
-    n: int = 0
-    sum_sq_m2: float = 0.0
-    max_abs_m: float = 0.0
-
-    def add(self, e_m: float) -> None:
-        self.n += 1
-        self.sum_sq_m2 += e_m * e_m
-        self.max_abs_m = max(self.max_abs_m, abs(e_m))
-
-    @property
-    def rms_m(self) -> float:
-        return math.sqrt(self.sum_sq_m2 / self.n) if self.n else math.nan
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -150,10 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to track (s)")
     p.add_argument("--preset", default="s30", help="preset the node runs (for the controller's inertia)")
     p.add_argument("--load", type=float, default=0.0, help="the node's load_force, fed forward (N)")
-    p.add_argument("--amplitude", type=float, default=0.02, help="reference stroke (m)")
-    p.add_argument("--frequency", type=float, default=0.5, help="reference frequency (Hz)")
-    p.add_argument("--bandwidth", type=float, default=8.0, help="closed-loop bandwidth (Hz)")
-    p.add_argument("--max-torque", type=float, default=50.0, help="controller torque limit (N·m)")
+    p.add_argument("--amplitude", type=float, default=DEFAULT_AMPLITUDE_M, help="reference stroke (m)")
+    p.add_argument("--frequency", type=float, default=DEFAULT_FREQUENCY_HZ, help="reference frequency (Hz)")
+    p.add_argument("--bandwidth", type=float, default=DEFAULT_GAINS["bandwidth_hz"], help="closed-loop bandwidth (Hz)")
+    p.add_argument("--max-torque", type=float, default=DEFAULT_MAX_TORQUE_NM, help="controller torque limit (N·m)")
     p.add_argument("--connect-timeout", type=float, default=20.0, help="wall seconds to wait for the node")
     p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
     return p

@@ -1,0 +1,99 @@
+"""What changed between two groups of bags (`prsm-bag compare A_DIR B_DIR`), e.g. two controller versions.
+
+Both groups are reported bag by bag (`fleet.report_many`, on Ray when it is installed); then,
+per metric present in both: median, mean and spread of each group, the relative change of the
+median B vs A, and the Mann-Whitney U test's two-sided p-value (a rank test: no normality
+assumed, robust to the odd outlier bag). A metric whose better direction is known (tracking
+errors and peak loads: lower; efficiency and life: higher) is flagged a regression when its
+median moves the wrong way by more than `threshold` (relative) and the rank test agrees
+(p < `alpha`), so one noisy bag does not raise a flag.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from prsm_ros.bag.fleet import expand, report_many
+from prsm_ros.bag.reader import BagError
+
+# better direction by metric name: −1 lower is better, +1 higher is better (first match wins)
+DIRECTIONS = (("error", -1), ("peak", -1), ("slip", -1), ("efficiency", +1), ("life.l10", +1))
+SKIP = ("duration_s", "samples", "complete", "dt_s", "wall_time_s", "life.dynamic_load_rating_n",
+        "life.cycle_duration_s")
+
+
+def direction(metric: str) -> int:
+    for key, d in DIRECTIONS:
+        if key in metric:
+            return d
+    return 0
+
+
+def _check(threshold: float, alpha: float) -> None:
+    if not (math.isfinite(threshold) and threshold >= 0):
+        raise BagError(f"--threshold {threshold!r}: must be a relative change >= 0 (e.g. 0.05 for 5 %)")
+    if not (0 < alpha < 1):
+        raise BagError(f"--alpha {alpha!r}: must lie in (0, 1)")
+
+
+def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: float = 0.05) -> dict:
+    """Statistics per metric and regression flags for rows of group A (before) and B (after)."""
+    from scipy.stats import mannwhitneyu
+    _check(threshold, alpha)
+    ok_a = [r for r in a if r["status"] == "ok"]
+    ok_b = [r for r in b if r["status"] == "ok"]
+    names = sorted({k for r in ok_a for k in r} & {k for r in ok_b for k in r})
+    metrics = {}
+    regressions = []
+    for n in names:
+        if n in SKIP or n in ("bag", "status", "error"):
+            continue
+        va = np.array([r.get(n, math.nan) for r in ok_a], dtype=object)
+        vb = np.array([r.get(n, math.nan) for r in ok_b], dtype=object)
+        if not all(isinstance(v, float) for v in (*va, *vb)):
+            continue
+        va = va.astype(float)[np.isfinite(va.astype(float))]
+        vb = vb.astype(float)[np.isfinite(vb.astype(float))]
+        if not va.size or not vb.size:
+            continue
+        ma, mb = float(np.median(va)), float(np.median(vb))
+        change = (mb - ma) / abs(ma) if ma != 0 else (0.0 if mb == ma else math.copysign(math.inf, mb - ma))
+        p = float(mannwhitneyu(va, vb, alternative="two-sided").pvalue) if va.size > 1 and vb.size > 1 \
+            and np.ptp(np.concatenate([va, vb])) > 0 else math.nan
+        d = direction(n)
+        worse = d != 0 and change * d < -threshold and (not math.isnan(p) and p < alpha)
+        metrics[n] = {"a": {"n": int(va.size), "median": ma, "mean": float(va.mean()), "std": float(va.std())},
+                      "b": {"n": int(vb.size), "median": mb, "mean": float(vb.mean()), "std": float(vb.std())},
+                      "relative_change": change, "p_value": p,
+                      "better": {-1: "lower", 1: "higher", 0: None}[d], "regression": bool(worse)}
+        if worse:
+            regressions.append(n)
+    return {"a_bags": len(a), "b_bags": len(b), "a_failed": len(a) - len(ok_a), "b_failed": len(b) - len(ok_b),
+            "threshold": threshold, "alpha": alpha, "metrics": metrics, "regressions": regressions}
+
+
+def compare(a_dir: str, b_dir: str, options: dict, *, threshold: float = 0.05, alpha: float = 0.05,
+            address: str | None = None, use_ray: bool | None = None, progress: bool = True) -> dict:
+    _check(threshold, alpha)  # before any bag is read
+    a_paths, b_paths = expand(a_dir), expand(b_dir)
+    rows = report_many(a_paths + b_paths, options, address=address, use_ray=use_ray, progress=progress)
+    out = compare_rows(rows[:len(a_paths)], rows[len(a_paths):], threshold, alpha)
+    out.update({"a": str(a_dir), "b": str(b_dir)})
+    return out
+
+
+def text(c: dict) -> str:
+    lines = [f"A = {c['a']} ({c['a_bags']} bags, {c['a_failed']} unreadable), "
+             f"B = {c['b']} ({c['b_bags']} bags, {c['b_failed']} unreadable); "
+             f"regression: median worse by > {c['threshold']:.0%} with p < {c['alpha']}"]
+    width = max((len(n) for n in c["metrics"]), default=6)
+    lines.append(f"{'metric':<{width}}  {'median A':>12}  {'median B':>12}  {'change':>9}  {'p':>7}")
+    for n, m in c["metrics"].items():
+        flag = "  REGRESSION" if m["regression"] else ""
+        p = "-" if math.isnan(m["p_value"]) else f"{m['p_value']:.3g}"
+        lines.append(f"{n:<{width}}  {m['a']['median']:>12.6g}  {m['b']['median']:>12.6g}  "
+                     f"{m['relative_change']:>+9.1%}  {p:>7}{flag}")
+    lines.append(f"{len(c['regressions'])} regression(s)" + (": " + ", ".join(c["regressions"]) if c["regressions"] else ""))
+    return "\n".join(lines)

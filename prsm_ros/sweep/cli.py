@@ -1,0 +1,132 @@
+"""`prsm-sweep`: design sweeps, Monte Carlo studies and gain tuning on Ray.
+
+    prsm-sweep run STUDY.yaml -o DIR [--address HOST:PORT] [--workers N]
+    prsm-sweep report DIR [--json] [--no-plots]
+    prsm-sweep tune STUDY.yaml [-o BEST.json] [--address HOST:PORT] [--workers N]
+
+Without --address an embedded Ray starts on this machine and stops at the end; with it the
+study runs on that Ray cluster. Errors print one line and exit 2; an interrupted run exits 130
+and resumes where it stopped when run again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from prsm_sim.errors import PrsmError
+
+from prsm_ros.cli.json_out import dumps
+
+PROG = "prsm-sweep"
+
+
+def _workers(v: str) -> int:
+    n = int(v)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"--workers {v}: must be a whole number >= 1")
+    return n
+
+
+def cmd_run(args) -> int:
+    from prsm_ros.sweep import runner, study
+    raw, norm, ex = study.load(args.study)
+    out = Path(args.output)
+    text = Path(args.study).read_text(encoding="utf-8")
+    try:
+        s = runner.run_study(norm, out, address=args.address, workers=args.workers,
+                             runs_per_task=args.runs_per_task or ex["runs_per_task"], decimate=ex["decimate"],
+                             retry_failed=args.retry_failed, progress=not args.no_progress, source_text=text)
+    except KeyboardInterrupt:
+        done = len(runner.recorded_rows(out)) if (out / runner.STUDY_JSON).exists() else 0
+        print(f"{PROG}: interrupted: {done} runs recorded in {out}; run the same command again to resume",
+              file=sys.stderr)
+        return 130
+    if args.json:
+        print(dumps(s))
+    else:
+        rate = f" ({s['ran'] / s['wall_time_s']:.1f} runs/s incl. Ray start)" if s["ran"] else ""
+        print(f"study {s['study']}: {s['runs']} runs, {s['ran']} run now{rate}, "
+              f"{s['skipped']} already recorded, {s['failed']} failed → {out / runner.RUNS}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from prsm_ros.sweep import report
+    r = report.build(Path(args.dir), make_plots=not args.no_plots)
+    print(dumps(r) if args.json else report.text(r))
+    return 0
+
+
+def cmd_tune(args) -> int:
+    import yaml
+
+    from prsm_ros.sweep import study, tune
+    raw, norm, _ = study.load(args.study)
+    try:
+        ts = tune.settings(raw, norm)
+    except study.StudyError as e:
+        raise study.StudyError(f"{args.study}: {e}") from None
+    out = Path(args.output or f"{Path(args.study).stem}.tuned.json")
+    if out.exists() and not args.force:
+        raise study.StudyError(f"-o {out}: exists; give another file or --force to replace it")
+    r = tune.run_tune(norm, ts, address=args.address, workers=args.workers)
+    r["study"] = study.study_hash(norm)
+    tune.save(r, out)
+    if args.json:
+        print(dumps(r))
+    else:
+        h = r["holdout"]
+        print(f"best gains ({r['objective']} of {r['metric']} over {r['draws']} draws, {r['trials']} trials): "
+              + ", ".join(f"{k} = {v:.4g}" for k, v in r["best_gains"].items()))
+        print(f"held-out draws (seed {r['holdout_seed']}): tuned {h['tuned']:.4g}, demo defaults {h['default']:.4g}"
+              f" ({yaml.safe_dump(r['default_gains'], default_flow_style=True).strip()}) → {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    ray_opts = argparse.ArgumentParser(add_help=False)
+    ray_opts.add_argument("--address", metavar="HOST:PORT", help="run on this Ray cluster (default: an embedded Ray)")
+    ray_opts.add_argument("--workers", type=_workers, metavar="N",
+                          help="CPUs of the embedded Ray / tasks in flight per round (default: all CPUs)")
+    ray_opts.add_argument("--json", action="store_true", help="machine-readable summary")
+    run = sub.add_parser("run", parents=[ray_opts], help="run a study (resumes a partial one)")
+    run.add_argument("study", metavar="STUDY.yaml")
+    run.add_argument("-o", "--output", required=True, metavar="DIR", help="study directory (runs.parquet, plots)")
+    run.add_argument("--runs-per-task", type=_workers, metavar="K", help="runs per Ray task (default: the study's, auto)")
+    run.add_argument("--retry-failed", action="store_true", help="run recorded failures again")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.set_defaults(func=cmd_run)
+    rep = sub.add_parser("report", help="statistics, sensitivities and plots of a study directory")
+    rep.add_argument("dir", metavar="DIR")
+    rep.add_argument("--json", action="store_true", help="machine-readable report")
+    rep.add_argument("--no-plots", action="store_true", help="skip the PNGs")
+    rep.set_defaults(func=cmd_report)
+    tn = sub.add_parser("tune", parents=[ray_opts], help="tune controller gains against the study's plant spread")
+    tn.add_argument("study", metavar="STUDY.yaml")
+    tn.add_argument("-o", "--output", metavar="BEST.json", help="where to save the result (default STUDY.tuned.json)")
+    tn.add_argument("--force", action="store_true", help="replace an existing result file")
+    tn.set_defaults(func=cmd_tune)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (PrsmError, ValueError) as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    except ImportError as e:
+        print(f"{PROG}: error: {e.name or e} is not installed; install the sweep extra: pip install 'prsm[sweep]'",
+              file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
