@@ -151,6 +151,24 @@ class Simulator:
         self.nstep = 0
         return self.state
 
+    def restore(self, state: State, nstep: int) -> None:
+        """Continue from `state`, reached after `nstep` steps (undo a step, or carry a run over to
+        a simulator with new parameters).
+
+        Parameters
+        ----------
+        state : State
+            The state to continue from, kept as given.
+        nstep : int
+            Steps taken to reach it (>= 0).
+        """
+        if not isinstance(state, State):
+            raise InputError(f"state = {state!r}: must be a prsm_sim State")
+        if not isinstance(nstep, (int, np.integer)) or isinstance(nstep, bool) or nstep < 0:
+            raise InputError(f"nstep = {nstep!r}: must be a whole number >= 0")
+        self.state = state
+        self.nstep = int(nstep)
+
     def step(self, torque_nm: float, load_n: float = 0.0) -> Outputs:
         """Advance one step with the screw torque and the nut load held over it.
 

@@ -18,14 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prsm_sim import MODELS, Simulator, preset
+from prsm_sim import Simulator, preset
 from prsm_sim.scenarios import default_spec, run_scenario
 from prsm_ros.bag.cli import main
 from prsm_ros.bag.reader import open_bag
 from prsm_ros.cli.make_bags import pd_tracking
 from prsm_ros.mcap.offline import write_trajectory_mcap
 
-MODEL = "fu2018" if "fu2018" in MODELS else "jones2016"
+MODEL = "fu2018"  # a rename must fail here, not quietly test another model
 ROOT = Path(__file__).resolve().parent.parent
 DOMAIN_ID = str(os.getpid() % 100 + 100)
 ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": DOMAIN_ID,
@@ -249,10 +249,17 @@ def test_truncated_bag_is_reported_with_a_note(tracking, tmp_path, capsys):
 
 
 def test_to_rrd_subcommand_writes_a_recording(tracking, tmp_path, capsys):
-    path, _, _ = tracking
-    rc, out, err = _cli(capsys, "to-rrd", path, "-o", tmp_path / "t.rrd")
+    from test_rerun_support import rrd_component, rrd_verify
+    path, traj, _ = tracking
+    rrd = tmp_path / "t.rrd"
+    rc, out, err = _cli(capsys, "to-rrd", path, "-o", rrd)
     assert rc == 0, err
-    assert (tmp_path / "t.rrd").stat().st_size > 1000
+    res = rrd_verify(rrd)  # the rerun CLI accepts the file
+    assert res.returncode == 0, res.stderr
+    # oracle: the simulated trajectory in the bag, every step, on simulation time, bit for bit
+    t, vals = rrd_component(rrd, "/series/nut_position_m", "Scalars:scalars")
+    np.testing.assert_array_equal(t, np.round(traj["time_s"] * 1e9).astype(np.int64))
+    np.testing.assert_array_equal(np.ravel(vals), traj["nut_position_m"])
     rc, _, err = _cli(capsys, "to-rrd", tmp_path / "t.rrd", "-o", tmp_path / "u.rrd")
     assert rc == 1 and "not an MCAP file" in err
 

@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from prsm_sim import Simulator, preset
 from prsm_sim.models.jones2016 import Jones2016, input_matrix, mass_matrix, steady_state
@@ -42,12 +41,18 @@ def test_closed_form_equals_long_run_simulation(evaluation):
 
 
 def test_seed_torque_for_one_rad_per_s():
-    # docs/model.md §4.1: M_in ≈ F_out L/2π + c N_R N_T (L/(2π sin β))² ω_S ≈ 0.092 N·m
+    # docs/model.md §4.1: the torque that holds the seed example at ω_S = 1 rad/s is 0.0922 N·m at the
+    # exact contact (4 digits given), which the rigid-carrier estimate F_out L/2π + c N_R N_T (L/(2π sin β))² ω_S
+    # approximates (it leaves out the carrier's share of the slip: measured 4.5e-4 relative)
     p = preset("jones2016")
     g = p.geometry
-    approx = 100 * g.lead_per_rad_m + 25 * 400 * (g.lead_per_rad_m / math.sin(g.flank_angle_rad)) ** 2
-    assert approx == pytest.approx(0.092, abs=5e-4)
-    assert steady_state(p)["torque_nm"] == pytest.approx(approx, rel=0.01)
+    ss = steady_state(p)
+    assert ss["torque_nm"] == pytest.approx(0.0922, abs=5e-5)
+    estimate = 100 * g.lead_per_rad_m + 25 * 400 * (g.lead_per_rad_m / math.sin(g.flank_angle_rad)) ** 2
+    assert ss["torque_nm"] == pytest.approx(estimate, rel=1e-3)
+    # power balance in the steady state (no kinetic change): M_in ω_S = F_out v_N + c N_R N_T |v_s|²
+    dissipated = 25.0 * g.n_rollers * g.n_teeth * ss["slip_speed_m_s"] ** 2
+    assert ss["torque_nm"] * ss["screw_speed_rad_s"] == pytest.approx(100 * ss["nut_velocity_m_s"] + dissipated, rel=1e-12)
 
 
 def test_transient_takes_about_02_s():
@@ -69,7 +74,8 @@ def test_transient_takes_about_02_s():
 
 
 def test_energy_balance_over_a_run():
-    # docs/model.md §5 item 5: input work = output work + ΔT + dissipated work (within 0.1 %; here ~1e-7)
+    # docs/model.md §5 item 5: input work = output work + ΔT + dissipated work; the step's dissipated
+    # work is integrated in closed form, so the ledger closes to rounding (measured 3.7e-13 of W_in)
     p = preset("jones2016")
     sim = Simulator(p, "jones2016", 1e-3)
     tau = 0.2 * np.sin(np.linspace(0, 20, 4000)) + 0.05
@@ -77,37 +83,51 @@ def test_energy_balance_over_a_run():
     s = tr.final_state
     u = np.array([s.screw_speed_rad_s, s.carrier_speed_rad_s])
     kinetic = 0.5 * u @ mass_matrix(p) @ u
-    assert s.work_in_j - s.work_out_j - s.dissipated_j - kinetic == pytest.approx(0.0, abs=1e-3 * abs(s.work_in_j))
-    # the dissipated work is the friction integral itself, c Σ|v_s|² dt (checked against quadrature)
+    residual = (s.work_in_j - s.work_out_j - s.dissipated_j - kinetic) / abs(s.work_in_j)
+    print(f"jones2016 energy ledger residual: {residual:.1e} of W_in")
+    assert abs(residual) < 1e-11
+    # the dissipated work is the friction integral itself, c Σ|v_s|² dt: against the rectangle rule on
+    # the step-end slip speeds, whose own error at 1 ms is O(h) (measured 2.5e-5 relative)
     slip = tr["slip_speed_m_s"]
     quad = np.sum(25.0 * 400 * slip**2) * 1e-3
-    assert s.dissipated_j == pytest.approx(quad, rel=0.01)
+    assert s.dissipated_j == pytest.approx(quad, rel=1e-4)
 
 
-def test_zoh_step_matches_a_tight_reference_solution():
-    # the same equations integrated by Radau at rtol 1e-11: ≤ 0.1 % error in nut position and carrier speed
+def modal_zoh_reference(M, C, B, inputs, h):
+    """Exact solution of M q̈ + C q̇ = B u with u held over each step of length h, in closed form on
+    the modes of the generalised symmetric problem C v = λ M v (scipy.linalg.eigh; Vᵀ M V = I, so
+    each mode obeys η̈ + λ η̇ = g with g = Vᵀ B u constant over the step):
+        η̇(h) = η̇₀ e^{−λh} + g (1 − e^{−λh})/λ,   η(h) = η₀ + η̇₀ (1 − e^{−λh})/λ + g (λh − (1 − e^{−λh}))/λ².
+    A different route from the model's (Van Loan's augmented matrix exponential): the same
+    equations, no shared code. Returns the states (q, q̇) after each step, shape (n, 4)."""
+    from scipy.linalg import eigh
+    lam, V = eigh(C, M)
+    one_minus = -np.expm1(-lam * h)  # 1 − e^{−λh}, accurate for the slow screw mode (λh ≈ 7e-3)
+    eta, deta, out = np.zeros(2), np.zeros(2), []
+    for u in inputs:
+        g = V.T @ B @ u
+        eta = eta + deta * one_minus / lam + g * (lam * h - one_minus) / lam**2
+        deta = deta * np.exp(-lam * h) + g * one_minus / lam
+        out.append(np.concatenate([V @ eta, V @ deta]))
+    return np.array(out)
+
+
+def test_zoh_step_matches_an_exact_modal_reference_solution():
+    # the model's ZOH step must equal the exact piecewise-constant-input solution (above) to rounding;
+    # (2000 steps of a varying torque, the screw and carrier angles and speeds and the nut position)
     p = preset("jones2016")
     m = Jones2016(p, 1e-3)
-    Minv = np.linalg.inv(m.M)
-    B = input_matrix(p)
-
-    def torque(t):
-        return 0.3 * math.sin(7 * math.floor(t / 1e-3) * 1e-3)
-
-    def rhs(t, x):
-        return np.concatenate([x[2:], Minv @ (-m.C @ x[2:] + B @ [torque(t), 100.0])])
-
-    n = 500
-    tr = Simulator(p, "jones2016", 1e-3).run([torque(k * 1e-3) for k in range(n)], 100.0)
-    x = np.zeros(4)
-    ref = []
-    for k in range(n):
-        x = solve_ivp(rhs, (k * 1e-3, (k + 1) * 1e-3), x, method="Radau", rtol=1e-11, atol=1e-14).y[:, -1]
-        ref.append(x.copy())
-    ref = np.array(ref)
-    np.testing.assert_allclose(tr["nut_position_m"], ref[:, 0] * p.geometry.lead_per_rad_m,
-                               rtol=1e-6, atol=1e-12)
-    np.testing.assert_allclose(tr["carrier_speed_rad_s"], ref[:, 3], rtol=1e-5, atol=1e-9)
+    torque = 0.3 * np.sin(7 * np.arange(2000) * 1e-3)
+    tr = Simulator(p, "jones2016", 1e-3).run(torque, 100.0)
+    ref = modal_zoh_reference(mass_matrix(p), m.C, input_matrix(p), [np.array([t, 100.0]) for t in torque], 1e-3)
+    worst = 0.0
+    for k, name in enumerate(("screw_angle_rad", "carrier_angle_rad", "screw_speed_rad_s", "carrier_speed_rad_s")):
+        scale = np.max(np.abs(ref[:, k]))
+        worst = max(worst, np.max(np.abs(tr[name] - ref[:, k])) / scale)
+    nut = ref[:, 0] * p.geometry.lead_per_rad_m
+    worst = max(worst, np.max(np.abs(tr["nut_position_m"] - nut)) / np.max(np.abs(nut)))
+    print(f"jones2016 ZOH vs modal reference: worst error {worst:.1e} of each state's range")  # measured 2.7e-13
+    assert worst < 1e-11
 
 
 def test_batch_run_equals_stepping():

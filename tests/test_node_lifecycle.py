@@ -21,6 +21,10 @@ def clock_ns(msg) -> int:
     return msg.clock.sec * 10**9 + msg.clock.nanosec
 
 
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+
+
 def read_bag(path):
     """topic → [(log_time_ns, message)] in file (write) order, decoded with rosbags' own type store.
 
@@ -45,6 +49,13 @@ def read_bag(path):
 
 
 def test_realtime_run_services_and_sigint(tmp_path):
+    """Realtime pacing, pause/step/reset and SIGINT, waiting on events (generous ceilings), so a
+    busy machine only makes it slower. Pacing oracle: a realtime run never gets ahead of the wall
+    clock. After ~/reset the schedule restarts no earlier than our call, so every /clock received
+    after it satisfies sim_time <= wall time since the call (× real_time_factor 1) + one period;
+    fast mode (no pacing) breaks this within milliseconds."""
+    import time
+
     from diagnostic_msgs.msg import DiagnosticArray
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
@@ -53,50 +64,53 @@ def test_realtime_run_services_and_sigint(tmp_path):
     params = {"time_mode": "realtime", "diagnostics_rate": 20.0, "record_path": str(bag), "step_count": 5}
     with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
         clock = cli.subscribe("/clock", Clock)
+        arrivals: list[tuple[float, int]] = []  # (our monotonic receive time, sim time ns) of every /clock
+        cli.node.create_subscription(Clock, "/clock", lambda m: arrivals.append((time.monotonic(), clock_ns(m))), 10000)
         js = cli.subscribe("/joint_states", JointState)
         diag = cli.subscribe("/diagnostics", DiagnosticArray)
         cli.wait_for_node(proc)
         cli.spin_until(lambda: len(clock) > 50, 10.0, "clock")
-        n0, t0 = len(clock), clock_ns(clock[-1])
-        cli.spin_for(0.5)
-        sim_advance = (clock_ns(clock[-1]) - t0) * 1e-9
-        assert 0.25 < sim_advance < 0.75, sim_advance  # paced on wall time (a function check, not a speed figure)
-        assert len(clock) > n0
 
         res = cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True))
-        assert res.success
-        # "paused at t = X s": wait for that state (a loaded client lags behind the node), not for a time
-        paused_at = round(float(res.message.split("t = ")[1].split()[0]) * 1e9)
-        cli.spin_until(lambda: clock_ns(clock[-1]) >= paused_at and js and
-                       js[-1].header.stamp.sec * 10**9 + js[-1].header.stamp.nanosec >= paused_at, 30.0, "the paused state")
-        assert clock_ns(clock[-1]) == paused_at
-        n_js = len(js)
-        cli.spin_for(0.3)
-        assert clock_ns(clock[-1]) == paused_at and len(js) == n_js  # nothing steps while paused
+        assert res.success and res.message.startswith("paused at t = "), res.message
+        paused_at = round(float(res.message.split()[4]) * 1e9)  # the node's own word: last step's time
+        cli.spin_until(lambda: clock_ns(clock[-1]) == paused_at, 10.0, "the last /clock before the pause")
+        cli.spin_for(0.3)  # absence can only be watched for: nothing steps while paused
+        assert clock_ns(clock[-1]) == paused_at and max(stamp_ns(m) for m in js) <= paused_at
 
         res = cli.call("/prsm_actuator/step", Trigger)
         assert res.success, res.message
-        cli.spin_until(lambda: len(js) == n_js + 5 and clock_ns(clock[-1]) == paused_at + 5_000_000, 5.0,
+        stepped = [paused_at + k * 1_000_000 for k in range(1, 6)]
+        cli.spin_until(lambda: clock_ns(clock[-1]) == stepped[-1] and stamp_ns(js[-1]) == stepped[-1], 10.0,
                        "5 stepped states and /clock 5 ms on")
-        assert [m.header.stamp.nanosec for m in js[n_js:]] == [(paused_at + k * 1_000_000) % 10**9 for k in range(1, 6)]
+        assert [stamp_ns(m) for m in js if stamp_ns(m) > paused_at] == stepped  # published after every step
 
         n_js = len(js)
+        n_reset = len(clock)
+        t_reset = time.monotonic()
         assert cli.call("/prsm_actuator/reset", Trigger).success
         # reset while paused publishes the reset state at once (issue 15), though nothing steps
         cli.spin_until(lambda: len(js) > n_js, 5.0, "the reset state while paused")
-        assert js[n_js].header.stamp.sec == js[n_js].header.stamp.nanosec == 0 and clock_ns(clock[-1]) == 0
+        assert stamp_ns(js[n_js]) == 0 and clock_ns(clock[-1]) == 0
         assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=False)).success
         res = cli.call("/prsm_actuator/step", Trigger)
         assert not res.success and "not paused" in res.message
-        n1 = len(clock)
-        cli.spin_until(lambda: len(clock) > n1 + 10, 5.0, "clock after reset")
-        assert clock_ns(clock[n1]) < 100_000_000  # restarted from zero
+        cli.spin_until(lambda: clock_ns(clock[-1]) >= 300_000_000, 20.0, "0.3 s of simulation after the reset")
+        # the reset state (t = 0, published at once while paused), then the first step: restarted from zero
+        assert clock_ns(clock[n_reset]) == 0 and clock_ns(clock[n_reset + 1]) == 1_000_000
+        # paused before the reset, so every /clock received after t_reset was published after the reset
+        ahead = max(ns * 1e-9 - (t - t_reset) for t, ns in arrivals if t > t_reset)
+        print(f"realtime: sim time ahead of the wall clock since the reset at most {ahead * 1e3:.3f} ms "
+              "(negative: behind)")
+        assert ahead <= 1e-3, ahead  # never ahead by more than one period: paced on wall time
 
         m = len(diag)
-        cli.spin_until(lambda: len(diag) > m + 1, 5.0, "diagnostics")
+        cli.spin_until(lambda: len(diag) > m + 1, 10.0, "diagnostics")
         level, text, v = diagnostics_of(diag[-1])
-        assert level == 0 and text == "running"
-        assert 0.5 < float(v["achieved_real_time_factor"]) < 1.5  # bench_node measures the pacing itself
+        # OK, or WARN for nothing but overruns (a busy machine delays steps; the pacing check is above)
+        assert (level, text) == (0, "running") or (level == 1 and text.endswith("step overruns since the last report")), \
+            (level, text)
+        assert float(v["achieved_real_time_factor"]) > 0  # running; prsm-bench measures the pacing itself
         assert int(v["record_written"]) > 0 and v["record_error"] == ""
         assert proc.stop(signal.SIGINT) == 0, proc.stderr
     assert "Traceback" not in proc.stderr

@@ -14,14 +14,14 @@ import pytest
 
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
-from prsm_sim import MODELS, OUTPUT_FIELDS, Simulator, preset  # noqa: E402
+from prsm_sim import OUTPUT_FIELDS, Simulator, preset  # noqa: E402
 from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402
 
 ENV = ros_test_env("test_node_lockstep")
 STEPS_PER_COMMAND = 3
 LOAD_N = 300.0
 TORQUES = [0.0, 0.5, 1.5, 2.5, 2.5, -1.0, 0.25, 3.0, 0.0, -0.75, 1.0, 2.0] * 2
-MODEL_NAMES = [m for m in ("ideal", "jones2016", "fu2018") if m in MODELS]
+MODEL_NAMES = ["ideal", "jones2016", "fu2018"]  # named, so a rename fails instead of dropping a case
 
 
 def lockstep_params(model: str, tmp_path) -> dict:

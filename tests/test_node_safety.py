@@ -12,7 +12,6 @@ import pytest
 
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
-from prsm_sim import MODELS  # noqa: E402
 from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
 
 ENV = ros_test_env("test_node_safety")
@@ -102,7 +101,6 @@ def test_watchdog_acts_after_cmd_timeout_of_simulation_time(tmp_path, behaviour,
         assert proc.stop() == 0
 
 
-@pytest.mark.skipif("fu2018" not in MODELS, reason="needs a model that can be driven to a non-finite state")
 def test_non_finite_state_faults_reports_error_and_reset_recovers(tmp_path):
     """fu2018 with a vanishing moved mass and no screw/roller inertia yields NaN on its first step."""
     from std_msgs.msg import Float64

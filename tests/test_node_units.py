@@ -103,6 +103,87 @@ def test_pacer_skips_ahead_when_too_far_behind_and_follows_the_real_time_factor(
     assert ft.now - before == pytest.approx(5e-4)  # back on a schedule, no burst of 200 steps
 
 
+def test_pacer_restarted_during_a_sleep_waits_on_the_new_schedule():
+    """The executor thread restarts the pacer (a reset, a new rate) while the step thread sleeps
+    towards the old deadline: the step must come one period after the restart, not at the stale
+    deadline, and the figures start again from that restart."""
+    ft = FakeTime()
+    p = DeadlinePacer(1e-3, clock=ft.clock, sleep=lambda dt: sleep(dt))
+    restart_now = False
+
+    def sleep(dt):
+        nonlocal restart_now
+        if restart_now:  # halfway through this sleep, another thread restarts the schedule
+            restart_now = False
+            ft.now += dt / 2
+            p.restart()
+            ft.now += dt / 2
+        else:
+            ft.now += dt
+
+    p.wait(), p.wait()
+    assert ft.now == pytest.approx(2e-3)
+    restart_now = True
+    assert p.wait() == 0.0
+    assert ft.now == pytest.approx(3.5e-3) and p.snapshot().steps == 1  # restart at 2.5 ms + one period
+    p.set_rate(2.0)  # a rate change restarts too: next step one new period (0.5 ms) later
+    p.wait()
+    assert ft.now == pytest.approx(4e-3) and p.snapshot().steps == 1
+    assert p.count_step() == 2 and p.snapshot().overruns == 0
+
+
+def test_node_close_is_bounded_when_the_step_thread_hangs(tmp_path, monkeypatch):
+    """PrsmNode.close with a step thread stuck inside a step: close returns after the step
+    thread's timeout, says so, still finishes the MCAP file, and the step's late write is counted
+    as dropped instead of landing in a finished file (or hanging shutdown)."""
+    import threading
+
+    from std_msgs.msg import Float64
+
+    from prsm_ros.mcap.recorder import McapRecorder
+    from prsm_ros.messages import TOPICS
+    from prsm_ros.bag.reader import open_bag
+    import prsm_ros.node.ros_node as ros_node
+
+    monkeypatch.setattr(ros_node, "STEP_THREAD_STOP_S", 0.2)
+    rec = McapRecorder(tmp_path / "node.mcap")
+    rec.add_channel("/clock_like", Float64, TOPICS["screw_torque"].qos)
+    rec.write("/clock_like", Float64(data=1.0), 1)
+    release, in_step = threading.Event(), threading.Event()
+
+    def stuck_step():
+        in_step.set()
+        release.wait(30)  # a model step that outlives the stop timeout
+        rec.write("/clock_like", Float64(data=2.0), 2)
+
+    class Node:  # what PrsmNode.close touches
+        close = ros_node.PrsmNode.close
+
+        def __init__(self):
+            self._stop, self._resumed = threading.Event(), threading.Event()
+            self.recorder, self.rerun, self.errors = rec, None, []
+            self._thread = threading.Thread(target=stuck_step, daemon=True)
+            self._thread.start()
+
+        def get_logger(self):
+            return self
+
+        def error(self, text):
+            self.errors.append(text)
+
+    node = Node()
+    assert in_step.wait(10)
+    node.close()
+    assert node._stop.is_set() and node._thread.is_alive()
+    assert any("did not stop within 0.2 s" in e for e in node.errors), node.errors
+    assert rec.error is None and rec.messages_written == 1
+    release.set()
+    node._thread.join(10)
+    assert rec.messages_written == 1 and rec.messages_dropped == 1
+    bag = open_bag(tmp_path / "node.mcap")
+    assert bag.complete and bag.topics["/clock_like"].count == 1
+
+
 def test_every_n_steps():
     assert [every_n_steps(r, 1000) for r in (0, 1000, 5000, 100, 300, 0.5)] == [1, 1, 1, 10, 3, 2000]
 
@@ -122,7 +203,6 @@ def test_stepper_equals_simulator_and_rebuild_keeps_state():
     assert st.sim.state == sim.state and st.nstep == 5 and st.sim.params == p2
 
 
-@pytest.mark.skipif("fu2018" not in MODELS, reason="needs fu2018")
 def test_stepper_faults_on_non_finite_state_and_reset_clears_it():
     p = preset("s30").with_overrides({"mass.moved_mass_kg": 1e-300, "mass.screw_inertia_kgm2": 0.0,
                                       "mass.roller_mass_kg": 0.0, "mass.roller_inertia_kgm2": 0.0})

@@ -242,6 +242,130 @@ def test_dev_full_reports_no_space_and_the_caller_keeps_running():
     assert rec.messages_dropped == 3
 
 
+class _StallingFile:
+    """A real file whose writes block while `stalled` is set: a disk (or NFS mount) that stopped
+    answering, as the writer thread sees it (blocked inside write(2), holding no Python lock)."""
+
+    def __init__(self, path, mode):
+        import threading
+        self._f = open(path, mode)
+        self.stalled = threading.Event()
+        self.resumed = threading.Event()
+        self.blocked = threading.Event()
+
+    def write(self, data):
+        if self.stalled.is_set():
+            self.blocked.set()
+            self.resumed.wait()
+        return self._f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self._f, name)
+
+
+@pytest.fixture
+def stalling_files(monkeypatch) -> list[_StallingFile]:
+    """The recorder's files, opened as `_StallingFile`s (in the order the recorders open them)."""
+    import prsm_ros.mcap.recorder as recorder_module
+    files: list[_StallingFile] = []
+    monkeypatch.setattr(recorder_module, "open", lambda p, m: files.append(_StallingFile(p, m)) or files[-1],
+                        raising=False)
+    return files
+
+
+def test_stalled_disk_cannot_hang_close_and_what_was_lost_is_counted(tmp_path, stalling_files):
+    """The disk stalls under the writer thread. close() must give up within its timeout, say so,
+    and account for every message offered: written (handed to the MCAP writer) + dropped = offered,
+    also for a write after close. When the disk comes back the thread finishes the file on its own,
+    and the file (read by the mcap library) holds exactly the messages counted as written."""
+    from mcap.reader import make_reader
+    from std_msgs.msg import Float64
+
+    path = tmp_path / "stalled.mcap"
+    rec = McapRecorder(path, flush_interval_s=0.01)
+    disk = stalling_files[0]
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    disk.stalled.set()
+    offered = 6_000
+    for k in range(1000):
+        rec.write("/a", Float64(data=float(k)), k)
+    assert disk.blocked.wait(timeout=30), "the writer thread never reached the disk"
+    for k in range(1000, offered):  # these queue up behind the stalled write
+        rec.write("/a", Float64(data=float(k)), k)
+    t0 = time.monotonic()
+    assert rec.close(timeout_s=1.0) is False
+    waited = time.monotonic() - t0
+    assert waited < 1.0 + 10.0, waited  # returned at its timeout (the ceiling only absorbs a busy machine)
+    assert "did not finish within 1 s" in rec.error and "no summary" in rec.error
+    assert rec.messages_dropped >= offered - 1000  # still queued behind the stalled chunk
+    assert rec.messages_written + rec.messages_dropped == offered
+    rec.write("/a", Float64(data=0.0), offered)  # after close: counted, never queued
+    assert rec.messages_written + rec.messages_dropped == offered + 1
+
+    disk.resumed.set()  # the disk recovers: the thread writes what it holds, the summary and the footer
+    rec._thread.join(timeout=30)
+    assert not rec._thread.is_alive()
+    with open(path, "rb") as f:
+        stats = make_reader(f).get_summary().statistics
+    assert sum(stats.channel_message_counts.values()) == rec.messages_written
+    assert rec.messages_written + rec.messages_dropped == offered + 1
+
+
+@pytest.mark.parametrize("halfway", ["close", "disk_full"])
+def test_drop_counts_are_exact_under_concurrent_writers(tmp_path, stalling_files, halfway):
+    """Four threads write while, halfway, the main thread closes the recorder or the disk fills up
+    under the writer thread (thousands of messages queued). Every message offered is in exactly
+    one count (written or dropped); after a clean close the file (read back by our reader) holds
+    exactly the written ones. The GIL switch interval is cut to 1 µs so the threads interleave
+    inside write() and the writer's drain as often as they can."""
+    import errno
+    import sys as _sys
+    import threading
+
+    from std_msgs.msg import Float64
+
+    path = tmp_path / "concurrent.mcap"
+    rec = McapRecorder(path, flush_interval_s=0.01)
+    disk = stalling_files[0]
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    per_thread, n_threads = 25_000, 4
+    middle = threading.Barrier(n_threads + 1)
+
+    def produce(j: int) -> None:
+        for k in range(per_thread):
+            if k == per_thread // 2:
+                middle.wait(timeout=60)
+            rec.write("/a", Float64(data=float(k)), j * per_thread + k)
+
+    def full(data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    old = _sys.getswitchinterval()
+    _sys.setswitchinterval(1e-6)
+    try:
+        threads = [threading.Thread(target=produce, args=(j,)) for j in range(n_threads)]
+        for t in threads:
+            t.start()
+        middle.wait(timeout=60)
+        if halfway == "close":
+            assert rec.close(timeout_s=30.0), rec.error
+        else:
+            disk.write = full
+        for t in threads:
+            t.join(timeout=60)
+        assert not any(t.is_alive() for t in threads)
+        rec.close(timeout_s=30.0)
+    finally:
+        _sys.setswitchinterval(old)
+    offered = n_threads * per_thread
+    assert rec.messages_written + rec.messages_dropped == offered
+    assert rec.messages_written > 0 and rec.messages_dropped > 0
+    if halfway == "close":
+        assert open_bag(path).topics["/a"].count == rec.messages_written
+    else:
+        assert "No space left on device" in rec.error
+
+
 _WRITER = """
     import json, sys, time
     from std_msgs.msg import Float64
@@ -280,11 +404,17 @@ def test_sigkill_leaves_a_file_readable_up_to_its_last_complete_chunk(tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(_WRITER), str(path), "100000000"],
                             stdout=subprocess.PIPE, text=True, env=CHILD_ENV)
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:  # let several chunks reach the disk, then kill mid-run
+        # Kill mid-run once the file holds >= 2 complete chunks with >= 5000 values: an event read
+        # from the file itself (our recovery scan), not a size or a time that a busy machine stretches.
+        deadline, size, ready = time.monotonic() + 120, 0, False
+        while not ready:
             line = proc.stdout.readline()
-            if json.loads(line)["written"] > 20_000 and path.stat().st_size > 200_000:
-                break
+            assert line and time.monotonic() < deadline, "the writer never put 2 chunks on disk"
+            if json.loads(line)["written"] > 10_000 and path.stat().st_size > size:
+                size = path.stat().st_size
+                seen: list[int] = []
+                scan = scan_records(path, lambda s, ch, m: ch.topic == "/value" and seen.append(1))
+                ready = scan.chunks >= 2 and len(seen) >= 5_000
         proc.send_signal(signal.SIGKILL)
     finally:
         proc.wait(timeout=10)

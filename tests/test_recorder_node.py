@@ -27,6 +27,7 @@ ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": s
 _CONTROLLER = """
     import json, math, time
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
     rclpy.init()
@@ -35,10 +36,16 @@ _CONTROLLER = """
     def on_js(m):
         state["x"], state["v"] = m.position[1], m.velocity[1]
     node.create_subscription(JointState, "/joint_states", on_js, 10)
+    received = []  # the node's own count of commands received, from /diagnostics
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: received.append(
+        int({kv.key: kv.value for kv in m.status[0].values}["commands_received"])), 10)
     tau_pub = node.create_publisher(Float64, "/prsm_actuator/screw_torque", 1)
     ref_pub = node.create_publisher(Float64, "/prsm_actuator/nut_position_reference", 10)
-    end = time.monotonic() + 20
-    while state["x"] is None and time.monotonic() < end:
+    # discovery matches each direction on its own: wait for the node's states AND for the node to
+    # listen to both our topics, or the first commands go nowhere on a busy machine
+    end = time.monotonic() + 60
+    while (state["x"] is None or tau_pub.get_subscription_count() == 0 or ref_pub.get_subscription_count() == 0) \
+            and time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
     t0 = time.monotonic()
     while time.monotonic() - t0 < 1.5:
@@ -51,7 +58,11 @@ _CONTROLLER = """
         tau_pub.publish(Float64(data=tau))
         state["sent"].append(tau)
         time.sleep(0.005)
-    print(json.dumps({"sent": state["sent"]}), flush=True)
+    n = len(received)  # one report after the last command: the node's count includes what it took of ours
+    end = time.monotonic() + 120
+    while len(received) <= n + 1 and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    print(json.dumps({"sent": state["sent"], "received": max(received, default=0)}), flush=True)
 """
 
 
@@ -62,14 +73,14 @@ def test_node_run_records_an_mcap_that_checks_clean_and_reports(tmp_path, capsys
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
     try:
         ctrl = subprocess.run([sys.executable, "-c", textwrap.dedent(_CONTROLLER)], capture_output=True, text=True,
-                              env=ENV, timeout=60)
+                              env=ENV, timeout=360)
         assert ctrl.returncode == 0, ctrl.stderr
-        sent = json.loads(ctrl.stdout)["sent"]
+        sent, received = json.loads(ctrl.stdout)["sent"], json.loads(ctrl.stdout)["received"]
         time.sleep(0.3)
     finally:
         node.send_signal(signal.SIGINT)
         try:
-            out, _ = node.communicate(timeout=20)
+            out, _ = node.communicate(timeout=120)
         except subprocess.TimeoutExpired:
             node.kill()
             out, _ = node.communicate()
@@ -87,11 +98,13 @@ def test_node_run_records_an_mcap_that_checks_clean_and_reports(tmp_path, capsys
     assert counts["/prsm_actuator/internal_loads/labels"] == 1
     assert counts["/joint_states"] == counts["/clock"] > 1000  # every step, realtime at 1 kHz
     # the commands in the bag are those the controller sent, in order (a subscription of depth 1
-    # may skip some when the node is busy, so the recorded list is an ordered subsequence)
+    # skips some when the node is busy, so the recorded list is an ordered subsequence), and every
+    # command the node reported receiving on /diagnostics is in it (how many it skips depends on the
+    # machine's load, what it records does not)
     recorded = [m.msg.data for m in b.messages(["/prsm_actuator/screw_torque"])]
     it = iter(sent)
-    assert recorded and all(any(v == s for s in it) for v in recorded)
-    assert len(recorded) >= 0.5 * len(sent)
+    assert all(any(v == s for s in it) for v in recorded)
+    assert len(recorded) >= received > 0, (len(recorded), received, len(sent))
     assert 0 < counts["/prsm_actuator/nut_position_reference"] <= len(sent)
     clock = [m.msg.clock.sec * 10**9 + m.msg.clock.nanosec for m in b.messages(["/clock"])]
     assert clock == sorted(clock) and [m.log_time_ns for m in b.messages(["/clock"])] == clock
@@ -100,7 +113,10 @@ def test_node_run_records_an_mcap_that_checks_clean_and_reports(tmp_path, capsys
     r = json.loads(capsys.readouterr().out)
     assert rc == 0
     tr = r["tracking"]
-    assert tr["reference_span_m"] == pytest.approx(2e-3, rel=0.05)  # the 1 mm sine the controller sent
+    # the 1 mm sine the controller sent, as sampled (a busy machine samples it coarsely): the span of
+    # the recorded references, read from the bag here, and never more than the sine's 2 mm
+    refs = [m.msg.data for m in b.messages(["/prsm_actuator/nut_position_reference"])]
+    assert tr["reference_span_m"] == pytest.approx(max(refs) - min(refs), rel=1e-12) and 0 < tr["reference_span_m"] <= 2e-3
     assert 0 < tr["rms_error_m"] <= tr["max_abs_error_m"]
     assert r["efficiency"]["forward"] is not None and 0 < r["efficiency"]["forward"] < 1
     assert r["life"]["l10_revolutions"] > 0 and r["peak_loads"]

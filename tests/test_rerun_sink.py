@@ -202,6 +202,73 @@ def test_full_queue_drops_and_counts(tmp_path):
     assert rrd_rows(path)[("/series/nut_position_m", "Scalars:scalars")] == 10
 
 
+def _fds_on(path) -> list[str]:
+    """Open file descriptors of this process that point at `path` (deleted or not)."""
+    out = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith(str(path)):
+            out.append(target)
+    return out
+
+
+def test_a_start_that_fails_after_save_leaves_no_stream_file_or_thread(tmp_path, monkeypatch):
+    """A failure after `rec.save` opened the file (here: the static scene) must close the stream:
+    no descriptor on the .rrd, no half-written file of a run that never happened, no thread."""
+    import threading
+
+    from prsm_ros.viz import sink as sink_module
+
+    def boom(self):
+        raise RuntimeError("static scene failed")
+
+    monkeypatch.setattr(sink_module.RecordingWriter, "log_static", boom)
+    path = tmp_path / "failed.rrd"
+    params = preset("jones2016")
+    with pytest.raises(RuntimeError, match="static scene failed"):
+        RerunSink("save", str(path), params, Simulator(params, "jones2016").layout, "jones2016")
+    assert not path.exists() and _fds_on(path) == []
+    assert "prsm-rerun-sink" not in [t.name for t in threading.enumerate()]
+
+
+def test_close_is_bounded_when_the_background_thread_hangs(tmp_path, monkeypatch):
+    """The background thread is stuck in a send (a stalled viewer connection): close() returns
+    after its timeout with the error said and the steps it could not send counted in `lost`,
+    and the stream is still closed (no descriptor left on the .rrd)."""
+    import threading
+
+    from prsm_ros.viz import sink as sink_module
+
+    release, blocked = threading.Event(), threading.Event()
+    real_send = sink_module.RecordingWriter.send
+
+    def stuck_send(self, columns, internal):
+        blocked.set()
+        release.wait(30)
+        real_send(self, columns, internal)
+
+    monkeypatch.setattr(sink_module.RecordingWriter, "send", stuck_send)
+    path = tmp_path / "stuck.rrd"
+    params = preset("jones2016")
+    sim = Simulator(params, "jones2016")
+    sink = RerunSink("save", str(path), params, sim.layout, "jones2016", flush_period_s=0.01)
+    sink.submit(sim.step(0.1, 10.0))
+    assert blocked.wait(10)
+    for _ in range(20):  # queued behind the stuck send
+        sink.submit(sim.step(0.1, 10.0))
+    t0 = time.monotonic()
+    assert sink.close(timeout_s=0.5) is False
+    assert time.monotonic() - t0 < 0.5 + 10.0  # the ceiling only absorbs a busy machine
+    assert "did not finish within 0.5 s" in sink.error and sink.lost == 20 and sink.stats()["lost"] == 20
+    assert _fds_on(path) == []
+    release.set()
+    sink._thread.join(10)
+    assert not sink._thread.is_alive()
+
+
 def test_a_script_that_never_closes_still_leaves_a_finished_file(tmp_path):
     path = tmp_path / "unclosed.rrd"
     code = ("from prsm_sim import Simulator, preset\n"

@@ -11,7 +11,10 @@ caller only appends `(channel, message, stamp)` to a bounded queue; a background
 writes, and flushes a finished chunk at least every `flush_interval_s`, so a killed process loses
 at most that much. An unwritable path or a full disk sets `.error`, stops recording and counts
 what could not be written in `messages_dropped`; the caller is never interrupted. `close()`
-writes the summary and footer; it is idempotent and also runs at interpreter exit.
+writes the summary and footer within a timeout (a stalled disk cannot hang the caller: it gives up,
+sets `.error` and counts what was still queued as dropped); it is idempotent and also runs at
+interpreter exit. Every message offered ends up in exactly one of `messages_written` and
+`messages_dropped`.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ DEFAULT_CHUNK_SIZE = 1 << 20  # bytes before compression; a flush usually closes
 # writer sleeps for real after each slice of work: the step loop then waits at most one slice.
 WORK_SLICE_S = 2e-4
 YIELD_S = 5e-5
+CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
 
 
 def package_version() -> str:
@@ -131,8 +135,9 @@ class McapFile:
         """Serialize `msg` to CDR (bytes: already CDR) and add it at log_time = publish_time = stamp_ns."""
         seq = self._sequence[channel_id] + 1
         self._sequence[channel_id] = seq
-        self._writer.add_message(channel_id, stamp_ns, msg if type(msg) is bytes else self._serialize(msg), stamp_ns, seq)
-        self.messages_written += 1
+        data = msg if type(msg) is bytes else self._serialize(msg)
+        self.messages_written += 1  # counted once handed over: a stalled disk blocks inside add_message
+        self._writer.add_message(channel_id, stamp_ns, data, stamp_ns, seq)
 
     def flush(self) -> None:
         """Close the chunk in progress (with its message index) and push it to the OS."""
@@ -173,6 +178,12 @@ class McapRecorder:
             raise ValueError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
         self.path = Path(path)
         self.error: str | None = None
+        # `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
+        # append. The caller holds it for a check and an append; the writer thread takes it only
+        # to stop admission and to count what it discards. So a message is either queued before
+        # admission stops (and then written or counted by whoever empties the queue) or counted
+        # at once: the counts are exact whatever the threads do.
+        self._lock = threading.Lock()
         self._dropped_full = 0
         self._lost = 0
         self._queue: deque = deque()
@@ -203,7 +214,8 @@ class McapRecorder:
     @property
     def messages_dropped(self) -> int:
         """Messages not recorded: queue full, or not yet written when recording stopped."""
-        return self._dropped_full + self._lost
+        with self._lock:
+            return self._dropped_full + self._lost
 
     @property
     def queue_length(self) -> int:
@@ -226,22 +238,49 @@ class McapRecorder:
             raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._classes) or 'none'}")
         if type(msg) is not cls and type(msg) is not bytes:  # bytes: serialised once by the caller for DDS and MCAP
             raise TypeError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
-        if not self._writing:
-            self._lost += 1
-        elif len(self._queue) >= self._queue_size:
-            self._dropped_full += 1
-        else:
-            self._queue.append((topic, msg, stamp_ns))
+        with self._lock:
+            if not self._writing:
+                self._lost += 1
+            elif len(self._queue) >= self._queue_size:
+                self._dropped_full += 1
+            else:
+                self._queue.append((topic, msg, stamp_ns))
 
-    def close(self) -> None:
-        """Write what is queued, then the summary and footer. Idempotent; safe after an error."""
-        if self._closed:
-            return
-        self._closed = True
-        self._writing = False  # later writes are counted as dropped; queued ones are still written
-        atexit.unregister(self.close)
-        self._stop.set()
-        self._thread.join()
+    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Write what is queued, then the summary and footer; True when the file was finished cleanly.
+
+        Writes after close are counted as dropped. If the writer thread has not finished within
+        `timeout_s` (a stalled disk or network file system), close gives up waiting: what is
+        still queued is counted as dropped, `error` says so, and the file is left to the thread
+        (it finishes the file if the disk recovers; otherwise it is readable up to its last
+        chunk). Idempotent (a second call returns the first's verdict); safe after an error.
+        """
+        if not self._closed:
+            self._closed = True
+            with self._lock:
+                self._writing = False  # later writes are counted as dropped; queued ones are still written
+            atexit.unregister(self.close)
+            self._stop.set()
+            self._thread.join(timeout=timeout_s)
+            if self._thread.is_alive():
+                lost = self._discard_queued()
+                self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
+                                            f"{timeout_s:g} s (stalled disk?); {lost} queued messages were not "
+                                            "written and the file has no summary")
+        return self.error is None
+
+    def _discard_queued(self) -> int:
+        """Empty the queue, counting the messages in it as dropped; returns how many (either thread)."""
+        n = 0
+        while True:
+            try:
+                item = self._queue.popleft()
+            except IndexError:
+                break
+            n += item[2] is not None  # channel declarations are not messages
+        with self._lock:
+            self._lost += n
+        return n
 
     def __enter__(self) -> McapRecorder:
         return self
@@ -254,7 +293,8 @@ class McapRecorder:
     def _fail(self, e: BaseException) -> None:
         what = e.strerror if isinstance(e, OSError) and e.strerror else (str(e) or type(e).__name__)
         self.error = f"recording to {self.path} stopped: {what}"
-        self._writing = False
+        with self._lock:
+            self._writing = False
         if self._file is not None:
             self._final_written = self._file.messages_written
             self._file.abort()
@@ -290,8 +330,7 @@ class McapRecorder:
                         last_flush = now
             except Exception as e:  # disk full, I/O error: recording stops, the caller does not
                 self._fail(e)
-            if self._file is None:
-                self._lost += sum(1 for item in queue if item[2] is not None)
-                queue.clear()
+            if self._file is None:  # admission is closed (`_fail` or close): nothing lands after this drain
+                self._discard_queued()
             if stopping:
                 return

@@ -59,12 +59,17 @@ from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, re
                                     rest_outputs)
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
-# fast mode: a thread that never sleeps keeps the GIL and the lock from the executor (services,
-# commands) for a switch interval at a time, so it really sleeps briefly every few steps.
+# fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
+# the GIL and the lock from the executor (services, commands) — it re-takes the lock before a waiting
+# thread wakes — so it really sleeps briefly every few steps that did not sleep.
 FAST_YIELD_EVERY = 32
 FAST_YIELD_S = 2e-5
 OVERRIDABLE_QOS = (QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY, QoSPolicyKind.DURABILITY)
 REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Python's default: 5 ms)
+# Shutdown waits, each bounded so SIGTERM always ends the process (ros_procs.NodeProcess.stop allows 20 s).
+STEP_THREAD_STOP_S = 5.0  # a step in progress (a stiff model step) finishes well within this
+RECORDER_CLOSE_S = 5.0  # the queue (at most queue_size messages) and the summary; a stalled disk gives up
+RERUN_CLOSE_S = 5.0
 
 
 class PrsmNode(Node):
@@ -75,6 +80,7 @@ class PrsmNode(Node):
         self.recorder = self.rerun = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._resumed = threading.Event()
         try:
             self._setup()
         except BaseException:
@@ -140,7 +146,6 @@ class PrsmNode(Node):
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
-        self._resumed = threading.Event()
         self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
         if cfg.time_mode != "lockstep":
             self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
@@ -332,7 +337,7 @@ class PrsmNode(Node):
         """Called with the lock held: warn (throttled per topic) about a refused command; step in lockstep."""
         if reason is not None:
             self._warn_throttled(key, f"{self._topic_names[key]}: {reason}")
-        if self.config.time_mode == "lockstep" and not self.stepper.paused:
+        if self.config.time_mode == "lockstep" and not self.stepper.paused and not self._stop.is_set():
             self._advance(self.config.lockstep_steps, publish_last_state=True)
 
     def _warn_throttled(self, key: str, text: str) -> None:
@@ -403,6 +408,7 @@ class PrsmNode(Node):
             self.scheduling["step_thread"] = request_realtime_priority(self.config.realtime_priority)
         self.pacer.restart()
         was_running = False
+        unslept = 0  # steps since the thread last slept (and so let the executor take the lock)
         while not self._stop.is_set():
             if self.stepper.paused or self.stepper.fault is not None:
                 was_running = False
@@ -412,11 +418,15 @@ class PrsmNode(Node):
                 self.pacer.restart()
                 was_running = True
             if realtime:
-                self.pacer.wait()
+                # half a period late: this step was not slept for (catch-up), nor will the next one be
+                behind = self.pacer.wait() > 0.5 * self.pacer.period_s
             else:
-                self.pacer.stats.steps += 1
-                if self.pacer.stats.steps % FAST_YIELD_EVERY == 0:
-                    time.sleep(FAST_YIELD_S)
+                self.pacer.count_step()
+                behind = True
+            unslept = unslept + 1 if behind else 0
+            if unslept >= FAST_YIELD_EVERY:  # an overloaded machine must not starve the services
+                time.sleep(FAST_YIELD_S)
+                unslept = 0
             try:
                 with self._lock:
                     if not self.stepper.paused:
@@ -484,7 +494,7 @@ class PrsmNode(Node):
         now_wall, sim_now = time.perf_counter(), st.time_s
         wall0, sim0, over0 = self._diag_last
         rtf = (sim_now - sim0) / (now_wall - wall0) if now_wall > wall0 else math.nan
-        ps = self.pacer.stats
+        ps = self.pacer.snapshot()
         self._diag_last = (now_wall, sim_now, ps.overruns)
         c = gate.counters
         age = gate.command_age_s(sim_now)
@@ -532,15 +542,26 @@ class PrsmNode(Node):
 
     # -- shutdown --------------------------------------------------------------------------
     def close(self) -> None:
-        """Stop stepping, then close the recorder and the Rerun sink (idempotent)."""
+        """Stop the producer, then close the consumers; every wait is bounded (idempotent).
+
+        The step thread goes first (it feeds the recorder and the Rerun sink), then the recorder
+        and the sink. Executor callbacks (lockstep steps, services) do not run here: `main` calls
+        this after it stopped spinning. If the step thread is still inside a step after
+        STEP_THREAD_STOP_S, the files are closed anyway and the error says so: the recorder and
+        the sink count whatever that step still hands them as dropped (both are safe to call
+        after close), so nothing is written into a finished file and nothing hangs.
+        """
         self._stop.set()
+        self._resumed.set()
         if self._thread is not None:
-            self._resumed.set()
-            self._thread.join(timeout=5.0)
-        if self.recorder is not None:
-            self.recorder.close()
-        if self.rerun is not None:
-            self.rerun.close()
+            self._thread.join(timeout=STEP_THREAD_STOP_S)
+            if self._thread.is_alive():
+                self.get_logger().error(f"the step thread did not stop within {STEP_THREAD_STOP_S:g} s; "
+                                        "closing the recording anyway (later steps are counted as dropped)")
+        if self.recorder is not None and not self.recorder.close(timeout_s=RECORDER_CLOSE_S):
+            self.get_logger().error(f"{self.recorder.error} ({self.recorder.messages_dropped} messages not recorded)")
+        if self.rerun is not None and not self.rerun.close(timeout_s=RERUN_CLOSE_S):
+            self.get_logger().error(str(self.rerun.error))
 
 
 def _descriptor(p: NodeParam) -> ParameterDescriptor:

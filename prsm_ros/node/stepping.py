@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import math
 import os
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -71,8 +72,7 @@ class SimStepper:
             self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {type(e).__name__}: {e}"
             return None
         if not state_is_finite(out):
-            self.sim.state = before  # keep the last finite state for inspection; reset clears the fault
-            self.sim.nstep -= 1
+            self.sim.restore(before, self.sim.nstep - 1)  # keep the last finite state; reset clears the fault
             self.fault = (f"model {self.model_name} produced a non-finite state at t = {out.time_s:.6f} s "
                           f"(torque {torque:g} N·m, load {self.load_n:g} N); stepping stopped, call ~/reset")
             return None
@@ -91,7 +91,7 @@ class SimStepper:
     def rebuild(self, params: Params) -> None:
         """New parameters for the same model, keeping the state and the step count (runtime change)."""
         sim = Simulator(params, self.model_name, self.sim.dt_s, self.nut_position_m)
-        sim.state, sim.nstep = self.sim.state, self.sim.nstep
+        sim.restore(self.sim.state, self.sim.nstep)
         self.sim = sim
 
 
@@ -137,6 +137,12 @@ class DeadlinePacer:
     (counting the skipped periods) instead of running a burst. Sleeping uses the monotonic clock
     with the thread's timer slack reduced to 1 µs (Linux prctl), so wake-ups are not rounded up by
     the default 50 µs slack.
+
+    Thread safety: the step thread calls `wait`/`count_step` while the executor thread calls
+    `restart` and `set_rate` (a reset, a parameter change), so the schedule and the counters are
+    behind one lock, never held while sleeping. A restart during a sleep is seen on waking: the
+    step then waits on the new schedule (so a rate change takes effect within one old period).
+    Read the figures with `snapshot()`; `stats` is replaced on every restart.
     """
 
     def __init__(self, period_s: float, real_time_factor: float = 1.0, *, max_catchup_periods: int = 50,
@@ -147,42 +153,57 @@ class DeadlinePacer:
         self.max_catchup_periods = max_catchup_periods
         self._clock, self._sleep = clock, sleep
         self._keep = keep_lateness
+        self._lock = threading.Lock()
+        self._generation = 0  # bumped by every restart: a wait() that slept across one re-plans
         self.set_rate(real_time_factor)
-        self.restart()
 
     def set_rate(self, real_time_factor: float) -> None:
         """Change the real-time factor; the schedule restarts from now so no burst or gap follows."""
-        self.real_time_factor = real_time_factor
-        self.period_s = self.nominal_period_s / real_time_factor
-        if hasattr(self, "_t0"):
-            self.restart()
+        with self._lock:
+            self.real_time_factor = real_time_factor
+            self.period_s = self.nominal_period_s / real_time_factor
+            self._restart_locked()
 
     def restart(self) -> None:
         """New schedule from now (after a pause, a reset or a rate change)."""
+        with self._lock:
+            self._restart_locked()
+
+    def _restart_locked(self) -> None:
         self._t0 = self._clock()
         self._k = 0
+        self._generation += 1
         self.stats = PacerStats()
 
     @property
     def next_deadline(self) -> float:
-        return self._t0 + (self._k + 1) * self.period_s
+        with self._lock:
+            return self._t0 + (self._k + 1) * self.period_s
 
     def wait(self) -> float:
         """Sleep until the next step is due; returns its lateness in seconds (>= 0 when on time)."""
-        due = self.next_deadline
-        now = self._clock()
-        if due - self.spin_s > now:
-            self._sleep(due - self.spin_s - now)
+        while True:
+            with self._lock:
+                generation, due = self._generation, self._t0 + (self._k + 1) * self.period_s
             now = self._clock()
-        while now < due:  # the last spin_s: poll the clock instead of trusting the wake-up latency
-            now = self._clock()
-        late = now - due
-        if late > self.max_catchup_periods * self.period_s:
-            skip = int(late // self.period_s)
+            if due - self.spin_s > now:
+                self._sleep(due - self.spin_s - now)
+                now = self._clock()
+            while now < due:  # the last spin_s: poll the clock instead of trusting the wake-up latency
+                now = self._clock()
+            with self._lock:
+                if generation == self._generation:
+                    return self._account_locked(now - due)
+            # restarted (reset, new rate) while asleep: wait for the first deadline of the new schedule
+
+    def _account_locked(self, late: float) -> float:
+        period = self.period_s
+        if late > self.max_catchup_periods * period:
+            skip = int(late // period)
             self._k += skip
             self.stats.skipped_periods += skip
-            late -= skip * self.period_s
-        if late > self.period_s:
+            late -= skip * period
+        if late > period:
             self.stats.overruns += 1
         self._k += 1
         self.stats.steps += 1
@@ -192,10 +213,23 @@ class DeadlinePacer:
         lat.append(late)
         return late
 
+    def count_step(self) -> int:
+        """Count a step taken without pacing (fast mode); returns the steps since the last restart."""
+        with self._lock:
+            self.stats.steps += 1
+            return self.stats.steps
+
+    def snapshot(self, lateness: bool = False) -> PacerStats:
+        """A consistent copy of the figures (the lateness ring only when asked: it can be long)."""
+        with self._lock:
+            s = self.stats
+            return PacerStats(s.steps, s.overruns, s.skipped_periods, list(s.lateness_s) if lateness else [])
+
     def achieved_rtf(self, sim_dt_s: float) -> float:
         """Simulated time over wall time since the schedule started."""
-        wall = self._clock() - self._t0
-        return self.stats.steps * sim_dt_s / wall if wall > 0 else math.nan
+        with self._lock:
+            wall, steps = self._clock() - self._t0, self.stats.steps
+        return steps * sim_dt_s / wall if wall > 0 else math.nan
 
 
 def reduce_timer_slack() -> bool:

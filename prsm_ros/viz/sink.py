@@ -45,6 +45,7 @@ MODES = ("off", "save", "spawn", "connect")
 APPLICATION_ID = "prsm"
 DEFAULT_PORT = 9876
 _OFF_VALUES = ("off", "0", "false", "no")
+CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, then again for the flush
 
 
 def rerun_forced_off() -> bool:
@@ -204,7 +205,9 @@ class RerunSink:
         self.path: Path | None = None
         self.url: str | None = None
         self.error: str | None = None
-        self.dropped = 0
+        self.dropped = 0  # queue full (caller's thread only)
+        self._lost_lock = threading.Lock()  # `lost` is counted by the background thread and by a timed-out close
+        self.lost = 0  # queued steps discarded after a Rerun failure or an unfinished close
         self.submitted = 0
         self.batches = 0
         self.flush_time_s = 0.0  # wall time the background thread spent on batches
@@ -216,6 +219,7 @@ class RerunSink:
         if self.mode == "off":
             return
         # validate the target before importing or starting anything
+        port = None
         if self.mode == "save":
             self.path = _save_path(target)
         elif self.mode == "connect":
@@ -223,7 +227,27 @@ class RerunSink:
         else:
             port = _spawn_port(target)
         import rerun as rr
+        existed = self.path is not None and self.path.exists()
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+        try:
+            self._start(rec, params, layout, model_name, scene_rate_hz, recording_name, port)
+        except BaseException:
+            # nothing may outlive a failed start: no stream holding the file or the socket, no thread,
+            # and no half-written .rrd of a run that never happened (the node's recorder does the same)
+            self.writer = None
+            self._closed = True
+            try:
+                rec.disconnect()
+            except Exception:
+                pass  # the start-up error is the one to report
+            if self.path is not None and not existed:
+                self.path.unlink(missing_ok=True)
+            raise
+        atexit.register(self.close)  # a script that forgets close() still gets a finished file
+
+    def _start(self, rec: Any, params: Params, layout: InternalLayout, model_name: str, scene_rate_hz: float,
+               recording_name: str | None, port: int | None) -> None:
+        """Open the sink (file, viewer or connection), send the recording's static part, start the thread."""
         self.writer = RecordingWriter(_YieldingStream(rec), params, layout, model_name, scene_rate_hz=scene_rate_hz)
         if self.mode == "save":
             rec.save(self.path)
@@ -241,7 +265,6 @@ class RerunSink:
         self.writer.log_static()
         self._thread = threading.Thread(target=self._run, name="prsm-rerun-sink", daemon=True)
         self._thread.start()
-        atexit.register(self.close)  # a script that forgets close() still gets a finished file
 
     @property
     def active(self) -> bool:
@@ -268,7 +291,7 @@ class RerunSink:
             self.writer.send(traj.columns, traj.internal)
         except Exception as e:  # never propagate into the node: report and stop logging
             self.error = f"rerun logging failed: {type(e).__name__}: {e}"
-            self._queue.clear()
+            self._count_lost(n + self._discard_queued())
         self.batches += 1
         self.flush_time_s += time.perf_counter() - t0
 
@@ -277,27 +300,55 @@ class RerunSink:
             self._drain()
         self._drain()
 
-    def close(self) -> None:
-        """Send what is queued, flush and close the file or connection. Idempotent."""
+    def _count_lost(self, n: int) -> None:
+        with self._lost_lock:
+            self.lost += n
+
+    def _discard_queued(self) -> int:
+        n = 0
+        while True:
+            try:
+                self._queue.popleft()
+            except IndexError:
+                return n
+            n += 1
+
+    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Send what is queued, flush and close the file or connection; True when all went out cleanly.
+
+        Each wait is bounded by `timeout_s`: the background thread's last batch, then Rerun's
+        flush. A thread that does not finish in time (a stalled viewer connection) is left behind,
+        what it had not taken is counted in `lost` and `error` says so; the stream is disconnected
+        whatever happened before. Idempotent (later calls return the first's verdict).
+        """
         if self._closed:
-            return
-        self._closed = True
+            return self.error is None
+        self._closed = True  # submit() takes nothing from now on
         atexit.unregister(self.close)
         if self._thread is not None:
             self._wake.set()
-            self._thread.join()
+            self._thread.join(timeout=timeout_s)
+            if self._thread.is_alive():
+                self._count_lost(self._discard_queued())
+                self.error = self.error or (f"rerun sink: the background thread did not finish within {timeout_s:g} s; "
+                                            f"{self.lost} steps were not sent")
         if self.writer is not None:
             rec = self.writer.rec
             try:
-                rec.flush(timeout_sec=10.0)
+                rec.flush(timeout_sec=timeout_s)
             except Exception as e:
                 self.error = self.error or f"rerun flush failed: {type(e).__name__}: {e}"
-            rec.disconnect()
+            finally:
+                try:
+                    rec.disconnect()
+                except Exception as e:
+                    self.error = self.error or f"rerun disconnect failed: {type(e).__name__}: {e}"
+        return self.error is None
 
     def stats(self) -> dict[str, Any]:
         """Counters for diagnostics: steps submitted, dropped, rows and scene frames sent, batches, error."""
         w = self.writer
-        return {"mode": self.mode, "submitted": self.submitted, "dropped": self.dropped,
+        return {"mode": self.mode, "submitted": self.submitted, "dropped": self.dropped, "lost": self.lost,
                 "rows": w.rows if w else 0, "scene_frames": w.scene_frames if w else 0,
                 "batches": self.batches, "flush_time_s": self.flush_time_s, "error": self.error}
 

@@ -1,0 +1,42 @@
+"""The environment every test runs in, whatever the developer's shell holds (hermetic tests).
+
+Set in `pytest_configure`, before any test module is imported: several modules build the
+environment of their child processes at import time (`ros_procs.ros_test_env`, module-level
+`ENV` dicts), so a fixture would come too late for them. Tests that need another value still set
+it themselves (e.g. RERUN=off for node processes, a per-module ROS_DOMAIN_ID in `ros_procs`).
+
+- Rerun on by default (a shell's RERUN=off would silently turn every sink off).
+- ROS 2 on this machine only, over the one RMW the `ros` extra installs, on a domain of this
+  pytest process; nothing from the shell that changes discovery, security, logging or QoS.
+"""
+
+from __future__ import annotations
+
+import os
+
+# The RMW the `ros` extra installs; a shell's RMW_IMPLEMENTATION=rmw_cyclonedds_cpp would fail to load.
+RMW = "rmw_fastrtps_cpp"
+
+HERMETIC_ENV = {
+    "ROS_DOMAIN_ID": str(1 + os.getpid() % 232),  # ros_procs picks per-module domains from the pid too
+    "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    "RMW_IMPLEMENTATION": RMW,
+}
+
+# Removed: each changes what a test sees (discovery peers, a DDS profile, security enclaves, log
+# routing to stdout or a changed log format the tests read, Rerun forced off, a debug traceback).
+CLEARED = (
+    "RERUN", "PRSM_DEBUG",
+    "ROS_LOCALHOST_ONLY", "ROS_STATIC_PEERS", "ROS_DISCOVERY_SERVER", "ROS_SUPER_CLIENT",
+    "ROS_SECURITY_ENABLE", "ROS_SECURITY_STRATEGY", "ROS_SECURITY_KEYSTORE", "ROS_SECURITY_ENCLAVE_OVERRIDE",
+    "ROS_DISABLE_LOANED_MESSAGES", "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
+    "RMW_FASTRTPS_USE_QOS_FROM_XML", "RMW_FASTRTPS_PUBLICATION_MODE", "FASTDDS_BUILTIN_TRANSPORTS",
+    "CYCLONEDDS_URI", "RCUTILS_LOGGING_USE_STDOUT", "RCUTILS_LOGGING_BUFFERED_STREAM",
+    "RCUTILS_CONSOLE_OUTPUT_FORMAT", "RCUTILS_COLORIZED_OUTPUT",
+)
+
+
+def pytest_configure(config) -> None:
+    for name in CLEARED:
+        os.environ.pop(name, None)
+    os.environ.update(HERMETIC_ENV)
