@@ -18,6 +18,12 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | command_echo           | ~/command_echo              | sensor_msgs/TimeReference     | out |
 | clock                  | /clock                      | rosgraph_msgs/Clock           | out |
 | diagnostics            | /diagnostics                | diagnostic_msgs/DiagnosticArray | out |
+| events                 | ~/events                    | std_msgs/String (JSON)        | out, latched history |
+
+`~/events`: one JSON object per event (`event_document`): time_s (simulation time), source (what
+raised it, e.g. "energy_guard"), severity ("info", "warn", "error"), code (a stable identifier),
+message (one line for people), details (an object). Latched with a history of 100, so a late
+subscriber still gets the recent events; the recorder writes them into the bag.
 
 `/clock` is published reliable, keep last 1: a reliable writer matches both the best-effort
 readers of rclcpp's TimeSource and reliable readers (a best-effort writer would match only the
@@ -117,7 +123,21 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("command_echo", "~/command_echo", "sensor_msgs/msg/TimeReference", qos(100), "out"),
     TopicDef("clock", "/clock", "rosgraph_msgs/msg/Clock", qos(1), "out"),
     TopicDef("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", SYSTEM_DEFAULT_QOS, "out"),
+    TopicDef("events", "~/events", "std_msgs/msg/String", qos(100, latched=True), "out"),
 )}
+
+
+EVENT_SEVERITIES = ("info", "warn", "error")
+
+
+def event_document(time_s: float, source: str, severity: str, code: str, message: str,
+                   details: Mapping[str, Any] | None = None) -> str:
+    """The JSON text of one `~/events` entry (see the module doc); ValueError for an unknown severity."""
+    if severity not in EVENT_SEVERITIES:
+        raise ValueError(f"severity = {severity!r}: must be one of {', '.join(EVENT_SEVERITIES)}")
+    doc = {"time_s": float(time_s), "source": source, "severity": severity, "code": code, "message": message,
+           "details": dict(details or {})}
+    return json.dumps(doc, allow_nan=False, default=float)
 
 # The per-step output topics, in the order `MessageBuilder.messages` returns them.
 STEP_TOPICS = ("joint_states", "wrench", "internal_loads", "clock")

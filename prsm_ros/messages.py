@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import array
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -23,11 +24,11 @@ from std_msgs.msg import Float64, Float64MultiArray, Header, MultiArrayDimension
 from prsm_sim import InternalLayout
 from prsm_ros.interface import (
     LABELS_FORMAT, NODE_NAME, NUT_FRAME, NUT_JOINT, SCALAR_SEGMENT, SCREW_JOINT, STEP_TOPICS, TOPIC_DEFS,
-    MessageBuilder, QosSpec, labels_document, parse_labels, time_ns, unpack_internal)
+    MessageBuilder, QosSpec, event_document, labels_document, parse_labels, time_ns, unpack_internal)
 
 # The interface's names are re-exported: the node and the tests import them from here.
 __all__ = ["CLASSES", "LABELS_FORMAT", "NODE_NAME", "NUT_FRAME", "NUT_JOINT", "SCALAR_SEGMENT", "SCREW_JOINT",
-           "STEP_TOPICS", "TOPICS", "TOPIC_DEFS", "MessageMapper", "TopicSpec", "labels_document", "parse_labels",
+           "STEP_TOPICS", "TOPICS", "TOPIC_DEFS", "MessageMapper", "TopicSpec", "event_message", "labels_document", "parse_labels",
            "qos_profile", "stamp", "time_ns", "unpack_internal", "with_depth"]
 
 # The rclpy class of every type the interface uses (the message kit of `MessageBuilder`).
@@ -59,6 +60,12 @@ class TopicSpec:
 
 TOPICS: dict[str, TopicSpec] = {
     k: TopicSpec(k, t.name, CLASSES[t.type_name], qos_profile(t.qos), t.direction) for k, t in TOPIC_DEFS.items()}
+
+
+def event_message(time_s: float, source: str, severity: str, code: str, message: str,
+                  details: dict[str, Any] | None = None) -> String:
+    """One event for `~/events` (`interface.event_document`): a std_msgs/String holding one JSON object."""
+    return String(data=event_document(time_s, source, severity, code, message, details))
 
 
 def with_depth(qos: QoSProfile, depth: int) -> QoSProfile:

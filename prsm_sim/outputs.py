@@ -71,6 +71,14 @@ class State:
     # integrator memory (fu2018: its frozen Jacobian and the steps since it was formed), kept in
     # the state so that a step stays a pure function of (state, inputs)
     solver: tuple[float, ...] = ()
+    # energy guard (`models.base`): ∫|P_in| dt, and the cumulative residual
+    # work_in − work_out − Δ(stored energy) − dissipated, both since the state was made
+    energy_flow_j: float = 0.0
+    energy_residual_j: float = 0.0
+    # `elastic`: the nut's own axial position and velocity (the other models tie it to θ_S)
+    nut_axial_m: float = 0.0
+    nut_speed_m_s: float = 0.0
+    screw_accel_rad_s2: float = 0.0  # last sub-step's, for the coupling's midpoint prediction
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun
@@ -93,6 +101,10 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("power_dissipated_w", "W"),
     ("efficiency", "1"),
     ("speed_ratio", "1"),
+    ("stored_energy_j", "J"),
+    ("energy_flow_j", "J"),
+    ("energy_residual_j", "J"),
+    ("energy_fault", "1"),
 )
 
 
@@ -135,6 +147,15 @@ class Outputs:
         the port ratios at constant speed, never above 1. NaN means "undefined", not a fault.
     speed_ratio : float
         ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
+    stored_energy_j : float
+        Energy the model stores at the step's end (kinetic; potential too in models with
+        springs), J.
+    energy_flow_j, energy_residual_j : float
+        Energy guard (`models.base`): ∫|P_in| dt and work_in − work_out − Δstored − dissipated,
+        both cumulative since the run started, J.
+    energy_fault : float
+        1.0 while |energy_residual_j| > 1e-3 · energy_flow_j once the flow exceeds 1 J (the
+        model's energy books do not close: do not trust its results), else 0.0.
     internal : numpy.ndarray
         The flat internal-load vector, labelled by the model's `InternalLayout`.
     """
@@ -156,6 +177,10 @@ class Outputs:
     power_dissipated_w: float
     efficiency: float
     speed_ratio: float
+    stored_energy_j: float
+    energy_flow_j: float
+    energy_residual_j: float
+    energy_fault: float
     internal: np.ndarray
 
     def scalars(self) -> dict[str, float]:

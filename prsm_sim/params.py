@@ -242,10 +242,13 @@ class Friction:
     drag_gap_m: float = 1e-4
     load_distribution: str = "uniform"  # ζ_T profile over the teeth: "uniform" or "exponential"
     load_distribution_decay: float = 0.05  # per-tooth decay rate of the "exponential" profile
+    # fu2018: Coulomb friction where the nut–roller contact slides (g ≠ r_N/r_R: roller migration,
+    # docs/model.md §2); the standard design rolls there and this does not act
+    mu_nut_roller_sliding: float = 0.05
 
     def __post_init__(self) -> None:
         f = "friction"
-        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin",
+        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin", "mu_nut_roller_sliding",
                       "lubricant_viscosity_m2_s", "lubricant_density_kg_m3", "load_distribution_decay")
         _positive(f, self, "coulomb_regularisation_m_s", "drag_width_m", "drag_gap_m")
         if self.drag_radius_m is not None:
@@ -257,6 +260,7 @@ class Friction:
         _check(f, "load_distribution", self.load_distribution, self.load_distribution in ("uniform", "exponential"),
                "must be one of uniform, exponential")
         _check(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
+        _check(f, "mu_nut_roller_sliding", self.mu_nut_roller_sliding, self.mu_nut_roller_sliding < 1, "must be < 1")
 
 
 @dataclass(frozen=True)
@@ -313,12 +317,156 @@ class Loads:
             _check("loads", n, v, _finite(v), "must be a finite number")
 
 
+@dataclass(frozen=True)
+class Material:
+    """Elastic constants of screw, rollers and nut (one steel for all; density is `mass.density_kg_m3`).
+
+    docs/model.md §1 steel default: E = 206 GPa, ν = 0.3.
+    """
+
+    youngs_modulus_pa: float = 206e9
+    poisson_ratio: float = 0.3
+
+    def __post_init__(self) -> None:
+        _positive("material", self, "youngs_modulus_pa")
+        v = self.poisson_ratio
+        _check("material", "poisson_ratio", v, _finite(v) and 0 <= v < 0.5, "must lie in [0, 0.5)")
+
+    @property
+    def shear_modulus_pa(self) -> float:
+        return self.youngs_modulus_pa / (2 * (1 + self.poisson_ratio))
+
+
+MOUNTINGS = ("same_end", "opposite_end")
+TOOTH_MODELS = ("cantilever", "none")
+PRELOAD_KINDS = ("none", "double_nut", "oversize_rollers")
+
+
+@dataclass(frozen=True)
+class Elastic:
+    """Axial compliance chain of the `elastic` level and the `stiffness`/`modes` commands (docs/model.md §4.3).
+
+    - `mounting`: where the load enters the nut relative to where the screw carries it away:
+      "same_end" (screw in tension, nut in compression: the cosh distribution) or "opposite_end"
+      (both in tension: the U-shaped one).
+    - `bearing_position_m`: nut-coordinate position of the screw's fixed (thrust) bearing; the
+      loaded shaft length is ℓ = |x_nut − bearing_position_m|. Default −screw_length_m / 2.
+    - `root_diameter_m`: screw shaft section for EA/ℓ; default 2 r_S − 3 P (about 27 mm for `s30`,
+      docs/model.md §4.3) [assumed].
+    - `nut_outer_diameter_m`: nut body section (annulus to the nut pitch diameter) for its EA;
+      default 1.4 × 2 r_N [assumed].
+    - `housing_stiffness_n_per_m`: nut flange and housing in series; inf = rigid.
+    - `tooth_model`: "cantilever" (bending + shear of screw, roller and nut teeth, docs/model.md §4.3)
+      or "none"; `tooth_effective_width_m` the loaded tooth width per contact, default π r_R [assumed].
+    - `contact_damping_ratio`: modal damping ratio of the axial contact mode [assumed].
+    - `axial_clearance_m`: total axial play (backlash) of an unpreloaded nut, ≥ 0.
+    - `preload_n`, `preload_kind`: two opposed flank sets pressed together by P₀ (double nut: two
+      halves of N_T/2 teeth; oversize rollers: both flanks of all N_T teeth) or none.
+    """
+
+    mounting: str = "same_end"
+    bearing_position_m: float | None = None
+    root_diameter_m: float | None = None
+    nut_outer_diameter_m: float | None = None
+    housing_stiffness_n_per_m: float = math.inf
+    tooth_model: str = "cantilever"
+    tooth_effective_width_m: float | None = None
+    contact_damping_ratio: float = 0.02
+    axial_clearance_m: float = 0.0
+    preload_n: float = 0.0
+    preload_kind: str = "none"
+
+    def __post_init__(self) -> None:
+        g = "elastic"
+        for name, allowed in (("mounting", MOUNTINGS), ("tooth_model", TOOTH_MODELS), ("preload_kind", PRELOAD_KINDS)):
+            v = getattr(self, name)
+            _check(g, name, v, v in allowed, f"must be one of {', '.join(allowed)}")
+        for n in ("root_diameter_m", "nut_outer_diameter_m", "tooth_effective_width_m"):
+            if getattr(self, n) is not None:
+                _positive(g, self, n)
+        if self.bearing_position_m is not None:
+            v = self.bearing_position_m
+            _check(g, "bearing_position_m", v, _finite(v), "must be a finite number")
+        k = self.housing_stiffness_n_per_m
+        _check(g, "housing_stiffness_n_per_m", k, isinstance(k, (int, float)) and not isinstance(k, bool)
+               and not math.isnan(k) and k > 0, "must be a number > 0 (inf: rigid)")
+        _non_negative(g, self, "contact_damping_ratio", "axial_clearance_m", "preload_n")
+        _check(g, "contact_damping_ratio", self.contact_damping_ratio, self.contact_damping_ratio < 1,
+               "must lie in [0, 1)")
+        _check(g, "preload_kind", self.preload_kind, (self.preload_kind == "none") == (self.preload_n == 0),
+               "must be none exactly when preload_n = 0 (double_nut or oversize_rollers need preload_n > 0)")
+        _check(g, "axial_clearance_m", self.axial_clearance_m, self.preload_n == 0 or self.axial_clearance_m == 0,
+               "must be 0 for a preloaded nut (preload removes the play)")
+
+    def resolved(self, geo: Geometry) -> Elastic:
+        """Fill every None from the geometry (the Params constructor calls this)."""
+        out = replace(
+            self,
+            bearing_position_m=-geo.screw_length_m / 2 if self.bearing_position_m is None else self.bearing_position_m,
+            root_diameter_m=2 * geo.screw_radius_m - 3 * geo.pitch_m if self.root_diameter_m is None
+            else self.root_diameter_m,
+            nut_outer_diameter_m=1.4 * 2 * geo.nut_radius_m if self.nut_outer_diameter_m is None
+            else self.nut_outer_diameter_m,
+            tooth_effective_width_m=math.pi * geo.roller_radius_m if self.tooth_effective_width_m is None
+            else self.tooth_effective_width_m)
+        _positive("elastic", out, "root_diameter_m")
+        _check("elastic", "nut_outer_diameter_m", out.nut_outer_diameter_m,
+               out.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
+        return out
+
+
+@dataclass(frozen=True)
+class Ratings:
+    """Basic axial load ratings of the nut (N): static C_0a and dynamic C_a (docs/model.md §5 item 10).
+
+    `static_load_rating_n` None: derived where Params is built, as the axial load that takes the
+    peak Hertz pressure of uniformly shared thread contacts to 4.2 GPa (the ISO 76 static-rating
+    criterion for point contacts). `dynamic_load_rating_n` 0: not rated (life estimates need it).
+    """
+
+    static_load_rating_n: float | None = None
+    dynamic_load_rating_n: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.static_load_rating_n is not None:
+            _positive("ratings", self, "static_load_rating_n")
+        _non_negative("ratings", self, "dynamic_load_rating_n")
+
+
+STICTION_LAWS = ("stribeck",)
+
+
+@dataclass(frozen=True)
+class Stiction:
+    """Breakaway beyond the running friction (`elastic` level): μ_static = breakaway_ratio · μ.
+
+    Karnopp-type stick (models/elastic.py): below the stick window the screw holds while the torque
+    stays inside the breakaway band. `breakaway_ratio` 1 gives `fu2018`'s friction;
+    `stribeck_speed_m_s` is the screw–roller slip speed of the stick window [assumed, typical of
+    lubricated steel]; law "stribeck" names this breakaway-then-running form.
+    """
+
+    law: str = "stribeck"
+    breakaway_ratio: float = 1.3
+    stribeck_speed_m_s: float = 1e-3
+
+    def __post_init__(self) -> None:
+        _check("stiction", "law", self.law, self.law in STICTION_LAWS, f"must be one of {', '.join(STICTION_LAWS)}")
+        _positive("stiction", self, "stribeck_speed_m_s")
+        v = self.breakaway_ratio
+        _check("stiction", "breakaway_ratio", v, _finite(v) and v >= 1, "must be a finite number >= 1")
+
+
 _GROUPS: dict[str, type] = {
     "geometry": Geometry,
     "mass": MassProperties,
     "friction": Friction,
     "ideal": IdealLoss,
     "loads": Loads,
+    "material": Material,
+    "elastic": Elastic,
+    "ratings": Ratings,
+    "stiction": Stiction,
 }
 
 
@@ -361,6 +509,10 @@ class Params:
     ideal: IdealLoss = field(default_factory=IdealLoss)
     loads: Loads = field(default_factory=Loads)
     name: str = "custom"
+    material: Material = field(default_factory=Material)
+    elastic: Elastic = field(default_factory=Elastic)
+    ratings: Ratings = field(default_factory=Ratings)
+    stiction: Stiction = field(default_factory=Stiction)
 
     def __post_init__(self) -> None:
         for gname, cls in _GROUPS.items():
@@ -370,6 +522,13 @@ class Params:
         _set(self, "mass", self.mass.resolved(self.geometry))
         if self.friction.drag_radius_m is None:
             _set(self, "friction", replace(self.friction, drag_radius_m=self.geometry.nut_radius_m))
+        _set(self, "elastic", self.elastic.resolved(self.geometry))
+        if self.ratings.static_load_rating_n is None:
+            from prsm_sim.physics.load_sharing import iso76_static_rating_n
+            _set(self, "ratings", replace(self.ratings, static_load_rating_n=iso76_static_rating_n(self)))
+        c0 = self.ratings.static_load_rating_n
+        _check("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
+               f"must not exceed the static load rating ratings.static_load_rating_n = {c0:.6g} N")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""
@@ -430,7 +589,8 @@ class Params:
 
 
 _INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth")}
-_STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution")}
+_STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution"),
+               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law")}
 
 
 def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
@@ -441,6 +601,8 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
         if not isinstance(value, str):
             raise ParamError(f"{gname}.{key} = {value!r}: must be a string")
         return value
+    if isinstance(value, str) and (gname, key) not in _INT_FIELDS:
+        value = parse_float(value, f"{gname}.{key}")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParamError(f"{gname}.{key} = {value!r}: must be a number")
     if (gname, key) in _INT_FIELDS:
@@ -448,3 +610,16 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
             raise ParamError(f"{gname}.{key} = {value!r}: must be a whole number")
         return int(value)
     return float(value)
+
+
+def parse_float(text: str, name: str) -> float:
+    """A float from any spelling Python's float() accepts ("1e-5", "1E-5", "1_000.0", " 2.5 ").
+
+    YAML 1.1 (PyYAML, ROS parameter files) reads "1e-5" as a string because it wants a dot in
+    the mantissa; this is the one place such strings become numbers. Raises ParamError naming
+    `name` when the text is not a number.
+    """
+    try:
+        return float(text)
+    except ValueError:
+        raise ParamError(f"{name} = {text!r}: must be a number") from None

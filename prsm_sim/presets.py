@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from prsm_sim.params import Friction, Geometry, Loads, MassProperties, ParamError, Params
+from prsm_sim.params import Elastic, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params, Ratings
 
 
 def _jones2016() -> Params:
@@ -34,12 +34,24 @@ def _jones2016_literal() -> Params:
                                           "screw_length_m": None, "pin_radius_m": None},
                              "mass": {"screw_inertia_kgm2": None, "roller_mass_kg": None,
                                       "roller_inertia_kgm2": None, "carrier_inertia_kgm2": None},
-                             "friction": {"drag_radius_m": None}},
+                             "friction": {"drag_radius_m": None},
+                             "elastic": {"bearing_position_m": None, "root_diameter_m": None,
+                                         "nut_outer_diameter_m": None, "tooth_effective_width_m": None},
+                             "ratings": {"static_load_rating_n": None}},
                             base=base)
 
 
 def _s30() -> Params:
-    """A catalogue-sized standard 5-start design, d_S = 30 mm, lead 5 mm [assumed, docs/model.md §1]."""
+    """A catalogue-sized standard 5-start design, d_S = 30 mm, lead 5 mm [assumed, docs/model.md §1].
+
+    Elastic chain (docs/model.md §4.3): steel E = 206 GPa, ν = 0.3 (docs/model.md §1); screw fixed
+    bearing 150 mm behind the nut's reference position and root diameter 27 mm (the shaft figure of
+    docs/model.md §4.3, K ≈ 0.8 kN/µm); same-end mounting (a nut flange pushing on a load that the
+    screw's bearing reacts, the usual actuator arrangement) [assumed]. Static rating: the ISO 76
+    4.2 GPa criterion on the solved contacts (`load_sharing.iso76_static_rating_n`, about 236 kN).
+    Dynamic rating 100 kN [assumed: the order vendors list for 30 mm × 5 mm planetary roller
+    screws; not transcribed from a catalogue row — replace it with the rating of the screw you model].
+    """
     return Params(
         name="s30",
         geometry=Geometry(screw_radius_m=15e-3, roller_radius_m=5e-3, starts=5, pitch_m=1e-3,
@@ -47,6 +59,9 @@ def _s30() -> Params:
         mass=MassProperties(moved_mass_kg=50.0),
         friction=Friction(mu_screw_roller=0.05),
         loads=Loads(nut_load_n=5000.0, screw_speed_rad_s=100.0),
+        material=Material(youngs_modulus_pa=206e9, poisson_ratio=0.3),
+        elastic=Elastic(mounting="same_end", bearing_position_m=-0.15, root_diameter_m=0.027),
+        ratings=Ratings(dynamic_load_rating_n=100e3),
     )
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.base import efficiency, trajectory_from_rows
+from prsm_sim.models.base import efficiency, energy_guard_summary, trajectory_from_rows
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.models.jones2016 import steady_state
 from prsm_sim.outputs import Trajectory
@@ -149,6 +149,7 @@ def summarise(traj: Trajectory, tail_fraction: float = 0.1) -> dict:
         "peak_screw_speed_rad_s": float(np.max(np.abs(c["screw_speed_rad_s"]))),
         "energy": {"work_in_j": traj.final_state.work_in_j, "work_out_j": traj.final_state.work_out_j,
                    "dissipated_j": traj.final_state.dissipated_j},
+        "energy_guard": energy_guard_summary(c),
     }
     names = {b.name for b in traj.layout.blocks}
     if "per_tooth" in names:

@@ -16,13 +16,14 @@ import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
 from prsm_sim.models.base import Model
+from prsm_sim.models.elastic import Elastic
 from prsm_sim.models.fu2018 import Fu2018
 from prsm_sim.models.ideal import Ideal
 from prsm_sim.models.jones2016 import Jones2016
 from prsm_sim.outputs import InternalLayout, Outputs, State, Trajectory
 from prsm_sim.params import Params
 
-MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018}
+MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018, "elastic": Elastic}
 
 
 def build_model(params: Params, model: str, dt_s: float) -> Model:
@@ -52,6 +53,7 @@ def build_model(params: Params, model: str, dt_s: float) -> Model:
         cls = MODELS[model]
     except (KeyError, TypeError):
         raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
+    cls.check_params(params)
     return cls(params, dt_s)
 
 

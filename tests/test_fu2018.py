@@ -92,9 +92,11 @@ def test_heavy_load_sits_at_kinematic_ratio_light_load_lags():
     # Fu 2018 results (seed abstract, docs/model.md §4.2): under heavy load ζ_PS ≈ kinematic; under light load
     # the Couette drag makes the carrier lag and the efficiency drop. With drag as the only carrier loss
     # (the seed's mechanism) heavy load sits within 0.1 % of kinematic; the default nut–roller rolling
-    # resistance is load-proportional and adds a load-independent lag of a few 0.1 % (documented).
+    # resistance is load-proportional and adds a load-independent lag of a few 0.1 %; so does the pin friction,
+    # which the roller's tilting couple (≈ 2 r_R F/N_R, reacted at the two pins) makes load-proportional:
+    # together 1.25 % at the defaults (documented in the README).
     kinematic = preset("s30").geometry.screw_radius_m / (2 * preset("s30").geometry.carrier_radius_m)
-    for overrides, tol in (({"friction.mu_nut_roller_rolling": 0.0, "friction.mu_pin": 0.0}, 1e-3), ({}, 5e-3)):
+    for overrides, tol in (({"friction.mu_nut_roller_rolling": 0.0, "friction.mu_pin": 0.0}, 1e-3), ({}, 1.5e-2)):
         p = preset("s30").with_overrides(overrides)
         _, _, heavy = _steady(p, "heavy")
         _, _, light = _steady(p, "light")

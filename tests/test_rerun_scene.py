@@ -38,7 +38,10 @@ def test_fu2018_layout_gives_normals_friction_gear_pin_and_tooth_loads():
                                               q["screw_friction_axial_n"])
     assert fams["gear_force"].site == "gear" and fams["gear_force"].columns[2] is None  # no axial gear force
     assert fams["pin_force"].site == "axis"
-    assert set(fams) == {"screw_normal_force", "nut_normal_force", "screw_friction", "gear_force", "pin_force"}
+    # nut friction (sliding off the standard design) and the two pin end reactions (issue 12) join generically
+    assert set(fams) == {"screw_normal_force", "nut_normal_force", "screw_friction", "gear_force", "pin_force",
+                         "nut_friction", "pin_1_force", "pin_2_force"}
+    assert fams["nut_friction"].site == "nut" and fams["pin_1_force"].site == fams["pin_2_force"].site == "axis"
     assert [(b, q, side) for b, _, q, side in tooth_quantities(layout)] == [
         ("per_tooth", "screw_normal_force_n", "screw"), ("per_tooth", "nut_normal_force_n", "nut")]
 

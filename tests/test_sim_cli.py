@@ -35,7 +35,8 @@ def test_run_writes_csv_with_labelled_internal_loads(tmp_path):
     out = tmp_path / "run.csv"
     d = json.loads(run("run", "--preset", "s30", "--model", "fu2018", "--scenario", "heavy", "--duration", "0.3",
                        "--csv", str(out), "--json").stdout)
-    assert d["steps"] == 300 and d["tail_efficiency"] > 0.8
+    # 0.75 since the roller tilting couple loads the pins (issue 12): pin friction grows with the load
+    assert d["steps"] == 300 and d["tail_efficiency"] > 0.7 and d["energy_guard"]["fault"] is False
     rows = list(csv.reader(out.open()))
     assert rows[0][0] == "time_s [s]" and any("per_tooth[0,0].nut_normal_force_n [N]" in h for h in rows[0])
     assert len(rows) == 301

@@ -22,6 +22,7 @@ Times are the messages' log times (simulation time for our bags).
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -261,8 +262,22 @@ def report(bag: Bag, out_dir, *, dynamic_load_rating_n: float = DEFAULT_DYNAMIC_
                           "speed_source": f"{screw_joint} velocity on {roles['joint_states']}"}
     else:
         result["life"] = None
+    result["events"] = _events(bag)
     result["plots"] = [str(p) for p in _plots(Path(out_dir), joints, internal, ref_t, ref_v, err)] if plots else []
     return result
+
+
+def _events(bag: Bag) -> list[dict]:
+    """Every ~/events entry (std_msgs/String, one JSON object each; prsm_ros.messages.event_message)."""
+    out = []
+    for topic in (t for t in bag.topics_of_type("std_msgs/msg/String") if t.endswith("/events")):
+        for m in bag.messages([topic]):
+            try:
+                doc = json.loads(m.msg.data)
+            except (ValueError, AttributeError):
+                doc = {"message": str(getattr(m.msg, "data", m.msg)), "code": "unparsed"}
+            out.append({"topic": topic, **doc} if isinstance(doc, dict) else {"topic": topic, "message": str(doc)})
+    return out
 
 
 def _plots(out_dir: Path, joints: Series, internal, ref_t, ref_v, err) -> list[Path]:
@@ -396,6 +411,9 @@ def summary_text(r: dict) -> str:
         lines.append(f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')}, F_m = {_fmt(life['mean_load_n'], 'N')}): "
                      f"{_fmt(life['l10_revolutions'], 'revolutions')} = {_fmt(life['l10_hours'], 'h')} at the recorded "
                      f"cycle ({_fmt(life['l10_cycles'], 'cycles')} of {_fmt(life['cycle_duration_s'], 's')})")
+    for ev in r.get("events", []):
+        lines.append(f"event t = {_fmt(ev.get('time_s'), 's')} [{ev.get('severity', '?')}] {ev.get('source', '?')}/"
+                     f"{ev.get('code', '?')}: {ev.get('message', '')}")
     if r["plots"]:
         lines.append("plots: " + ", ".join(r["plots"]))
     return "\n".join(lines)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from prsm_ros.bench import common, core, node, realtime, recorder, soak, sweep, viz
+from prsm_ros.bench import common, core, elastic, node, realtime, recorder, soak, sweep, viz
 
 AREAS: dict[str, common.Measure] = {
     "core": core.measure,
@@ -21,6 +21,7 @@ AREAS: dict[str, common.Measure] = {
     "soak": soak.measure,
     "realtime": realtime.measure,
     "sweep": sweep.measure,
+    "elastic": elastic.measure,
 }
 
 

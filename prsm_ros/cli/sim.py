@@ -5,6 +5,8 @@
     prsm-sim contact --preset jones2016
     prsm-sim steady-state --preset jones2016 --model jones2016 --json
     prsm-sim run --preset s30 --model fu2018 --scenario heavy --duration 1 --json [--csv F] [--mcap F]
+    prsm-sim stiffness --preset s30 [--max-load 40000 --points 9 | --load 20000 ...] --json
+    prsm-sim modes --preset s30 --model elastic [--load 20000] --json
 
 Every command takes --preset P or --params FILE.yaml, --set group.name=value overrides and
 --json. Errors print one line and exit 2.
@@ -21,7 +23,7 @@ import numpy as np
 import yaml
 
 from prsm_sim.errors import PrsmError
-from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, ParamError, Params, Simulator
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.jones2016 import steady_state
@@ -195,8 +197,85 @@ def cmd_run(args) -> None:
         f"tail: ζ_PS = ω_C/ω_S {summary['tail_mean_speed_ratio']:.5f}, efficiency {summary['tail_efficiency']:.4f}, "
         f"slip {summary['tail_mean_slip_speed_m_s']:.5f} m/s",
     ] + ([f"peak tooth normal force {summary['peak_tooth_normal_force_n']:.2f} N"]
-         if "peak_tooth_normal_force_n" in summary else []))
+         if "peak_tooth_normal_force_n" in summary else [])
+      + ([f"ENERGY GUARD: the energy balance was violated from t = {summary['energy_guard']['first_fault_time_s']:.6f} s "
+          f"(residual {summary['energy_guard']['residual_j']:.6g} J of {summary['energy_guard']['flow_j']:.6g} J); "
+          "do not trust these results"] if summary["energy_guard"]["fault"] else []))
     _emit(args, summary, text)
+
+
+def _load_points(args, p: Params) -> list[float]:
+    if args.load:
+        loads = list(args.load)
+    else:
+        top = args.max_load if args.max_load is not None else 0.25 * p.ratings.static_load_rating_n
+        if not (math.isfinite(top) and top > 0):
+            raise CliError(f"max_load = {top!r}: must be a finite number > 0 (N)")
+        if args.points < 2:
+            raise CliError(f"points = {args.points}: must be at least 2")
+        loads = np.linspace(0.0, top, args.points).tolist()
+    for f in loads:
+        if not math.isfinite(f):
+            raise CliError(f"load = {f!r}: must be a finite number (N)")
+    return loads
+
+
+def cmd_stiffness(args) -> None:
+    """Axial load → deflection, stiffness and per-thread load shares (docs/model.md §4.3)."""
+    from prsm_sim.physics.load_sharing import AxialChain
+    p = _params(args)
+    el = p.elastic
+    chain = AxialChain(p, args.nut_position)
+    records = []
+    for f in _load_points(args, p):
+        pt = chain.at(f)
+        records.append({
+            "load_n": f, "deflection_m": pt.deflection_m, "nut_deflection_m": pt.nut_deflection_m,
+            "shaft_deflection_m": pt.shaft_deflection_m, "housing_deflection_m": pt.housing_deflection_m,
+            "stiffness_n_per_um": pt.stiffness_n_per_m * 1e-6, "nut_stiffness_n_per_um": pt.nut_stiffness_n_per_m * 1e-6,
+            "shaft_stiffness_n_per_um": pt.shaft_stiffness_n_per_m * 1e-6,
+            "housing_stiffness_n_per_um": pt.housing_stiffness_n_per_m * 1e-6,
+            "unloaded_side_force_n": pt.unloaded_side_n,
+            "thread_load_shares": pt.shares, "thread_loads_n": pt.row_loads_n,
+        })
+    data = {"preset": p.name, "mounting": el.mounting, "preload_n": el.preload_n, "preload_kind": el.preload_kind,
+            "lost_motion_m": el.axial_clearance_m, "nut_position_m": args.nut_position,
+            "static_load_rating_n": p.ratings.static_load_rating_n,
+            "method": "static load distribution from compatibility, Hertz contacts (docs/model.md §4.3)",
+            "records": records}
+    lines = [f"{p.name}: {el.mounting} mounting, preload {el.preload_n:g} N ({el.preload_kind}), "
+             f"clearance {el.axial_clearance_m * 1e6:g} µm, C0a {p.ratings.static_load_rating_n / 1e3:.1f} kN",
+             f"{'load N':>10} {'defl µm':>9} {'nut µm':>8} {'K N/µm':>8} {'K_nut':>8} {'K_shaft':>8}  ζ_T first … last"]
+    for r in records:
+        z = r["thread_load_shares"]
+        lines.append(f"{r['load_n']:10.0f} {r['deflection_m'] * 1e6:9.3f} {r['nut_deflection_m'] * 1e6:8.3f} "
+                     f"{r['stiffness_n_per_um']:8.1f} {r['nut_stiffness_n_per_um']:8.1f} "
+                     f"{r['shaft_stiffness_n_per_um']:8.1f}  {z[0]:.3f} … {z[-1]:.3f}")
+    _emit(args, data, "\n".join(lines))
+
+
+def cmd_modes(args) -> None:
+    """Linearised axial natural frequencies and damping about an operating load (docs/model.md §4.3)."""
+    from prsm_sim.physics.load_sharing import axial_modes
+    if args.model != "elastic":
+        raise CliError(f"model = {args.model!r}: modes need the elastic level; use --model elastic "
+                       "(the rigid models have no axial compliance)")
+    p = _params(args)
+    f = p.loads.nut_load_n if args.load is None else args.load
+    if not math.isfinite(f):
+        raise CliError(f"load = {f!r}: must be a finite number (N)")
+    ma = axial_modes(p, f, args.nut_position)
+    ms = lambda modes: [{"frequency_hz": m.frequency_hz, "undamped_frequency_hz": m.undamped_frequency_hz,
+                         "damping_ratio": m.damping_ratio} for m in modes]
+    data = {"preset": p.name, "model": "elastic", "load_n": f, "nut_position_m": args.nut_position,
+            "axial_stiffness_n_per_um": ma.stiffness_n_per_m * 1e-6, "damping_n_s_per_m": ma.damping_n_s_per_m,
+            "screw_side_mass_kg": ma.screw_side_mass_kg, "nut_side_mass_kg": ma.nut_side_mass_kg,
+            "modes": ms(ma.free), "modes_screw_held": ms(ma.held)}
+    lines = [f"{p.name} / elastic about {f:g} N: K = {ma.stiffness_n_per_m * 1e-6:.1f} N/µm, "
+             f"M_S = {ma.screw_side_mass_kg:.1f} kg (screw side, reflected), m = {ma.nut_side_mass_kg:.2f} kg"]
+    lines += [f"  free screw : {m.frequency_hz:9.2f} Hz  ζ = {m.damping_ratio:.4f}" for m in ma.free]
+    lines += [f"  screw held : {m.frequency_hz:9.2f} Hz  ζ = {m.damping_ratio:.4f}" for m in ma.held]
+    _emit(args, data, "\n".join(lines))
 
 
 def _write_csv(path: str, traj) -> None:
@@ -245,6 +324,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--mcap", metavar="FILE", help="write the run as a ROS 2 MCAP bag (needs the mcap extra)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar on long runs")
     run.set_defaults(func=cmd_run)
+    st = sub.add_parser("stiffness", parents=[common], help="axial load → deflection, stiffness, thread load shares")
+    st.add_argument("--load", type=float, action="append", metavar="N", help="a load point, N (repeatable)")
+    st.add_argument("--max-load", type=float, help="top of the load sweep, N (default a quarter of C0a)")
+    st.add_argument("--points", type=int, default=9, help="load points in the sweep from 0")
+    st.add_argument("--nut-position", type=float, default=0.0, help="nut position (sets the shaft length), m")
+    st.set_defaults(func=cmd_stiffness)
+    mo = sub.add_parser("modes", parents=[common], help="linearised axial natural frequencies and damping")
+    mo.add_argument("--model", default="elastic", help="model level (elastic)")
+    mo.add_argument("--load", type=float, help="operating axial load, N (default: the preset's)")
+    mo.add_argument("--nut-position", type=float, default=0.0, help="nut position (sets the shaft length), m")
+    mo.set_defaults(func=cmd_modes)
     return ap
 
 
@@ -255,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         args.func(args)
-    except (ParamError, ValueError, CliError) as e:
+    except (PrsmError, ValueError) as e:  # every deliberate error (ModelError included) is one line, exit 2
         print(f"prsm-sim: error: {e}", file=sys.stderr)
         return 2
     except ImportError as e:

@@ -20,6 +20,7 @@ from typing import Any
 
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
+from prsm_sim.params import parse_float
 
 from prsm_ros.node.command_gate import TIMEOUT_BEHAVIOURS
 
@@ -174,6 +175,7 @@ class NodeConfig:
         phys = {k[len(PHYSICS_PREFIX):]: v for k, v in values.items() if k.startswith(PHYSICS_PREFIX)}
         try:
             params = base.with_overrides(phys)
+            MODELS[out["model"]].check_params(params)  # combinations a model refuses (fu2018: line_of_centres)
         except ParamError as e:
             raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
         topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
@@ -201,6 +203,11 @@ def check_value(p: NodeParam, value: Any) -> Any:
             if why:
                 raise bad(f"a valid ROS topic name ({why})")
         return value
+    if isinstance(value, str) and isinstance(d, float):  # YAML 1.1 reads "1e-5" as a string
+        try:
+            value = parse_float(value, p.name)
+        except ParamError:
+            raise bad() from None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise bad()
     if isinstance(d, int) and not isinstance(value, int):

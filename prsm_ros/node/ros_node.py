@@ -52,7 +52,7 @@ from prsm_ros.node.command_gate import CommandGate
 from prsm_ros.node.ownership import CommandOwnership, participant_of
 from prsm_ros.node.record_path import RecordPathError, claim_record_path
 from prsm_ros.node.scheduling import raise_process_threads
-from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, stamp, time_ns
+from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
 from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority,
@@ -106,8 +106,8 @@ class PrsmNode(Node):
         try:
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
-                        for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics")
-                        + (("clock",) if cfg.publish_clock else ())}
+                        for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
+                                  "events") + (("clock",) if cfg.publish_clock else ())}
             self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
                                                     qos_overriding_options=qos_opts())
                         for k, cb in (("screw_torque", self._on_screw_torque),
@@ -143,6 +143,7 @@ class PrsmNode(Node):
         self._diag_last = (time.perf_counter(), 0.0, 0)  # wall s, sim s, overruns at the last report
         self._warned_at: dict[str, float] = {}
         self.publish_failures = 0
+        self._energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
@@ -192,9 +193,14 @@ class PrsmNode(Node):
         try:
             return self.declare_parameter(name, default, desc).value
         except ParameterException as e:
-            given = getattr(self, "_parameter_overrides", {}).get(name)  # rclpy keeps them here; no getter
+            overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps them here; no getter
+            given = overrides.get(name)
             if spec is not None and given is not None:
-                check_value(spec, given.value)  # raises ConfigError in the words of node_params
+                value = check_value(spec, given.value)  # raises ConfigError in the words of node_params
+                if isinstance(given.value, str) and isinstance(value, float):
+                    # a float spelled as YAML 1.1 reads it ("1e-5" is a string there): declare the number
+                    del overrides[name]
+                    return self.declare_parameter(name, value, desc).value
             raise ConfigError(f"parameter {name}: {e}") from None
 
     def _check_unknown_overrides(self) -> None:
@@ -359,6 +365,8 @@ class PrsmNode(Node):
                 break
             done += 1
             try:
+                if out.energy_fault and not self._energy_fault_reported:
+                    self._report_energy_fault(out)
                 self._publish_step(out, force_state=publish_last_state and i == n - 1)
             except Exception as e:  # never let a publishing failure take the process down
                 if not rclpy.ok(context=self.context):
@@ -368,6 +376,18 @@ class PrsmNode(Node):
                 break
             self._step_wall_max_s = max(self._step_wall_max_s, time.perf_counter() - t0)
         return done
+
+    def _report_energy_fault(self, out) -> None:
+        """The model's energy books stopped closing (models.base energy guard): one event, an error log;
+        /diagnostics says ERROR while it lasts. Stepping goes on: the user decides."""
+        self._energy_fault_reported = True
+        text = (f"energy balance violated at t = {out.time_s:.6f} s: residual {out.energy_residual_j:.6g} J "
+                f"of {out.energy_flow_j:.6g} J that flowed (limit 1e-3); results of model {self.config.model} "
+                "are not trustworthy from here")
+        self._publish(self.pub["events"], "events", event_message(
+            out.time_s, "energy_guard", "error", "energy_balance", text,
+            {"residual_j": out.energy_residual_j, "flow_j": out.energy_flow_j, "model": self.config.model}))
+        self.get_logger().error(text)
 
     def _publish_step(self, out, force_state: bool = False) -> None:
         k = self.stepper.nstep
@@ -466,6 +486,7 @@ class PrsmNode(Node):
         with self._lock:
             self.stepper.reset(self.config.initial_nut_position)
             self.echo.reset()
+            self._energy_fault_reported = False
             self.pacer.restart()
             if self.stepper.paused:  # nothing steps while paused: a controller still sees the reset now
                 self._publish_rest_state()
@@ -529,8 +550,14 @@ class PrsmNode(Node):
                             + ("zero torque" if cfg.timeout_behaviour == "zero" else "holding the last command"))
         if ps.overruns > over0:
             problems.append(f"{ps.overruns - over0} step overruns since the last report")
+        last = st.last
+        if last is not None:
+            values.update(energy_residual_j=f"{last.energy_residual_j:.6g}", energy_flow_j=f"{last.energy_flow_j:.6g}")
         if st.fault is not None:
             level, text = DiagnosticStatus.ERROR, st.fault
+        elif last is not None and last.energy_fault:
+            level, text = DiagnosticStatus.ERROR, (f"energy balance violated: residual {last.energy_residual_j:.6g} J of "
+                                                   f"{last.energy_flow_j:.6g} J that flowed (limit 1e-3)")
         elif problems:
             level, text = DiagnosticStatus.WARN, "; ".join(problems)
         else:

@@ -4,6 +4,13 @@ A model is built from parameters and a fixed step `dt_s`; `step(state, torque, l
 returns the next state and the step's outputs and never mutates anything (SciPy's
 OdeSolver habit: the counters live in `Simulator`). `run` advances through input arrays and
 returns a columnar `Trajectory`; models with a faster batch form override it.
+
+Energy guard (every model): each step's port work (screw torque × screw angle, load × nut
+travel), its dissipation and the change of the stored energy (`Model.stored_energy_j`) must
+balance. The cumulative residual and the energy that has flowed (∫|P_in| dt) travel in the
+state; `energy_fault` flags a run whose books do not close (|residual| > ENERGY_GUARD_REL of
+the flow once the flow exceeds ENERGY_GUARD_MIN_FLOW_J). A few flops per step; stepping goes on
+(the caller decides what a fault means).
 """
 
 from __future__ import annotations
@@ -18,10 +25,37 @@ from prsm_sim.outputs import OUTPUT_FIELDS, InternalLayout, Outputs, PackedOutpu
 from prsm_sim.params import Params
 
 
+ENERGY_GUARD_REL = 1e-3  # residual allowed, as a fraction of the energy that has flowed
+ENERGY_GUARD_MIN_FLOW_J = 1.0  # below this flow the ratio is not judged (start-up, standstill)
+
+
+def energy_fault(flow_j, residual_j):
+    """The guard's verdict (scalar or array): |residual| > ENERGY_GUARD_REL · flow once flow > 1 J."""
+    return (flow_j > ENERGY_GUARD_MIN_FLOW_J) & (abs(residual_j) > ENERGY_GUARD_REL * flow_j)
+
+
+def energy_guard_summary(columns) -> dict:
+    """The energy guard over a run (a Trajectory or its columns): final residual, flow, their ratio,
+    whether and when the guard tripped (`energy_fault` first 1.0)."""
+    res, flow, fault = columns["energy_residual_j"], columns["energy_flow_j"], columns["energy_fault"]
+    hit = np.flatnonzero(fault > 0.0)
+    return {"fault": bool(hit.size), "first_fault_time_s": float(columns["time_s"][hit[0]]) if hit.size else None,
+            "residual_j": float(res[-1]), "flow_j": float(flow[-1]),
+            "relative_residual": float(res[-1] / flow[-1]) if flow[-1] > 0 else None,
+            "limit": ENERGY_GUARD_REL}
+
+
 class Model:
-    """Base class: subclasses set `name`, `layout` and implement `_advance`."""
+    """Base class: subclasses set `name`, `layout`, `kinetic` and implement `_advance`."""
 
     name = "base"
+    # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
+    # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
+    kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+
+    @classmethod
+    def check_params(cls, params: Params) -> None:
+        """Refuse (ParamError, one line) a parameter combination this model cannot honour."""
 
     def __init__(self, params: Params, dt_s: float) -> None:
         if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.1):
@@ -42,10 +76,18 @@ class Model:
     def _advance(self, state: State, torque_nm: float, load_n: float) -> tuple[State, Outputs]:
         raise NotImplementedError
 
+    def stored_energy_j(self, screw_speed_rad_s, carrier_speed_rad_s):
+        """Energy the model stores at these speeds, J (scalars or arrays): kinetic here; a model
+        with potential energy overrides this (and must then be given the state it needs)."""
+        kss, ksc, kcc = self.kinetic
+        ws, wc = screw_speed_rad_s, carrier_speed_rad_s
+        return 0.5 * (kss * ws * ws + 2.0 * ksc * ws * wc + kcc * wc * wc)
+
     # -- per-step fast path (optional) ------------------------------------------------------
     # A model whose step is a few float operations sets `packed = True` and implements
     # `advance_packed(x, torque, load) -> (x, PackedOutputs)` on the packed state
-    # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss) (`pack_state`), finishing with
+    # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual)
+    # (`pack_state`), finishing with
     # `finish_packed`. `Simulator.step` then keeps the state packed between steps; results match
     # `step` to rounding (tests/test_step_paths.py).
     packed = False
@@ -53,29 +95,36 @@ class Model:
     @staticmethod
     def pack_state(s: State) -> tuple[float, ...]:
         return (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad, s.carrier_speed_rad_s,
-                s.work_in_j, s.work_out_j, s.dissipated_j)
+                s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j, s.energy_residual_j)
 
     @staticmethod
     def unpack_state(x: tuple[float, ...]) -> State:
         return State(time_s=x[0], screw_angle_rad=x[1], screw_speed_rad_s=x[2], carrier_angle_rad=x[3],
-                     carrier_speed_rad_s=x[4], work_in_j=x[5], work_out_j=x[6], dissipated_j=x[7])
+                     carrier_speed_rad_s=x[4], work_in_j=x[5], work_out_j=x[6], dissipated_j=x[7],
+                     energy_flow_j=x[8], energy_residual_j=x[9])
 
     def advance_packed(self, x: tuple[float, ...], torque_nm: float, load_n: float):
         raise NotImplementedError
 
     def finish_packed(self, x, th_s: float, w_s: float, th_c: float, w_c: float, torque_nm: float, load_n: float,
                       dissipated_j: float, slip_speed_m_s: float, nut_force_n: float, internal_src):
-        """`finish_step` on packed floats: the same ledger and outputs, no records built."""
+        """`finish_step` on packed floats: the same ledger, energy guard and outputs, no records built."""
         h, p = self.dt_s, self.geo.lead_per_rad_m
         dtheta = th_s - x[1]
         w_in = torque_nm * dtheta
         w_out = load_n * p * dtheta
         t = x[0] + h
         p_out, p_d = w_out / h, dissipated_j / h
-        xn = (t, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j)
+        e0 = self.stored_energy_j(x[2], x[4])
+        e1 = self.stored_energy_j(w_s, w_c)
+        flow = x[8] + abs(w_in)
+        residual = x[9] + (w_in - w_out - (e1 - e0) - dissipated_j)
+        fault = 1.0 if flow > ENERGY_GUARD_MIN_FLOW_J and abs(residual) > ENERGY_GUARD_REL * flow else 0.0
+        xn = (t, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j, flow, residual)
         return xn, PackedOutputs((
             t, th_s, w_s, torque_nm, th_c, w_c, -self.geo.gear_ratio * w_c, p * th_s, p * w_s, nut_force_n, load_n,
-            slip_speed_m_s, w_in / h, p_out, p_d, efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan),
+            slip_speed_m_s, w_in / h, p_out, p_d, efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan,
+            e1, flow, residual, fault),
             internal_src)
 
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
@@ -111,8 +160,13 @@ class Model:
         dtheta = after.screw_angle_rad - before.screw_angle_rad
         w_in = torque_nm * dtheta
         w_out = load_n * p * dtheta
+        e0 = self.stored_energy_j(before.screw_speed_rad_s, before.carrier_speed_rad_s)
+        e1 = self.stored_energy_j(after.screw_speed_rad_s, after.carrier_speed_rad_s)
+        flow = before.energy_flow_j + abs(w_in)
+        residual = before.energy_residual_j + (w_in - w_out - (e1 - e0) - dissipated_j)
         state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
-                        work_out_j=before.work_out_j + w_out, dissipated_j=before.dissipated_j + dissipated_j)
+                        work_out_j=before.work_out_j + w_out, dissipated_j=before.dissipated_j + dissipated_j,
+                        energy_flow_j=flow, energy_residual_j=residual)
         if nut_force_n is None:
             m = self.params.mass.moved_mass_kg
             nut_force_n = load_n + m * p * (after.screw_speed_rad_s - before.screw_speed_rad_s) / h
@@ -136,6 +190,10 @@ class Model:
             power_dissipated_w=dissipated_j / h,
             efficiency=efficiency(p_out, dissipated_j / h),
             speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
+            stored_energy_j=e1,
+            energy_flow_j=flow,
+            energy_residual_j=residual,
+            energy_fault=1.0 if energy_fault(flow, residual) else 0.0,
             internal=internal,
         )
         return state, out
@@ -174,19 +232,28 @@ def trajectory_from_rows(rows: list[Outputs], layout: InternalLayout, final: Sta
 
 
 def columns_to_trajectory(model: Model, tau: np.ndarray, load: np.ndarray, cols: np.ndarray, internal: np.ndarray,
-                          final: State, initial_screw_speed_rad_s: float = 0.0) -> Trajectory:
+                          final: State, initial: State) -> Trajectory:
     """The common output columns of a batch run, vectorised (the batch twin of `finish_step`).
 
     `cols` rows: ω_S, ω_C, θ_S, θ_C at the end of each step, Δθ_S over it, dissipated work,
     slip speed, nut force (NaN: derive it from the load and the moved mass's acceleration).
+    `initial` is the state the run started from; the energy guard's accumulators of `final`
+    are filled here.
     """
     h = model.dt_s
     geo = model.geo
     p = geo.lead_per_rad_m
     n = len(tau)
     w_s, w_c, th_s, th_c, dth, diss, slip, nut_force = (cols[:, i] for i in range(8))
-    w_prev = np.concatenate([[initial_screw_speed_rad_s], w_s[:-1]])
+    w_prev = np.concatenate([[initial.screw_speed_rad_s], w_s[:-1]])
     w_in, w_out = tau * dth, load * p * dth
+    stored = model.stored_energy_j(w_s, w_c)
+    e0 = model.stored_energy_j(initial.screw_speed_rad_s, initial.carrier_speed_rad_s)
+    flow = initial.energy_flow_j + np.cumsum(np.abs(w_in))
+    # cumulative sums of the step residuals; Δstored telescopes to stored − e0
+    residual = initial.energy_residual_j + np.cumsum(w_in - w_out - diss) - (stored - e0)
+    if n:
+        final = replace(final, energy_flow_j=float(flow[-1]), energy_residual_j=float(residual[-1]))
     with np.errstate(divide="ignore", invalid="ignore"):
         p_in, p_out = w_in / h, w_out / h
         p_d = diss / h
@@ -202,5 +269,7 @@ def columns_to_trajectory(model: Model, tau: np.ndarray, load: np.ndarray, cols:
         "nut_position_m": p * th_s, "nut_velocity_m_s": p * w_s, "nut_force_n": nut_force,
         "load_force_n": load.copy(), "slip_speed_m_s": slip, "power_in_w": p_in, "power_out_w": p_out,
         "power_dissipated_w": diss / h, "efficiency": eff, "speed_ratio": ratio,
+        "stored_energy_j": stored, "energy_flow_j": flow, "energy_residual_j": residual,
+        "energy_fault": energy_fault(flow, residual).astype(float),
     }
     return Trajectory(columns=columns, internal=internal, layout=model.layout, final_state=final)

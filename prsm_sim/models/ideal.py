@@ -42,6 +42,7 @@ class Ideal(Model):
     def __init__(self, params: Params, dt_s: float) -> None:
         super().__init__(params, dt_s)
         self.J = reflected_inertia(params)
+        self.kinetic = (self.J, 0.0, 0.0)  # energy guard: carrier and rollers are in J (ideal ratio)
         self.k_carrier = ideal_carrier_ratio(self.geo)
         il = params.ideal
         self.k_forward = 1.0 / il.efficiency_forward - 1.0

@@ -52,6 +52,7 @@ class Jones2016(Model):
         self.G = self.contact.sliding_matrix(geo)
         n_contacts = geo.n_rollers * geo.n_teeth
         self.M = mass_matrix(params)
+        self.kinetic = (float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1]))  # energy guard
         self.C = fr.viscous_n_s_m * n_contacts * (self.G.T @ self.G)
         self.B = input_matrix(params)
         self.lin = discretise(self.M, self.C, self.B, self.dt_s)
@@ -158,7 +159,7 @@ class Jones2016(Model):
                       dissipated_j=state.dissipated_j + diss.sum())
         cols = np.column_stack([w[0], w[1], q[0], q[1], dtheta, diss, np.linalg.norm(v_s, axis=0),
                                 np.full(n, np.nan)])
-        return columns_to_trajectory(self, tau, f, cols, internal, final, float(w0[0]))
+        return columns_to_trajectory(self, tau, f, cols, internal, final, state)
 
 
 def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torque_nm: float | None = None,

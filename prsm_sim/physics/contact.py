@@ -56,6 +56,33 @@ def _flank_signs(side: str, load_sign: int) -> tuple[int, int]:
     return (load_sign, -load_sign)
 
 
+def flank_surfaces(geo: Geometry, side: str, load_sign: int = 1):
+    """Parametrisations of the two loaded flank helicoids of one side, in the carrier frame.
+
+    Returns (body(r, φ), roller(ρ, ψ, z0), ψ0): the screw or nut flank z = p φ + s tan β (r − r_b)
+    (straight generator at the flank angle), the roller flank swept by the arc of radius
+    R_p = r_R / sin β about the roller axis at (a, 0), and the roller angle ψ0 of the line of
+    centres (π on the screw side, 0 on the nut side). docs/model.md §3.
+    """
+    beta = geo.flank_angle_rad
+    tb = math.tan(beta)
+    a = geo.carrier_radius_m
+    r_p = geo.roller_radius_m / math.sin(beta)
+    p_body = geo.lead_per_rad_m  # screw and nut have the same lead
+    p_roll = geo.pitch_m / (2 * math.pi)
+    r_body0 = geo.screw_radius_m if side == "screw" else geo.nut_radius_m
+    s_body, s_arc = _flank_signs(side, load_sign)
+
+    def body(r: float, phi: float) -> np.ndarray:
+        return np.array([r * math.cos(phi), r * math.sin(phi), p_body * phi + s_body * tb * (r - r_body0)])
+
+    def roller(rho: float, psi: float, z0: float) -> np.ndarray:
+        root = math.sqrt(max(r_p**2 - rho**2, 1e-30))
+        return np.array([a + rho * math.cos(psi), rho * math.sin(psi), z0 + p_roll * psi + s_arc * root])
+
+    return body, roller, (math.pi if side == "screw" else 0.0)
+
+
 def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
     """Exact tangency contact for one side (docs/model.md §3)."""
     if side not in ("screw", "nut"):
@@ -74,11 +101,13 @@ def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
     s_body, s_arc = _flank_signs(side, load_sign)
     scale = 1.0 / r_r  # solve in units of the roller radius for conditioning
 
+    body_at, roller_at, _ = flank_surfaces(geo, side, load_sign)
+
     def surfaces(x):
         r, phi, rho, psi, z0 = x
-        body = np.array([r * math.cos(phi), r * math.sin(phi), p_body * phi + s_body * tb * (r - r_body0)])
+        body = body_at(r, phi)
+        roll = roller_at(rho, psi, z0)
         root = math.sqrt(max(r_p**2 - rho**2, 1e-30))
-        roll = np.array([a + rho * math.cos(psi), rho * math.sin(psi), z0 + p_roll * psi + s_arc * root])
         e_r = np.array([math.cos(phi), math.sin(phi), 0.0])
         e_phi = np.array([-math.sin(phi), math.cos(phi), 0.0])
         e_rho = np.array([math.cos(psi), math.sin(psi), 0.0])

@@ -1,0 +1,361 @@
+"""The `elastic` model level: the `fu2018` force system plus an axially compliant screw–nut chain.
+
+docs/model.md §4.3. Degrees of freedom: screw angle and carrier angle with their speeds (the
+`fu2018` core: screw, rollers, carriers, its friction laws), and the nut's own axial position and
+velocity. The rollers ride the screw's thread kinematically (x = (L/2π) θ_S); between that
+kinematic thread position and the nut sits the axial chain, whose deflection δ = (L/2π) θ_S − x_N
+carries the thread force F(δ) + c δ̇ to the nut:
+
+- nut side (Hertz contacts per thread, teeth, nut body, with the load distribution solved from
+  compatibility, `physics.load_sharing`): represented by δ_nut(F) = a F^(2/3) + b F, fitted to the
+  static solution over 0.01 %–50 % of the static rating (within 0.6 % for `s30`) [derived];
+- screw shaft between the fixed bearing and the nut, EA/ℓ with ℓ = |x_N − x_bearing|, and the
+  housing, in series;
+- axial clearance (a dead zone of total width c: lost motion at a reversal) or a preloaded pair
+  (two opposed flank sets pressed together by P₀);
+- contact damping c = 2ζ √(K μ) with K the tangent stiffness and μ the reduced mass of the two
+  sides, so every load has modal damping ratio ζ (`elastic.contact_damping_ratio`).
+
+The elastic potential V(δ, x_N) is that of the same law (complementary energy of the power-law
+terms). Because ℓ changes with x_N, the nut also feels −∂V/∂x_N = (F²/2) d(ℓ/EA)/dx_N, which keeps
+the system conservative.
+
+Integration: each step of dt_s is split into `substeps` sub-steps sized so that ω h ≤ 0.5 for
+the stiffest axial mode (several hundred Hz at a 1 ms step: 8 sub-steps for `s30`); each sub-step is a kick–drift–kick
+(velocity Verlet) for the nut with one `fu2018` ROS2 step (L-stable, its own stiff carrier mode)
+for the rotating core under the thread force.
+
+Stiction (the `stiction` group, Karnopp type): a screw slower than the stick window (the screw
+speed at which the screw–roller slip equals `stribeck_speed_m_s`) sticks while the torque lies in
+the breakaway band [p F η_b,s, p F/η_f,s] (sliding-only efficiencies of docs/model.md §4.2 at
+μ_s = breakaway_ratio · μ); held, it does not creep at all; outside the band it runs with
+`fu2018`'s friction (the drop from breakaway to running is immediate [assumed]). The core's kinetic
+energy at the moment it sticks is booked as dissipated. `breakaway_ratio` 1 turns this off.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from prsm_sim.models.base import Model, efficiency
+from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018
+from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.params import Params
+from prsm_sim.physics import load_sharing as ls
+
+ELASTIC_QUANTITIES = (
+    ("deflection_m", "m"),  # δ = (L/2π) θ_S − x_N
+    ("lost_motion_m", "m"),  # part of δ inside the clearance (no force)
+    ("thread_force_n", "N"),  # axial force the threads deliver to the nut, +x_nut
+    ("contact_stiffness_n_per_m", "N/m"),  # tangent stiffness of the chain at δ
+    ("elastic_energy_j", "J"),  # V(δ, x_N)
+    ("nut_velocity_m_s", "m/s"),
+)
+PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
+_OUTPUT_NAMES = {n for n, _ in OUTPUT_FIELDS}
+OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
+FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
+
+
+@dataclass(frozen=True)
+class PowerLaw:
+    """δ(F) = a F^(2/3) + b F for F ≥ 0, its inverse, tangent stiffness and complementary energy."""
+
+    a: float
+    b: float
+
+    def approach(self, f: float) -> float:
+        return self.a * f ** (2.0 / 3.0) + self.b * f
+
+    def force(self, d: float) -> float:
+        if d <= 0.0:
+            return 0.0
+        return ls.ToothRow(1, self.a, self.b).force_n(d)
+
+    def compliance(self, f: float) -> float:
+        f = max(f, 1e-300)
+        return (2.0 / 3.0) * self.a * f ** (-1.0 / 3.0) + self.b
+
+    def complementary(self, f: float) -> float:
+        """∫₀^F δ dF' = (3/5) a F^(5/3) + b F²/2; the stored energy is F δ − this."""
+        return 0.6 * self.a * f ** (5.0 / 3.0) + 0.5 * self.b * f * f
+
+
+def fit_side(joint: ls.Joint, rating_n: float) -> PowerLaw:
+    """Least-squares fit (relative error) of δ_nut(F) = a F^(2/3) + b F to the static distribution."""
+    loads = np.geomspace(FIT_RANGE[0], FIT_RANGE[1], 40) * rating_n
+    d = np.array([ls.solve_distribution(joint, f).approach_m for f in loads])
+    basis = np.column_stack([loads ** (2.0 / 3.0), loads]) / d[:, None]
+    (a, b), *_ = np.linalg.lstsq(basis, np.ones_like(d), rcond=None)
+    return PowerLaw(float(a), float(max(b, 0.0)))
+
+
+def sliding_efficiencies(geo, mu: float) -> tuple[float, float]:
+    """(η_f, η_b) of screw–roller sliding alone at friction coefficient μ (docs/model.md §4.2):
+    η_f = 1 / (1 + μ / (sin β (c_zS − μ sin β))), η_b = 1 − μ / (sin β (c_zS + μ sin β)),
+    c_zS = cos α_nS cos λ_S, α_nS = atan(tan β cos λ_S)."""
+    lam, beta = geo.screw_lead_angle_rad, geo.flank_angle_rad
+    czs = math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam)
+    sb = math.sin(beta)
+    return 1.0 / (1.0 + mu / (sb * (czs - mu * sb))), 1.0 - mu / (sb * (czs + mu * sb))
+
+
+class AxialLaw:
+    """Thread force, tangent stiffness and elastic energy of the chain at a deflection δ and nut position x."""
+
+    def __init__(self, params: Params) -> None:
+        el, g = params.elastic, params.geometry
+        self.params = params
+        self.clearance = el.axial_clearance_m
+        self.preload = el.preload_n
+        n_side = max(1, g.n_teeth // 2) if el.preload_kind == "double_nut" else g.n_teeth
+        self.joint = ls.joint_from_params(params, n_side)
+        self.side = fit_side(self.joint, params.ratings.static_load_rating_n)
+        self.ea = params.material.youngs_modulus_pa * ls.screw_section_m2(params)
+        self.x_bearing = el.bearing_position_m
+        k_h = el.housing_stiffness_n_per_m
+        self.c_housing = 0.0 if math.isinf(k_h) else 1.0 / k_h
+        self.d0 = self.side.approach(self.preload) if self.preload > 0 else 0.0
+        self.v0 = (self.preload * self.d0 - self.side.complementary(self.preload)) if self.preload > 0 else 0.0
+        self.shares = _share_table(self.joint, params.ratings.static_load_rating_n)
+
+    def external_compliance(self, x_n: float) -> tuple[float, float]:
+        """(ℓ/EA + 1/K_h, its derivative in x_N)."""
+        ell = x_n - self.x_bearing
+        s = 1.0 if ell >= 0 else -1.0
+        return max(abs(ell), 1e-6) / self.ea + self.c_housing, s / self.ea
+
+    def evaluate(self, delta: float, x_n: float) -> tuple[float, float, float, float]:
+        """(F, K = dF/dδ, V, lost motion) at deflection δ and nut position x_N."""
+        c_ext, _ = self.external_compliance(x_n)
+        if self.preload > 0:
+            return self._preloaded(delta, c_ext)
+        half = 0.5 * self.clearance
+        mag = abs(delta) - half
+        if mag <= 0.0:
+            return 0.0, 0.0, 0.0, delta
+        law = PowerLaw(self.side.a, self.side.b + c_ext)
+        f = law.force(mag)
+        k = 1.0 / law.compliance(f)
+        v = f * mag - law.complementary(f)
+        sgn = 1.0 if delta > 0 else -1.0
+        return sgn * f, k, v, sgn * half
+
+    def _preloaded(self, delta: float, c_ext: float) -> tuple[float, float, float, float]:
+        """Pair shift x_p with δ = x_p + F(x_p) c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
+        s, d0 = self.side, self.d0
+        x = delta / 2.0
+        for _ in range(60):
+            qa, qb = s.force(d0 + x), s.force(d0 - x)
+            ka = 1.0 / s.compliance(qa) if qa > 0 else 0.0
+            kb = 1.0 / s.compliance(qb) if qb > 0 else 0.0
+            f = qa - qb
+            r = x + f * c_ext - delta
+            dx = -r / (1.0 + (ka + kb) * c_ext)
+            x += dx
+            if abs(dx) <= 1e-15 * max(abs(x), d0):
+                break
+        qa, qb = s.force(d0 + x), s.force(d0 - x)
+        ka = 1.0 / s.compliance(qa) if qa > 0 else 0.0
+        kb = 1.0 / s.compliance(qb) if qb > 0 else 0.0
+        f = qa - qb
+        k_pair = ka + kb
+        k = k_pair / (1.0 + k_pair * c_ext)
+        va = qa * (d0 + x) - s.complementary(qa)
+        vb = (qb * (d0 - x) - s.complementary(qb)) if qb > 0 else 0.0
+        return f, k, va + vb - 2 * self.v0 + 0.5 * f * f * c_ext, 0.0
+
+    def nut_side_force(self, force_n: float, x_n: float) -> float:
+        """−∂V/∂x_N at fixed δ: (F²/2) d(ℓ/EA)/dx_N (the shaft length changes under the nut)."""
+        _, dc = self.external_compliance(x_n)
+        return 0.5 * force_n * force_n * dc
+
+
+def _share_table(joint: ls.Joint, rating_n: float) -> tuple[np.ndarray, np.ndarray]:
+    loads = np.concatenate([[0.0], np.geomspace(1e-5, 1.0, 60) * rating_n])
+    shares = np.array([ls.solve_distribution(joint, f).shares if f > 0 else np.ones(joint.n_teeth) for f in loads])
+    return loads, shares
+
+
+class Elastic(Model):
+    name = "elastic"
+
+    def __init__(self, params: Params, dt_s: float) -> None:
+        super().__init__(params, dt_s)
+        self.law = AxialLaw(params)
+        self.m = params.mass.moved_mass_kg
+        self.p = self.geo.lead_per_rad_m
+        # the rotating core: fu2018 with the moved mass taken off (the nut is its own body here)
+        core_params = params.with_overrides({"mass.moved_mass_kg": 1e-9 * self.m})
+        ms, _ = ls.axial_masses_kg(params)
+        self.screw_side_mass_kg = ms
+        self.mu = ms * self.m / (ms + self.m)
+        self.zeta = params.elastic.contact_damping_ratio
+        k_max = max(ls.AxialChain(params).at(f).stiffness_n_per_m
+                    for f in (0.0, 0.5 * params.ratings.static_load_rating_n))
+        omega = math.sqrt(k_max / self.mu)
+        self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
+        self.core = Fu2018(core_params, self.dt_s / self.substeps)
+        from prsm_sim.models.jones2016 import mass_matrix
+        self._m_core = mass_matrix(core_params)
+        # breakaway (the `stiction` group): a hold band of screw torque wider than the running one
+        st = params.stiction
+        self.breakaway = st.breakaway_ratio > 1.0
+        self.eta_static = sliding_efficiencies(self.geo, st.breakaway_ratio * params.friction.mu_screw_roller)
+        # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is the
+        # Stribeck speed
+        self.w_stick = st.stribeck_speed_m_s * math.sin(self.geo.flank_angle_rad) / self.p
+        nr, nt = self.geo.n_rollers, self.geo.n_teeth
+        self.layout = InternalLayout(blocks=(
+            InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
+            InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
+            InternalBlock("carrier", ("quantity",), (len(CARRIER_QUANTITIES),), CARRIER_QUANTITIES),
+            InternalBlock("elastic", ("quantity",), (len(ELASTIC_QUANTITIES),), ELASTIC_QUANTITIES),
+            InternalBlock("per_thread", ("tooth", "quantity"), (nt, 2), PER_THREAD_QUANTITIES),
+        ))
+
+    def initial_state(self, nut_position_m: float = 0.0) -> State:
+        s = super().initial_state(nut_position_m)
+        return replace(s, nut_axial_m=nut_position_m, nut_speed_m_s=0.0)
+
+    def _core_step(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
+        """One `fu2018` step of the core (length core.dt_s) under a held thread force.
+
+        Returns (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces, flank sign, pin force, gear force,
+        solver memory): `Fu2018._step` where the core has it (its stick and its error-controlled
+        sub-steps at friction transitions), else one ROS2 step with trapezoidal angles and work.
+        """
+        core = self.core
+        if hasattr(core, "_step"):
+            return core._step(ws, wc, sign, pin_abs, gear, mem, tau, load)
+        h = core.dt_s
+        ws1, wc1, f1, f0, mem = core._rosenbrock(ws, wc, sign, pin_abs, gear, mem, tau, load)
+        return (ws1, wc1, 0.5 * h * (ws + ws1), 0.5 * h * (wc + wc1), 0.5 * h * (f0.dissipated_w + f1.dissipated_w),
+                f1, int(f1.sign), math.hypot(f1.f_pr, f1.f_pt), f1.f_gt, mem)
+
+    def _holds(self, torque_nm: float, thread_force_n: float) -> bool:
+        """Static friction holds the screw at rest: the torque lies inside the breakaway band
+        [p F η_b,s, p F/η_f,s] (mirrored for F < 0), efficiencies at μ_s = breakaway_ratio · μ."""
+        eta_f, eta_b = self.eta_static
+        t = self.p * thread_force_n
+        lo, hi = (t * eta_b, t / eta_f) if t >= 0 else (t / eta_f, t * eta_b)
+        return lo <= torque_nm <= hi
+
+    def _core_kinetic_j(self, ws: float, wc: float) -> float:
+        mm = self._m_core
+        return 0.5 * (mm[0, 0] * ws * ws + 2 * mm[0, 1] * ws * wc + mm[1, 1] * wc * wc)
+
+    # -- energy ---------------------------------------------------------------------------
+    def total_stored_energy_j(self, state: State) -> float:
+        """Kinetic energy of the core and the nut plus the chain's elastic energy (J)."""
+        delta = self.p * state.screw_angle_rad - state.nut_axial_m
+        _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m)
+        return (self._core_kinetic_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
+                + 0.5 * self.m * state.nut_speed_m_s**2 + v)
+
+    # -- stepping -------------------------------------------------------------------------
+    def _force(self, th_s, w_s, x_n, v_n):
+        delta = self.p * th_s - x_n
+        f, k, v, lost = self.law.evaluate(delta, x_n)
+        c = 2.0 * self.zeta * math.sqrt(k * self.mu) if k > 0 else 0.0
+        rate = self.p * w_s - v_n
+        return f + c * rate, f, k, v, lost, delta, c * rate * rate
+
+    def _advance(self, state: State, torque_nm: float, load_n: float):
+        s = state
+        ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
+        x_n, v_n = s.nut_axial_m, s.nut_speed_m_s
+        sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
+        hs, m, core = self.core.dt_s, self.m, self.core
+        diss = 0.0
+        f_th, *_rest = self._force(th_s, ws, x_n, v_n)
+        w_out = 0.0
+        acc = s.screw_accel_rad_s2
+        for _ in range(self.substeps):
+            # Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with
+            # the accelerations at its start): equal and opposite impulses, second order in the axial mode.
+            a_n = (f_th - load_n + self.law.nut_side_force(f_th, x_n)) / m
+            f_mid, _, _, _, _, _, p_damp = self._force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
+                                                       x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n, v_n + 0.5 * hs * a_n)
+            stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
+            if stuck:  # static friction holds the screw: no creep below breakaway
+                f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
+                ws1 = wc1 = dth_s = dth_c = d_core = 0.0
+            else:
+                ws1, wc1, dth_s, dth_c, d_core, f1, sign, pin_abs, gear, mem = self._core_step(
+                    ws, wc, sign, pin_abs, gear, mem, torque_nm, f_mid)
+            acc = (ws1 - ws) / hs
+            th_s += dth_s
+            th_c += dth_c
+            diss += d_core
+            if self.breakaway and not stuck and abs(ws1) < self.w_stick and self._holds(torque_nm, f_mid):
+                # Karnopp: slower than the stick window with the torque inside the breakaway band, the screw
+                # sticks; its kinetic energy (and the carrier's) goes to friction, counted in the ledger
+                diss += self._core_kinetic_j(ws1, wc1)
+                ws1 = wc1 = acc = 0.0
+            v1 = v_n + hs * (f_mid - load_n + self.law.nut_side_force(f_mid, x_n + 0.5 * hs * v_n)) / m
+            dx = 0.5 * hs * (v_n + v1)
+            x_n += dx
+            v_n = v1
+            w_out += load_n * dx
+            diss += hs * p_damp
+            ws, wc = ws1, wc1
+            f_th, f_el, k, v_el, lost, delta, _ = self._force(th_s, ws, x_n, v_n)
+        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                        flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
+                        nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
+        internal = self._internal(f1.compact, f_el, k, v_el, lost, delta, v_n)
+        return self._finish(s, after, torque_nm, load_n, diss, w_out,
+                            math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f_th, internal)
+
+    def _internal(self, compact, f_el, k, v_el, lost, delta, v_n) -> np.ndarray:
+        geo = self.geo
+        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        loads, table = self.law.shares
+        fa = abs(f_el)
+        j = int(np.searchsorted(loads, fa))
+        if j <= 0:
+            shares = table[0]
+        elif j >= len(loads):
+            shares = table[-1]
+        else:
+            w = (fa - loads[j - 1]) / (loads[j] - loads[j - 1])
+            shares = (1 - w) * table[j - 1] + w * table[j]
+        comp = np.asarray(compact, dtype=float)
+        per_tooth = np.empty((nr, nt, 2))
+        per_tooth[:, :, 0] = shares / nt * comp[0]
+        per_tooth[:, :, 1] = shares / nt * comp[1]
+        thread = np.column_stack([shares * fa / nt, shares])
+        return np.concatenate([np.tile(comp[:nq], nr), per_tooth.ravel(), comp[nq:],
+                               [delta, lost, f_el, k, v_el, v_n], thread.ravel()])
+
+    def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
+                work_out_j: float, slip: float, thread_force: float, internal: np.ndarray):
+        """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply)."""
+        h = self.dt_s
+        w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
+        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
+                        work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j)
+        p_out, p_d = work_out_j / h, dissipated_j / h
+        extra = {}
+        if "energy_residual_j" in _OUTPUT_NAMES:  # the energy guard of models/base (where the tree has it)
+            from prsm_sim.models.base import energy_fault
+            e1 = self.total_stored_energy_j(state)
+            flow = before.energy_flow_j + abs(w_in)
+            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j
+                                                   - (e1 - self.total_stored_energy_j(before)))
+            state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
+            extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
+                     "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
+        w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
+        out = Outputs(time_s=state.time_s, screw_angle_rad=state.screw_angle_rad, screw_speed_rad_s=w_s,
+                      screw_torque_nm=torque_nm, carrier_angle_rad=state.carrier_angle_rad, carrier_speed_rad_s=w_c,
+                      roller_spin_rad_s=-self.geo.gear_ratio * w_c, nut_position_m=state.nut_axial_m,
+                      nut_velocity_m_s=state.nut_speed_m_s, nut_force_n=thread_force, load_force_n=load_n,
+                      slip_speed_m_s=slip, power_in_w=w_in / h, power_out_w=p_out, power_dissipated_w=p_d,
+                      efficiency=efficiency(p_out, p_d), speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
+                      internal=internal, **extra)
+        return state, out
