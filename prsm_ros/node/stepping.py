@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from prsm_sim import Outputs, Params, Simulator
+from prsm_sim.models.base import energy_fault
 from prsm_sim.outputs import PackedOutputs
 
 from prsm_ros.node.command_gate import CommandGate
@@ -109,6 +110,9 @@ def rest_outputs(stepper: SimStepper) -> Outputs:
                    nut_position_m=p * s.screw_angle_rad, nut_velocity_m_s=p * s.screw_speed_rad_s,
                    nut_force_n=stepper.load_n, load_force_n=stepper.load_n, slip_speed_m_s=0.0, power_in_w=0.0,
                    power_out_w=0.0, power_dissipated_w=0.0, efficiency=math.nan, speed_ratio=math.nan,
+                   stored_energy_j=stepper.sim.model.stored_energy_j(s.screw_speed_rad_s, s.carrier_speed_rad_s),
+                   energy_flow_j=s.energy_flow_j, energy_residual_j=s.energy_residual_j,
+                   energy_fault=1.0 if energy_fault(s.energy_flow_j, s.energy_residual_j) else 0.0,
                    internal=np.zeros(stepper.sim.layout.size))
 
 
