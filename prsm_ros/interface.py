@@ -11,7 +11,11 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | screw_torque           | ~/screw_torque              | std_msgs/Float64 (N·m)        | in  |
 | joint_commands         | ~/joint_commands            | sensor_msgs/JointState        | in  |
 | nut_position_reference | ~/nut_position_reference    | std_msgs/Float64 (m)          | in (recorded only) |
-| joint_states           | joint_states                | sensor_msgs/JointState        | out |
+| velocity_command       | ~/velocity_command          | std_msgs/Float64 (rad/s)      | in (command_interface velocity) |
+| position_command       | ~/position_command          | std_msgs/Float64 (m)          | in (command_interface position) |
+| inject_fault           | ~/inject_fault              | std_msgs/String ('kind=…,start_s=…') | in (with an actuator) |
+| joint_states           | joint_states                | sensor_msgs/JointState        | out (measured, with an actuator) |
+| ground_truth           | ~/ground_truth/joint_states | sensor_msgs/JointState        | out (with an actuator) |
 | wrench                 | ~/nut/wrench                | geometry_msgs/WrenchStamped   | out |
 | internal_loads         | ~/internal_loads            | std_msgs/Float64MultiArray    | out |
 | labels                 | ~/internal_loads/labels     | std_msgs/String (JSON)        | out, latched |
@@ -113,9 +117,13 @@ class TopicDef:
 TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("screw_torque", "~/screw_torque", "std_msgs/msg/Float64", qos(1), "in"),
     TopicDef("joint_commands", "~/joint_commands", "sensor_msgs/msg/JointState", qos(1), "in"),
+    TopicDef("velocity_command", "~/velocity_command", "std_msgs/msg/Float64", qos(1), "in"),
+    TopicDef("position_command", "~/position_command", "std_msgs/msg/Float64", qos(1), "in"),
+    TopicDef("inject_fault", "~/inject_fault", "std_msgs/msg/String", qos(10), "in"),
     TopicDef("nut_position_reference", "~/nut_position_reference", "std_msgs/msg/Float64", qos(10), "in"),
     # keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no state (issue 15)
     TopicDef("joint_states", "joint_states", "sensor_msgs/msg/JointState", qos(100), "out"),
+    TopicDef("ground_truth", "~/ground_truth/joint_states", "sensor_msgs/msg/JointState", qos(10), "out"),
     TopicDef("wrench", "~/nut/wrench", "geometry_msgs/msg/WrenchStamped", qos(10), "out"),
     TopicDef("internal_loads", "~/internal_loads", "std_msgs/msg/Float64MultiArray", qos(10), "out"),
     TopicDef("labels", "~/internal_loads/labels", "std_msgs/msg/String", qos(1, latched=True), "out"),

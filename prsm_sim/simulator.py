@@ -99,8 +99,12 @@ class Simulator:
     """
 
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
-                 nut_position_m: float = 0.0) -> None:
-        self.model = build_model(params, model, dt_s)
+                 nut_position_m: float = 0.0, actuator=None) -> None:
+        if actuator is None:
+            self.model = build_model(params, model, dt_s)
+        else:  # the actuator around the screw (prsm_sim.actuator): `step`'s first input is then its command
+            from prsm_sim.actuator import Actuator
+            self.model = Actuator(params, dt_s, model, actuator)
         self.params = params
         self.dt_s = self.model.dt_s
         self._initial_nut_position_m = float(nut_position_m)
@@ -164,8 +168,8 @@ class Simulator:
         nstep : int
             Steps taken to reach it (>= 0).
         """
-        if not isinstance(state, State):
-            raise InputError(f"state = {state!r}: must be a prsm_sim State")
+        if not isinstance(state, type(self.state)):  # State, or the actuator's ActuatorState
+            raise InputError(f"state = {state!r}: must be a prsm_sim {type(self.state).__name__}")
         if not isinstance(nstep, (int, np.integer)) or isinstance(nstep, bool) or nstep < 0:
             raise InputError(f"nstep = {nstep!r}: must be a whole number >= 0")
         self.state = state

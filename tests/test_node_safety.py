@@ -66,19 +66,21 @@ def test_nan_is_rejected_over_limit_saturated_bad_joint_state_rejected(tmp_path)
         send(cli, js, TORQUE, Float64(data=-7.0), 5)
         send(cli, js, JOINTS, joint_command(["screw_joint"], [0.75]), 6)
         send(cli, js, JOINTS, joint_command(["other_joint"], [1.0]), 7)  # no screw_joint
-        send(cli, js, JOINTS, joint_command(["screw_joint", "x"], [1.0]), 8)  # effort shorter than name
-        send(cli, js, JOINTS, joint_command(["screw_joint"], [1.0], position=[0.0, 1.0]), 9)
+        # packed as ros2_control's topic-based interface writes it: one effort for the one joint with an
+        # effort command interface (issue 14); arrays of inactive interfaces are ignored
+        send(cli, js, JOINTS, joint_command(["screw_joint", "x"], [1.0]), 8)
+        send(cli, js, JOINTS, joint_command(["screw_joint", "x", "y"], [1.25, 2.0]), 9)  # 2 efforts for 3 names
         send(cli, js, JOINTS, joint_command(["x", "screw_joint"], [9.0, -0.5], velocity=[0.0, 0.0]), 10)
-        assert [m.effort[0] for m in js] == [1.5, 1.5, 1.5, 2.0, -2.0, 0.75, 0.75, 0.75, 0.75, -0.5]
+        assert [m.effort[0] for m in js] == [1.5, 1.5, 1.5, 2.0, -2.0, 0.75, 0.75, 1.0, 1.0, -0.5]
         level, text, v = latest_diagnostics(cli, diag, 10)
-        assert (v["commands_received"], v["commands_accepted"]) == ("10", "5")
-        assert (v["rejected_non_finite"], v["rejected_malformed"], v["saturated"]) == ("2", "3", "2")
+        assert (v["commands_received"], v["commands_accepted"]) == ("10", "6")
+        assert (v["rejected_non_finite"], v["rejected_malformed"], v["saturated"]) == ("2", "2", "2")
         assert level == 0 and v["fault"] == ""
         assert proc.stop() == 0
     err = proc.stderr
     assert "not a finite number" in err
     assert "has no 'screw_joint'" in err
-    # throttled: the three malformed joint commands arrive within the throttle window → one warning
+    # throttled: the two malformed joint commands arrive within the throttle window → one warning
     assert err.count("/prsm_actuator/joint_commands:") == 1, err
     assert "Traceback" not in err
 

@@ -28,10 +28,9 @@ def test_gate_rejects_non_finite_keeps_last_and_saturates():
 
 @pytest.mark.parametrize("names, effort, position, velocity, problem", [
     (["a"], [1.0], [], [], "has no 'screw_joint'"),
-    (["screw_joint", "b"], [1.0], [], [], "2 names but 1 efforts"),
-    (["screw_joint"], [], [], [], "1 names but 0 efforts"),
-    (["screw_joint"], [1.0], [0.0, 0.0], [], "position must be empty or match name"),
-    (["screw_joint"], [1.0], [], [1.0, 2.0], "velocity must be empty or match name"),
+    (["screw_joint", "b", "c"], [1.0, 2.0], [], [], "3 names but 2 effort values"),
+    (["screw_joint"], [], [], [], "no effort value"),
+    (["screw_joint", "nut_joint"], [], [0.1], [], "the active command interface is 'effort'"),
 ])
 def test_gate_rejects_malformed_joint_commands_by_name(names, effort, position, velocity, problem):
     g = CommandGate(5.0)

@@ -101,7 +101,7 @@ def test_200_fu2018_runs_with_deliberate_failures(tmp_path, embedded_ray):
 preset: s30
 model: fu2018
 scenario: heavy
-duration_s: 0.05
+duration_s: 0.25
 vary:
   friction.mu_screw_roller: {{values: {mus}}}
   mass.moved_mass_kg: {{normal: [50, 5]}}
@@ -123,8 +123,9 @@ runs_per_task: 10
     good = df[df["status"] == "ok"]
     assert good["efficiency"].between(0.5, 1.0).all() and good["error"].isna().all()
     # docs/model.md §5 item 5: the energy ledger closes (test_fu2018 holds it to 0.1 % over 1.2 s); over these
-    # 50 ms start-ups at μ_SR up to 0.11 the residual reaches 0.12 % of the energy that flowed
-    assert good["energy_residual_rel"].abs().max() < 2e-3
+    # 0.25 s break-aways and start-ups at μ_SR up to 0.11 (the stick band holds the screw for the first ~0.1 s)
+    print("max energy residual", good["energy_residual_rel"].abs().max())
+    assert good["energy_residual_rel"].abs().max() < 1e-5  # seen 6.4e-7; the energy guard trips at 1e-3
     assert not (tmp_path / "out" / "parts").exists()
 
 

@@ -3,6 +3,7 @@
     prsm-demo                      # 4 s realtime run, s30 preset, jones2016 model, bag recorded
     prsm-demo --time-mode lockstep --model fu2018 --duration 2 --record run.mcap
     prsm-demo --no-record --rerun spawn
+    prsm-demo --command-interface velocity     # the node's drive closes the speed loop
 
 It starts `prsm-node` and `python -m prsm_ros.cli.demo_controller` as separate OS processes, lets the
 controller track a smooth nut-position profile through the torque topic for `--duration` seconds
@@ -40,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default="jones2016", choices=list(MODELS))
     p.add_argument("--time-mode", default="realtime", choices=TIME_MODES)
     p.add_argument("--load", type=float, default=500.0, help="external nut load force in N (default 500)")
+    p.add_argument("--command-interface", default="effort", choices=("effort", "velocity", "position"),
+                   help="what the controller commands: screw torque (effort, default), screw speed (velocity: "
+                        "the node's drive closes the speed loop) or nut position (position: the drive closes both)")
     p.add_argument("--record", metavar="FILE.mcap", help="bag path (default ./prsm_demo_<UTC time>.mcap)")
     p.add_argument("--no-record", action="store_true", help="do not record a bag")
     p.add_argument("--rerun", default="off", choices=("off", "save", "spawn", "connect"),
@@ -63,10 +67,11 @@ def main(argv: list[str] | None = None) -> int:
         args.record or f"prsm_demo_{datetime.now(timezone.utc).strftime('%Y%m%d_%H%M%S')}.mcap").resolve()
     node_params = {"preset": args.preset, "model": args.model, "time_mode": args.time_mode,
                    "load_force": args.load, "record": record is not None, "record_path": str(record or ""),
-                   "rerun": args.rerun, "rerun_target": args.rerun_target}
+                   "rerun": args.rerun, "rerun_target": args.rerun_target, "command_interface": args.command_interface}
     print(f"prsm-demo: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} "
           f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}; "
-          f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N", flush=True)
+          f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N, "
+          f"{args.command_interface} commands", flush=True)
 
     with tempfile.TemporaryDirectory(prefix="prsm_demo_") as tmp:
         node_log = Path(tmp) / "node.log"
@@ -74,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             node = start_module("prsm_ros.node.ros_node", ros_args(node_params), env, stdout=log, stderr=subprocess.STDOUT)
             ctl = start_module("prsm_ros.cli.demo_controller",
                                ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
-                                "--wall-timeout", repr(60.0 + 20 * args.duration)],
+                                "--wall-timeout", repr(60.0 + 20 * args.duration),
+                                "--command-interface", args.command_interface],
                                env, stdout=subprocess.PIPE)
             try:
                 out = wait_for_controller(ctl, node)

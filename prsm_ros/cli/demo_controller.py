@@ -2,8 +2,10 @@
 
     python -m prsm_ros.cli.demo_controller --duration 4 --preset s30 --load 0
 
-It listens to `/joint_states`, answers every state with a screw torque on
-`/prsm_actuator/screw_torque` and publishes its reference on `/prsm_actuator/nut_position_reference`
+It listens to `/joint_states`, answers every state with a command in the node's command interface
+(`--command-interface`: a screw torque on `/prsm_actuator/screw_torque`, a screw speed on
+`~/velocity_command` or the nut position itself on `~/position_command`, where the node's drive
+closes the loops) and publishes its reference on `/prsm_actuator/nut_position_reference`
 (so the reference lands in the node's bag). The reference runs on simulation time (the states'
 header stamps), so the loop behaves the same in realtime, fast and lockstep modes; in lockstep the
 controller's first command starts the simulation. At the end it prints one JSON line with the
@@ -27,6 +29,17 @@ from prsm_sim.control import PositionController, Tracking, reference
 from prsm_sim.models.ideal import reflected_inertia
 
 
+COMMAND_TOPICS = {"effort": "screw_torque", "velocity": "velocity_command", "position": "position_command"}
+
+
+def velocity_command(x_ref_m: float, v_ref_m_s: float, x_m: float, lead_per_rad_m: float, bandwidth_hz: float) -> float:
+    """Screw speed for the drive's velocity loop: ω = (v_ref + 2π f (x_ref − x)) / (L/2π), rad/s.
+
+    Velocity feed-forward plus a proportional position loop at `bandwidth_hz` (the drive's speed
+    loop is faster and holds the load)."""
+    return (v_ref_m_s + 2 * math.pi * bandwidth_hz * (x_ref_m - x_m)) / lead_per_rad_m
+
+
 def run(args: argparse.Namespace) -> dict:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -41,7 +54,8 @@ def run(args: argparse.Namespace) -> dict:
                              load_n=args.load, max_torque_nm=args.max_torque)
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("prsm_demo_controller")
-    tau_pub = node.create_publisher(Float64, TOPICS["screw_torque"].resolved(), with_depth(TOPICS["screw_torque"].qos, 10))
+    cmd_topic = TOPICS[COMMAND_TOPICS[args.command_interface]]
+    tau_pub = node.create_publisher(Float64, cmd_topic.resolved(), with_depth(cmd_topic.qos, 10))
     ref_pub = node.create_publisher(Float64, TOPICS["nut_position_reference"].resolved(),
                                     TOPICS["nut_position_reference"].qos)
     track = Tracking()
@@ -61,7 +75,13 @@ def run(args: argparse.Namespace) -> dict:
             st["done"] = True
             return
         ref_pub.publish(Float64(data=x_ref))
-        tau_pub.publish(Float64(data=ctl.torque(x_ref - x, v_ref - v, a_ref, dt)))
+        if args.command_interface == "velocity":
+            command = velocity_command(x_ref, v_ref, x, params.geometry.lead_per_rad_m, args.bandwidth)
+        elif args.command_interface == "position":
+            command = x_ref
+        else:
+            command = ctl.torque(x_ref - x, v_ref - v, a_ref, dt)
+        tau_pub.publish(Float64(data=command))
 
     state_sub = node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state,
                                          TOPICS["joint_states"].qos)
@@ -72,7 +92,7 @@ def run(args: argparse.Namespace) -> dict:
         # matched both ways: in lockstep a first state sent before we listen would be lost for good
         while tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0:
             if time.monotonic() > deadline:
-                print(f"prsm-demo controller: no node listening on {TOPICS['screw_torque'].resolved()} "
+                print(f"prsm-demo controller: no node listening on {cmd_topic.resolved()} "
                       f"after {args.connect_timeout:g} s", file=sys.stderr)
                 break
             executor.spin_once(timeout_sec=0.05)
@@ -106,6 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frequency", type=float, default=DEFAULT_FREQUENCY_HZ, help="reference frequency (Hz)")
     p.add_argument("--bandwidth", type=float, default=DEFAULT_GAINS["bandwidth_hz"], help="closed-loop bandwidth (Hz)")
     p.add_argument("--max-torque", type=float, default=DEFAULT_MAX_TORQUE_NM, help="controller torque limit (N·m)")
+    p.add_argument("--command-interface", default="effort", choices=tuple(COMMAND_TOPICS),
+                   help="what to command: screw torque (effort), screw speed (velocity) or nut position (position)")
     p.add_argument("--connect-timeout", type=float, default=20.0, help="wall seconds to wait for the node")
     p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
     return p

@@ -1,16 +1,21 @@
-"""Command safety and the watchdog, pure Python (no ROS): what torque the simulator gets.
+"""Command safety and the watchdog, pure Python (no ROS): what command the simulator gets.
 
 The node hands every received command to a `CommandGate` and asks it, once per step, for the
-torque to apply. Rules (issue 4, item 4):
+command of the active interface (`effort`: screw torque N·m, `velocity`: screw speed rad/s,
+`position`: nut position m; issue 14). Rules (issue 4, item 4; issue 14):
 
-- a non-finite torque is rejected and counted; the last valid command stays in force;
+- a command for an interface that is not the active one is refused with a reason naming the
+  active one; a non-finite value is rejected and counted; the last valid command stays in force;
 - a torque beyond ±max_effort is saturated to the limit and counted;
-- a joint command without `screw_joint`, or whose arrays do not match `name` in length, is
-  rejected with the reason (the node logs it, throttled); `position`/`velocity` may be empty,
-  as in ros2_control's topic-based hardware interface, `effort` may not;
+- joint commands (sensor_msgs/JointState) are read as ros2_control's topic-based hardware
+  interface writes them (`joint_commands.decode_joint_command`: `name` lists every joint, the
+  arrays are packed per command interface, empty ones are fine); a malformed one is rejected
+  with the reason (the node logs it, throttled);
 - with `cmd_timeout_s` > 0, a command older than that in *simulation* time triggers the timeout
-  behaviour: "zero" applies no torque, "hold" keeps the last valid torque. A fresh valid command
-  ends the timeout. Before the first command the torque is zero and no timeout is counted.
+  behaviour: "zero" applies no torque (effort) or no speed (velocity), "hold" keeps the last
+  valid command; in `position` mode both hold the last position (commanding the nut to 0 m is
+  no safe state). A fresh valid command ends the timeout. Before the first command the command
+  is zero (position: the nut position given at start) and no timeout is counted.
 
 Simulation time makes the watchdog deterministic (lockstep runs repeat bit for bit) and keeps a
 paused or debugged simulation from timing out while no time passes.
@@ -21,6 +26,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+
+from prsm_sim.actuator import COMMAND_INTERFACES, check_interface
+
+from prsm_ros.node.joint_commands import INTERFACE_UNIT, decode_joint_command
 
 TIMEOUT_BEHAVIOURS = ("zero", "hold")
 
@@ -38,12 +47,12 @@ class GateCounters:
 
 
 class CommandGate:
-    """Validates commands, saturates them, and applies the watchdog on simulation time."""
+    """Validates commands for the active interface, saturates torques, and applies the watchdog on simulation time."""
 
     def __init__(self, max_effort_nm: float, cmd_timeout_s: float = 0.0, timeout_behaviour: str = "zero",
-                 joint_name: str = "screw_joint") -> None:
-        self.joint_name = joint_name
+                 interface: str = "effort") -> None:
         self.configure(max_effort_nm, cmd_timeout_s, timeout_behaviour)
+        self.interface = check_interface(interface)
         self.reset()
 
     def configure(self, max_effort_nm: float, cmd_timeout_s: float, timeout_behaviour: str) -> None:
@@ -58,65 +67,83 @@ class CommandGate:
         self.cmd_timeout_s = float(cmd_timeout_s)
         self.timeout_behaviour = timeout_behaviour
 
-    def reset(self) -> None:
-        """Forget the command and the counters (the simulation was reset to time zero)."""
-        self.command_nm = 0.0
+    def reset(self, position_m: float = 0.0) -> None:
+        """Forget the command and the counters (the simulation was reset to time zero, nut at `position_m`)."""
+        self.value = position_m if self.interface == "position" else 0.0
         self.command_time_s: float | None = None
         self.timed_out = False
         self.counters = GateCounters()
 
+    def set_interface(self, interface: str, present_value: float) -> None:
+        """Switch the active interface; the command starts at `present_value` (the measured speed or
+        position, or 0 N·m), so nothing jumps until the controller speaks in the new unit."""
+        self.interface = check_interface(interface)
+        self.value = float(present_value)
+
+    @property
+    def command_nm(self) -> float:
+        """The last valid torque command (0 when another interface is active)."""
+        return self.value if self.interface == "effort" else 0.0
+
     # -- commands in ----------------------------------------------------------------------
-    def offer_torque(self, torque_nm: float, now_s: float) -> str | None:
-        """Take a screw torque command at simulation time `now_s`; returns the rejection reason or None."""
+    def offer(self, interface: str, value: float, now_s: float) -> str | None:
+        """Take a command for `interface` at simulation time `now_s`; returns the rejection reason or None."""
         self.counters.received += 1
+        if interface != self.interface:
+            self.counters.rejected_malformed += 1
+            return (f"{interface} command refused: the active command interface is {self.interface!r} "
+                    f"({INTERFACE_UNIT[self.interface]}); switch with the command_interface parameter")
         try:
-            value = float(torque_nm)
+            v = float(value)
         except (TypeError, ValueError):
-            value = math.nan
-        if not math.isfinite(value):
+            v = math.nan
+        if not math.isfinite(v):
             self.counters.rejected_non_finite += 1
-            return f"screw torque {torque_nm!r} is not a finite number; keeping {self.command_nm:g} N·m"
-        if abs(value) > self.max_effort_nm:
+            unit = INTERFACE_UNIT[interface].split(" ")[0]
+            return f"{interface} command {value!r} is not a finite number; keeping {self.value:g} {unit}"
+        if interface == "effort" and abs(v) > self.max_effort_nm:
             self.counters.saturated += 1
-            value = math.copysign(self.max_effort_nm, value)
+            v = math.copysign(self.max_effort_nm, v)
         self.counters.accepted += 1
-        self.command_nm = value
+        self.value = v
         self.command_time_s = now_s
         self.timed_out = False
         return None
 
+    def offer_torque(self, torque_nm: float, now_s: float) -> str | None:
+        """A screw torque command (effort interface)."""
+        return self.offer("effort", torque_nm, now_s)
+
     def offer_joint_command(self, names: Sequence[str], effort: Sequence[float], position: Sequence[float],
                             velocity: Sequence[float], now_s: float) -> str | None:
-        """Take a JointState-style command: the effort of `joint_name`. Returns the rejection reason or None."""
-        reason = self._malformed(names, effort, position, velocity)
+        """A JointState command as ros2_control's topic-based hardware interface writes it; the reason or None."""
+        value, reason = decode_joint_command(names, {"position": position, "velocity": velocity, "effort": effort},
+                                             self.interface)
         if reason is not None:
             self.counters.received += 1
             self.counters.rejected_malformed += 1
             return reason
-        return self.offer_torque(effort[list(names).index(self.joint_name)], now_s)
+        return self.offer(self.interface, value, now_s)
 
-    def _malformed(self, names, effort, position, velocity) -> str | None:
-        n = len(names)
-        if self.joint_name not in names:
-            return f"joint command has no {self.joint_name!r} (names: {list(names)}); expected its effort in N·m"
-        if len(effort) != n:
-            return f"joint command has {n} names but {len(effort)} efforts; effort must match name in length"
-        for field, arr in (("position", position), ("velocity", velocity)):
-            if len(arr) not in (0, n):
-                return f"joint command has {n} names but {len(arr)} {field} values; {field} must be empty or match name"
-        return None
-
-    # -- torque out -----------------------------------------------------------------------
-    def torque(self, now_s: float) -> float:
-        """The torque to hold over the step starting at simulation time `now_s`."""
+    # -- command out ----------------------------------------------------------------------
+    def command(self, now_s: float) -> float:
+        """The command of the active interface to hold over the step starting at simulation time `now_s`."""
         if self.cmd_timeout_s > 0 and self.command_time_s is not None:
             if now_s - self.command_time_s > self.cmd_timeout_s:
                 if not self.timed_out:
                     self.timed_out = True
                     self.counters.timeouts += 1
-                return 0.0 if self.timeout_behaviour == "zero" else self.command_nm
-        return self.command_nm
+                if self.timeout_behaviour == "zero" and self.interface != "position":
+                    return 0.0
+        return self.value
+
+    def torque(self, now_s: float) -> float:
+        """The gated command in `effort` mode (screw torque, N·m)."""
+        return self.command(now_s)
 
     def command_age_s(self, now_s: float) -> float:
         """Simulation time since the last valid command (inf before the first)."""
         return math.inf if self.command_time_s is None else now_s - self.command_time_s
+
+
+assert set(INTERFACE_UNIT) == set(COMMAND_INTERFACES)

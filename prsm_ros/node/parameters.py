@@ -20,6 +20,7 @@ from typing import Any
 
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
+from prsm_sim.actuator import COMMAND_INTERFACES, ActuatorParams, actuator_params_from_dict, parse_faults
 from prsm_sim.params import parse_float
 
 from prsm_ros.node.command_gate import TIMEOUT_BEHAVIOURS
@@ -103,6 +104,15 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
     NodeParam("cmd_timeout", 0.5, "s", "command watchdog in simulation time (0 disables)", lo=0.0, hi=1e6),
     NodeParam("timeout_behaviour", "zero", "", "after cmd_timeout: zero torque, or hold the last command",
               choices=TIMEOUT_BEHAVIOURS),
+    NodeParam("command_interface", "effort", "", "what the drive is commanded in: effort (screw torque N·m, "
+              "~/screw_torque), velocity (screw speed rad/s, ~/velocity_command), position (nut position m, "
+              "~/position_command); ~/joint_commands carries the active one", choices=COMMAND_INTERFACES),
+    NodeParam("actuator", "", "", "the actuator around the screw as a YAML mapping of groups motor, drive, sensors, "
+              "stops, brake (prsm_sim.actuator; '' = ideal: no motor, ideal sensors, bit for bit the bare model), "
+              "e.g. \"{motor: {}, sensors: {encoder_counts_per_rev: 4096}, stops: {max_position_m: 0.3}}\"",
+              read_only=True),
+    NodeParam("faults", "", "", "faults injected from the start: 'kind=jam,start_s=1,duration_s=0.5,value=30; …' "
+              "(kinds: see README Actuator); at runtime: ~/inject_fault", read_only=True),
     NodeParam("max_effort", 50.0, "N·m", "screw torque limit; larger commands are saturated and counted",
               lo=0.0, hi=1e6, lo_open=True),
     NodeParam("initial_nut_position", 0.0, "m", "nut position at start and after ~/reset", lo=-1e3, hi=1e3),
@@ -152,6 +162,7 @@ class NodeConfig:
     values: dict[str, Any]  # every parameter by name, coerced (doubles as float)
     params: Params  # the preset with every physics.* value applied, validated
     topics: dict[str, str] = field(default_factory=dict)  # topic key → name
+    actuator: ActuatorParams = field(default_factory=ActuatorParams)  # `actuator` + `faults` + the interface
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name == "values":
@@ -164,6 +175,13 @@ class NodeConfig:
     @property
     def dt_s(self) -> float:
         return 1.0 / self.values["update_rate"]
+
+    @property
+    def with_actuator(self) -> bool:
+        """Run the actuator around the screw: asked for by `actuator`, `faults` or a non-effort interface.
+        Otherwise the node runs the bare model, publishing exactly what it did before the actuator existed."""
+        v = self.values
+        return bool(v["actuator"].strip() or v["faults"].strip()) or v["command_interface"] != "effort"
 
     @classmethod
     def from_values(cls, values: dict[str, Any]) -> NodeConfig:
@@ -179,7 +197,29 @@ class NodeConfig:
         except ParamError as e:
             raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
         topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
-        return cls(values=out, params=params, topics=topics)
+        return cls(values=out, params=params, topics=topics, actuator=actuator_config(out, params))
+
+
+def actuator_config(values: dict[str, Any], params: Params) -> ActuatorParams:
+    """ActuatorParams from the `actuator` (YAML mapping), `faults` and `command_interface` parameters."""
+    import yaml
+    from dataclasses import replace
+    from prsm_sim.actuator.faults import check_fault
+    text = values["actuator"]
+    try:
+        data = yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as e:
+        first = str(e).splitlines()[0]
+        raise ConfigError(f"parameter actuator = {text!r}: not a YAML mapping ({first})") from None
+    try:
+        a = actuator_params_from_dict(data if data is not None else {})
+        faults = a.faults + parse_faults(values["faults"])
+        for f in faults:
+            check_fault(f, params, values["model"], a.motor is not None)
+    except ParamError as e:
+        name = "faults" if str(e).startswith("fault") else "actuator"
+        raise ConfigError(f"parameter {name}: {e}") from None
+    return replace(a, faults=faults, drive=replace(a.drive, mode=values["command_interface"]))
 
 
 def check_value(p: NodeParam, value: Any) -> Any:

@@ -48,6 +48,8 @@ from rclpy.serialization import serialize_message
 from std_srvs.srv import SetBool, Trigger
 
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
+from prsm_sim import PrsmError
+
 from prsm_ros.node.command_gate import CommandGate
 from prsm_ros.node.ownership import CommandOwnership, participant_of
 from prsm_ros.node.record_path import RecordPathError, claim_record_path
@@ -91,11 +93,13 @@ class PrsmNode(Node):
         self.config = self._declare_parameters()
         cfg = self.config
         self._lock = threading.Lock()
-        self.gate = CommandGate(cfg.max_effort, cfg.cmd_timeout, cfg.timeout_behaviour)
+        self.gate = CommandGate(cfg.max_effort, cfg.cmd_timeout, cfg.timeout_behaviour, cfg.command_interface)
+        self.gate.reset(cfg.initial_nut_position)
         self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
         self.echo = CommandEcho()
         self.stepper = SimStepper(cfg.params, cfg.model, cfg.dt_s, self.gate,
-                                  nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force)
+                                  nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
+                                  actuator=cfg.actuator if cfg.with_actuator else None)
         self.stepper.paused = cfg.start_paused
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
@@ -107,11 +111,15 @@ class PrsmNode(Node):
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
                         for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
-                                  "events") + (("clock",) if cfg.publish_clock else ())}
+                                  "events") + (("clock",) if cfg.publish_clock else ())
+                        + (("ground_truth",) if self.stepper.actuator is not None else ())}
             self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
                                                     qos_overriding_options=qos_opts())
                         for k, cb in (("screw_torque", self._on_screw_torque),
                                       ("joint_commands", self._on_joint_commands),
+                                      ("velocity_command", self._on_velocity_command),
+                                      ("position_command", self._on_position_command),
+                                      ("inject_fault", self._on_inject_fault),
                                       ("nut_position_reference", self._on_reference))}
         except (InvalidQosOverridesError, ParameterException) as e:
             raise ConfigError(f"QoS override: {e}") from None
@@ -136,6 +144,9 @@ class PrsmNode(Node):
         self.create_service(Trigger, "~/step", self._srv_step)
         self.create_service(Trigger, "~/reset", self._srv_reset)
         self.create_service(Trigger, "~/release_control", self._srv_release_control)
+        self.create_service(SetBool, "~/brake", self._srv_brake)
+        self.create_service(Trigger, "~/clear_faults", self._srv_clear_faults)
+        self._fault_log: list[str] = []  # the last fault starts and clears, for /diagnostics
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._steady = RosClock(clock_type=ClockType.STEADY_TIME)  # diagnostics follow wall time, never /clock
@@ -225,6 +236,10 @@ class PrsmNode(Node):
         except ConfigError as e:
             return SetParametersResult(successful=False, reason=str(e))
         with self._lock:
+            if new.command_interface != self.config.command_interface:
+                reason = self.stepper.set_interface(new.command_interface)
+                if reason is not None:
+                    return SetParametersResult(successful=False, reason=reason)
             old, self.config = self.config, new
             self.gate.configure(new.max_effort, new.cmd_timeout, new.timeout_behaviour)
             self.stepper.load_n = new.load_force
@@ -335,6 +350,33 @@ class PrsmNode(Node):
             self.ownership.accepted(who)
             self.echo.offer(stamp_ns, self._topic_names[key])
 
+    def _on_velocity_command(self, msg) -> None:
+        with self._lock:
+            self._record_input("velocity_command", msg)
+            reason = self.gate.offer("velocity", msg.data, self.stepper.time_s)
+            self._after_command("velocity_command", reason)
+
+    def _on_position_command(self, msg) -> None:
+        with self._lock:
+            self._record_input("position_command", msg)
+            reason = self.gate.offer("position", msg.data, self.stepper.time_s)
+            self._after_command("position_command", reason)
+
+    def _on_inject_fault(self, msg) -> None:
+        """A fault spec 'kind=…,start_s=…,duration_s=…,value=…' (start_s in simulation time; omitted: now)."""
+        from prsm_sim.actuator import parse_fault
+        with self._lock:
+            self._record_input("inject_fault", msg)
+            text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={self.stepper.time_s!r}"
+            try:
+                reason = self.stepper.inject(parse_fault(text))
+            except PrsmError as e:
+                reason = str(e)
+            if reason is not None:
+                self._warn_throttled("inject_fault", f"{self._topic_names['inject_fault']}: {reason}")
+            else:
+                self.get_logger().info(f"fault scheduled: {msg.data}")
+
     def _on_reference(self, msg) -> None:
         with self._lock:
             self._record_input("nut_position_reference", msg)
@@ -394,9 +436,16 @@ class PrsmNode(Node):
         ns = time_ns(out.time_s)
         enc = self.encoder
         # joint_states first: a lockstep controller computes its next command while the rest goes out
+        act = self.stepper.actuator
         if force_state or k % self._js_every == 0:
-            self._publish(self.pub["joint_states"], "joint_states", enc.joint_state(out, ns), ns)
+            # with an actuator joint_states carries what the sensors measure, the truth goes beside it
+            measured = act.measured(out) if act is not None else out
+            if act is not None:
+                self._publish(self.pub["ground_truth"], "ground_truth", enc.joint_state(out, ns), ns)
+            self._publish(self.pub["joint_states"], "joint_states", enc.joint_state(measured, ns), ns)
             self._publish(self.pub["wrench"], "wrench", enc.wrench(out, ns), ns)
+        if act is not None and self.stepper.events:
+            self._publish_fault_events(self.stepper.take_events())
         echoed = self.echo.take()
         if echoed is not None:
             cmd_ns, source = echoed
@@ -502,6 +551,42 @@ class PrsmNode(Node):
         self.get_logger().info(f"~/release_control: {response.message}")
         return response
 
+    def _srv_brake(self, request, response):
+        with self._lock:
+            reason = self.stepper.brake(bool(request.data))
+            response.success = reason is None
+            response.message = reason or (f"brake {'engaging' if request.data else 'releasing'} "
+                                          f"at t = {self.stepper.time_s:.6f} s")
+        return response
+
+    def _srv_clear_faults(self, request, response):
+        with self._lock:
+            n = self.stepper.clear_faults()
+            response.success = True
+            response.message = f"{n} runtime fault(s) ended at t = {self.stepper.time_s:.6f} s"
+        return response
+
+    def _publish_fault_events(self, events) -> None:
+        """Each fault start or clear: logged, on ~/events and on /diagnostics at once (the bag has both)."""
+        for e in events:
+            text = f"t = {e.time_s:.6f} s: {e.describe()}"
+            self.get_logger().warning(text) if e.what == "start" else self.get_logger().info(text)
+            self._fault_log = (self._fault_log + [text])[-10:]
+            level = DiagnosticStatus.WARN if e.what == "start" else DiagnosticStatus.OK
+            status = DiagnosticStatus(level=level, name=f"{self.get_name()}: actuator fault", message=e.describe(),
+                                      hardware_id=f"prsm_sim/{self.config.model}",
+                                      values=[KeyValue(key="event", value=e.what), KeyValue(key="kind", value=e.fault.kind),
+                                              KeyValue(key="time_s", value=f"{e.time_s:.6f}"),
+                                              KeyValue(key="fault", value=e.fault.describe())])
+            msg = DiagnosticArray(status=[status])
+            msg.header.stamp = stamp(self.stepper.time_s)
+            self._publish(self.pub["diagnostics"], "diagnostics", msg)
+            self._publish(self.pub["events"], "events", event_message(
+                e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
+                {"kind": e.fault.kind, "start_s": e.fault.start_s,  # duration null: until cleared (JSON has no inf)
+                 "duration_s": e.fault.duration_s if math.isfinite(e.fault.duration_s) else None,
+                 "value": e.fault.value, "sensor": e.fault.sensor, "roller": e.fault.roller}))
+
     # -- diagnostics -----------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         with self._lock:
@@ -531,11 +616,20 @@ class PrsmNode(Node):
             "commands_received": c.received, "commands_accepted": c.accepted,
             "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
             "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
-            "fault": st.fault or "",
+            "fault": st.fault or "", "command_interface": gate.interface, "command": gate.value,
             **self.ownership.diagnostics(), **self.echo.report(),
         }
         self._step_wall_max_s = 0.0
         problems = []
+        act = st.actuator
+        if act is not None:
+            a = st.sim.state
+            active = [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]
+            values.update(brake_engaged=a.brake_engaged, brake_level=f"{a.brake_level:.3f}",
+                          motor_current_a=f"{a.current_a:.6g}", torque_limited=a.limited,
+                          faults_active="; ".join(active), fault_events="; ".join(self._fault_log))
+            if active:
+                problems.append(f"fault(s) active: {'; '.join(active)}")
         if self.recorder is not None:
             values.update(record_path=str(self.recorder.path), record_written=self.recorder.messages_written,
                           record_dropped=self.recorder.messages_dropped, record_error=self.recorder.error or "")

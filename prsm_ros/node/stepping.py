@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from prsm_sim import Outputs, Params, Simulator
+from prsm_sim import Outputs, Params, PrsmError, Simulator
+from prsm_sim.actuator import Actuator, ActuatorParams, Fault
 from prsm_sim.models.base import energy_fault
 from prsm_sim.outputs import PackedOutputs
 
@@ -40,11 +41,12 @@ def state_is_finite(out: Outputs) -> bool:
 
 
 class SimStepper:
-    """Simulator + command gate + external load; the node calls `step()` once per step."""
+    """Simulator (a bare model, or the actuator around it) + command gate + external load; `step()` once per step."""
 
     def __init__(self, params: Params, model: str, dt_s: float, gate: CommandGate, *,
-                 nut_position_m: float = 0.0, load_n: float = 0.0) -> None:
-        self.sim = Simulator(params, model, dt_s, nut_position_m)
+                 nut_position_m: float = 0.0, load_n: float = 0.0, actuator: ActuatorParams | None = None) -> None:
+        self.actuator_params = actuator
+        self.sim = Simulator(params, model, dt_s, nut_position_m, actuator=actuator)
         self.nut_position_m = float(nut_position_m)
         self.model_name = model
         self.gate = gate
@@ -52,6 +54,12 @@ class SimStepper:
         self.paused = False
         self.fault: str | None = None
         self.last: Outputs | None = None
+        self.events: list = []  # fault starts and clears (actuator.FaultEvent) since the node last took them
+
+    @property
+    def actuator(self) -> Actuator | None:
+        """The actuator around the screw, or None when the node runs the bare model."""
+        return self.sim.model if isinstance(self.sim.model, Actuator) else None
 
     @property
     def time_s(self) -> float:
@@ -62,36 +70,104 @@ class SimStepper:
         return self.sim.nstep
 
     def step(self) -> Outputs | None:
-        """One step with the gated torque; None (and nothing changed) once faulted."""
+        """One step with the gated command; None (and nothing changed) once faulted."""
         if self.fault is not None:
             return None
-        torque = self.gate.torque(self.sim.time_s)
+        command = self.gate.command(self.sim.time_s)
+        act = self.actuator
+        if act is not None and self.gate.timed_out and act.actuator.brake.engage_on_watchdog \
+                and act.actuator.brake.fitted and not self.sim.state.brake_engaged:
+            self.sim.state = act.command_brake(self.sim.state, True)
         before = self.sim.state
         try:
-            out = self.sim.step(torque, self.load_n)
+            out = self.sim.step(command, self.load_n)
         except Exception as e:  # any model failure stops stepping; the node stays up for ~/reset
             self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {type(e).__name__}: {e}"
             return None
         if not state_is_finite(out):
             self.sim.restore(before, self.sim.nstep - 1)  # keep the last finite state; reset clears the fault
             self.fault = (f"model {self.model_name} produced a non-finite state at t = {out.time_s:.6f} s "
-                          f"(torque {torque:g} N·m, load {self.load_n:g} N); stepping stopped, call ~/reset")
+                          f"(command {command:g} {self.gate.interface}, load {self.load_n:g} N); "
+                          "stepping stopped, call ~/reset")
             return None
+        if act is not None:
+            self.events += act.events(before, self.sim.state)
         self.last = out
         return out
+
+    # -- the actuator's inputs besides the command (the node's services and topics) ---------
+    def set_interface(self, interface: str) -> str | None:
+        """Switch the command interface; the command starts at the measured speed or position. The reason or None."""
+        act = self.actuator
+        if act is None:
+            if interface == "effort":
+                return None
+            return (f"command_interface = {interface!r}: the node runs the bare model (parameter actuator is ''); "
+                    "start it with an actuator (e.g. -p actuator:='{}') to use velocity or position")
+        try:
+            state = act.set_mode(self.sim.state, interface)
+        except PrsmError as e:
+            return str(e)
+        meas = act.measured(self.last) if self.last is not None else None
+        present = {"effort": 0.0,
+                   "velocity": meas.screw_speed_rad_s if meas else 0.0,
+                   "position": meas.nut_position_m if meas else self.nut_position_m}[interface]
+        self.sim.state = state
+        self.gate.set_interface(interface, present)
+        return None
+
+    def brake(self, engage: bool) -> str | None:
+        """Engage or release the holding brake; the reason it was refused, or None."""
+        act = self.actuator
+        if act is None:
+            return "brake command refused: no actuator (parameter actuator is ''), so no brake fitted"
+        try:
+            self.sim.state = act.command_brake(self.sim.state, engage)
+        except PrsmError as e:
+            return str(e)
+        return None
+
+    def inject(self, fault: Fault) -> str | None:
+        """Add a fault at runtime; the reason it was refused, or None."""
+        act = self.actuator
+        if act is None:
+            return "fault refused: no actuator (parameter actuator is ''); start the node with one"
+        try:
+            self.sim.state = act.inject(self.sim.state, fault)
+        except PrsmError as e:
+            return str(e)
+        return None
+
+    def clear_faults(self) -> int:
+        """End the runtime faults now; returns how many were active or pending."""
+        act = self.actuator
+        if act is None:
+            return 0
+        n = sum(1 for f in self.sim.state.faults if f.end_s > self.sim.time_s)
+        self.sim.state = act.clear_faults(self.sim.state)
+        return n
+
+    def take_events(self) -> list:
+        """The fault events since the last call (the node publishes and records them)."""
+        ev, self.events = self.events, []
+        return ev
 
     def reset(self, nut_position_m: float | None = None) -> None:
         """Back to time zero at rest; clears the fault, the command and the gate counters."""
         if nut_position_m is not None:
             self.nut_position_m = float(nut_position_m)
+        mode = self.gate.interface
         self.sim.reset(self.nut_position_m)
-        self.gate.reset()
+        self.gate.reset(self.nut_position_m)
+        if self.actuator is not None:
+            self.sim.state = self.actuator.set_mode(self.sim.state, mode)
         self.fault = None
         self.last = None
+        self.events = []
 
     def rebuild(self, params: Params) -> None:
         """New parameters for the same model, keeping the state and the step count (runtime change)."""
-        sim = Simulator(params, self.model_name, self.sim.dt_s, self.nut_position_m)
+        sim = Simulator(params, self.model_name, self.sim.dt_s, self.nut_position_m, actuator=self.actuator_params)
         sim.restore(self.sim.state, self.sim.nstep)
         self.sim = sim
 

@@ -225,16 +225,10 @@ class Elastic(Model):
         """One `fu2018` step of the core (length core.dt_s) under a held thread force.
 
         Returns (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces, flank sign, pin force, gear force,
-        solver memory): `Fu2018._step` where the core has it (its stick and its error-controlled
-        sub-steps at friction transitions), else one ROS2 step with trapezoidal angles and work.
+        solver memory): `Fu2018._step`, with its stick and its error-controlled sub-steps at friction
+        transitions.
         """
-        core = self.core
-        if hasattr(core, "_step"):
-            return core._step(ws, wc, sign, pin_abs, gear, mem, tau, load)
-        h = core.dt_s
-        ws1, wc1, f1, f0, mem = core._rosenbrock(ws, wc, sign, pin_abs, gear, mem, tau, load)
-        return (ws1, wc1, 0.5 * h * (ws + ws1), 0.5 * h * (wc + wc1), 0.5 * h * (f0.dissipated_w + f1.dissipated_w),
-                f1, int(f1.sign), math.hypot(f1.f_pr, f1.f_pt), f1.f_gt, mem)
+        return self.core._step(ws, wc, sign, pin_abs, gear, mem, tau, load)
 
     def _holds(self, torque_nm: float, thread_force_n: float) -> bool:
         """Static friction holds the screw at rest: the torque lies inside the breakaway band

@@ -447,7 +447,6 @@ class Fu2018(Model):
             mu2 = mu * mu
             qa = _dot(q1, q1) - mu2 * x1[0] * x1[0]
             qb = 2.0 * (_dot(q0, q1) - mu2 * x0[0] * x1[0])
-            qc = _dot(q0, q0) - mu2 * x0[0] * x0[0]
             # σ: the least friction share |q|/N_S among the ends, the minimum of |q| and the minimum
             # of the quadratic (which decides feasibility: r ≤ 1 there iff the cone can hold)
             cands = [-1.0, 1.0, 0.0]

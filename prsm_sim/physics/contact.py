@@ -91,7 +91,6 @@ def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
         raise InputError(f"load_sign must be +1 or -1, got {load_sign!r}")
     beta = geo.flank_angle_rad
     tb = math.tan(beta)
-    a = geo.carrier_radius_m
     r_r = geo.roller_radius_m
     r_p = r_r / math.sin(beta)
     p_body = geo.lead_per_rad_m  # screw and nut have the same lead

@@ -1,0 +1,582 @@
+"""`Actuator`: drive, motor, coupling, screw model, end stops, brake, faults and sensors behind one step.
+
+    act = Actuator(preset("s30"), 1e-3, "ideal", ActuatorParams(motor=MotorParams(), ...))
+    state = act.initial_state(0.0)
+    state, out = act.step(state, command, load_n)    # command in the active interface's unit
+
+The same step contract as a bare model (`Model.step(state, input, load) → (state, Outputs)`):
+the scalar outputs are the screw's true ones, and the actuator's own quantities and what the
+sensors measure travel as two labelled internal-layout blocks (`actuator`, `measured`) after
+the screw model's blocks, so node, recorder, bag report and Rerun need no per-part code.
+
+Per step (h) the drive's loop runs n_sub = loop_rate × h times (the screw model is built at
+h / n_sub), or once every 1 / (loop_rate × h) steps when slower. Per sub-step:
+drive law on the encoder feedback → current loop → motor torque → (rigid: the rotor inertia
+is part of the screw's; compliant: a torsional spring solved implicitly) → end-stop force and
+dry friction (brake, jam) solved on the screw's linear response → screw model step. The
+energy ledger (source in = load work + dissipated + stored) is kept in the state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from prsm_sim.actuator import faults as fl
+from prsm_sim.actuator.brake import brake_level, stiction_torque
+from prsm_sim.actuator.drive import drive_update
+from prsm_sim.actuator.motor import current_reference, current_step, voltage
+from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
+from prsm_sim.actuator.sensors import DROPOUT_STREAM, STREAM, first_order, normal, quantise, uniform
+from prsm_sim.actuator.stops import stop_force, stop_penetration, stop_stored_j
+from prsm_sim.errors import InputError
+from prsm_sim.models.base import Model, efficiency
+from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.params import Params
+
+ACTUATOR_QUANTITIES = (
+    ("command", "m | rad/s | N·m (active interface)"),
+    ("mode", "0 effort, 1 velocity, 2 position"),
+    ("speed_reference_rad_s", "rad/s"),
+    ("torque_reference_nm", "N·m"),
+    ("torque_limited", "1"),
+    ("motor_current_a", "A"),
+    ("motor_torque_nm", "N·m"),
+    ("motor_speed_rad_s", "rad/s"),
+    ("motor_voltage_v", "V"),
+    ("electrical_power_w", "W"),
+    ("coupling_torque_nm", "N·m"),
+    ("brake_level", "1"),
+    ("brake_torque_nm", "N·m"),
+    ("jam_torque_nm", "N·m"),
+    ("stop_force_n", "N"),
+    ("stop_penetration_m", "m"),
+    ("stop_absorbed_j", "J"),
+    ("energy_in_j", "J"),
+    ("load_work_j", "J"),
+    ("dissipated_j", "J"),
+    ("stored_j", "J"),
+    ("faults_active", "1"),
+)
+MEASURED_QUANTITIES = (
+    ("motor_angle_rad", "rad"),
+    ("screw_angle_rad", "rad"),
+    ("screw_speed_rad_s", "rad/s"),
+    ("nut_position_m", "m"),
+    ("nut_velocity_m_s", "m/s"),
+    ("nut_force_n", "N"),
+    ("motor_encoder_fresh", "1"),
+    ("linear_encoder_fresh", "1"),
+    ("load_cell_fresh", "1"),
+)
+_MODE_CODE = {m: float(i) for i, m in enumerate(COMMAND_INTERFACES)}
+_SENSOR_INDEX = {"motor_encoder": 0, "linear_encoder": 1, "load_cell": 2}
+_GROUPS = {"motor_encoder": (0, 1, 2), "linear_encoder": (3, 4), "load_cell": (5,)}  # indices into MEASURED_QUANTITIES
+
+
+@dataclass(frozen=True, slots=True)
+class Ledger:
+    """Energy accumulators of the actuator (J); the screw's own friction is in `State.dissipated_j`."""
+
+    energy_in_j: float = 0.0  # electrical energy drawn (ideal torque source: its mechanical work)
+    copper_j: float = 0.0
+    coupling_j: float = 0.0  # dissipated in the coupling's damper
+    stiction_j: float = 0.0  # dissipated by the brake and jams
+    stop_work_j: float = 0.0  # work the nut did on the end stops
+    load_work_j: float = 0.0  # work done against the external load
+
+
+@dataclass(frozen=True, slots=True)
+class ActuatorState:
+    """The screw model's state plus the drive, motor, brake, sensor and fault memory (pure data).
+
+    Motor angle and speed are in screw coordinates (motor / gear ratio); with a rigid coupling
+    they equal the screw's. `faults` holds the faults injected at runtime; `history` the true
+    samples the sensors' latency still has to deliver; `measured` the last published reading.
+    """
+
+    screw: State
+    step: int = 0
+    mode: str = "effort"
+    motor_angle_rad: float = 0.0
+    motor_speed_rad_s: float = 0.0
+    current_a: float = 0.0
+    integral_nm: float = 0.0
+    torque_ref_nm: float = 0.0
+    speed_ref_rad_s: float = 0.0
+    limited: bool = False
+    encoder_rad: float = 0.0  # last screw angle the drive read from the encoder
+    brake_engaged: bool = False
+    brake_level: float = 0.0
+    faults: tuple[Fault, ...] = ()
+    history: tuple[tuple[float, ...], ...] = ()
+    measured: tuple[float, ...] = ()
+    load_cell_filtered_n: float = 0.0
+    ledger: Ledger = Ledger()
+    coupling_nm: float = 0.0  # the compliant coupling's torque over the last step (its next linearisation point)
+    command_prev: float = math.nan  # the position command at the drive's last loop update (its feed-forward)
+
+    @property
+    def time_s(self) -> float:
+        return self.screw.time_s
+
+
+class Actuator(Model):
+    """The actuator around a screw model (any of ideal, jones2016, fu2018), one step contract."""
+
+    name = "actuator"
+
+    def __init__(self, params: Params, dt_s: float, model: str = "jones2016",
+                 actuator: ActuatorParams | None = None) -> None:
+        super().__init__(params, dt_s)
+        self.model_name = model
+        self.actuator = a = actuator if actuator is not None else ActuatorParams()
+        if not isinstance(a, ActuatorParams):
+            raise InputError(f"actuator: expected ActuatorParams, got {type(a).__name__}")
+        m = a.motor
+        self.ratio = m.gear_ratio if m is not None else 1.0
+        self.rigid = m is None or m.coupling_stiffness_nm_rad is None
+        if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
+            mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
+                           + m.rotor_inertia_kgm2 * m.gear_ratio**2)
+            self.screw_params = replace(params, mass=mass)
+        else:
+            self.screw_params = params
+        self.motor_inertia = 0.0 if m is None else m.rotor_inertia_kgm2 * m.gear_ratio**2  # screw side
+        rate = a.drive.loop_rate_hz
+        self.n_sub, self.hold_steps = 1, 1
+        if rate is not None and rate * self.dt_s >= 1.0:
+            self.n_sub = int(round(rate * self.dt_s))
+        elif rate is not None:
+            self.hold_steps = int(round(1.0 / (rate * self.dt_s)))
+        self.h_sub = self.dt_s / self.n_sub
+        self._models: dict[tuple[float, float], Model] = {}
+        base = self._model(fl.NONE)
+        self.p = self.geo.lead_per_rad_m
+        self.J = self._probe_inertia(base)
+        # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
+        self.drive = a.drive.tuned(self.J + (0.0 if self.rigid else self.motor_inertia))
+        self.M = mass_matrix(self.screw_params)
+        self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
+        for f in a.faults:
+            fl.check_fault(f, params, model, m is not None)
+        self.layout = InternalLayout(blocks=base.layout.blocks + (
+            InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
+            InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
+        ))
+        self._n_screw_internal = base.layout.size
+
+    # -- construction helpers ------------------------------------------------------------
+    def _model(self, act: fl.Active) -> Model:
+        key = (act.friction_factor, act.lubrication_factor)
+        mod = self._models.get(key)
+        if mod is None:
+            p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
+            from prsm_sim.simulator import build_model  # late: the simulator builds actuators
+            mod = self._models[key] = build_model(p, self.model_name, self.h_sub)
+        return mod
+
+    def _probe_inertia(self, model: Model) -> float:
+        """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
+
+        Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
+        implicit stop, coupling and dry-friction torques; the step itself is the model's.
+        """
+        s0 = model.initial_state(0.0)
+        w1 = model.step(s0, 1.0, 0.0)[0].screw_speed_rad_s
+        w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
+        return self.h_sub / (w1 - w0)
+
+    def _response(self, model: Model, screw: State, tau_nm: float, load_n: float) -> tuple[float, float, float, float]:
+        """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from this state.
+
+        Returns (ω1, ∂ω1/∂τ, θ1, ∂θ1/∂τ); a load acts as τ = −(L/2π) F. Exact for the linear
+        models; for fu2018 the local slope (its effective inertia moves with the friction regime).
+        """
+        a = model.step(screw, tau_nm, load_n)[0]
+        d = 1e-3 * max(1.0, abs(tau_nm))
+        b = model.step(screw, tau_nm + d, load_n)[0]
+        s_w = (b.screw_speed_rad_s - a.screw_speed_rad_s) / d
+        s_th = (b.screw_angle_rad - a.screw_angle_rad) / d
+        if not (math.isfinite(s_w) and s_w > 0.0 and math.isfinite(s_th) and s_th > 0.0):
+            s_w, s_th = self.h_sub / self.J, 0.5 * self.h_sub**2 / self.J  # a stuck response: the probed inertia's
+        return a.screw_speed_rad_s, s_w, a.screw_angle_rad, s_th
+
+    def _coupling(self, model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
+                  phi0: float, k: float, c: float, th_sfree: float, s_th: float):
+        """The compliant coupling's torque held over the step, solved to consistency with the screw model.
+
+        τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
+        acceleration, the screw by the model itself. The residual is strictly increasing in τ_c
+        (the screw turns further, the motor less, the more torque the coupling carries), so the
+        root is unique: Newton from the linear estimate, then secant steps, to 1e-12 of the
+        torque scale (one model step for the linear models). Its work is then ΔV + c Δφ²/h:
+        the ledger stays exact and the scheme cannot gain energy, so a stiff coupling stays
+        stable at the step (trapezoidal rule). Returns (τ_c, screw state, outputs).
+        """
+        h, jr = self.h_sub, self.motor_inertia
+        G, H = 0.5 * k + c / h, 0.5 * k - c / h
+        q_r = 0.5 * h * h / jr
+
+        def residual(tau):
+            new, out = model.step(screw, tau + tau_st, load_n)
+            phi1 = th_r_free + q_r * (tau_d - tau) - new.screw_angle_rad
+            return tau - (G * phi1 + H * phi0), new, out
+
+        slope = 1.0 + G * (q_r + s_th)
+        t0 = (G * (th_r_free + q_r * tau_d - th_sfree) + H * phi0) / slope  # the linear solution
+        r0, new, out = residual(t0)
+        scale = 1e-12 * max(1.0, abs(t0), abs(tau_d))
+        if abs(r0) <= scale:
+            return t0, new, out
+        t1 = t0 - r0 / slope
+        for _ in range(30):
+            r1, new, out = residual(t1)
+            if abs(r1) <= scale or r1 == r0:
+                break
+            t0, t1, r0 = t1, t1 - r1 * (t1 - t0) / (r1 - r0), r1
+        return t1, new, out
+
+    # -- state ---------------------------------------------------------------------------
+    def initial_state(self, nut_position_m: float = 0.0) -> ActuatorState:
+        screw = self._model(fl.NONE).initial_state(nut_position_m)
+        th = screw.screw_angle_rad
+        st = ActuatorState(screw=screw, mode=self.actuator.drive.mode, motor_angle_rad=th)
+        sample = self._sample(th, 0.0, screw, 0.0)
+        enc = self._encoder_screw_angle(th * self.ratio, th)
+        *meas, filt = self._measure(0, (), 0.0, sample, sample, fl.NONE, first=True)
+        return replace(st, encoder_rad=enc, history=(sample,), measured=tuple(meas), load_cell_filtered_n=filt)
+
+    def all_faults(self, state: ActuatorState) -> tuple[Fault, ...]:
+        return self.actuator.faults + state.faults
+
+    def set_mode(self, state: ActuatorState, mode: str) -> ActuatorState:
+        """Switch the command interface; the speed integrator restarts from the present torque (bumpless)."""
+        check_interface(mode)
+        return replace(state, mode=mode, integral_nm=state.torque_ref_nm if mode != "effort" else 0.0,
+                       command_prev=math.nan)
+
+    def command_brake(self, state: ActuatorState, engage: bool) -> ActuatorState:
+        """Engage or release the holding brake; refused (InputError, nothing changed) where unsupported."""
+        if not isinstance(engage, bool):
+            raise InputError(f"brake command = {engage!r}: must be true (engage) or false (release)")
+        if not self.actuator.brake.fitted:
+            raise InputError("brake command refused: no brake fitted (brake.holding_torque_nm = 0)")
+        if not engage and fl.active(self.all_faults(state), state.time_s).drive_off:
+            raise InputError("brake release refused: a drive fault is active (torque off), the load would run away; "
+                             "clear the fault first")
+        return replace(state, brake_engaged=engage)
+
+    def inject(self, state: ActuatorState, fault: Fault) -> ActuatorState:
+        """Add a fault at runtime (absolute simulation time); refused with one line where it cannot apply."""
+        fl.check_fault(fault, self.params, self.model_name, self.actuator.motor is not None)
+        return replace(state, faults=state.faults + (fault,))
+
+    def clear_faults(self, state: ActuatorState) -> ActuatorState:
+        """End every runtime fault now (the ones not yet started are dropped)."""
+        t = state.time_s
+        kept = tuple(replace(f, duration_s=t - f.start_s) for f in state.faults if f.start_s < t and f.end_s > t)
+        kept += tuple(f for f in state.faults if f.end_s <= t)
+        return replace(state, faults=kept)
+
+    def events(self, before: ActuatorState, after: ActuatorState) -> list[fl.FaultEvent]:
+        """Faults the step from `before` to `after` started or stopped using (relative to the step before it).
+
+        A step starting at t applies the faults active at t, so a fault injected now with
+        start_s = now is reported by the very next step.
+        """
+        t0 = before.time_s
+        return fl.fault_events(self.all_faults(after), t0 - self.dt_s, t0)
+
+    # -- the step ------------------------------------------------------------------------
+    def step(self, state: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:
+        """One step with `command` (active interface: N·m, screw rad/s or nut m) and the nut load."""
+        for name, v in (("command", command), ("load_n", load_n)):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v):
+                raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
+        if not isinstance(state, ActuatorState):
+            raise InputError(f"state: expected an ActuatorState (Actuator.initial_state), got {type(state).__name__}")
+        return self._advance(state, float(command), float(load_n))
+
+    def _advance(self, st: ActuatorState, command: float, load_n: float):
+        a, m = self.actuator, self.actuator.motor
+        h, p, J, N = self.h_sub, self.p, self.J, self.ratio
+        act = fl.active(self.all_faults(st), st.time_s)
+        model = self._model(act)
+        screw, led = st.screw, st.ledger
+        th_r, w_r, i_a = st.motor_angle_rad, st.motor_speed_rad_s, st.current_a
+        integ, tau_ref, w_ref, limited, enc = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, st.limited, st.encoder_rad
+        level = st.brake_level
+        sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
+        volt = tau_st = f_stop = 0.0
+        tau_c = st.coupling_nm
+        cmd_prev = st.command_prev
+        tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
+        loop_due = st.step % self.hold_steps == 0
+        for j in range(self.n_sub):
+            # drive loop on the encoder feedback
+            if loop_due:
+                enc_new = self._read_encoder(th_r * N, screw.screw_angle_rad, act, st.step * self.n_sub + j, enc)
+                h_loop = h * self.hold_steps
+                if a.sensors.encoder_counts_per_rev == 0 and not any(x[0] == "motor_encoder" for x in act.sensor):
+                    w_meas = w_r if not self.rigid else screw.screw_speed_rad_s
+                else:
+                    w_meas = (enc_new - enc) / h_loop
+                enc = enc_new
+                x_meas = self._read_linear(screw.screw_angle_rad * p, enc, act, st.step * self.n_sub + j)
+                if act.drive_off:
+                    tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
+                else:
+                    ff = 0.0
+                    if st.mode == "position" and self.drive.position_feedforward:
+                        if math.isfinite(cmd_prev):
+                            ff = (command - cmd_prev) / (p * h_loop)
+                        cmd_prev = command
+                    d = drive_update(self.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop, ff)
+                    tau_ref, integ, limited, w_ref = d
+            # current loop and motor torque (screw side)
+            if m is None:
+                tau_d = tau_ref
+            else:
+                i_ref = 0.0 if act.drive_off else current_reference(m, tau_ref, w_r * N)
+                cs = current_step(m, i_a, i_ref, h)
+                volt = voltage(m, cs, i_a, w_r * N, h)
+                tau_d = N * m.torque_constant_nm_a * cs.mean_current_a
+            ws0 = screw.screw_speed_rad_s
+            x0 = p * screw.screw_angle_rad
+            if self.rigid:
+                tau_drive_screw = tau_d
+            else:
+                k, c = m.coupling_stiffness_nm_rad, m.coupling_damping_nm_s_rad
+                phi0, dw0 = th_r - screw.screw_angle_rad, w_r - ws0
+                # linearise where the last step ended: the explicit spring torque k φ0 would swing with
+                # the coupling's ringing and evaluate a set-valued friction on the wrong side
+                tau_drive_screw = tau_c
+            # end stops, dry friction (brake, jam) and a compliant coupling are solved implicitly on
+            # the screw's local linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a): s comes
+            # from two model steps at this state (exact for the linear models; fu2018's effective
+            # inertia moves with its friction regime, so a fixed J would not do)
+            cap = level * a.brake.holding_torque_nm + act.jam_nm
+            f_stop = tau_st = 0.0
+            implicit = not self.rigid or cap > 0.0
+            if a.stops.fitted and not implicit:
+                w_guess = ws0 + h * (tau_drive_screw - p * load_n) / J
+                reach = 2.0 * h * p * max(abs(ws0), abs(w_guess))
+                implicit = stop_penetration(a.stops, x0 + reach) > 0.0 or stop_penetration(a.stops, x0 - reach) > 0.0
+            if implicit:
+                w_a, s_w, th_a, s_th = self._response(model, screw, tau_drive_screw, load_n)
+                w_pred = w_a
+                th_pred = th_a
+                if a.stops.fitted:
+                    f_stop = stop_force(a.stops, x0, p * ws0, p * w_pred, h, p * p * s_w)
+                    w_pred += p * s_w * f_stop
+                    th_pred += p * s_th * f_stop
+                tau_st = stiction_torque(cap, w_pred, h / s_w, h)
+                th_pred += s_th * tau_st
+            load_in = load_n - f_stop if f_stop != 0.0 else load_n
+            if self.rigid:
+                tau_in = tau_drive_screw + tau_st if tau_st != 0.0 else tau_drive_screw
+                new, out = model.step(screw, tau_in, load_in)
+            else:
+                th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
+                tau_c, new, out = self._coupling(model, screw, tau_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+                                                 th_sfree, s_th)
+                tau_drive_screw = tau_c
+                tau_in = tau_c + tau_st
+            dth = new.screw_angle_rad - screw.screw_angle_rad
+            # motor side and the ledger
+            if self.rigid:
+                th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
+                dth_r = dth
+                tau_c = tau_d
+            else:
+                w_r1 = w_r + h * (tau_d - tau_c) / self.motor_inertia
+                th_r1 = th_r + 0.5 * h * (w_r + w_r1)
+                dth_r = th_r1 - th_r
+                v0 = 0.5 * k * phi0 * phi0
+                phi1 = th_r1 - new.screw_angle_rad
+                led = replace(led, coupling_j=led.coupling_j + tau_c * (dth_r - dth) - (0.5 * k * phi1 * phi1 - v0))
+            if m is None:
+                e_in = tau_d * dth
+                copper = 0.0
+            else:
+                copper = cs.copper_j
+                e_in = cs.copper_j + cs.magnetic_j + tau_d * dth_r
+                i_a = cs.current_a
+            led = Ledger(energy_in_j=led.energy_in_j + e_in, copper_j=led.copper_j + copper, coupling_j=led.coupling_j,
+                         stiction_j=led.stiction_j - tau_st * dth, stop_work_j=led.stop_work_j - f_stop * p * dth,
+                         load_work_j=led.load_work_j + load_n * p * dth)
+            th_r, w_r = th_r1, w_r1
+            if self.n_sub > 1:
+                sums[0] += tau_in
+                sums[1] += out.power_in_w
+                sums[2] += out.power_out_w
+                sums[3] += out.power_dissipated_w
+            screw = new
+            level = brake_level(a.brake, level, st.brake_engaged, h)
+        if self.n_sub > 1:
+            n = self.n_sub
+            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
+            out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
+                          power_dissipated_w=pd, efficiency=efficiency(pout, pd))
+        # sensors: the true sample now, delivered `latency_steps` later
+        sample = self._sample(th_r, w_r, screw, out.nut_force_n)
+        lat = a.sensors.latency_steps
+        history = (st.history + (sample,))[-(lat + 1):] if lat else (sample,)
+        before = st.history[0] if st.history else history[0]
+        *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
+        meas = tuple(meas)
+        nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
+                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, cmd_prev)
+        # the actuator block
+        x = p * screw.screw_angle_rad
+        stop_e = stop_stored_j(a.stops, x) if a.stops.fitted else 0.0
+        stored = self.stored_energy(nxt)
+        diss = screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_e
+        cap_b = level * a.brake.holding_torque_nm
+        cap_all = cap_b + act.jam_nm
+        brake_t = tau_st * cap_b / cap_all if cap_all > 0 else 0.0
+        motor_torque = 0.0 if m is None else m.torque_constant_nm_a * i_a
+        n_active = float(sum(f.active(st.time_s) for f in self.all_faults(st))) if act is not fl.NONE else 0.0
+        block = (command, _MODE_CODE[st.mode], w_ref, tau_ref, float(limited), i_a, motor_torque,
+                 w_r * N, volt, (led.energy_in_j - st.ledger.energy_in_j) / self.dt_s, tau_c, level, brake_t,
+                 tau_st - brake_t, f_stop, stop_penetration(a.stops, x) if a.stops.fitted else 0.0,
+                 led.stop_work_j - stop_e, led.energy_in_j, led.load_work_j, diss, stored, n_active)
+        # `out` was made by the screw model for this call alone: completing its internal vector in
+        # place saves a copy of the whole record per step
+        object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
+        return nxt, out
+
+    # -- what the sensors say -------------------------------------------------------------
+    def measured(self, out: Outputs) -> Outputs:
+        """`out` with the joint quantities replaced by what the sensors measured (for `joint_states`).
+
+        Screw angle and speed from the motor encoder, nut position and velocity from the
+        linear encoder (or the motor encoder), nut force from the load cell; every other field
+        is the true one. With ideal sensors this is `out`'s values exactly.
+        """
+        m = self.layout.view(out.internal, "measured")
+        return replace(out, screw_angle_rad=float(m[1]), screw_speed_rad_s=float(m[2]), nut_position_m=float(m[3]),
+                       nut_velocity_m_s=float(m[4]), nut_force_n=float(m[5]))
+
+    # -- energy --------------------------------------------------------------------------
+    def stored_energy(self, st: ActuatorState) -> float:
+        """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27), a compliant rotor's,
+        magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
+        s, m = st.screw, self.actuator.motor
+        ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
+        e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
+        if self.actuator.stops.fitted:
+            e += stop_stored_j(self.actuator.stops, self.p * s.screw_angle_rad)
+        if m is not None:
+            e += 0.5 * m.inductance_h * st.current_a**2
+            if not self.rigid:
+                phi = st.motor_angle_rad - s.screw_angle_rad
+                e += 0.5 * self.motor_inertia * st.motor_speed_rad_s**2 + 0.5 * m.coupling_stiffness_nm_rad * phi * phi
+        return e
+
+    # -- sensors -------------------------------------------------------------------------
+    def _encoder_screw_angle(self, motor_angle_rad: float, screw_angle_rad: float) -> float:
+        counts = self.actuator.sensors.encoder_counts_per_rev
+        if counts == 0:
+            return screw_angle_rad if self.rigid else motor_angle_rad / self.ratio
+        return quantise(motor_angle_rad, 2.0 * math.pi / counts) / self.ratio
+
+    def _faulted(self, sensor: str, value: float, held: float, act: fl.Active, key: int) -> tuple[float, bool]:
+        """Apply the active faults of `sensor` to a fresh reading: (value, fresh?)."""
+        seed = self.actuator.sensors.seed
+        for s, kind, v in act.sensor:
+            if s != sensor:
+                continue
+            if kind == "sensor_bias":
+                value += v
+            elif kind == "sensor_noise":
+                value += v * normal(seed, key, 100 + STREAM[sensor])
+            elif kind == "sensor_stuck":
+                return held, False
+            elif kind == "sensor_dropout" and uniform(seed, key, 110 + STREAM[sensor]) <= v:
+                return held, False
+        return value, True
+
+    def _read_encoder(self, motor_angle_rad: float, screw_angle_rad: float, act: fl.Active, key: int,
+                      held: float) -> float:
+        v = self._encoder_screw_angle(motor_angle_rad, screw_angle_rad)
+        return self._faulted("motor_encoder", v, held, act, key)[0] if act.sensor else v
+
+    def _read_linear(self, nut_m: float, encoder_screw_rad: float, act: fl.Active, key: int) -> float:
+        res = self.actuator.sensors.linear_encoder_resolution_m
+        if res is None:
+            return self.p * encoder_screw_rad
+        v = quantise(nut_m, res)
+        return self._faulted("linear_encoder", v, v, act, key)[0] if act.sensor else v
+
+    def _sample(self, motor_angle_rad: float, motor_speed_rad_s: float, screw: State,
+                nut_force_n: float) -> tuple[float, ...]:
+        """The true values the sensors see: motor angle (motor shaft), screw angle/speed, nut position/velocity/force.
+
+        Motor angle and speed come in screw coordinates (motor / gear ratio)."""
+        p = self.p
+        return (motor_angle_rad * self.ratio, screw.screw_angle_rad,
+                screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
+                p * screw.screw_angle_rad, p * screw.screw_speed_rad_s, nut_force_n)
+
+    def _measure(self, key: int, prev: tuple, filtered_n: float, now: tuple, before: tuple, act: fl.Active,
+                 first: bool = False) -> tuple:
+        """What the sensors report at step `key` for the delayed true sample `now` (`before`: a step earlier).
+
+        `prev`: the last reading (held on dropout or a stuck fault); `filtered_n`: the load
+        cell filter's memory. Returns the MEASURED_QUANTITIES values and the new filter memory.
+        """
+        sp, p, h = self.actuator.sensors, self.p, self.dt_s
+        prev = prev if prev else None
+        # motor encoder → screw angle and speed
+        ang = self._encoder_screw_angle(now[0], now[1])
+        if sp.encoder_counts_per_rev == 0:
+            spd = now[2]
+        else:
+            spd = 0.0 if first else (ang - self._encoder_screw_angle(before[0], before[1])) / h
+        fresh = [1.0, 1.0, 1.0]
+        out = [now[0] if sp.encoder_counts_per_rev == 0 else ang * self.ratio, ang, spd]
+        # nut position and velocity: linear encoder if fitted, else from the motor encoder
+        if sp.linear_encoder_resolution_m is None:
+            if sp.encoder_counts_per_rev == 0 and self.rigid:
+                out += [now[3], now[4]]
+            else:
+                out += [p * ang, p * spd]
+        else:
+            res = sp.linear_encoder_resolution_m
+            x = quantise(now[3], res)
+            v = now[4] if res == 0 else (0.0 if first else (x - quantise(before[3], res)) / h)
+            out += [x, v]
+        # load cell: first-order filter, bias, noise
+        filt = first_order(filtered_n, now[5], sp.load_cell_bandwidth_hz, h) if not first else now[5]
+        f = filt + sp.load_cell_bias_n if sp.load_cell_bias_n else filt
+        if sp.load_cell_noise_n:
+            f += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
+        out.append(f)
+        if prev is not None:
+            lin = sp.linear_encoder_resolution_m is not None
+            for sensor, idx in _GROUPS.items():
+                if sensor == "linear_encoder" and not lin:
+                    continue
+                si = _SENSOR_INDEX[sensor]
+                dropped = sp.dropout_probability > 0 and uniform(sp.seed, key, DROPOUT_STREAM[sensor]) <= sp.dropout_probability
+                if not dropped and act.sensor:
+                    # bias and noise act on the primary reading (screw angle rad, nut position m, force N)
+                    primary = idx[1] if sensor == "motor_encoder" else idx[0]
+                    v, ok = self._faulted(sensor, out[primary], prev[primary], act, key)
+                    dropped = not ok
+                    if ok and v != out[primary]:
+                        out[primary] = v
+                        if sensor == "motor_encoder":
+                            out[0] = v * self.ratio
+                if dropped:
+                    for i in idx:
+                        out[i] = prev[i]
+                    fresh[si] = 0.0
+                if sensor == "motor_encoder" and not lin and (dropped or act.sensor):
+                    out[3], out[4] = p * out[1], p * out[2]
+        return tuple(out) + tuple(fresh) + (filt,)
