@@ -19,6 +19,7 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | wrench                 | ~/nut/wrench                | geometry_msgs/WrenchStamped   | out |
 | internal_loads         | ~/internal_loads            | std_msgs/Float64MultiArray    | out |
 | labels                 | ~/internal_loads/labels     | std_msgs/String (JSON)        | out, latched |
+| command_echo           | ~/command_echo              | sensor_msgs/TimeReference     | out |
 | clock                  | /clock                      | rosgraph_msgs/Clock           | out |
 | diagnostics            | /diagnostics                | diagnostic_msgs/DiagnosticArray | out |
 | events                 | ~/events                    | std_msgs/String (JSON)        | out, latched history |
@@ -31,6 +32,12 @@ subscriber still gets the recent events; the recorder writes them into the bag.
 `/clock` is published reliable, keep last 1: a reliable writer matches both the best-effort
 readers of rclcpp's TimeSource and reliable readers (a best-effort writer would match only the
 former).
+
+`joint_states` is reliable keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no
+state; a slower one loses the oldest. `~/command_echo` carries, with the step that first applied
+a command (`header.stamp`, the same stamp as that step's joint_states), the command's own stamp
+(`time_ref`: DDS source timestamp for Float64 commands, header stamp for JointState ones, system
+clock) and its topic (`source`), so a controller can measure its loop latency.
 
 `~/internal_loads` layout: `data` = every scalar output in `OUTPUT_FIELDS` order, `time_s`
 included (Float64MultiArray has no header, so the row carries its own simulation time), then the
@@ -114,11 +121,14 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("position_command", "~/position_command", "std_msgs/msg/Float64", qos(1), "in"),
     TopicDef("inject_fault", "~/inject_fault", "std_msgs/msg/String", qos(10), "in"),
     TopicDef("nut_position_reference", "~/nut_position_reference", "std_msgs/msg/Float64", qos(10), "in"),
-    TopicDef("joint_states", "joint_states", "sensor_msgs/msg/JointState", qos(10), "out"),
+    # keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no state (issue 15)
+    TopicDef("joint_states", "joint_states", "sensor_msgs/msg/JointState", qos(100), "out"),
     TopicDef("ground_truth", "~/ground_truth/joint_states", "sensor_msgs/msg/JointState", qos(10), "out"),
     TopicDef("wrench", "~/nut/wrench", "geometry_msgs/msg/WrenchStamped", qos(10), "out"),
     TopicDef("internal_loads", "~/internal_loads", "std_msgs/msg/Float64MultiArray", qos(10), "out"),
     TopicDef("labels", "~/internal_loads/labels", "std_msgs/msg/String", qos(1, latched=True), "out"),
+    # with the step that first applied a command: its stamp (time_ref) and topic (source)
+    TopicDef("command_echo", "~/command_echo", "sensor_msgs/msg/TimeReference", qos(100), "out"),
     TopicDef("clock", "/clock", "rosgraph_msgs/msg/Clock", qos(1), "out"),
     TopicDef("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", SYSTEM_DEFAULT_QOS, "out"),
     TopicDef("events", "~/events", "std_msgs/msg/String", qos(100, latched=True), "out"),

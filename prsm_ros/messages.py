@@ -18,7 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Float64, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, String
 
 from prsm_sim import InternalLayout
@@ -34,7 +34,7 @@ __all__ = ["CLASSES", "LABELS_FORMAT", "NODE_NAME", "NUT_FRAME", "NUT_JOINT", "S
 # The rclpy class of every type the interface uses (the message kit of `MessageBuilder`).
 CLASSES: dict[str, type] = {f"{c.__module__.split('.')[0]}/msg/{c.__name__}": c for c in (
     Time, Header, JointState, Vector3, Wrench, WrenchStamped, MultiArrayDimension, MultiArrayLayout,
-    Float64MultiArray, String, Float64, Clock, DiagnosticArray)}
+    Float64MultiArray, String, Float64, Clock, DiagnosticArray, TimeReference)}
 
 
 def qos_profile(spec: QosSpec) -> QoSProfile:
@@ -100,3 +100,9 @@ class MessageMapper(MessageBuilder):
     @staticmethod
     def clock(time_s: float) -> Clock:
         return Clock(clock=stamp(time_s))
+
+    def encoder(self):
+        """The same per-step messages as CDR bytes, without message objects (`prsm_ros.node.cdr`)."""
+        from prsm_ros.node.cdr import StepEncoder
+        return StepEncoder(self.layout, tuple(self._names), NUT_FRAME,
+                           [(d.label, d.size) for d in self._multiarray_layout.dim])

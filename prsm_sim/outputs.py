@@ -187,6 +187,10 @@ class Outputs:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return {name: getattr(self, name) for name, _ in OUTPUT_FIELDS}
 
+    def scalar_values(self) -> tuple[float, ...]:
+        """The scalar outputs as one tuple, in OUTPUT_FIELDS order (cheap on `PackedOutputs`)."""
+        return tuple(getattr(self, name) for name, _ in OUTPUT_FIELDS)
+
 
 assert tuple(f.name for f in fields(Outputs))[:-1] == tuple(n for n, _ in OUTPUT_FIELDS)
 
@@ -445,3 +449,46 @@ class Trajectory:
     def row(self, k: int) -> Outputs:
         """Step k as an `Outputs` record (the same record `Simulator.step` returns)."""
         return Outputs(**{n: float(self.columns[n][k]) for n, _ in OUTPUT_FIELDS}, internal=self.internal[k])
+
+
+class PackedOutputs(Outputs):
+    """An `Outputs` backed by one tuple of the scalars, with `internal` built on first read.
+
+    The per-step fast path of the linear models (`Model.step_packed`) returns these: building
+    the frozen record field by field costs more than the step itself, and the node reads the
+    internal vector only at its (decimated) publishing rate. Every field reads as on `Outputs`
+    (the properties shadow the base class's slots); `isinstance(out, Outputs)` holds.
+    `internal_src` is an array, or a (function, argument) pair evaluated once on first read.
+    """
+
+    __slots__ = ("_values", "_internal_src")
+
+    def __init__(self, values: tuple[float, ...], internal_src) -> None:  # noqa: D107 (no dataclass init)
+        object.__setattr__(self, "_values", values)
+        object.__setattr__(self, "_internal_src", internal_src)
+
+    @property
+    def internal(self) -> np.ndarray:
+        src = self._internal_src
+        if type(src) is tuple:
+            src = src[0](src[1])
+            object.__setattr__(self, "_internal_src", src)
+        return src
+
+    def scalars(self) -> dict[str, float]:
+        return dict(zip(_FIELD_NAMES, self._values))
+
+    def scalar_values(self) -> tuple[float, ...]:
+        return self._values
+
+
+def _packed_field(i: int) -> property:
+    from operator import itemgetter
+    get = itemgetter(i)
+    return property(lambda self: get(self._values))
+
+
+_FIELD_NAMES = tuple(n for n, _ in OUTPUT_FIELDS)
+for _i, _name in enumerate(_FIELD_NAMES):
+    setattr(PackedOutputs, _name, _packed_field(_i))
+del _i, _name

@@ -108,12 +108,25 @@ class Simulator:
         self.params = params
         self.dt_s = self.model.dt_s
         self._initial_nut_position_m = float(nut_position_m)
-        self.state: State = self.model.initial_state(nut_position_m)
+        self.state = self.model.initial_state(nut_position_m)
         self.nstep = 0
 
     def __repr__(self) -> str:
         return (f"Simulator(model={self.model.name!r}, params={self.params.name!r}, dt_s={self.dt_s:g}, "
                 f"time_s={self.time_s:.6g}, nstep={self.nstep})")
+
+    # The current state is a `State`, or for models with a packed step (Model.advance_packed) the
+    # packed tuple between steps, turned into a `State` only when someone reads it.
+    @property
+    def state(self) -> State:
+        if self._state is None:
+            self._state = self.model.unpack_state(self._packed)
+        return self._state
+
+    @state.setter
+    def state(self, value: State) -> None:
+        self._state = value
+        self._packed = self.model.pack_state(value) if self.model.packed else None
 
     @property
     def layout(self) -> InternalLayout:
@@ -123,7 +136,7 @@ class Simulator:
     @property
     def time_s(self) -> float:
         """Simulation time of the current state, s."""
-        return self.state.time_s
+        return self._packed[0] if self._state is None else self._state.time_s
 
     def reset(self, nut_position_m: float | None = None) -> State:
         """Back to rest at the initial (or the given) nut position, time zero, counters cleared.
@@ -182,10 +195,17 @@ class Simulator:
         InputError
             A non-finite or non-numeric input; the state is left unchanged.
         """
-        for name, v in (("torque_nm", torque_nm), ("load_n", load_n)):
-            if not _is_number(v) or not math.isfinite(v):
-                raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
-        self.state, out = self.model.step(self.state, torque_nm, load_n)
+        # (x + y) * 0 is 0 only for finite floats: one test for the common case, the full check otherwise
+        if not (type(torque_nm) is float and type(load_n) is float and (torque_nm + load_n) * 0.0 == 0.0):
+            for name, v in (("torque_nm", torque_nm), ("load_n", load_n)):
+                if not _is_number(v) or not math.isfinite(v):
+                    raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
+            torque_nm, load_n = float(torque_nm), float(load_n)
+        if self._packed is not None:
+            self._packed, out = self.model.advance_packed(self._packed, torque_nm, load_n)
+            self._state = None
+        else:
+            self._state, out = self.model.step(self._state, torque_nm, load_n)
         self.nstep += 1
         return out
 

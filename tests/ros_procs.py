@@ -47,14 +47,15 @@ class NodeProcess:
     """`prsm-node` as a child process (python -m prsm_ros.node.ros_node), output captured to files."""
 
     def __init__(self, env: dict[str, str], params: dict[str, Any] | None = None, *, workdir: Path,
-                 extra_args: list[str] | None = None, module: str = "prsm_ros.node.ros_node") -> None:
+                 extra_args: list[str] | None = None, module: str = "prsm_ros.node.ros_node",
+                 cwd: Path | None = None) -> None:
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.stdout_path = self.workdir / "node.stdout"
         self.stderr_path = self.workdir / "node.stderr"
         args = (extra_args or []) + (ros_args(params) if params else [])
         with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
-            self.proc = start_module(module, args, env, cwd=self.workdir, stdout=out, stderr=err)
+            self.proc = start_module(module, args, env, cwd=cwd or self.workdir, stdout=out, stderr=err)
 
     def wait(self, timeout: float = 20.0) -> int:
         return self.proc.wait(timeout=timeout * CEILING_FACTOR)

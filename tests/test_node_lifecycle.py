@@ -85,14 +85,19 @@ def test_realtime_run_services_and_sigint(tmp_path):
                        "5 stepped states and /clock 5 ms on")
         assert [stamp_ns(m) for m in js if stamp_ns(m) > paused_at] == stepped  # published after every step
 
+        n_js = len(js)
         n_reset = len(clock)
         t_reset = time.monotonic()
         assert cli.call("/prsm_actuator/reset", Trigger).success
+        # reset while paused publishes the reset state at once (issue 15), though nothing steps
+        cli.spin_until(lambda: len(js) > n_js, 5.0, "the reset state while paused")
+        assert stamp_ns(js[n_js]) == 0 and clock_ns(clock[-1]) == 0
         assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=False)).success
         res = cli.call("/prsm_actuator/step", Trigger)
         assert not res.success and "not paused" in res.message
         cli.spin_until(lambda: clock_ns(clock[-1]) >= 300_000_000, 20.0, "0.3 s of simulation after the reset")
-        assert clock_ns(clock[n_reset]) == 1_000_000  # the first step after the reset: restarted from zero
+        # the reset state (t = 0, published at once while paused), then the first step: restarted from zero
+        assert clock_ns(clock[n_reset]) == 0 and clock_ns(clock[n_reset + 1]) == 1_000_000
         # paused before the reset, so every /clock received after t_reset was published after the reset
         ahead = max(ns * 1e-9 - (t - t_reset) for t, ns in arrivals if t > t_reset)
         print(f"realtime: sim time ahead of the wall clock since the reset at most {ahead * 1e3:.3f} ms "
@@ -111,10 +116,12 @@ def test_realtime_run_services_and_sigint(tmp_path):
     assert "Traceback" not in proc.stderr
     topics = read_bag(bag)
     clocks = [clock_ns(m) for _, m in topics["/clock"]]
-    assert len(clocks) == len(topics["/joint_states"]) == len(topics["/prsm_actuator/internal_loads"])
-    # one /clock per step, each 1 ms after the previous, except back to 1 ms after the reset
+    # every step's internal loads are in the bag (DDS carries them decimated); the reset state adds
+    # one /clock and one joint_states at t = 0, without internal loads
+    assert len(clocks) == len(topics["/joint_states"]) == len(topics["/prsm_actuator/internal_loads"]) + 1
+    # one /clock per step, each 1 ms after the previous, except back to 0 (the reset state) after the reset
     restarts = [k for k in range(1, len(clocks)) if clocks[k] != clocks[k - 1] + 1_000_000]
-    assert len(restarts) == 1 and clocks[restarts[0]] == 1_000_000 and clocks[0] == 1_000_000
+    assert len(restarts) == 1 and clocks[restarts[0]] == 0 and clocks[0] == 1_000_000
     assert [ts for ts, _ in topics["/clock"]] == clocks  # log time = simulation time
     assert len(topics["/prsm_actuator/internal_loads/labels"]) == 1 and "/diagnostics" in topics
 
@@ -133,9 +140,9 @@ def test_fast_mode_and_sigterm(tmp_path):
     topics = read_bag(bag)
     clocks = [clock_ns(m) for _, m in topics["/clock"]]
     assert clocks == [1_000_000 * (k + 1) for k in range(len(clocks))] and len(clocks) > 1000
-    # decimated: joint_states every 10th step, internal loads every 100th
+    # decimated: joint_states every 10th step; internal loads every 100th on DDS but every step in the bag
     assert len(topics["/joint_states"]) == len(clocks) // 10
-    assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks) // 100
+    assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks)
 
 
 def test_rerun_save_writes_an_rrd_that_the_rerun_cli_verifies(tmp_path):

@@ -147,7 +147,7 @@ def test_rosbags_reads_the_file_with_its_own_types_and_with_the_file_schemas(rec
     for (_, _, msg), (_, _, theirs) in zip(published, rows):
         _fields_equal(msg, theirs)
     assert qos["/prsm_actuator/internal_loads/labels"].durability.name == "TRANSIENT_LOCAL"
-    assert qos["/joint_states"].reliability.name == "RELIABLE" and qos["/joint_states"].depth == 10
+    assert qos["/joint_states"].reliability.name == "RELIABLE" and qos["/joint_states"].depth == 100
     with AnyReader([path]) as reader:  # types parsed from the concatenated definitions in the file
         first = {}
         for c, ts, raw in reader.messages():

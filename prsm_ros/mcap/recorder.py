@@ -23,7 +23,6 @@ import atexit
 import threading
 import time
 from collections import deque
-from datetime import datetime, timezone
 from pathlib import Path
 
 from prsm_ros.mcap import schema as mcap_schema
@@ -62,12 +61,6 @@ def run_metadata(params, *, preset: str, model: str, dt_s: float,
         "parameters_yaml": yaml.safe_dump(params.to_dict(), sort_keys=False),
         "node_parameters_yaml": yaml.safe_dump(dict(node_parameters or {}), sort_keys=True),
     }}
-
-
-def default_record_path(now: datetime | None = None) -> Path:
-    """./prsm_<UTC yyyymmdd_HHMMSS>.mcap, the node's file for an empty `record_path`."""
-    now = now or datetime.now(timezone.utc)
-    return Path(f"prsm_{now.strftime('%Y%m%d_%H%M%S')}.mcap")
 
 
 class McapFile:
@@ -139,10 +132,10 @@ class McapFile:
                            f"added: {', '.join(self._channels) or 'none'}") from None
 
     def write(self, channel_id: int, msg, stamp_ns: int) -> None:
-        """Serialize `msg` to CDR and add it at log_time = publish_time = stamp_ns."""
+        """Serialize `msg` to CDR (bytes: already CDR) and add it at log_time = publish_time = stamp_ns."""
         seq = self._sequence[channel_id] + 1
         self._sequence[channel_id] = seq
-        data = self._serialize(msg)
+        data = msg if type(msg) is bytes else self._serialize(msg)
         self.messages_written += 1  # counted once handed over: a stalled disk blocks inside add_message
         self._writer.add_message(channel_id, stamp_ns, data, stamp_ns, seq)
 
@@ -243,7 +236,7 @@ class McapRecorder:
         cls = self._classes.get(topic)
         if cls is None:
             raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._classes) or 'none'}")
-        if type(msg) is not cls:
+        if type(msg) is not cls and type(msg) is not bytes:  # bytes: serialised once by the caller for DDS and MCAP
             raise TypeError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
         with self._lock:
             if not self._writing:

@@ -98,7 +98,8 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
     NodeParam("start_paused", False, "", "start paused (resume with ~/pause false)", read_only=True),
     NodeParam("joint_states_rate", 0.0, "Hz", "publish rate of joint_states and ~/nut/wrench (0: every step)",
               lo=0.0, hi=1e6),
-    NodeParam("internal_loads_rate", 0.0, "Hz", "publish rate of ~/internal_loads (0: every step)", lo=0.0, hi=1e6),
+    NodeParam("internal_loads_rate", 100.0, "Hz", "DDS publish rate of ~/internal_loads in realtime and fast "
+              "mode (0: every step); lockstep publishes, and the bag records, every step", lo=0.0, hi=1e6),
     NodeParam("diagnostics_rate", 1.0, "Hz", "publish rate of /diagnostics (wall time)", lo=0.01, hi=100.0),
     NodeParam("cmd_timeout", 0.5, "s", "command watchdog in simulation time (0 disables)", lo=0.0, hi=1e6),
     NodeParam("timeout_behaviour", "zero", "", "after cmd_timeout: zero torque, or hold the last command",
@@ -118,7 +119,14 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
     NodeParam("load_force", 0.0, "N", "external axial load on the nut, positive resisting positive nut motion",
               lo=-1e8, hi=1e8),
     NodeParam("record", True, "", "record every published and received topic to MCAP", read_only=True),
-    NodeParam("record_path", "", "", "MCAP file ('' → ./prsm_<UTC yyyymmdd_HHMMSS>.mcap)", read_only=True),
+    NodeParam("record_path", "", "", "MCAP file, never overwritten ('' → ./prsm_<namespace_node>_<UTC "
+              "yyyymmdd_HHMMSS>[_n].mcap, unique)", read_only=True),
+    NodeParam("publish_clock", True, "", "publish /clock (with several actuators in one graph exactly one "
+              "node should: set false on the others)", read_only=True),
+    NodeParam("ownership_timeout", 1.0, "s", "wall seconds of silence after which the controller owning the "
+              "actuator loses it (0: only ~/release_control ends ownership)", lo=0.0, hi=1e6),
+    NodeParam("command_ownership", True, "", "the first participant to send a valid command owns the "
+              "actuator; commands from others are refused and counted", read_only=True),
     NodeParam("rerun", "off", "", "Rerun output (environment RERUN=off forces off)", choices=RERUN_MODES,
               read_only=True),
     NodeParam("rerun_target", "", "", "save: .rrd path; spawn: port; connect: viewer address ('' → default)",

@@ -44,15 +44,21 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
+from rclpy.serialization import serialize_message
 from std_srvs.srv import SetBool, Trigger
 
+from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_sim import PrsmError
 
 from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.node.ownership import CommandOwnership, participant_of
+from prsm_ros.node.record_path import RecordPathError, claim_record_path
+from prsm_ros.node.scheduling import raise_process_threads
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
-from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority
+from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority,
+                                    rest_outputs)
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
@@ -89,11 +95,14 @@ class PrsmNode(Node):
         self._lock = threading.Lock()
         self.gate = CommandGate(cfg.max_effort, cfg.cmd_timeout, cfg.timeout_behaviour, cfg.command_interface)
         self.gate.reset(cfg.initial_nut_position)
+        self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
+        self.echo = CommandEcho()
         self.stepper = SimStepper(cfg.params, cfg.model, cfg.dt_s, self.gate,
                                   nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
                                   actuator=cfg.actuator if cfg.with_actuator else None)
         self.stepper.paused = cfg.start_paused
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
+        self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
         self._set_decimation()
 
         def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
@@ -101,8 +110,9 @@ class PrsmNode(Node):
         try:
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
-                        for k in ("joint_states", "wrench", "internal_loads", "labels", "clock", "diagnostics",
-                                  "events") + (("ground_truth",) if self.stepper.actuator is not None else ())}
+                        for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
+                                  "events") + (("clock",) if cfg.publish_clock else ())
+                        + (("ground_truth",) if self.stepper.actuator is not None else ())}
             self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
                                                     qos_overriding_options=qos_opts())
                         for k, cb in (("screw_torque", self._on_screw_torque),
@@ -133,6 +143,7 @@ class PrsmNode(Node):
         self.create_service(SetBool, "~/pause", self._srv_pause)
         self.create_service(Trigger, "~/step", self._srv_step)
         self.create_service(Trigger, "~/reset", self._srv_reset)
+        self.create_service(Trigger, "~/release_control", self._srv_release_control)
         self.create_service(SetBool, "~/brake", self._srv_brake)
         self.create_service(Trigger, "~/clear_faults", self._srv_clear_faults)
         self._fault_log: list[str] = []  # the last fault starts and clears, for /diagnostics
@@ -246,7 +257,8 @@ class PrsmNode(Node):
     def _set_decimation(self) -> None:
         cfg = self.config
         self._js_every = every_n_steps(cfg.joint_states_rate, cfg.update_rate)
-        self._il_every = every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
+        # heavy outputs are decimated on DDS only in realtime and fast mode; the bag records every step
+        self._il_every = 1 if cfg.time_mode == "lockstep" else every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
 
     def _topic(self, key: str) -> str:
         return self.config.topics.get(key, TOPICS[key].name)
@@ -256,12 +268,16 @@ class PrsmNode(Node):
         cfg = self.config
         if not cfg.record:
             return None
-        from prsm_ros.mcap.recorder import McapRecorder, default_record_path, run_metadata
+        from prsm_ros.mcap.recorder import McapRecorder, run_metadata
         node_params = {k: v for k, v in cfg.values.items()}
         node_params.update(physics_parameters(cfg.params))
         meta = run_metadata(cfg.params, preset=cfg.preset, model=cfg.model, dt_s=cfg.dt_s,
                             node_parameters=node_params)
-        rec = McapRecorder(cfg.record_path or default_record_path(), metadata=meta)
+        try:
+            path = claim_record_path(cfg.record_path, self.get_fully_qualified_name())
+        except RecordPathError as e:
+            raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {e}") from None
+        rec = McapRecorder(path, metadata=meta)
         if rec.error:
             rec.close()
             raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {rec.error}")
@@ -282,6 +298,9 @@ class PrsmNode(Node):
             raise ConfigError(str(e)) from None
 
     def _publish(self, pub, key: str, msg, stamp_ns: int | None = None) -> None:
+        """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
+        if type(msg) is not bytes:
+            msg = serialize_message(msg)
         try:
             pub.publish(msg)
         except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
@@ -298,18 +317,38 @@ class PrsmNode(Node):
             self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s))
 
     # -- commands in -----------------------------------------------------------------------
-    def _on_screw_torque(self, msg) -> None:
+    def _on_screw_torque(self, msg, info) -> None:
         with self._lock:
             self._record_input("screw_torque", msg)
+            who = participant_of(info)
+            reason = self.ownership.admit(who)
+            if reason is not None:
+                self._warn_throttled("ownership", f"{self._topic_names['screw_torque']}: {reason}")
+                return  # refused: counted, and in lockstep it does not advance time
             reason = self.gate.offer_torque(msg.data, self.stepper.time_s)
+            self._command_taken("screw_torque", reason, who, stamp_of(None, info.get("source_timestamp")))
             self._after_command("screw_torque", reason)
 
-    def _on_joint_commands(self, msg) -> None:
+    def _on_joint_commands(self, msg, info) -> None:
         with self._lock:
             self._record_input("joint_commands", msg)
+            who = participant_of(info)
+            reason = self.ownership.admit(who)
+            if reason is not None:
+                self._warn_throttled("ownership", f"{self._topic_names['joint_commands']}: {reason}")
+                return
             reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
                                                    self.stepper.time_s)
+            hs = msg.header.stamp
+            self._command_taken("joint_commands", reason, who,
+                                stamp_of(hs.sec * 1_000_000_000 + hs.nanosec, info.get("source_timestamp")))
             self._after_command("joint_commands", reason)
+
+    def _command_taken(self, key: str, reason: str | None, who, stamp_ns: int | None) -> None:
+        """Lock held: a command the gate accepted (saturated or not) makes its sender the owner and is echoed."""
+        if reason is None:
+            self.ownership.accepted(who)
+            self.echo.offer(stamp_ns, self._topic_names[key])
 
     def _on_velocity_command(self, msg) -> None:
         with self._lock:
@@ -394,24 +433,41 @@ class PrsmNode(Node):
 
     def _publish_step(self, out, force_state: bool = False) -> None:
         k = self.stepper.nstep
-        st = stamp(out.time_s)
         ns = time_ns(out.time_s)
+        enc = self.encoder
         # joint_states first: a lockstep controller computes its next command while the rest goes out
         act = self.stepper.actuator
         if force_state or k % self._js_every == 0:
             # with an actuator joint_states carries what the sensors measure, the truth goes beside it
             measured = act.measured(out) if act is not None else out
             if act is not None:
-                self._publish(self.pub["ground_truth"], "ground_truth", self.mapper.joint_state(out, st), ns)
-            self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(measured, st), ns)
-            self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+                self._publish(self.pub["ground_truth"], "ground_truth", enc.joint_state(out, ns), ns)
+            self._publish(self.pub["joint_states"], "joint_states", enc.joint_state(measured, ns), ns)
+            self._publish(self.pub["wrench"], "wrench", enc.wrench(out, ns), ns)
         if act is not None and self.stepper.events:
             self._publish_fault_events(self.stepper.take_events())
-        self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
+        echoed = self.echo.take()
+        if echoed is not None:
+            cmd_ns, source = echoed
+            self._publish(self.pub["command_echo"], "command_echo", enc.time_reference(ns, cmd_ns, source), ns)
+            self.echo.record_latency(cmd_ns, time.time_ns())
+        if "clock" in self.pub:
+            self._publish(self.pub["clock"], "clock", enc.clock(ns), ns)
         if k % self._il_every == 0:
-            self._publish(self.pub["internal_loads"], "internal_loads", self.mapper.internal_loads(out), ns)
+            self._publish(self.pub["internal_loads"], "internal_loads", enc.internal_loads(out), ns)
+        elif self.recorder is not None:  # decimated on DDS, every step in the bag
+            self.recorder.write(self._topic_names["internal_loads"], enc.internal_loads(out), ns)
         if self.rerun is not None:
             self.rerun.submit(out)
+
+    def _publish_rest_state(self) -> None:
+        """Lock held: the state just set (reset) on the state topics at once, though no step ran."""
+        out = rest_outputs(self.stepper)
+        st, ns = stamp(out.time_s), time_ns(out.time_s)
+        self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
+        self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+        if "clock" in self.pub:
+            self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
 
     def _loop(self) -> None:
         """realtime / fast: the step thread (lockstep steps in the command callback instead)."""
@@ -478,11 +534,21 @@ class PrsmNode(Node):
     def _srv_reset(self, request, response):
         with self._lock:
             self.stepper.reset(self.config.initial_nut_position)
+            self.echo.reset()
             self._energy_fault_reported = False
             self.pacer.restart()
+            if self.stepper.paused:  # nothing steps while paused: a controller still sees the reset now
+                self._publish_rest_state()
             response.success = True
             response.message = f"reset to t = 0, nut at {self.config.initial_nut_position:g} m"
         self.get_logger().info(response.message)
+        return response
+
+    def _srv_release_control(self, request, response):
+        with self._lock:
+            response.message = self.ownership.release()
+            response.success = True
+        self.get_logger().info(f"~/release_control: {response.message}")
         return response
 
     def _srv_brake(self, request, response):
@@ -551,6 +617,7 @@ class PrsmNode(Node):
             "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
             "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
             "fault": st.fault or "", "command_interface": gate.interface, "command": gate.value,
+            **self.ownership.diagnostics(), **self.echo.report(),
         }
         self._step_wall_max_s = 0.0
         problems = []
@@ -589,7 +656,8 @@ class PrsmNode(Node):
             level, text = DiagnosticStatus.WARN, "; ".join(problems)
         else:
             level, text = DiagnosticStatus.OK, "paused" if st.paused else "running"
-        return DiagnosticStatus(level=level, name=f"{self.get_name()}: simulation", message=text,
+        # the fully qualified name: two actuators in two namespaces report under two names
+        return DiagnosticStatus(level=level, name=f"{self.get_fully_qualified_name()}: simulation", message=text,
                                 hardware_id=f"prsm_sim/{cfg.model}",
                                 values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
 
@@ -692,6 +760,9 @@ def main(argv: list[str] | None = None) -> int:
             _exit_now(1, f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)")
         executor = rclpy.executors.SingleThreadedExecutor()
         executor.add_node(node)
+        if node.config.time_mode == "realtime" and node.config.realtime_priority > 1:
+            # our own process: the middleware's threads too (not done when PrsmNode is embedded elsewhere)
+            node.scheduling["middleware_threads"] = raise_process_threads(node.config.realtime_priority - 1)
         # Python runs signal handlers only between bytecodes, so spin in short slices.
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)

@@ -23,15 +23,21 @@ import numpy as np
 
 from prsm_sim import Outputs, Params, PrsmError, Simulator
 from prsm_sim.actuator import Actuator, ActuatorParams, Fault
+from prsm_sim.models.base import energy_fault
+from prsm_sim.outputs import PackedOutputs
 
 from prsm_ros.node.command_gate import CommandGate
 
 
 def state_is_finite(out: Outputs) -> bool:
-    """The state-carrying outputs are finite (efficiency and speed_ratio may be NaN by design)."""
+    """The state-carrying outputs are finite (efficiency and speed_ratio may be NaN by design).
+
+    A `PackedOutputs` record's internal loads are a linear function of its finite speeds
+    (Model.advance_packed), so they are not built here just to be checked.
+    """
     return all(math.isfinite(v) for v in (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_angle_rad,
                                           out.carrier_speed_rad_s, out.nut_force_n)) \
-        and bool(np.all(np.isfinite(out.internal)))
+        and (type(out) is PackedOutputs or bool(np.all(np.isfinite(out.internal))))
 
 
 class SimStepper:
@@ -164,6 +170,26 @@ class SimStepper:
         sim = Simulator(params, self.model_name, self.sim.dt_s, self.nut_position_m, actuator=self.actuator_params)
         sim.restore(self.sim.state, self.sim.nstep)
         self.sim = sim
+
+
+def rest_outputs(stepper: SimStepper) -> Outputs:
+    """Outputs for the stepper's current state as it stands, no step taken (after `reset`, at rest).
+
+    Speeds come from the state; the torque is the gate's command, the nut force the load (nothing
+    accelerates before a step), no power flows and the internal loads are zero.
+    """
+    s, geo = stepper.sim.state, stepper.sim.params.geometry
+    p = geo.lead_per_rad_m
+    return Outputs(time_s=s.time_s, screw_angle_rad=s.screw_angle_rad, screw_speed_rad_s=s.screw_speed_rad_s,
+                   screw_torque_nm=stepper.gate.command_nm, carrier_angle_rad=s.carrier_angle_rad,
+                   carrier_speed_rad_s=s.carrier_speed_rad_s, roller_spin_rad_s=-geo.gear_ratio * s.carrier_speed_rad_s,
+                   nut_position_m=p * s.screw_angle_rad, nut_velocity_m_s=p * s.screw_speed_rad_s,
+                   nut_force_n=stepper.load_n, load_force_n=stepper.load_n, slip_speed_m_s=0.0, power_in_w=0.0,
+                   power_out_w=0.0, power_dissipated_w=0.0, efficiency=math.nan, speed_ratio=math.nan,
+                   stored_energy_j=stepper.sim.model.stored_energy_j(s.screw_speed_rad_s, s.carrier_speed_rad_s),
+                   energy_flow_j=s.energy_flow_j, energy_residual_j=s.energy_residual_j,
+                   energy_fault=1.0 if energy_fault(s.energy_flow_j, s.energy_residual_j) else 0.0,
+                   internal=np.zeros(stepper.sim.layout.size))
 
 
 def every_n_steps(rate_hz: float, update_rate_hz: float) -> int:

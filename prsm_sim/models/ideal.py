@@ -59,11 +59,13 @@ class Ideal(Model):
             return loss
         return loss * math.tanh(abs(load_torque_nm * speed_rad_s) / self.params.ideal.power_threshold_w)
 
-    def _advance(self, state: State, torque_nm: float, load_n: float):
+    packed = True
+
+    def _solve(self, w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
+        """Speed at the end of the step, the angle over it and the work dissipated (the one step law)."""
         h, J = self.dt_s, self.J
         b = self.params.ideal.viscous_nm_s_rad
         tau_l = load_n * self.geo.lead_per_rad_m
-        w0 = state.screw_speed_rad_s
         w_free = (J * w0 + h * (torque_nm - tau_l)) / (J + h * b)
         if w_free == 0.0:
             w1 = 0.0
@@ -75,13 +77,26 @@ class Ideal(Model):
         dtheta = 0.5 * h * (w0 + w1)
         # loss + bearing torque actually applied over the step, times the angle it acted through
         friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
-        dissipated = friction_nm * dtheta
+        return w1, dtheta, friction_nm * dtheta
+
+    def _advance(self, state: State, torque_nm: float, load_n: float):
+        w1, dtheta, dissipated = self._solve(state.screw_speed_rad_s, torque_nm, load_n)
         after = State(screw_angle_rad=state.screw_angle_rad + dtheta, screw_speed_rad_s=w1,
                       carrier_angle_rad=state.carrier_angle_rad + self.k_carrier * dtheta,
                       carrier_speed_rad_s=self.k_carrier * w1)
         slip = abs(w1) * self.geo.lead_per_rad_m * self.slip_per_nut_speed
         return self.finish_step(state, after, torque_nm, load_n, dissipated_j=dissipated, slip_speed_m_s=slip,
                                 internal=_EMPTY)
+
+    def advance_packed(self, x, torque_nm: float, load_n: float):
+        """`_advance` on the packed state (Model.advance_packed); same arithmetic."""
+        w0 = x[2]
+        w1, dtheta, dissipated = self._solve(w0, torque_nm, load_n)
+        p = self.geo.lead_per_rad_m
+        nut_force = load_n + self.params.mass.moved_mass_kg * p * (w1 - w0) / self.dt_s
+        return self.finish_packed(x, x[1] + dtheta, w1, x[3] + self.k_carrier * dtheta, self.k_carrier * w1,
+                                  torque_nm, load_n, dissipated, abs(w1) * p * self.slip_per_nut_speed, nut_force,
+                                  _EMPTY)
 
 
 _EMPTY = np.zeros(0)

@@ -73,6 +73,49 @@ class Jones2016(Model):
         return self.finish_step(state, after, torque_nm, load_n, dissipated_j=float(z @ self.lin.W @ z),
                                 slip_speed_m_s=float(np.linalg.norm(v_s)), internal=self._internal(v_s))
 
+    packed = True
+
+    def _packed_constants(self) -> tuple:
+        """Phi, Gam, W, G and the constants of `advance_packed` as Python floats (built once)."""
+        c = getattr(self, "_pk", None)
+        if c is None:
+            lin, G = self.lin, self.G
+            c = self._pk = (tuple(map(float, lin.Phi.ravel())), tuple(map(float, lin.Gam.ravel())),
+                            tuple(map(float, lin.W.ravel())), tuple(map(float, G.ravel())),
+                            self.params.mass.moved_mass_kg * self.geo.lead_per_rad_m / self.dt_s)
+        return c
+
+    def advance_packed(self, x, torque_nm: float, load_n: float):
+        """`_advance` on the packed state, unrolled over Python floats (Model.advance_packed).
+
+        The same ZOH step x⁺ = Φ x + Γ u and dissipated work zᵀ W z (docs/model.md §4.1); only the
+        order of the sums differs from the matrix products, so results agree to rounding.
+        """
+        P, Gm, W, G, m_p_h = self._packed_constants()
+        q0, q1, w0, w1 = x[1], x[3], x[2], x[4]
+        u0, u1 = torque_nm, load_n
+        n0 = P[0] * q0 + P[1] * q1 + P[2] * w0 + P[3] * w1 + Gm[0] * u0 + Gm[1] * u1
+        n1 = P[4] * q0 + P[5] * q1 + P[6] * w0 + P[7] * w1 + Gm[2] * u0 + Gm[3] * u1
+        n2 = P[8] * q0 + P[9] * q1 + P[10] * w0 + P[11] * w1 + Gm[4] * u0 + Gm[5] * u1
+        n3 = P[12] * q0 + P[13] * q1 + P[14] * w0 + P[15] * w1 + Gm[6] * u0 + Gm[7] * u1
+        diss = (w0 * (W[0] * w0 + W[1] * w1 + W[2] * u0 + W[3] * u1)
+                + w1 * (W[4] * w0 + W[5] * w1 + W[6] * u0 + W[7] * u1)
+                + u0 * (W[8] * w0 + W[9] * w1 + W[10] * u0 + W[11] * u1)
+                + u1 * (W[12] * w0 + W[13] * w1 + W[14] * u0 + W[15] * u1))
+        v0 = G[0] * n2 + G[1] * n3
+        v1 = G[2] * n2 + G[3] * n3
+        v2 = G[4] * n2 + G[5] * n3
+        slip = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        # the base class's nut force: load + m (L/2π) Δω_S / h
+        return self.finish_packed(x, n0, n2, n1, n3, u0, u1, diss, slip, u1 + m_p_h * (n2 - w0),
+                                  (self._internal_packed, (v0, v1, v2)))
+
+    def _internal_packed(self, v_s: tuple[float, float, float]) -> np.ndarray:
+        """`_internal` of one step from plain floats (np.tile costs more than the values)."""
+        k = -self.params.friction.viscous_n_s_m * self.geo.n_teeth
+        v0, v1, v2 = v_s
+        return np.array((v0, v1, v2, k * v0, k * v1, k * v2) * self.geo.n_rollers)
+
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
         """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
 

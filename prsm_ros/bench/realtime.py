@@ -1,0 +1,325 @@
+"""Benchmarks of the realtime loop a controller sees (issue 15), and the step cost beside MuJoCo's.
+
+    prsm-bench --only realtime [--quick]        # or: python -m prsm_ros.bench.realtime
+
+- Loop: `prsm-node` at its defaults (jones2016, s30, realtime at 1 kHz, recording on, in a
+  temporary directory) and the reference controller (`prsm_ros.bench.rt_controller`: rclpy, its
+  own process, a distinct torque every 1 ms at normal priority, a reliable state reader) over DDS,
+  once on the machine as it is ("unloaded") and once with one busy process per core at normal
+  priority ("loaded"). Figures: command-to-state latency p50/p99 (the command's DDS stamp echoed
+  on `~/command_echo` to the receipt of the first state of the step that applied it; when the
+  node has no echo, the controller's own publish time to the first state carrying that torque),
+  states delivered to the reliable reader, the long-run rate error as the reader sees it, and
+  the node process's CPU (all its threads) over the measured window; then the node's CPU with
+  each other model (unloaded, shorter runs), since the CPU target holds for every model.
+- Step cost: one `Simulator.step` per model, the path the node calls each tick, in the same
+  Python loop form as MuJoCo's `mj_step` on the rigid screw–nut (`mujoco` from the `bench`
+  extra): one slide joint for the nut, the rotating inertia reflected as armature, which is
+  exact for a rigid lead (a hinge and a slide tied by an equality constraint is a stiff
+  spring, ~20,000× too soft at a 1 ms step). Batch `Simulator.run` in simulated s per wall s.
+  All paths are timed in interleaved rounds in one run; medians with spread.
+
+The machine's load at the time of the run enters every figure: the lead's figures come from a
+quiet machine. Nothing here asserts a timing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from prsm_sim import MODELS, Simulator, preset
+from prsm_sim.models.ideal import reflected_inertia
+
+from prsm_ros.bench.common import area_main, figure
+from prsm_ros.ros_env import isolated_env, start_module
+
+DT = 1e-3
+PRESET = "s30"  # the node's default preset
+
+
+# -- the loop, node and controller over DDS ------------------------------------------------------
+def _proc_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process and all its threads (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def start_hogs() -> list[subprocess.Popen]:
+    """One busy Python process per core, normal priority (the issue's "loaded" condition)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
+
+
+def stop_procs(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+    for p in procs:
+        p.wait(timeout=10)
+
+
+def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None) -> dict:
+    """The node at its defaults and the reference controller; the controller's summary plus node CPU."""
+    from prsm_ros.ros_env import ros_args
+    env = isolated_env(respect_user=False, RERUN="off")
+    hogs = start_hogs() if loaded else []
+    try:
+        with tempfile.TemporaryDirectory(prefix="prsm_bench_rt_") as tmp:
+            with open(Path(tmp) / "node.log", "wb") as log:
+                args = ros_args(node_params) if node_params else []
+                node = start_module("prsm_ros.node.ros_node", args, env, cwd=tmp, stdout=log,
+                                    stderr=subprocess.STDOUT)
+                try:
+                    ctl = start_module("prsm_ros.bench.rt_controller", ["--duration", repr(seconds)], env,
+                                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                    # a hung controller is killed, which ends the reads below
+                    watchdog = threading.Timer(180 + 3 * seconds, ctl.kill)
+                    watchdog.start()
+                    lines, cpu = [], {}
+                    try:
+                        for raw in ctl.stdout:  # the node's CPU over the measured window only (no start-up)
+                            line = raw.decode(errors="replace").strip()
+                            lines.append(line)
+                            if line in ("measuring", "measured"):
+                                cpu[line] = (_proc_cpu_s(node.pid), time.perf_counter())
+                        ctl.wait(timeout=30)
+                    finally:
+                        watchdog.cancel()
+                finally:
+                    node.send_signal(2)
+                    try:
+                        node.wait(timeout=30)
+                    except subprocess.TimeoutExpired:
+                        node.kill()
+                        node.wait()
+            bags = sorted(p.name for p in Path(tmp).glob("*.mcap"))
+            log_text = (Path(tmp) / "node.log").read_text(errors="replace")
+    finally:
+        stop_procs(hogs)
+    try:
+        summary = json.loads(lines[-1])
+    except (IndexError, json.JSONDecodeError):
+        raise RuntimeError("controller printed no summary: " + " | ".join(lines[-5:]) + " | node: "
+                           + log_text[-500:]) from None
+    if "error" in summary:
+        raise RuntimeError(f"controller: {summary['error']}; node log: {log_text[-500:]}")
+    (c0, w0), (c1, w1) = cpu["measuring"], cpu["measured"]
+    summary["node_cpu_pct"] = 100 * (c1 - c0) / (w1 - w0)
+    summary["bags"] = bags
+    return summary
+
+
+def loop_figures(quick: bool) -> list[dict]:
+    seconds = 5.0 if quick else 30.0
+    figs = []
+    for loaded in (False, True):
+        cond = "loaded" if loaded else "unloaded"
+        try:
+            s = loop_run(seconds, loaded=loaded)
+        except Exception as e:  # one failed condition must not hide the other's figures
+            figs.append(figure(f"realtime loop ({cond})", math.nan, "", "", False, None, f"{type(e).__name__}: {e}"))
+            continue
+        echo = s["echo_seen"] and s["latency_echo_ms"]["n"] > 0
+        lat = s["latency_echo_ms"] if echo else s["latency_value_ms"]
+        how = ("command's DDS stamp echoed on ~/command_echo → receipt of that step's joint_states"
+               if echo else "no ~/command_echo from the node: controller's publish time → first "
+               "joint_states carrying that torque")
+        other = s["latency_value_ms"]
+        base = (f"jones2016, s30, node defaults (realtime 1 kHz, recording on); controller 1 kHz normal priority; "
+                f"{seconds:g} s" + (f"; one busy process per core ({os.cpu_count()})" if loaded else ""))
+        p99_target = 3.0 if loaded else 2.0
+        figs.append(figure(f"command→state latency p50 ({cond})", lat["p50"], "ms", "≤ 1.2" if not loaded else "(info)",
+                           (lat["p50"] is not None and lat["p50"] <= 1.2) if not loaded else None, None,
+                           f"{how}; n = {lat['n']}; {base}"))
+        cross = (f"; cross-check, publish → first state carrying the torque: p50 {other['p50']:.2f}, "
+                 f"p99 {other['p99']:.2f} ms (n = {other['n']})" if echo and other["n"] else "")
+        figs.append(figure(f"command→state latency p99 ({cond})", lat["p99"], "ms", f"≤ {p99_target:g}",
+                           lat["p99"] is not None and lat["p99"] <= p99_target, None,
+                           (f"max {lat['max']:.2f} ms" if lat["max"] is not None else "no samples") + cross))
+        delivered = 100 * s["states_received"] / s["states_expected"] if s["states_expected"] else math.nan
+        figs.append(figure(f"states delivered to a reliable reader ({cond})", delivered, "%", "≥ 99.9",
+                           delivered >= 99.9, None,
+                           f"{s['states_received']} distinct joint_states of {s['states_expected']} steps "
+                           f"between the first and last received; reader depth 1000"))
+        if s["rate_hz"] is not None and s["period_s"]:
+            err = abs(100 * (s["rate_hz"] * s["period_s"] - 1))
+            figs.append(figure(f"long-run rate error ({cond})", err, "%", "< 0.1", err < 0.1, None,
+                               f"slope of state stamps over receipt wall time: {s['rate_hz']:.3f} Hz"))
+        figs.append(figure(f"node CPU share of one core ({cond})", s["node_cpu_pct"], "%", "≤ 15",
+                           s["node_cpu_pct"] <= 15, None,
+                           "all threads of the node process (step loop, executor, middleware, recorder) over "
+                           "the measured window"))
+    figs.extend(model_cpu_figures(quick))
+    return figs
+
+
+def model_cpu_figures(quick: bool) -> list[dict]:
+    """Node CPU with each other model (the target holds for every model), unloaded, with the controller."""
+    seconds = 3.0 if quick else 10.0
+    figs = []
+    for model in MODELS:
+        if model == "jones2016":  # the default: measured above
+            continue
+        try:
+            s = loop_run(seconds, loaded=False, node_params={"model": model})
+        except Exception as e:
+            figs.append(figure(f"node CPU share of one core ({model})", math.nan, "%", "≤ 15", False, None,
+                               f"{type(e).__name__}: {e}"))
+            continue
+        delivered = 100 * s["states_received"] / s["states_expected"] if s["states_expected"] else math.nan
+        figs.append(figure(f"node CPU share of one core ({model}, unloaded)", s["node_cpu_pct"], "%", "≤ 15",
+                           s["node_cpu_pct"] <= 15, None,
+                           f"node defaults but model {model}; controller at 1 kHz; {seconds:g} s; states delivered "
+                           f"{delivered:.2f} %"))
+    return figs
+
+
+# -- step cost beside MuJoCo ----------------------------------------------------------------------
+def mujoco_screw_nut(params, dt_s: float = DT):
+    """The rigid screw–nut in MuJoCo: one slide joint (nut position, m), screw inertia as armature.
+
+    x = (L/2π) θ_S exactly, so the kinetic energy ½ J θ̇² + ½ m ẋ² is ½ (m + J/(L/2π)²) ẋ²:
+    the reflected inertia (`ideal.reflected_inertia`, which already holds the moved mass) is the
+    slide's total inertia, split into the body mass and the armature. A screw torque τ is the
+    axial force τ / (L/2π) (motor gear 1/(L/2π)). Returns (model, data, total inertia kg).
+    """
+    import mujoco
+    p = params.geometry.lead_per_rad_m
+    m_total = reflected_inertia(params) / p**2
+    m_body = params.mass.moved_mass_kg
+    xml = f"""
+<mujoco model="prsm_rigid_screw_nut">
+  <option timestep="{dt_s!r}" gravity="0 0 0"/>
+  <worldbody>
+    <body name="nut">
+      <joint name="nut_slide" type="slide" axis="1 0 0" armature="{m_total - m_body!r}" damping="0"/>
+      <geom type="box" size="0.01 0.01 0.01" mass="{m_body!r}" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="nut_slide" gear="{1.0 / p!r}" ctrllimited="false"/>
+  </actuator>
+</mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    return model, mujoco.MjData(model), m_total
+
+
+def _median_spread(times: list[float]) -> tuple[float, float]:
+    med = statistics.median(times)
+    return med, (max(times) - min(times)) / med if med > 0 else 0.0
+
+
+def step_cost_figures(quick: bool) -> list[dict]:
+    """Per-step cost of every model's `Simulator.step` and of MuJoCo's `mj_step`, interleaved rounds."""
+    n = 2000 if quick else 20000
+    rounds = 3 if quick else 7
+    params = preset(PRESET)
+    torque = (0.02 * np.sin(np.arange(n) * 0.01) + 0.005).tolist()
+    load = 100.0
+    paths = {}
+    for name in MODELS:
+        sim = Simulator(params, name, DT)
+
+        def run_sim(sim=sim):
+            sim.reset()
+            step = sim.step
+            for t in torque:
+                out = step(t, load)
+            return out.nut_position_m
+        paths[name] = run_sim
+    mj_note = ""
+    try:
+        import mujoco
+        mj_model, mj_data, m_total = mujoco_screw_nut(params)
+        p = params.geometry.lead_per_rad_m
+
+        def run_mujoco():
+            mujoco.mj_resetData(mj_model, mj_data)
+            ctrl, qpos, mj_step = mj_data.ctrl, mj_data.qpos, mujoco.mj_step
+            for t in torque:
+                ctrl[0] = t - load * p  # net screw torque (the load through the lead), as the models see it
+                mj_step(mj_model, mj_data)
+                x = qpos[0]
+            return x
+        paths["mujoco"] = run_mujoco
+        # exactness check against the closed form: constant net torque, x = ½ (τ/p / m_total) t²
+        mujoco.mj_resetData(mj_model, mj_data)
+        mj_data.ctrl[0] = 0.01
+        for _ in range(1000):
+            mujoco.mj_step(mj_model, mj_data)
+        v_exact = 0.01 / p / m_total * 1000 * DT
+        mj_note = (f"MuJoCo {mujoco.__version__}, slide + armature; velocity after 1 s of constant torque "
+                   f"within {abs(mj_data.qvel[0] / v_exact - 1):.1e} of τ t /(p m_eff)")
+    except ImportError:
+        mj_note = "mujoco not installed (pip install 'prsm[bench]'): no baseline"
+    times = {k: [] for k in paths}
+    for _ in range(rounds):
+        for k, fn in paths.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append((time.perf_counter() - t0) / n)
+    per = {k: _median_spread(v) for k, v in times.items()}
+    mj = per.get("mujoco", (math.nan, 0.0))[0]
+    factors = {"ideal": 1.0, "jones2016": 1.0, "fu2018": 2.0, "elastic": 10.0}
+    figs = []
+    if "mujoco" in per:
+        figs.append(figure("MuJoCo mj_step, rigid screw–nut (Python loop)", mj * 1e6, "µs", "(baseline)", None,
+                           per["mujoco"][1], mj_note))
+    else:
+        figs.append(figure("MuJoCo mj_step baseline", math.nan, "µs", "(baseline)", None, None, mj_note))
+    for name in MODELS:
+        cost, spread = per[name]
+        f = factors.get(name)
+        target = (f"≤ {'' if f == 1 else f'{f:g}× '}MuJoCo" if f else "(info)")
+        ok = (cost <= f * mj) if (f and math.isfinite(mj)) else None
+        figs.append(figure(f"{name} per-step path (Simulator.step)", cost * 1e6, "µs", target, ok, spread,
+                           (f"{cost / mj:.2f}× MuJoCo's step; " if math.isfinite(mj) else "")
+                           + f"{PRESET}; input checks, state and the Outputs record included"))
+    figs.extend(batch_figures(quick))
+    return figs
+
+
+def batch_figures(quick: bool) -> list[dict]:
+    """Batch `Simulator.run` speed per model (simulated s per wall s at a 1 ms step)."""
+    sim_s = 1.0 if quick else 5.0
+    n = int(sim_s / DT)
+    params = preset(PRESET)
+    torque = 0.02 * np.sin(2 * math.pi * 1.0 * DT * np.arange(n)) + 0.005
+    targets = {"fu2018": 1000.0, "elastic": 300.0}
+    figs = []
+    for name in MODELS:
+        sim = Simulator(params, name, DT)
+        times = []
+        for _ in range(2 if quick else 3):
+            sim.reset()
+            t0 = time.perf_counter()
+            sim.run(torque, 100.0)
+            times.append(time.perf_counter() - t0)
+        wall, spread = _median_spread(times)
+        tgt = targets.get(name)
+        figs.append(figure(f"{name} batch (Simulator.run) simulated s per wall s", sim_s / wall, "×",
+                           f"≥ {tgt:g}" if tgt else "(info)", (sim_s / wall >= tgt) if tgt else None, spread,
+                           f"{PRESET}, {sim_s:g} s at 1 ms; {wall / n * 1e6:.2f} µs per step"))
+    return figs
+
+
+def measure(quick: bool = False) -> list[dict]:
+    return step_cost_figures(quick) + loop_figures(quick)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return area_main("realtime", measure, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

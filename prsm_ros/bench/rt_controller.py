@@ -1,0 +1,228 @@
+"""The reference controller of `prsm-bench --only realtime`: an independent rclpy client at 1 kHz.
+
+    python -m prsm_ros.bench.rt_controller --duration 10 [--rate 1000] [--node /prsm_actuator]
+
+A pacing thread publishes a distinct screw torque (`std_msgs/Float64`) every period on absolute
+deadlines, at normal priority; the executor thread receives `joint_states` over a reliable
+keep-last reader of depth `--depth` and, when the node offers it, `~/command_echo`. At the end
+it prints one JSON line with what it saw:
+
+- `latency_value_ms`: wall time from publishing a torque to receiving the first `joint_states`
+  whose screw effort equals it exactly (the node echoes the applied torque in `effort[0]`), so
+  this figure needs nothing from the node but its states;
+- `latency_echo_ms`: the command's own DDS source timestamp, echoed back by the node on
+  `~/command_echo` (sensor_msgs/TimeReference: `time_ref` = the command's stamp, `header.stamp` =
+  the simulation time of the step that first applied it), to the receipt of the `joint_states`
+  of that step (system clock on both ends: one machine);
+- `states_received` / `states_expected`: distinct `joint_states` stamps received, and the
+  number of steps between the first and the last one;
+- `rate_hz`: simulated seconds (stamps) per wall second of receipt over the run, times the
+  update rate: the node's long-run rate as a reader sees it.
+
+Tiny torques around zero (≤ 1 mN·m) keep the actuator near rest for any model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import sys
+import threading
+import time
+
+import numpy as np
+
+WARMUP_TIMEOUT_S = 60.0  # a loaded machine can take long to discover the node
+
+
+# The controller reads the two fields it needs straight from the CDR bytes (raw subscriptions):
+# building a Python message object per sample costs more than the rest of the callback, and at
+# 2,000 samples/s on a busy machine a reference controller must not be what limits the loop.
+def _align(o: int, n: int) -> int:
+    """CDR alignment, counted from the end of the 4-byte encapsulation header."""
+    return 4 + (o - 4 + n - 1) // n * n
+
+
+def _skip_string(b: bytes, o: int) -> int:
+    o = _align(o, 4)
+    return o + 4 + struct.unpack_from("<I", b, o)[0]
+
+
+def joint_state_stamp_effort0(b: bytes) -> tuple[int, float | None]:
+    """(header stamp ns, effort[0] or None) of a little-endian CDR sensor_msgs/JointState."""
+    if b[1] != 1:
+        raise ValueError("only little-endian CDR is read")
+    sec, nsec = struct.unpack_from("<iI", b, 4)
+    o = _skip_string(b, 12)  # header.frame_id
+    o = _align(o, 4)
+    (count,) = struct.unpack_from("<I", b, o)
+    o += 4
+    for _ in range(count):  # name
+        o = _skip_string(b, o)
+    effort0 = None
+    for seq in range(3):  # position, velocity, effort
+        o = _align(o, 4)
+        (count,) = struct.unpack_from("<I", b, o)
+        o += 4
+        if count:
+            o = _align(o, 8)
+            if seq == 2:
+                effort0 = struct.unpack_from("<d", b, o)[0]
+        o += 8 * count
+    return sec * 1_000_000_000 + nsec, effort0
+
+
+def time_reference_stamps(b: bytes) -> tuple[int, int]:
+    """(header stamp ns, time_ref ns) of a little-endian CDR sensor_msgs/TimeReference."""
+    if b[1] != 1:
+        raise ValueError("only little-endian CDR is read")
+    sec, nsec = struct.unpack_from("<iI", b, 4)
+    o = _align(_skip_string(b, 12), 4)
+    rsec, rnsec = struct.unpack_from("<iI", b, o)
+    return sec * 1_000_000_000 + nsec, rsec * 1_000_000_000 + rnsec
+
+
+def _percentiles(values: list[float]) -> dict[str, float | None]:
+    if not values:
+        return {"p50": None, "p99": None, "max": None, "n": 0}
+    a = np.asarray(values)
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
+            "n": int(a.size)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="rt_controller", description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=10.0, help="measured wall seconds (after the first state)")
+    ap.add_argument("--rate", type=float, default=1000.0, help="command rate, Hz")
+    ap.add_argument("--node", default="/prsm_actuator", help="the node's full name")
+    ap.add_argument("--joint-states", default="/joint_states", help="the node's joint_states topic")
+    ap.add_argument("--depth", type=int, default=1000, help="keep-last depth of the reliable state reader")
+    a = ap.parse_args(argv)
+
+    import rclpy
+    try:  # rclpy's C++ events executor: a small fraction of the per-callback cost of the Python one
+        from rclpy.experimental import EventsExecutor as Executor
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor as Executor
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState, TimeReference
+    from std_msgs.msg import Float64
+
+    from prsm_ros.node.stepping import DeadlinePacer, reduce_timer_slack
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node("prsm_rt_controller")
+    reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=a.depth, reliability=ReliabilityPolicy.RELIABLE)
+    pub = node.create_publisher(Float64, f"{a.node}/screw_torque",
+                                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                                           reliability=ReliabilityPolicy.RELIABLE))
+    lock = threading.Lock()
+    sent: dict[float, float] = {}  # torque → perf_counter at publish (pruned as the run goes)
+    state_wall_ns: dict[int, int] = {}  # joint_states stamp (ns) → time.time_ns() at receipt
+    echo_ref_ns: dict[int, int] = {}  # step stamp (ns) → the command stamp the node echoed for it
+    lat_value: list[float] = []
+    first_state = threading.Event()
+    measuring = threading.Event()
+    stamps: list[int] = []
+    walls: list[float] = []
+
+    def on_state(raw: bytes) -> None:
+        now_pc, now_ns = time.perf_counter(), time.time_ns()
+        first_state.set()
+        if not measuring.is_set():
+            return
+        st, effort0 = joint_state_stamp_effort0(raw)
+        with lock:
+            stamps.append(st)
+            walls.append(now_pc)
+            state_wall_ns[st] = now_ns
+            if effort0 is not None:
+                t_sent = sent.pop(effort0, None)
+                if t_sent is not None:
+                    lat_value.append(now_pc - t_sent)
+
+    def on_echo(raw: bytes) -> None:
+        st, ref = time_reference_stamps(raw)
+        with lock:
+            echo_ref_ns.setdefault(st, ref)
+
+    node.create_subscription(JointState, a.joint_states, on_state, reliable, raw=True)
+    node.create_subscription(TimeReference, f"{a.node}/command_echo", on_echo, reliable, raw=True)
+    executor = Executor()
+    executor.add_node(node)
+    stop = threading.Event()
+    published = [0]
+
+    def pace() -> None:
+        reduce_timer_slack()  # precise sleeps; the thread stays at normal priority
+        pacer = DeadlinePacer(1.0 / a.rate, spin_s=0.0)
+        k = 0
+        while not stop.is_set():
+            pacer.wait()
+            k += 1
+            # distinct values (k is unique within the prune window), all below 1 mN·m
+            torque = 1e-3 * ((k % 20011) / 20011.0 - 0.5)
+            with lock:
+                sent[torque] = time.perf_counter()
+                if len(sent) > 20000:  # a command never reflected (overwritten in the node's queue)
+                    for old in list(sent)[:10000]:
+                        del sent[old]
+            pub.publish(Float64(data=torque))
+            published[0] += 1
+
+    pacer_thread = threading.Thread(target=pace, name="controller-pacer", daemon=True)
+    deadline = time.monotonic() + WARMUP_TIMEOUT_S
+    pacer_thread.start()
+    while not first_state.is_set() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.1)
+    if not first_state.is_set():
+        print(json.dumps({"error": f"no joint_states on {a.joint_states} within {WARMUP_TIMEOUT_S:g} s"}))
+        return 1
+    warm_end = time.monotonic() + 1.0  # let discovery of the echo topic and the queues settle
+    while time.monotonic() < warm_end:
+        executor.spin_once(timeout_sec=0.01)
+    with lock:
+        sent.clear()
+    measuring.set()
+    print("measuring", flush=True)  # the bench samples the node's CPU from here to the summary
+    pub0 = published[0]
+    end = time.monotonic() + a.duration
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.01)
+    measuring.clear()
+    print("measured", flush=True)
+    stop.set()
+    pacer_thread.join(timeout=5.0)
+    n_pub = published[0] - pub0
+
+    with lock:
+        uniq = sorted(set(stamps))
+        lat_echo = [(state_wall_ns[st] - ref) * 1e-9 for st, ref in echo_ref_ns.items() if st in state_wall_ns]
+        period_ns = None
+        if len(uniq) > 1:
+            period_ns = int(np.median(np.diff(uniq)))
+        expected = (uniq[-1] - uniq[0]) // period_ns + 1 if period_ns else len(uniq)
+        rate = None
+        if len(stamps) > 1 and period_ns:
+            # least-squares slope of stamp (s) against receipt wall time (s): simulated s per wall s
+            slope = float(np.polyfit(np.asarray(walls) - walls[0], (np.asarray(stamps) - stamps[0]) * 1e-9, 1)[0])
+            rate = slope * 1e9 / period_ns
+    summary = {
+        "commands_published": n_pub,
+        "states_received": len(uniq), "states_expected": int(expected), "duplicates": len(stamps) - len(uniq),
+        "period_s": period_ns * 1e-9 if period_ns else None, "rate_hz": rate,
+        "latency_value_ms": {k: (v * 1e3 if isinstance(v, float) else v) for k, v in _percentiles(lat_value).items()},
+        "latency_echo_ms": {k: (v * 1e3 if isinstance(v, float) else v) for k, v in _percentiles(lat_echo).items()},
+        "echo_seen": bool(echo_ref_ns),
+    }
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown()
+    print(json.dumps(summary))
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

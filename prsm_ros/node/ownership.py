@@ -1,0 +1,109 @@
+"""One controller owns the actuator, pure Python (no ROS), so it is tested without DDS (issue 15).
+
+The first participant to send a *valid* command owns the actuator across all its command topics;
+commands from any other participant are refused and counted per participant until the owner
+releases it (`release()`, the node's `~/release_control` service) or goes quiet for longer than
+`timeout_s` (wall time on a monotonic clock: in lockstep simulation time stops with the owner's
+commands, so it cannot measure the owner's silence). A participant is the DDS participant prefix
+of the message info's `publisher_gid` (the first 12 bytes of the writer GUID: one controller may
+use several topics, each with its own writer, and still be one owner).
+
+This is a guard against mistakes (two controllers started on one actuator), not against an
+attacker: anyone on the domain can call `~/release_control` (README, "Threat model").
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+PREFIX_BYTES = 12  # RTPS GUID prefix: the participant; the last 4 bytes name the writer
+
+
+def participant_of(message_info: dict | None) -> bytes | None:
+    """The participant prefix from an rclpy message info dict (None when the middleware gives none)."""
+    gid = (message_info or {}).get("publisher_gid")
+    data = gid.get("data") if isinstance(gid, dict) else None
+    if not data:
+        return None
+    return bytes(data[:PREFIX_BYTES])
+
+
+def participant_name(prefix: bytes | None) -> str:
+    """A printable name for a participant prefix (hex), as on /diagnostics."""
+    return "unknown" if prefix is None else prefix.hex()
+
+
+@dataclass
+class OwnershipCounters:
+    refused: int = 0  # commands refused because another participant owns the actuator
+    refused_by: dict[str, int] = field(default_factory=dict)  # participant name → refused commands
+    takeovers: int = 0  # times a participant became owner
+    releases: int = 0  # by service
+    lapses: int = 0  # by the owner's silence
+
+
+class CommandOwnership:
+    """Who may command the actuator. `admit(participant)` before a command; `accepted(participant)` after.
+
+    `timeout_s` 0 never lets ownership lapse (only `release()` ends it); `enabled` False admits all.
+    """
+
+    def __init__(self, timeout_s: float = 1.0, *, enabled: bool = True,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.configure(timeout_s, enabled)
+        self._clock = clock
+        self.owner: bytes | None = None
+        self._last_s = 0.0
+        self.counters = OwnershipCounters()
+
+    def configure(self, timeout_s: float, enabled: bool = True) -> None:
+        if not (timeout_s >= 0.0):
+            raise ValueError(f"ownership timeout = {timeout_s!r}: must be a number >= 0 (s; 0: never lapses)")
+        self.timeout_s = float(timeout_s)
+        self.enabled = bool(enabled)
+
+    def _lapse_if_quiet(self, now: float) -> None:
+        if self.owner is not None and self.timeout_s > 0 and now - self._last_s > self.timeout_s:
+            self.owner = None
+            self.counters.lapses += 1
+
+    def admit(self, participant: bytes | None) -> str | None:
+        """None if `participant` may command now; else the refusal reason (and it is counted)."""
+        if not self.enabled:
+            return None
+        self._lapse_if_quiet(self._clock())
+        if self.owner is None or participant == self.owner:
+            return None
+        name = participant_name(participant)
+        self.counters.refused += 1
+        self.counters.refused_by[name] = self.counters.refused_by.get(name, 0) + 1
+        return (f"command from participant {name} refused: the actuator is owned by {participant_name(self.owner)} "
+                "(until it calls ~/release_control or stays quiet for the ownership timeout)")
+
+    def accepted(self, participant: bytes | None) -> None:
+        """A valid command from an admitted participant: it owns (or keeps) the actuator."""
+        if not self.enabled:
+            return
+        if self.owner is None:
+            self.owner = participant
+            self.counters.takeovers += 1
+        self._last_s = self._clock()
+
+    def release(self) -> str:
+        """End the current ownership (the service); returns what happened, in words."""
+        if self.owner is None:
+            return "no owner"
+        name = participant_name(self.owner)
+        self.owner = None
+        self.counters.releases += 1
+        return f"released by {name}"
+
+    def diagnostics(self) -> dict[str, object]:
+        self._lapse_if_quiet(self._clock())
+        c = self.counters
+        return {"command_owner": participant_name(self.owner) if self.owner is not None else "none",
+                "commands_refused_not_owner": c.refused,
+                "refused_participants": ", ".join(f"{k} ({v})" for k, v in sorted(c.refused_by.items())) or "none",
+                "ownership_releases": c.releases, "ownership_lapses": c.lapses}
