@@ -140,6 +140,8 @@ class Actuator(Model):
             raise InputError(f"actuator: expected ActuatorParams, got {type(a).__name__}")
         m = a.motor
         self.ratio = m.gear_ratio if m is not None else 1.0
+        for f in a.faults:  # refused before anything is built or stepped
+            fl.check_fault(f, params, model, m is not None)
         self.rigid = m is None or m.coupling_stiffness_nm_rad is None
         if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
             mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
@@ -163,8 +165,6 @@ class Actuator(Model):
         self.drive = a.drive.tuned(self.J + (0.0 if self.rigid else self.motor_inertia))
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
-        for f in a.faults:
-            fl.check_fault(f, params, model, m is not None)
         self.layout = InternalLayout(blocks=base.layout.blocks + (
             InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
             InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
@@ -405,7 +405,8 @@ class Actuator(Model):
                 tau_drive_screw = tau_c
                 tau_in = tau_c + tau_st
             dth = new.screw_angle_rad - screw.screw_angle_rad
-            dx_nut = self._nut_x(new) - self._nut_x(screw)  # where load and stop force act (the nut)
+            # where load and stop force act: the nut (its own coordinate in `elastic`)
+            dx_nut = new.nut_axial_m - screw.nut_axial_m if self.elastic else p * dth
             # motor side and the ledger
             if self.rigid:
                 th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
