@@ -79,6 +79,9 @@ class State:
     nut_axial_m: float = 0.0
     nut_speed_m_s: float = 0.0
     screw_accel_rad_s2: float = 0.0  # last sub-step's, for the coupling's midpoint prediction
+    # `elastic`: axial clearance added to `elastic.axial_clearance_m` (m), set by whoever steps the
+    # model (the actuator's growing-backlash fault); an input carried in the state, 0 by default
+    extra_clearance_m: float = 0.0
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun

@@ -25,7 +25,7 @@ bags with their `prsm-bag report` figures.
 from __future__ import annotations
 
 import argparse
-import json
+
 import math
 import sys
 from pathlib import Path
@@ -37,6 +37,7 @@ from prsm_sim.models.base import trajectory_from_rows
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.scenarios import default_spec, run_scenario
 
+from prsm_ros.cli.json_out import dumps
 from prsm_ros.mcap.offline import write_trajectory_mcap
 
 DT_S = 1e-3
@@ -79,6 +80,7 @@ BAGS = ("step_response", "sine_tracking", "heavy_load", "light_load")
 def node_tracking_run(path: Path, model: str) -> Path:
     """The node's own bag of a lockstep `prsm-demo` run (node + controller processes over DDS)."""
     import subprocess
+    path.unlink(missing_ok=True)  # regenerating golden data on purpose: the node itself never overwrites a bag
     cmd = [sys.executable, "-m", "prsm_ros.cli.demo", "--time-mode", "lockstep", "--model", model, "--preset", "s30",
            "--load", "2000", "--duration", "2", "--record", str(path)]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -107,12 +109,15 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
     if "step_response" in only:
         p = preset("jones2016")
         if model == "fu2018":
-            p = p.with_overrides({"friction.screw_roller_law": "viscous"})
+            # Fu 2018's own validation: viscous screw–roller friction and every other friction off
+            # (pins, nut–roller rolling, drag) is the Jones 2016 model
+            p = p.with_overrides({"friction.screw_roller_law": "viscous", "friction.mu_pin": 0.0,
+                                  "friction.mu_nut_roller_rolling": 0.0, "friction.lubricant_viscosity_m2_s": 0.0})
         spec = default_spec(p, "step")
         traj = run_scenario(Simulator(p, model, DT_S), spec, 1.0)
         save("step_response", traj, p, "jones2016",
              f"torque step of {spec.torque_nm:.5f} N·m at t = 0 from rest against {spec.load_n:g} N (Jones 2016 seed "
-             "example)" + ("; fu2018 with friction.screw_roller_law = viscous (Jones limit)" if model == "fu2018" else ""))
+             "example)" + ("; fu2018 with friction.screw_roller_law = viscous and the other frictions off (Jones limit)" if model == "fu2018" else ""))
 
     p = preset("s30")
     if "sine_tracking" in only and offline_tracking:
@@ -137,7 +142,7 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Regenerate the example MCAP recordings in bags/.")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "bags"),
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[2] / "bags"),
                     help="output folder (default: the repository's bags/)")
     ap.add_argument("--model", default=default_model(), choices=sorted(MODELS),
                     help=f"model (default {default_model()})")
@@ -156,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         r = report(open_bag(path), path.with_suffix(""), plots=False, progress=False)
         keys = {"efficiency": r["efficiency"]["forward"], "tracking_rms_m": (r["tracking"] or {}).get("rms_error_m"),
                 "l10_revolutions": r["life"]["l10_revolutions"]}
-        print(f"{path} ({path.stat().st_size / 1e6:.2f} MB): {json.dumps(keys)}")
+        print(f"{path} ({path.stat().st_size / 1e6:.2f} MB): {dumps(keys)}")
     return 0
 
 

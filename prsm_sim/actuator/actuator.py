@@ -87,6 +87,7 @@ class Ledger:
     stiction_j: float = 0.0  # dissipated by the brake and jams
     stop_work_j: float = 0.0  # work the nut did on the end stops
     load_work_j: float = 0.0  # work done against the external load
+    backlash_j: float = 0.0  # elastic energy a widening clearance released from a loaded flank (growing backlash)
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,7 +126,7 @@ class ActuatorState:
 
 
 class Actuator(Model):
-    """The actuator around a screw model (any of ideal, jones2016, fu2018), one step contract."""
+    """The actuator around a screw model (any of ideal, jones2016, fu2018, elastic), one step contract."""
 
     name = "actuator"
 
@@ -133,11 +134,14 @@ class Actuator(Model):
                  actuator: ActuatorParams | None = None) -> None:
         super().__init__(params, dt_s)
         self.model_name = model
+        self.elastic = model == "elastic"
         self.actuator = a = actuator if actuator is not None else ActuatorParams()
         if not isinstance(a, ActuatorParams):
             raise InputError(f"actuator: expected ActuatorParams, got {type(a).__name__}")
         m = a.motor
         self.ratio = m.gear_ratio if m is not None else 1.0
+        for f in a.faults:  # refused before anything is built or stepped
+            fl.check_fault(f, params, model, m is not None)
         self.rigid = m is None or m.coupling_stiffness_nm_rad is None
         if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
             mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
@@ -161,8 +165,6 @@ class Actuator(Model):
         self.drive = a.drive.tuned(self.J + (0.0 if self.rigid else self.motor_inertia))
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
-        for f in a.faults:
-            fl.check_fault(f, params, model, m is not None)
         self.layout = InternalLayout(blocks=base.layout.blocks + (
             InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
             InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
@@ -304,9 +306,25 @@ class Actuator(Model):
     def _advance(self, st: ActuatorState, command: float, load_n: float):
         a, m = self.actuator, self.actuator.motor
         h, p, J, N = self.h_sub, self.p, self.J, self.ratio
-        act = fl.active(self.all_faults(st), st.time_s)
+        faults = self.all_faults(st)
+        act = fl.active(faults, st.time_s)
         model = self._model(act)
         screw, led = st.screw, st.ledger
+        extra = fl.extra_clearance_m(faults, st.time_s) if self.elastic else 0.0
+        if extra < screw.extra_clearance_m:
+            # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
+            # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
+            # parameter's clearance at the next pass through the gap
+            delta = p * screw.screw_angle_rad - screw.nut_axial_m
+            extra = max(extra, min(screw.extra_clearance_m, 2.0 * abs(delta) - self.params.elastic.axial_clearance_m))
+        if extra != screw.extra_clearance_m:
+            # the clearance steps at the step's start: a wider gap at the same deflection unloads the
+            # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
+            # never closes onto a flank), so the ledger and the model's guard stay closed
+            widened = replace(screw, extra_clearance_m=extra)
+            led = replace(led, backlash_j=led.backlash_j + float(model.total_stored_energy_j(screw)
+                                                                 - model.total_stored_energy_j(widened)))
+            screw = widened
         th_r, w_r, i_a = st.motor_angle_rad, st.motor_speed_rad_s, st.current_a
         integ, tau_ref, w_ref, limited, enc = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, st.limited, st.encoder_rad
         level = st.brake_level
@@ -326,7 +344,7 @@ class Actuator(Model):
                 else:
                     w_meas = (enc_new - enc) / h_loop
                 enc = enc_new
-                x_meas = self._read_linear(screw.screw_angle_rad * p, enc, act, st.step * self.n_sub + j)
+                x_meas = self._read_linear(self._nut_x(screw), enc, act, st.step * self.n_sub + j)
                 if act.drive_off:
                     tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
                 else:
@@ -387,6 +405,8 @@ class Actuator(Model):
                 tau_drive_screw = tau_c
                 tau_in = tau_c + tau_st
             dth = new.screw_angle_rad - screw.screw_angle_rad
+            # where load and stop force act: the nut (its own coordinate in `elastic`)
+            dx_nut = new.nut_axial_m - screw.nut_axial_m if self.elastic else p * dth
             # motor side and the ledger
             if self.rigid:
                 th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
@@ -407,8 +427,8 @@ class Actuator(Model):
                 e_in = cs.copper_j + cs.magnetic_j + tau_d * dth_r
                 i_a = cs.current_a
             led = Ledger(energy_in_j=led.energy_in_j + e_in, copper_j=led.copper_j + copper, coupling_j=led.coupling_j,
-                         stiction_j=led.stiction_j - tau_st * dth, stop_work_j=led.stop_work_j - f_stop * p * dth,
-                         load_work_j=led.load_work_j + load_n * p * dth)
+                         stiction_j=led.stiction_j - tau_st * dth, stop_work_j=led.stop_work_j - f_stop * dx_nut,
+                         load_work_j=led.load_work_j + load_n * dx_nut, backlash_j=led.backlash_j)
             th_r, w_r = th_r1, w_r1
             if self.n_sub > 1:
                 sums[0] += tau_in
@@ -435,7 +455,8 @@ class Actuator(Model):
         x = p * screw.screw_angle_rad
         stop_e = stop_stored_j(a.stops, x) if a.stops.fitted else 0.0
         stored = self.stored_energy(nxt)
-        diss = screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_e
+        diss = (screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_e
+                + led.backlash_j)
         cap_b = level * a.brake.holding_torque_nm
         cap_all = cap_b + act.jam_nm
         brake_t = tau_st * cap_b / cap_all if cap_all > 0 else 0.0
@@ -463,12 +484,20 @@ class Actuator(Model):
                        nut_velocity_m_s=float(m[4]), nut_force_n=float(m[5]))
 
     # -- energy --------------------------------------------------------------------------
+    def _nut_x(self, s: State) -> float:
+        """Nut position (m): its own coordinate in `elastic`, (L/2π) θ_S in the rigid models."""
+        return s.nut_axial_m if self.elastic else self.p * s.screw_angle_rad
+
     def stored_energy(self, st: ActuatorState) -> float:
-        """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27), a compliant rotor's,
-        magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
+        """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own
+        total, core and nut kinetic plus the chain's elastic energy, docs/model.md §4.3), a compliant
+        rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
         s, m = st.screw, self.actuator.motor
         ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
-        e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
+        if self.elastic:
+            e = self._model(fl.NONE).total_stored_energy_j(s)
+        else:
+            e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
         if self.actuator.stops.fitted:
             e += stop_stored_j(self.actuator.stops, self.p * s.screw_angle_rad)
         if m is not None:
@@ -517,11 +546,13 @@ class Actuator(Model):
                 nut_force_n: float) -> tuple[float, ...]:
         """The true values the sensors see: motor angle (motor shaft), screw angle/speed, nut position/velocity/force.
 
-        Motor angle and speed come in screw coordinates (motor / gear ratio)."""
+        Motor angle and speed come in screw coordinates (motor / gear ratio); the nut's are its own
+        (`elastic`: across the axial chain from the thread, so a linear encoder sees the backlash)."""
         p = self.p
+        v_nut = screw.nut_speed_m_s if self.elastic else p * screw.screw_speed_rad_s
         return (motor_angle_rad * self.ratio, screw.screw_angle_rad,
                 screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
-                p * screw.screw_angle_rad, p * screw.screw_speed_rad_s, nut_force_n)
+                self._nut_x(screw), v_nut, nut_force_n)
 
     def _measure(self, key: int, prev: tuple, filtered_n: float, now: tuple, before: tuple, act: fl.Active,
                  first: bool = False) -> tuple:

@@ -6,9 +6,15 @@ fault lasts) or, for a jam, add a dry-friction torque on the screw. None of the 
 models resolves one roller: `ideal` has no rollers, `jones2016` and `fu2018` carry N_R
 identical rollers with one symmetric load share (their per-roller outputs are copies), so a
 fault naming one roller is refused with that reason rather than applied to all of them.
-Growing backlash needs a model with a thread clearance (the `elastic` level, which arrived
-late in this turn); its growth as a fault is not implemented, so it is refused too (a fixed
-clearance is the parameter `elastic.axial_clearance_m`).
+Growing backlash needs a model with a thread clearance: the `elastic` level without preload.
+While the fault lasts the clearance is `elastic.axial_clearance_m` + value × (t − start) (value
+in m/s), held over each step at its value at the step's start and carried into the model as
+`State.extra_clearance_m`. When the fault clears the gap closes back to the parameter's value
+as far as the flanks are apart (never onto a loaded flank: that would be a force step out of
+nothing), so it is fully back at the next pass of the nut through the gap. A gap widening with
+a flank in contact unloads it at fixed deflection: the actuator books the elastic energy
+released as dissipated (`Ledger.backlash_j`, ≥ 0), so its ledger closes and the model's own
+balance and energy guard stay those of a fixed clearance.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from prsm_sim.params import Params
 
 FRICTION_KINDS = ("friction_surge", "lubrication_loss")
 MODELS_RESOLVING_ROLLERS: tuple[str, ...] = ()
-MODELS_WITH_BACKLASH: tuple[str, ...] = ()
+MODELS_WITH_BACKLASH: tuple[str, ...] = ("elastic",)
 
 
 def check_fault(fault: Fault, params: Params, model_name: str, has_motor: bool) -> Fault:
@@ -38,8 +44,11 @@ def check_fault(fault: Fault, params: Params, model_name: str, has_motor: bool) 
                              f"(none of ideal, jones2016, fu2018 resolves one roller); use roller None for all")
     if fault.kind == "backlash" and model_name not in MODELS_WITH_BACKLASH:
         raise ParamError(f"fault.kind = 'backlash': growing backlash is not implemented for model {model_name!r} "
-                         "(it needs the elastic model's thread clearance; set elastic.axial_clearance_m as a "
-                         "parameter for a fixed backlash)")
+                         "(it needs the elastic model's thread clearance: use model 'elastic'; "
+                         "elastic.axial_clearance_m sets a fixed backlash)")
+    if fault.kind == "backlash" and params.elastic.preload_n > 0:
+        raise ParamError(f"fault.kind = 'backlash': elastic.preload_n = {params.elastic.preload_n} (a preloaded nut "
+                         "has no clearance to grow); allowed with preload_n = 0")
     if fault.kind in ("torque_limit_drop",) and not has_motor:
         raise ParamError("fault.kind = 'torque_limit_drop': the ideal actuator (no motor) has no torque limit; "
                          "configure a motor")
@@ -104,6 +113,11 @@ def scaled_params(params: Params, friction_factor: float, lubrication_factor: fl
                   efficiency_backward=max(-1.0, 1.0 - f * (1.0 - il.efficiency_backward)),
                   viscous_nm_s_rad=il.viscous_nm_s_rad * f)
     return replace(params, friction=fr2, ideal=il2)
+
+
+def extra_clearance_m(faults: tuple[Fault, ...], t_s: float) -> float:
+    """Clearance the active backlash faults add at `t_s`: Σ value × (t − start), m (0 once cleared)."""
+    return sum(f.value * (t_s - f.start_s) for f in faults if f.kind == "backlash" and f.active(t_s))
 
 
 class FaultEvent(NamedTuple):

@@ -226,7 +226,10 @@ class Fault:
     jam — stiction torque on the screw, N·m; sensor_bias — offset in the sensor's unit;
     sensor_noise — extra 1σ in the sensor's unit; sensor_dropout — probability in [0, 1);
     sensor_stuck — unused (the reading freezes at its value when the fault starts);
-    torque_limit_drop — factor in [0, 1) on the torque limit; drive_fault — unused (torque off).
+    torque_limit_drop — factor in [0, 1) on the torque limit; drive_fault — unused (torque off);
+    backlash — growth rate of the axial clearance, m/s > 0 (model `elastic`, no preload: the
+    clearance is elastic.axial_clearance_m + value × (t − start_s) while active; once cleared it
+    closes back to the parameter's value as far as the flanks are apart, see actuator/faults.py).
     `sensor` names the sensor for the sensor faults; `roller` an index for the friction faults
     (None: all rollers).
     """
@@ -255,6 +258,8 @@ class Fault:
             _check(g, "value", v, 0 <= v < 1, "torque_limit_drop: a factor in [0, 1) on the torque limit")
         elif k == "sensor_dropout":
             _check(g, "value", v, 0 <= v < 1, "sensor_dropout: a probability in [0, 1)")
+        elif k == "backlash":
+            _check(g, "value", v, v > 0, "backlash: a clearance growth rate > 0 (m/s)")
         if k.startswith("sensor_"):
             _check(g, "sensor", self.sensor, self.sensor in SENSORS, f"{k}: must name one of {', '.join(SENSORS)}")
         elif self.sensor is not None:

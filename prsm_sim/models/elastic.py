@@ -128,12 +128,13 @@ class AxialLaw:
         s = 1.0 if ell >= 0 else -1.0
         return max(abs(ell), 1e-6) / self.ea + self.c_housing, s / self.ea
 
-    def evaluate(self, delta: float, x_n: float) -> tuple[float, float, float, float]:
-        """(F, K = dF/dδ, V, lost motion) at deflection δ and nut position x_N."""
+    def evaluate(self, delta: float, x_n: float, extra_clearance_m: float = 0.0) -> tuple[float, float, float, float]:
+        """(F, K = dF/dδ, V, lost motion) at deflection δ and nut position x_N, with the clearance
+        widened by `extra_clearance_m` (a growing-backlash fault; unpreloaded nuts only)."""
         c_ext, _ = self.external_compliance(x_n)
         if self.preload > 0:
             return self._preloaded(delta, c_ext)
-        half = 0.5 * self.clearance
+        half = 0.5 * (self.clearance + extra_clearance_m)
         mag = abs(delta) - half
         if mag <= 0.0:
             return 0.0, 0.0, 0.0, delta
@@ -244,16 +245,17 @@ class Elastic(Model):
 
     # -- energy ---------------------------------------------------------------------------
     def total_stored_energy_j(self, state: State) -> float:
-        """Kinetic energy of the core and the nut plus the chain's elastic energy (J)."""
+        """Kinetic energy of the core and the nut plus the chain's elastic energy (J), at the state's
+        clearance (`State.extra_clearance_m` added to the parameter's)."""
         delta = self.p * state.screw_angle_rad - state.nut_axial_m
-        _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m)
+        _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m, state.extra_clearance_m)
         return (self._core_kinetic_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
                 + 0.5 * self.m * state.nut_speed_m_s**2 + v)
 
     # -- stepping -------------------------------------------------------------------------
-    def _force(self, th_s, w_s, x_n, v_n):
+    def _force(self, th_s, w_s, x_n, v_n, extra=0.0):
         delta = self.p * th_s - x_n
-        f, k, v, lost = self.law.evaluate(delta, x_n)
+        f, k, v, lost = self.law.evaluate(delta, x_n, extra)
         c = 2.0 * self.zeta * math.sqrt(k * self.mu) if k > 0 else 0.0
         rate = self.p * w_s - v_n
         return f + c * rate, f, k, v, lost, delta, c * rate * rate
@@ -265,7 +267,8 @@ class Elastic(Model):
         sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
         hs, m, core = self.core.dt_s, self.m, self.core
         diss = 0.0
-        f_th, *_rest = self._force(th_s, ws, x_n, v_n)
+        extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
+        f_th, *_rest = self._force(th_s, ws, x_n, v_n, extra)
         w_out = 0.0
         acc = s.screw_accel_rad_s2
         for _ in range(self.substeps):
@@ -273,7 +276,7 @@ class Elastic(Model):
             # the accelerations at its start): equal and opposite impulses, second order in the axial mode.
             a_n = (f_th - load_n + self.law.nut_side_force(f_th, x_n)) / m
             f_mid, _, _, _, _, _, p_damp = self._force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
-                                                       x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n, v_n + 0.5 * hs * a_n)
+                                                       x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n, v_n + 0.5 * hs * a_n, extra)
             stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
             if stuck:  # static friction holds the screw: no creep below breakaway
                 f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
@@ -297,7 +300,7 @@ class Elastic(Model):
             w_out += load_n * dx
             diss += hs * p_damp
             ws, wc = ws1, wc1
-            f_th, f_el, k, v_el, lost, delta, _ = self._force(th_s, ws, x_n, v_n)
+            f_th, f_el, k, v_el, lost, delta, _ = self._force(th_s, ws, x_n, v_n, extra)
         after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
                         flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
                         nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
