@@ -231,6 +231,15 @@ class McapRecorder:
         self._classes[topic] = msg_class
         self._queue.append((topic, (msg_class, qos), None))
 
+    def backlog(self) -> int:
+        """Messages queued for the writer thread: a producer with no deadline (the node's `fast`
+        mode) waits while this is high instead of losing messages to a full queue."""
+        return len(self._queue)
+
+    @property
+    def queue_size(self) -> int:
+        return self._queue_size
+
     def write(self, topic: str, msg, stamp_ns: int) -> None:
         """Enqueue one message stamped `stamp_ns` (log and publish time, ns). Never blocks."""
         cls = self._classes.get(topic)

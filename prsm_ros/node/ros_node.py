@@ -492,6 +492,7 @@ class PrsmNode(Node):
             else:
                 self.pacer.count_step()
                 behind = True
+                self._wait_for_recorder()
             unslept = unslept + 1 if behind else 0
             if unslept >= FAST_YIELD_EVERY:  # an overloaded machine must not starve the services
                 time.sleep(FAST_YIELD_S)
@@ -505,6 +506,15 @@ class PrsmNode(Node):
                     return
                 self.stepper.fault = f"step loop error: {type(e).__name__}: {e}"
                 self.get_logger().error(self.stepper.fault)
+
+    def _wait_for_recorder(self) -> None:
+        """`fast` mode has no deadline to keep: when the bag writer falls behind (a busy machine),
+        wait for it to drain to half its queue rather than drop messages from the bag."""
+        rec = self.recorder
+        if rec is None:
+            return
+        while rec.backlog() > rec.queue_size // 2 and rec.error is None and not self._stop.is_set():
+            time.sleep(FAST_YIELD_S)
 
     # -- services --------------------------------------------------------------------------
     def _srv_pause(self, request, response):
