@@ -12,12 +12,14 @@ import pytest
 
 @pytest.fixture(scope="session")
 def embedded_ray():
-    ray = pytest.importorskip("ray")
+    import ray  # the test extra installs it: a missing Ray is a failure, not a skip
     if ray.is_initialized():  # started by this fixture for an earlier module: its teardown stops it
         yield
         return
     tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
-    ray.init(num_cpus=2, _temp_dir=tmp, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    # workers at normal priority, as prsm-sweep starts them: Ray's default niceness starves them on a busy machine
+    ray.init(num_cpus=2, _temp_dir=tmp, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
+             _system_config={"worker_niceness": 0})
     try:
         yield
     finally:

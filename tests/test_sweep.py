@@ -280,7 +280,7 @@ def test_study_through_address_on_a_separate_ray_head(tmp_path):
                 "--dashboard-agent-grpc-port", "--runtime-env-agent-port", "--metrics-export-port"):
         ports += [opt, str(_free_port())]
     lo = _free_port()
-    env = {**os.environ, **SUBPROCESS_ENV}
+    env = {**os.environ, **SUBPROCESS_ENV, "RAY_worker_niceness": "0"}  # see tests/ray_local.py
     log = open(tmp_path / "head.log", "w")
     head = subprocess.Popen([shutil.which("ray", path=os.path.dirname(sys.executable)) or "ray", "start", "--head",
                              "--block", "--num-cpus", "2", "--include-dashboard", "false", "--disable-usage-stats",

@@ -136,8 +136,10 @@ def connect(address: str | None, workers: int | None):
             ray.init(address=address, logging_level="ERROR", log_to_driver=False)
         else:
             tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
+            # worker_niceness 0: Ray nices its workers (15) by default, which starves a study's runs
+            # behind any normal-priority process on a busy machine; here the tasks are the work
             ray.init(num_cpus=workers or os.cpu_count() or 1, _temp_dir=tmp, include_dashboard=False,
-                     logging_level="ERROR", log_to_driver=False)
+                     logging_level="ERROR", log_to_driver=False, _system_config={"worker_niceness": 0})
     except Exception as e:  # Ray's own errors (ConnectionError, RuntimeError, ...): one line for the user
         if tmp:
             shutil.rmtree(tmp, ignore_errors=True)
