@@ -231,7 +231,7 @@ def test_tuned_gains_beat_the_demo_defaults_on_held_out_draws(tmp_path, embedded
 preset: s30
 model: fu2018
 scenario: position
-duration_s: 0.8
+duration_s: 0.5
 set:
   controller.load_n: 2000
 vary:
