@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to run (default 4)")
     p.add_argument("--preset", default="s30", choices=sorted(PRESETS))
     p.add_argument("--model", default="jones2016", choices=list(MODELS))
-    p.add_argument("--time-mode", default="realtime", choices=TIME_MODES)
+    p.add_argument("--time-mode", default="lockstep", choices=TIME_MODES)
     p.add_argument("--load", type=float, default=500.0, help="external nut load force in N (default 500)")
     p.add_argument("--command-interface", default="effort", choices=("effort", "velocity", "position"),
                    help="what the controller commands: screw torque (effort, default), screw speed (velocity: "
