@@ -118,22 +118,21 @@ class SimStepper:
 
     def brake(self, engage: bool) -> str | None:
         """Engage or release the holding brake; the reason it was refused, or None."""
-        act = self.actuator
-        if act is None:
-            return "brake command refused: no actuator (parameter actuator is ''), so no brake fitted"
-        try:
-            self.sim.state = act.command_brake(self.sim.state, engage)
-        except PrsmError as e:
-            return str(e)
-        return None
+        return self._change_actuator(lambda act, s: act.command_brake(s, engage),
+                                     "brake command refused: no actuator (parameter actuator is ''), so no brake fitted")
 
     def inject(self, fault: Fault) -> str | None:
         """Add a fault at runtime; the reason it was refused, or None."""
-        act = self.actuator
-        if act is None:
-            return "fault refused: no actuator (parameter actuator is ''); start the node with one"
+        return self._change_actuator(lambda act, s: act.inject(s, fault),
+                                     "fault refused: no actuator (parameter actuator is ''); start the node with one")
+
+    def _change_actuator(self, change, no_actuator: str) -> str | None:
+        """Apply `change(actuator, state) -> state`; the refusal (no actuator, or the actuator's
+        one-line PrsmError) or None. The state is unchanged when refused."""
+        if self.actuator is None:
+            return no_actuator
         try:
-            self.sim.state = act.inject(self.sim.state, fault)
+            self.sim.state = change(self.actuator, self.sim.state)
         except PrsmError as e:
             return str(e)
         return None
