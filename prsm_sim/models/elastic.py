@@ -222,9 +222,11 @@ class Elastic(Model):
         st = params.stiction
         self.breakaway = st.breakaway_ratio > 1.0
         self.eta_static = sliding_efficiencies(self.geo, st.breakaway_ratio * params.friction.mu_screw_roller)
-        # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is the
-        # Stribeck speed
-        self.w_stick = st.stribeck_speed_m_s * math.sin(self.geo.flank_angle_rad) / self.p
+        # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is fu2018's
+        # Coulomb regularisation speed ε (below it the running law is its linear creep branch), at most the
+        # Stribeck speed: slower sliding on the Stribeck curve (a speed loop can hold it) stays sliding
+        v_window = min(params.friction.coulomb_regularisation_m_s, st.stribeck_speed_m_s)
+        self.w_stick = v_window * math.sin(self.geo.flank_angle_rad) / self.p
         # Stribeck decay of the excess (`_stribeck_torque`): μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²)
         lam, beta = self.geo.screw_lead_angle_rad, self.geo.flank_angle_rad
         self.sin_beta = math.sin(beta)
