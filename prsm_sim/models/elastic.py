@@ -23,14 +23,30 @@ the system conservative.
 Integration: each step of dt_s is split into `substeps` sub-steps sized so that ω h ≤ 0.5 for
 the stiffest axial mode (several hundred Hz at a 1 ms step: 8 sub-steps for `s30`); each sub-step is a kick–drift–kick
 (velocity Verlet) for the nut with one `fu2018` ROS2 step (L-stable, its own stiff carrier mode)
-for the rotating core under the thread force.
+for the rotating core under the thread force, taken at the sub-step's midpoint. Impacts: where the
+held elastic force's work f Δδ misses the change of V (a contact closing or opening inside the
+sub-step, the first sub-steps of a Hertz contact) by more than IMPACT_TOL of the sub-step's input
+work (+ IMPACT_FLOOR of V), the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ, a
+discrete gradient whose work is ΔV exactly (at most IMPACT_ITERATIONS times, the best attempt kept).
+The damping force and the Stribeck torque, held over the sub-step, are booked as dissipated with
+exactly the work they did, so the ledger closes to the integration error of the core.
 
-Stiction (the `stiction` group, Karnopp type): a screw slower than the stick window (the screw
-speed at which the screw–roller slip equals `stribeck_speed_m_s`) sticks while the torque lies in
-the breakaway band [p F η_b,s, p F/η_f,s] (sliding-only efficiencies of docs/model.md §4.2 at
-μ_s = breakaway_ratio · μ); held, it does not creep at all; outside the band it runs with
-`fu2018`'s friction (the drop from breakaway to running is immediate [assumed]). The core's kinetic
-energy at the moment it sticks is booked as dissipated. `breakaway_ratio` 1 turns this off.
+Preload kinds: `oversize_rollers` loads both flanks of all N_T rows; `double_nut` is two halves of
+N_T/2 rows each, half A (rows 0 … N_T/2 − 1 of the per-thread block) loaded by δ > 0 (P₀ plus its
+share of the thread force), half B (the other rows) unloaded by it (P₀ minus its share, zero after
+lift-off at 2^(3/2) P₀ for Hertz springs, docs/model.md §4.3); each half's rows carry its own solved
+distribution and sum to its force.
+
+Stiction (the `stiction` group, Karnopp type with a Stribeck decay): a screw slower than the stick
+window (the screw speed at which the screw–roller slip |v_N|/sin β, docs/model.md §3, equals fu2018's
+Coulomb regularisation speed ε, at most the Stribeck speed) sticks while the torque lies in the
+breakaway band [p F η_b,s, p F/η_f,s] (sliding-only efficiencies of docs/model.md §4.2 at μ_s =
+breakaway_ratio · μ); held, it does not creep at all. Sliding, the screw feels `fu2018`'s friction
+plus the Stribeck excess: μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²) at the slip v = |ω_S| p / sin β
+(v_s = `stribeck_speed_m_s`), applied as a resisting screw torque p|F| (1/η_f(μ(v)) − 1/η_f(μ_c))
+driving, p|F| (η_b(μ_c) − η_b(μ(v))) back-driven, held over each sub-step at its start speed and
+booked as dissipated. The core's kinetic energy at the moment it sticks is booked as dissipated.
+`breakaway_ratio` 1 turns both off (fu2018's friction, its own stick included).
 """
 
 from __future__ import annotations
@@ -105,9 +121,17 @@ def sliding_efficiencies(geo, mu: float) -> tuple[float, float]:
     """(η_f, η_b) of screw–roller sliding alone at friction coefficient μ (docs/model.md §4.2):
     η_f = 1 / (1 + μ / (sin β (c_zS − μ sin β))), η_b = 1 − μ / (sin β (c_zS + μ sin β)),
     c_zS = cos α_nS cos λ_S, α_nS = atan(tan β cos λ_S)."""
+    czs, sb = _czs_sin_beta(geo)
+    return _sliding_efficiencies(czs, sb, mu)
+
+
+def _czs_sin_beta(geo) -> tuple[float, float]:
     lam, beta = geo.screw_lead_angle_rad, geo.flank_angle_rad
-    czs = math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam)
-    sb = math.sin(beta)
+    return math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam), math.sin(beta)
+
+
+def _sliding_efficiencies(czs: float, sb: float, mu: float) -> tuple[float, float]:
+    """`sliding_efficiencies` from c_zS and sin β (scalar arithmetic only: the stepping loop calls it)."""
     return 1.0 / (1.0 + mu / (sb * (czs - mu * sb))), 1.0 - mu / (sb * (czs + mu * sb))
 
 
@@ -228,12 +252,11 @@ class Elastic(Model):
         v_window = min(params.friction.coulomb_regularisation_m_s, st.stribeck_speed_m_s)
         self.w_stick = v_window * math.sin(self.geo.flank_angle_rad) / self.p
         # Stribeck decay of the excess (`_stribeck_torque`): μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²)
-        lam, beta = self.geo.screw_lead_angle_rad, self.geo.flank_angle_rad
-        self.sin_beta = math.sin(beta)
-        self.czs = math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam)
+        self.czs, self.sin_beta = _czs_sin_beta(self.geo)
         self.mu_c = params.friction.mu_screw_roller
+        self.eta_running = _sliding_efficiencies(self.czs, self.sin_beta, self.mu_c)
         self.d_mu = (st.breakaway_ratio - 1.0) * self.mu_c
-        self.p_over_sin_beta_per_vs = self.p / (self.sin_beta * st.stribeck_speed_m_s)
+        self.p_over_sin_beta_per_vs = self.p / (self.sin_beta * st.stribeck_speed_m_s)  # ω_S → v/v_s
         nr, nt = self.geo.n_rollers, self.geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
@@ -300,12 +323,11 @@ class Elastic(Model):
         if g < 1e-12:
             return 0.0
         mu = self.mu_c + self.d_mu * g
-        lam_c, sb = self.czs, self.sin_beta
+        eta_f, eta_b = _sliding_efficiencies(self.czs, self.sin_beta, mu)
+        eta_fc, eta_bc = self.eta_running
         t = abs(self.p * thread_force_n)
-        if ws * thread_force_n >= 0.0:  # driving: 1/η_f(μ) = 1 + μ/(sin β (c_zS − μ sin β))
-            ex = t * (mu / (sb * (lam_c - mu * sb)) - self.mu_c / (sb * (lam_c - self.mu_c * sb)))
-        else:  # back-driven: η_b(μ) = 1 − μ/(sin β (c_zS + μ sin β))
-            ex = t * (mu / (sb * (lam_c + mu * sb)) - self.mu_c / (sb * (lam_c + self.mu_c * sb)))
+        # driving (ω_S F ≥ 0): p|F|/η_f(μ) less its running value; back-driven: p|F| η_b(μ_c) less p|F| η_b(μ)
+        ex = t * (1.0 / eta_f - 1.0 / eta_fc) if ws * thread_force_n >= 0.0 else t * (eta_bc - eta_b)
         return ex if ws > 0.0 else -ex
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
@@ -359,6 +381,8 @@ class Elastic(Model):
                     break
                 f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
                 rate = d_delta / hs
+                # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen
+                # (at a contact entry the predicted midpoint may still lie in the gap, K = 0)
                 c = 2.0 * self.zeta * math.sqrt(max(k_mid, k1) * self.mu) if max(k_mid, k1) > 0 else 0.0
             (err, f_el, c, rate, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1,
              v1, dx, d_delta, f_el1, k1, v_el1, lost1, delta1, c1, f_mid) = best
