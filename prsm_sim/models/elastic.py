@@ -246,11 +246,9 @@ class Elastic(Model):
         st = params.stiction
         self.breakaway = st.breakaway_ratio > 1.0
         self.eta_static = sliding_efficiencies(self.geo, st.breakaway_ratio * params.friction.mu_screw_roller)
-        # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is fu2018's
-        # Coulomb regularisation speed ε (below it the running law is its linear creep branch), at most the
-        # Stribeck speed: slower sliding on the Stribeck curve (a speed loop can hold it) stays sliding
-        v_window = min(params.friction.coulomb_regularisation_m_s, st.stribeck_speed_m_s)
-        self.w_stick = v_window * math.sin(self.geo.flank_angle_rad) / self.p
+        # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is the
+        # Stribeck speed
+        self.w_stick = st.stribeck_speed_m_s * math.sin(self.geo.flank_angle_rad) / self.p
         # Stribeck decay of the excess (`_stribeck_torque`): μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²)
         self.czs, self.sin_beta = _czs_sin_beta(self.geo)
         self.mu_c = params.friction.mu_screw_roller
@@ -287,6 +285,13 @@ class Elastic(Model):
         lo, hi = (t * eta_b, t / eta_f) if t >= 0 else (t / eta_f, t * eta_b)
         return lo <= torque_nm <= hi
 
+    def _core_holds(self, torque_nm: float, thread_force_n: float, sign, pin_abs, gear) -> bool:
+        """The running law's static friction (fu2018 `stick_forces`) holds the screw at rest under the torque
+        left once the static Stribeck excess has taken its share (`_rest_torque`)."""
+        st, r = self.core.stick_forces(self._rest_torque(torque_nm, thread_force_n), thread_force_n, sign, pin_abs,
+                                       1.0 if gear >= 0.0 else -1.0)
+        return st is not None and r <= 1.0
+
     def _core_kinetic_j(self, ws: float, wc: float) -> float:
         mm = self._m_core
         return 0.5 * (mm[0, 0] * ws * ws + 2 * mm[0, 1] * ws * wc + mm[1, 1] * wc * wc)
@@ -314,7 +319,7 @@ class Elastic(Model):
         μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²) at the screw–roller slip v = |ω_S| p / sin β (docs/model.md §3),
         expressed through the sliding-only efficiencies of docs/model.md §4.2: driving (ω_S F ≥ 0) the screw
         torque of the sliding contacts is p|F|/η_f(μ), back-driven p|F| η_b(μ); the excess is the difference
-        between μ(v) and μ_c. Zero when `breakaway_ratio` is 1 or the screw is at rest (stick holds it then).
+        between μ(v) and μ_c. Zero when `breakaway_ratio` is 1 or the screw is at rest (`_rest_torque` then).
         """
         if not self.breakaway or ws == 0.0:
             return 0.0
@@ -322,13 +327,28 @@ class Elastic(Model):
         g = math.exp(-r * r)
         if g < 1e-12:
             return 0.0
+        ex = self._excess(ws, thread_force_n, g)
+        return ex if ws > 0.0 else -ex
+
+    def _excess(self, direction: float, thread_force_n: float, g: float) -> float:
+        """|excess torque| (N m) for motion in `direction` (sign of ω_S) at Stribeck decay g = exp(−(v/v_s)²)."""
         mu = self.mu_c + self.d_mu * g
         eta_f, eta_b = _sliding_efficiencies(self.czs, self.sin_beta, mu)
         eta_fc, eta_bc = self.eta_running
         t = abs(self.p * thread_force_n)
         # driving (ω_S F ≥ 0): p|F|/η_f(μ) less its running value; back-driven: p|F| η_b(μ_c) less p|F| η_b(μ)
-        ex = t * (1.0 / eta_f - 1.0 / eta_fc) if ws * thread_force_n >= 0.0 else t * (eta_bc - eta_b)
-        return ex if ws > 0.0 else -ex
+        return t * (1.0 / eta_f - 1.0 / eta_fc) if direction * thread_force_n >= 0.0 else t * (eta_bc - eta_b)
+
+    def _rest_torque(self, torque_nm: float, thread_force_n: float) -> float:
+        """Screw torque the core sees at rest: the Stribeck excess at zero slip acts as extra static friction
+        against the net torque τ − p F, up to its full value (the v → 0 limit of `_stribeck_torque`), so the
+        screw breaks away where the running law's stick band plus that excess ends (p F/η_f,s with frictionless
+        pins), and the friction just after breakaway is the friction just before it."""
+        d = torque_nm - self.p * thread_force_n
+        if not self.breakaway or d == 0.0:
+            return torque_nm
+        ex0 = self._excess(d, thread_force_n, 1.0)
+        return torque_nm - math.copysign(min(abs(d), ex0), d)
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
         s = state
@@ -359,6 +379,8 @@ class Elastic(Model):
                     ws1, wc1, dth_s, dth_c, d_core = 0.0, 0.0, 0.0, 0.0, 0.0
                     sign1, pin1, gear1, mem1 = sign, pin_abs, gear, mem
                 else:
+                    if ws == 0.0 and wc == 0.0:
+                        f_str = torque_nm - self._rest_torque(torque_nm, f_mid)
                     ws1, wc1, dth_s, dth_c, d_core, f1, sign1, pin1, gear1, mem1 = self._core_step(
                         ws, wc, sign, pin_abs, gear, mem, torque_nm - f_str, f_mid)
                 nsf = law.nut_side_force(f_el, x_mid)
@@ -392,9 +414,11 @@ class Elastic(Model):
             acc = (ws1 - ws) / hs
             th_s += dth_s
             th_c += dth_c
-            if self.breakaway and not stuck and abs(ws1) < self.w_stick and self._holds(torque_nm, f_mid):
-                # Karnopp: slower than the stick window with the torque inside the breakaway band, the screw
-                # sticks; its kinetic energy (and the carrier's) goes to friction, counted in the ledger
+            if (self.breakaway and not stuck and abs(ws1) < self.w_stick
+                    and (self._holds(torque_nm, f_mid) or self._core_holds(torque_nm, f_mid, sign, pin_abs, gear))):
+                # Karnopp: slower than the stick window with the torque inside the breakaway band (or the running
+                # law's stick band widened by the static excess), the screw sticks; its kinetic energy (and the
+                # carrier's) goes to friction, counted in the ledger
                 diss += self._core_kinetic_j(ws1, wc1)
                 ws1 = wc1 = acc = 0.0
                 _, f_el1, k1, v_el1, lost1, delta1, c1 = self._force(th_s, 0.0, x_n + dx, v1, extra)
