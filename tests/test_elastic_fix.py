@@ -148,3 +148,25 @@ def test_energy_closes_through_hard_reversals_into_backlash():
     assert out.energy_flow_j > 5.0 and out.energy_fault == 0.0
     print("worst residual / flow", worst)
     assert worst <= 5e-4
+
+
+@pytest.mark.parametrize("sets,field,value", [
+    (("material.youngs_modulus_pa=.nan",), "material.youngs_modulus_pa", "nan"),
+    (("elastic.housing_stiffness_n_per_m=-1",), "elastic.housing_stiffness_n_per_m", "-1"),
+    (("elastic.axial_clearance_m=.nan",), "elastic.axial_clearance_m", "nan"),
+    (("elastic.preload_n=300000", "elastic.preload_kind=oversize_rollers"), "elastic.preload_n", "300000"),
+    (("geometry.n_teeth=29", "elastic.preload_n=1000", "elastic.preload_kind=double_nut"), "elastic.preload_kind",
+     "double_nut"),
+    (("stiction.stribeck_speed_m_s=0",), "stiction.stribeck_speed_m_s", "0"),
+    (("stiction.breakaway_ratio=.nan",), "stiction.breakaway_ratio", "nan"),
+])
+def test_bad_elastic_input_names_field_value_and_what_is_allowed(sets, field, value, capsys):
+    """Bad input: one line naming the field, the value and what is allowed ("must ..."); `prsm-sim ... --set`
+    exits 2, for `stiffness` and for a run of the elastic model."""
+    from prsm_ros.cli.sim import main
+    args = [a for kv in sets for a in ("--set", kv)]
+    for cmd in (["stiffness", "--preset", "s30"], ["run", "--preset", "s30", "--model", "elastic"]):
+        assert main([*cmd, *args]) == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and f"{field} = " in lines[0] and "must" in lines[0]
+        assert value in lines[0].split(f"{field} = ")[1].split(":")[0]

@@ -144,7 +144,7 @@ class AxialLaw:
         self.clearance = el.axial_clearance_m
         self.preload = el.preload_n
         self.double_nut = el.preload_kind == "double_nut"
-        self.n_side = n_side = max(1, g.n_teeth // 2) if self.double_nut else g.n_teeth
+        self.n_side = n_side = g.n_teeth // 2 if self.double_nut else g.n_teeth  # even: Params checks it
         self.joint = ls.joint_from_params(params, n_side)
         self.side = fit_side(self.joint, params.ratings.static_load_rating_n)
         self.ea = params.material.youngs_modulus_pa * ls.screw_section_m2(params)
@@ -393,7 +393,8 @@ class Elastic(Model):
                 # an impact) the midpoint force does not see it and misses by up to the whole V of the
                 # sub-step. There the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ of the
                 # last attempt (a discrete gradient: its work is ΔV exactly), a contraction since (ωh)²/2 < 1;
-                # the attempt with the smallest miss is kept. Only crossing sub-steps pay for it.
+                # the attempt with the smallest miss is kept. Only sub-steps that miss pay for it (crossings, the
+                # first sub-steps of a Hertz contact; smooth contact passes the first time).
                 err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
                 if best is None or abs(err) < abs(best[0]):
                     best = (err, f_el, c, rate, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1,
