@@ -53,8 +53,8 @@ def _s30() -> Params:
     are listed in the vendors' tables, e.g. SKF "Roller screws" (PUB MT/P1 14489 EN, 2014), planetary
     roller screws SR, and Bosch Rexroth "Planetary Screw Assemblies PLSA" (R310EN 3308), nut sizes
     around d₀ = 30 mm; no row of those tables was at hand to transcribe, so the figure was not taken
-    from either; it was chosen below the derived static rating (236 kN) [assumed]. Replace it with the rating of the screw you model; only the life estimates (docs/model.md
-    §5 item 10) use it.
+    from either; it was chosen below the derived static rating (236 kN) [assumed]. Replace it with the
+    rating of the screw you model; only the life estimates (docs/model.md §5 item 10) use it.
     """
     return Params(
         name="s30",
