@@ -43,12 +43,15 @@ class Ideal(Model):
         super().__init__(params, dt_s)
         self.J = reflected_inertia(params)
         self.kinetic = (self.J, 0.0, 0.0)  # energy guard: carrier and rollers are in J (ideal ratio)
+        self._half_j = 0.5 * self.J
         self.k_carrier = ideal_carrier_ratio(self.geo)
         il = params.ideal
         self.k_forward = 1.0 / il.efficiency_forward - 1.0
         self.k_backward = 1.0 - il.efficiency_backward
         self.self_locking = il.efficiency_backward <= 0.0
         self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
+        p, s = self.geo.lead_per_rad_m, self.slip_per_nut_speed
+        self._packed_k = self.packed_constants(lambda w_s, w_c: abs(w_s) * p * s, lambda w_s, w_c: _EMPTY)
 
     def loss_limit_nm(self, load_torque_nm: float, direction: float, speed_rad_s: float) -> float:
         """Mesh-loss torque magnitude for motion in `direction` (±1) at `speed_rad_s`."""
@@ -90,13 +93,11 @@ class Ideal(Model):
 
     def advance_packed(self, x, torque_nm: float, load_n: float):
         """`_advance` on the packed state (Model.advance_packed); same arithmetic."""
-        w0 = x[2]
-        w1, dtheta, dissipated = self._solve(w0, torque_nm, load_n)
-        p = self.geo.lead_per_rad_m
-        nut_force = load_n + self.params.mass.moved_mass_kg * p * (w1 - w0) / self.dt_s
-        return self.finish_packed(x, x[1] + dtheta, w1, x[3] + self.k_carrier * dtheta, self.k_carrier * w1,
-                                  torque_nm, load_n, dissipated, abs(w1) * p * self.slip_per_nut_speed, nut_force,
-                                  _EMPTY)
+        w1, dtheta, dissipated = self._solve(x[2], torque_nm, load_n)
+        k = self.k_carrier
+        # stored energy ½ J ω_S² (`stored_energy_j` with kinetic = (J, 0, 0); ×½ is exact)
+        return self.finish_packed(x, x[1] + dtheta, w1, x[3] + k * dtheta, k * w1, torque_nm, load_n, dissipated,
+                                  self._half_j * w1 * w1)
 
 
 _EMPTY = np.zeros(0)

@@ -60,6 +60,7 @@ class Jones2016(Model):
             InternalBlock("per_roller", ("roller", "quantity"), (geo.n_rollers, len(PER_ROLLER_QUANTITIES)),
                           PER_ROLLER_QUANTITIES),
         ))
+        self._packed_setup()
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
         x = np.array([state.screw_angle_rad, state.carrier_angle_rad, state.screw_speed_rad_s,
@@ -75,15 +76,30 @@ class Jones2016(Model):
 
     packed = True
 
-    def _packed_constants(self) -> tuple:
-        """Phi, Gam, W, G and the constants of `advance_packed` as Python floats (built once)."""
-        c = getattr(self, "_pk", None)
-        if c is None:
-            lin, G = self.lin, self.G
-            c = self._pk = (tuple(map(float, lin.Phi.ravel())), tuple(map(float, lin.Gam.ravel())),
-                            tuple(map(float, lin.W.ravel())), tuple(map(float, G.ravel())),
-                            self.params.mass.moved_mass_kg * self.geo.lead_per_rad_m / self.dt_s)
-        return c
+    def _packed_setup(self) -> None:
+        """Constants of `advance_packed` as Python floats, and the records' constants (built once)."""
+        lin, G = self.lin, self.G
+        P, Gm = lin.Phi, lin.Gam
+        # the angles do not feed back (discretise makes Φ's angle columns exactly (I, 0)), so only the
+        # speed columns of Φ enter; W is symmetric, so its off-diagonal pairs are summed once (×2 is exact)
+        self._pk = (tuple(float(v) for v in (P[0, 2], P[0, 3], P[1, 2], P[1, 3], P[2, 2], P[2, 3], P[3, 2], P[3, 3])),
+                    tuple(map(float, Gm.ravel())),
+                    tuple(float(v) for v in (lin.W[i, j] * (1.0 if i == j else 2.0) for i in range(4) for j in range(i, 4))),
+                    (0.5 * self.kinetic[0], self.kinetic[1], 0.5 * self.kinetic[2]))
+        g = tuple(map(float, G.ravel()))
+        k = -self.params.friction.viscous_n_s_m * self.geo.n_teeth
+        n_rollers = self.geo.n_rollers
+
+        def slip_speed(w_s: float, w_c: float) -> float:
+            v0, v1, v2 = g[0] * w_s + g[1] * w_c, g[2] * w_s + g[3] * w_c, g[4] * w_s + g[5] * w_c
+            return math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+
+        def internal(w_s: float, w_c: float) -> np.ndarray:
+            """`_internal` of one step from plain floats (np.tile costs more than the values)."""
+            v0, v1, v2 = g[0] * w_s + g[1] * w_c, g[2] * w_s + g[3] * w_c, g[4] * w_s + g[5] * w_c
+            return np.array((v0, v1, v2, k * v0, k * v1, k * v2) * n_rollers)
+
+        self._packed_k = self.packed_constants(slip_speed, internal)
 
     def advance_packed(self, x, torque_nm: float, load_n: float):
         """`_advance` on the packed state, unrolled over Python floats (Model.advance_packed).
@@ -91,30 +107,16 @@ class Jones2016(Model):
         The same ZOH step x⁺ = Φ x + Γ u and dissipated work zᵀ W z (docs/model.md §4.1); only the
         order of the sums differs from the matrix products, so results agree to rounding.
         """
-        P, Gm, W, G, m_p_h = self._packed_constants()
-        q0, q1, w0, w1 = x[1], x[3], x[2], x[4]
+        P, Gm, W, E = self._pk
+        w0, w1 = x[2], x[4]
         u0, u1 = torque_nm, load_n
-        n0 = P[0] * q0 + P[1] * q1 + P[2] * w0 + P[3] * w1 + Gm[0] * u0 + Gm[1] * u1
-        n1 = P[4] * q0 + P[5] * q1 + P[6] * w0 + P[7] * w1 + Gm[2] * u0 + Gm[3] * u1
-        n2 = P[8] * q0 + P[9] * q1 + P[10] * w0 + P[11] * w1 + Gm[4] * u0 + Gm[5] * u1
-        n3 = P[12] * q0 + P[13] * q1 + P[14] * w0 + P[15] * w1 + Gm[6] * u0 + Gm[7] * u1
-        diss = (w0 * (W[0] * w0 + W[1] * w1 + W[2] * u0 + W[3] * u1)
-                + w1 * (W[4] * w0 + W[5] * w1 + W[6] * u0 + W[7] * u1)
-                + u0 * (W[8] * w0 + W[9] * w1 + W[10] * u0 + W[11] * u1)
-                + u1 * (W[12] * w0 + W[13] * w1 + W[14] * u0 + W[15] * u1))
-        v0 = G[0] * n2 + G[1] * n3
-        v1 = G[2] * n2 + G[3] * n3
-        v2 = G[4] * n2 + G[5] * n3
-        slip = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        # the base class's nut force: load + m (L/2π) Δω_S / h
-        return self.finish_packed(x, n0, n2, n1, n3, u0, u1, diss, slip, u1 + m_p_h * (n2 - w0),
-                                  (self._internal_packed, (v0, v1, v2)))
-
-    def _internal_packed(self, v_s: tuple[float, float, float]) -> np.ndarray:
-        """`_internal` of one step from plain floats (np.tile costs more than the values)."""
-        k = -self.params.friction.viscous_n_s_m * self.geo.n_teeth
-        v0, v1, v2 = v_s
-        return np.array((v0, v1, v2, k * v0, k * v1, k * v2) * self.geo.n_rollers)
+        n2 = P[4] * w0 + P[5] * w1 + Gm[4] * u0 + Gm[5] * u1
+        n3 = P[6] * w0 + P[7] * w1 + Gm[6] * u0 + Gm[7] * u1
+        diss = (w0 * (W[0] * w0 + W[1] * w1 + W[2] * u0 + W[3] * u1) + w1 * (W[4] * w1 + W[5] * u0 + W[6] * u1)
+                + u0 * (W[7] * u0 + W[8] * u1) + u1 * W[9] * u1)
+        return self.finish_packed(x, x[1] + P[0] * w0 + P[1] * w1 + Gm[0] * u0 + Gm[1] * u1, n2,
+                                  x[3] + P[2] * w0 + P[3] * w1 + Gm[2] * u0 + Gm[3] * u1, n3, u0, u1, diss,
+                                  E[0] * n2 * n2 + E[1] * n2 * n3 + E[2] * n3 * n3)
 
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
         """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
