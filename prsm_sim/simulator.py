@@ -131,6 +131,16 @@ class Simulator:
         self._packed = self._state_of = self.model.pack_state(value) if self.model.packed else None
         self._advance_packed = self.model.advance_packed if self.model.packed else None
 
+    def __getstate__(self) -> dict:  # pickled with its state as a `State` (the packed record holds closures)
+        d = {k: v for k, v in self.__dict__.items() if k not in ("_state", "_packed", "_state_of", "_advance_packed")}
+        d["state"] = self.state
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        state = d.pop("state")
+        self.__dict__.update(d)
+        self.state = state
+
     @property
     def layout(self) -> InternalLayout:
         """Labels of the model's internal-load vector (`Outputs.internal`, `Trajectory.internal`)."""

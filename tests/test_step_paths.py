@@ -71,6 +71,8 @@ def test_packed_outputs_behave_as_records(model):
     for name in ("time_s", "nut_force_n", "internal", "anything"):
         with pytest.raises(AttributeError):
             setattr(out, name, 1.0)
+    twin = pickle.loads(pickle.dumps(sim))  # a simulator pickles with its state (its model's steps are closures)
+    assert twin.state == sim.state and twin.nstep == sim.nstep and twin.step(0.01, 3.0) == sim.step(0.01, 3.0)
 
 
 def test_state_assignment_and_refusal_keep_the_packed_state_consistent():

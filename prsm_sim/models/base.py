@@ -85,15 +85,17 @@ class Model:
         return 0.5 * (kss * ws * ws + 2.0 * ksc * ws * wc + kcc * wc * wc)
 
     # -- per-step fast path (optional) ------------------------------------------------------
-    # A model whose step is a few float operations sets `packed = True` and implements
+    # A model whose step is a few float operations sets `packed = True` and provides
     # `advance_packed(x, torque, load) -> PackedOutputs` on the packed state
     # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual, stored energy)
-    # (`pack_state`), finishing with `finish_packed`. The record it returns is the step's outputs
-    # and, in its first PACKED_STATE_SIZE items, the next packed state: `Simulator.step` keeps it
-    # as the state between steps. The ledger and the energy guard's accumulators run every step
-    # as in `finish_step`; every other output (the guard's verdict included, a function of the
-    # accumulators) is derived when read (outputs.PackedOutputs). Results match `step` to
-    # rounding (tests/test_step_paths.py).
+    # (`pack_state`), ending in the function `packed_finisher` makes. The record it returns is the
+    # step's outputs and, in its first PACKED_STATE_SIZE items, the next packed state:
+    # `Simulator.step` keeps it as the state between steps. The ledger and the energy guard's
+    # accumulators run every step as in `finish_step`; every other output (the guard's verdict
+    # too, a function of the accumulators it judges) is derived when read (outputs.PackedOutputs).
+    # Results match `step` to rounding (tests/test_step_paths.py). The models build these
+    # functions as closures over Python floats: a step of a few dozen flops costs less than the
+    # attribute look-ups of a method.
     packed = False
 
     def pack_state(self, s: State) -> tuple[float, ...]:
@@ -110,25 +112,27 @@ class Model:
     def advance_packed(self, x: tuple[float, ...], torque_nm: float, load_n: float) -> PackedOutputs:
         raise NotImplementedError
 
-    def packed_constants(self, slip_speed, internal) -> PackedConstants:
-        """The constants a packed record derives its outputs from; `slip_speed` and `internal` are
-        functions of (ω_S, ω_C) at the step's end."""
-        p = self.geo.lead_per_rad_m
-        return PackedConstants(self.dt_s, p, self.geo.gear_ratio, self.params.mass.moved_mass_kg * p, slip_speed,
-                               internal, efficiency, energy_fault)
+    def packed_finisher(self, slip_speed, internal):
+        """`finish_step` for the packed path: a function
+        ``finish(x, θ_S, ω_S, θ_C, ω_C, torque, load, dissipated, stored) -> PackedOutputs``
+        from the state before the step and the model's results at its end (stored: the stored
+        energy there, `stored_energy_j`). The same ledger and guard accumulators as `finish_step`;
+        the record derives the other outputs when read, with `slip_speed` and `internal`
+        (functions of ω_S, ω_C at the step's end) for the model's own.
+        """
+        h, p = self.dt_s, self.geo.lead_per_rad_m
+        k = PackedConstants(h, p, self.geo.gear_ratio, self.params.mass.moved_mass_kg * p, slip_speed, internal,
+                            efficiency, energy_fault)
 
-    def finish_packed(self, x, th_s: float, w_s: float, th_c: float, w_c: float, torque_nm: float, load_n: float,
-                      dissipated_j: float, stored_j: float) -> PackedOutputs:
-        """`finish_step` on packed floats: the same ledger and guard accumulators; the record
-        (`self._packed_k`: `packed_constants`) derives the other outputs when read."""
-        k = self._packed_k
-        dtheta = th_s - x[1]
-        w_in = torque_nm * dtheta
-        w_out = load_n * k.lead_per_rad_m * dtheta
-        return PackedOutputs((
-            x[0] + k.dt_s, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j,
-            x[8] + abs(w_in), x[9] + (w_in - w_out - (stored_j - x[10]) - dissipated_j), stored_j,
-            torque_nm, load_n, dissipated_j, dtheta, x[2], k))
+        def finish(x, th_s, w_s, th_c, w_c, torque_nm, load_n, dissipated_j, stored_j):
+            dtheta = th_s - x[1]
+            w_in = torque_nm * dtheta
+            w_out = load_n * p * dtheta
+            return PackedOutputs((
+                x[0] + h, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j,
+                x[8] + abs(w_in), x[9] + (w_in - w_out - (stored_j - x[10]) - dissipated_j), stored_j,
+                torque_nm, load_n, dissipated_j, dtheta, x[2], k))
+        return finish
 
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """Advance len(torque_nm) steps; input k is held over step k, output k is at its end."""

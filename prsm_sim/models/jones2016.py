@@ -77,16 +77,25 @@ class Jones2016(Model):
     packed = True
 
     def _packed_setup(self) -> None:
-        """Constants of `advance_packed` as Python floats, and the records' constants (built once)."""
+        """`advance_packed`: `_advance` on the packed state, unrolled over Python floats (Model.advance_packed).
+
+        The same ZOH step x⁺ = Φ x + Γ u and dissipated work zᵀ W z (docs/model.md §4.1); only the
+        order of the sums differs from the matrix products, so results agree to rounding (the net
+        torque τ − F L/2π as one input would save a few flops but not that: the efficiency near
+        zero output power then differs by 2e-11). The angles do not feed back (discretise makes Φ's
+        angle columns exactly (I, 0)), so only Φ's speed columns enter; W is symmetric, so each
+        off-diagonal pair is summed once (×2 is exact).
+        """
         lin, G = self.lin, self.G
-        P, Gm = lin.Phi, lin.Gam
-        # the angles do not feed back (discretise makes Φ's angle columns exactly (I, 0)), so only the
-        # speed columns of Φ enter; W is symmetric, so its off-diagonal pairs are summed once (×2 is exact)
-        self._pk = (tuple(float(v) for v in (P[0, 2], P[0, 3], P[1, 2], P[1, 3], P[2, 2], P[2, 3], P[3, 2], P[3, 3])),
-                    tuple(map(float, Gm.ravel())),
-                    tuple(float(v) for v in (lin.W[i, j] * (1.0 if i == j else 2.0) for i in range(4) for j in range(i, 4))),
-                    (0.5 * self.kinetic[0], self.kinetic[1], 0.5 * self.kinetic[2]))
-        g = tuple(map(float, G.ravel()))
+        (_, _, p02, p03), (_, _, p12, p13), (_, _, p22, p23), (_, _, p32, p33) = lin.Phi.tolist()
+        (g00, g01), (g10, g11), (g20, g21), (g30, g31) = lin.Gam.tolist()
+        W = lin.W.tolist()
+        w00, w01, w02, w03 = W[0][0], 2.0 * W[0][1], 2.0 * W[0][2], 2.0 * W[0][3]
+        w11, w12, w13 = W[1][1], 2.0 * W[1][2], 2.0 * W[1][3]
+        w22, w23, w33 = W[2][2], 2.0 * W[2][3], W[3][3]
+        # stored energy ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²) (`stored_energy_j`; ×½ is exact)
+        e_ss, e_sc, e_cc = 0.5 * self.kinetic[0], self.kinetic[1], 0.5 * self.kinetic[2]
+        g = G.ravel().tolist()
         k = -self.params.friction.viscous_n_s_m * self.geo.n_teeth
         n_rollers = self.geo.n_rollers
 
@@ -99,24 +108,21 @@ class Jones2016(Model):
             v0, v1, v2 = g[0] * w_s + g[1] * w_c, g[2] * w_s + g[3] * w_c, g[4] * w_s + g[5] * w_c
             return np.array((v0, v1, v2, k * v0, k * v1, k * v2) * n_rollers)
 
-        self._packed_k = self.packed_constants(slip_speed, internal)
+        finish = self.packed_finisher(slip_speed, internal)
 
-    def advance_packed(self, x, torque_nm: float, load_n: float):
-        """`_advance` on the packed state, unrolled over Python floats (Model.advance_packed).
+        def advance_packed(x, u0: float, u1: float):
+            w0, w1 = x[2], x[4]
+            n2 = p22 * w0 + p23 * w1 + g20 * u0 + g21 * u1
+            n3 = p32 * w0 + p33 * w1 + g30 * u0 + g31 * u1
+            diss = (w0 * (w00 * w0 + w01 * w1 + w02 * u0 + w03 * u1) + w1 * (w11 * w1 + w12 * u0 + w13 * u1)
+                    + u0 * (w22 * u0 + w23 * u1) + u1 * w33 * u1)
+            return finish(x, x[1] + p02 * w0 + p03 * w1 + g00 * u0 + g01 * u1, n2,
+                          x[3] + p12 * w0 + p13 * w1 + g10 * u0 + g11 * u1, n3, u0, u1, diss,
+                          e_ss * n2 * n2 + e_sc * n2 * n3 + e_cc * n3 * n3)
+        self.advance_packed = advance_packed
 
-        The same ZOH step x⁺ = Φ x + Γ u and dissipated work zᵀ W z (docs/model.md §4.1); only the
-        order of the sums differs from the matrix products, so results agree to rounding.
-        """
-        P, Gm, W, E = self._pk
-        w0, w1 = x[2], x[4]
-        u0, u1 = torque_nm, load_n
-        n2 = P[4] * w0 + P[5] * w1 + Gm[4] * u0 + Gm[5] * u1
-        n3 = P[6] * w0 + P[7] * w1 + Gm[6] * u0 + Gm[7] * u1
-        diss = (w0 * (W[0] * w0 + W[1] * w1 + W[2] * u0 + W[3] * u1) + w1 * (W[4] * w1 + W[5] * u0 + W[6] * u1)
-                + u0 * (W[7] * u0 + W[8] * u1) + u1 * W[9] * u1)
-        return self.finish_packed(x, x[1] + P[0] * w0 + P[1] * w1 + Gm[0] * u0 + Gm[1] * u1, n2,
-                                  x[3] + P[2] * w0 + P[3] * w1 + Gm[2] * u0 + Gm[3] * u1, n3, u0, u1, diss,
-                                  E[0] * n2 * n2 + E[1] * n2 * n3 + E[2] * n3 * n3)
+    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+        return (type(self), (self.params, self.dt_s))
 
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
         """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
