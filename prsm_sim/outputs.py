@@ -459,15 +459,16 @@ class Trajectory:
 
 # -- the packed per-step record (Model.advance_packed) ----------------------------------------
 # Layout of a packed record: the next packed state (Model.pack_state: time, θ_S, ω_S, θ_C, ω_C,
-# W_in, W_out, W_diss, energy flow, energy residual, stored energy), then what the step alone
-# knows (torque, load, dissipated work, Δθ_S, ω_S at the step's start) and the model's
-# `PackedConstants`. Every `Outputs` field is one of these or a few flops on them.
+# W_in, W_out, W_diss, energy flow, energy residual, stored energy), what the step alone knows
+# (torque, load, dissipated work, Δθ_S), the outputs the node reads every step besides the state
+# (nut force, position and velocity, the energy guard's verdict) and the model's
+# `PackedConstants`. The other outputs are a few flops on these, done when read.
 PACKED_STATE_SIZE = 11
-_TAU, _LOAD, _DISS, _DTH, _W0, _K = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 6)
+_TAU, _LOAD, _DISS, _DTH, _NUT_F, _NUT_X, _NUT_V, _FAULT, _K = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 9)
 
 
 class PackedConstants:
-    """What a model's packed records need to derive their outputs: constants and two functions.
+    """What a model's packed records need to derive their other outputs: constants and functions.
 
     Attributes
     ----------
@@ -477,25 +478,19 @@ class PackedConstants:
         L/2π, m/rad.
     gear_ratio : float
         g of ω_r = −g ω_C.
-    moved_mass_lead_kg_m : float
-        Moved mass times L/2π, kg·m/rad: the nut force is load + m (L/2π) Δω_S / h (`Model.finish_step`).
     slip_speed : callable
         (ω_S, ω_C) at the step's end → slip speed, m/s.
     internal : callable
         (ω_S, ω_C) at the step's end → the internal-load vector.
-    efficiency, fault : callable
-        `models.base.efficiency` and `models.base.energy_fault` (the guard's verdict), passed in
-        by `Model.packed_constants` (models.base imports this module).
+    efficiency : callable
+        `models.base.efficiency`, passed in by `Model.packed_finisher` (models.base imports this module).
     """
 
-    __slots__ = ("dt_s", "lead_per_rad_m", "gear_ratio", "moved_mass_lead_kg_m", "slip_speed", "internal",
-                 "efficiency", "fault")
+    __slots__ = ("dt_s", "lead_per_rad_m", "gear_ratio", "slip_speed", "internal", "efficiency")
 
-    def __init__(self, dt_s, lead_per_rad_m, gear_ratio, moved_mass_lead_kg_m, slip_speed, internal, efficiency,
-                 fault) -> None:
+    def __init__(self, dt_s, lead_per_rad_m, gear_ratio, slip_speed, internal, efficiency) -> None:
         self.dt_s, self.lead_per_rad_m, self.gear_ratio = dt_s, lead_per_rad_m, gear_ratio
-        self.moved_mass_lead_kg_m, self.slip_speed, self.internal = moved_mass_lead_kg_m, slip_speed, internal
-        self.efficiency, self.fault = efficiency, fault
+        self.slip_speed, self.internal, self.efficiency = slip_speed, internal, efficiency
 
 
 class _BuiltOnce:
@@ -516,12 +511,13 @@ class PackedOutputs(tuple):
     every other field derived when read.
 
     Building a full record costs more than a linear model's step, and a caller reads few fields
-    (the node: the state, the nut force and the energy guard each step, the rest at its publishing
-    rate), so the step stores its state and inputs (layout above; the first `PACKED_STATE_SIZE`
-    items are the next packed state) and the fields are properties with the arithmetic of
-    `Model.finish_step`: every value equals the eager record's (tests/test_step_paths.py). The
-    internal vector is built on first read and kept. Reads as an `Outputs` (registered as one:
-    ``isinstance(out, Outputs)`` holds), immutable; pickles and copies as a plain `Outputs`.
+    (the node: the state, the nut's position, velocity and force and the energy guard's verdict
+    each step, the rest only for the internal-loads message), so the record holds those and what
+    the step computed anyway (layout above; its first `PACKED_STATE_SIZE` items are the next
+    packed state), and the other fields are properties with the arithmetic of `Model.finish_step`
+    (tests/test_step_paths.py compares every field). The internal vector is built on first read
+    and kept. Reads as an `Outputs` (registered as one: ``isinstance(out, Outputs)`` holds),
+    immutable; pickles and copies as a plain `Outputs`.
     """
 
     def __setattr__(self, name, value):
@@ -539,23 +535,14 @@ class PackedOutputs(tuple):
     stored_energy_j = property(itemgetter(10))
     screw_torque_nm = property(itemgetter(_TAU))
     load_force_n = property(itemgetter(_LOAD))
+    nut_force_n = property(itemgetter(_NUT_F))
+    nut_position_m = property(itemgetter(_NUT_X))
+    nut_velocity_m_s = property(itemgetter(_NUT_V))
+    energy_fault = property(itemgetter(_FAULT))
 
     @property
     def roller_spin_rad_s(self) -> float:
         return -self[_K].gear_ratio * self[4]
-
-    @property
-    def nut_position_m(self) -> float:
-        return self[_K].lead_per_rad_m * self[1]
-
-    @property
-    def nut_velocity_m_s(self) -> float:
-        return self[_K].lead_per_rad_m * self[2]
-
-    @property
-    def nut_force_n(self) -> float:
-        k = self[_K]
-        return self[_LOAD] + k.moved_mass_lead_kg_m * (self[2] - self[_W0]) / k.dt_s
 
     @property
     def slip_speed_m_s(self) -> float:
@@ -583,31 +570,23 @@ class PackedOutputs(tuple):
         w_s = self[2]
         return self[4] / w_s if w_s != 0.0 else math.nan
 
-    @property
-    def energy_fault(self) -> float:
-        return 1.0 if self[_K].fault(self[8], self[9]) else 0.0
-
     @_BuiltOnce
     def internal(self) -> np.ndarray:
         return self[_K].internal(self[2], self[4])
 
     def scalar_values(self) -> tuple[float, ...]:
         """The scalar outputs as one tuple, in OUTPUT_FIELDS order."""
-        (t, th_s, w_s, th_c, w_c, _, _, _, flow, residual, e1, tau, load, diss, dth, w0, k) = self
+        (t, th_s, w_s, th_c, w_c, _, _, _, flow, residual, e1, tau, load, diss, dth, nut_f, nut_x, nut_v, fault,
+         k) = self
         h, p = k.dt_s, k.lead_per_rad_m
         p_out, p_d = load * p * dth / h, diss / h
-        return (t, th_s, w_s, tau, th_c, w_c, -k.gear_ratio * w_c, p * th_s, p * w_s,
-                load + k.moved_mass_lead_kg_m * (w_s - w0) / h, load, k.slip_speed(w_s, w_c), tau * dth / h, p_out,
-                p_d, k.efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan, e1, flow, residual,
-                1.0 if k.fault(flow, residual) else 0.0)
+        return (t, th_s, w_s, tau, th_c, w_c, -k.gear_ratio * w_c, nut_x, nut_v, nut_f, load, k.slip_speed(w_s, w_c),
+                tau * dth / h, p_out, p_d, k.efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan, e1, flow,
+                residual, fault)
 
     def scalars(self) -> dict[str, float]:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return dict(zip(_FIELD_NAMES, self.scalar_values()))
-
-    def to_outputs(self) -> Outputs:
-        """The same values as a plain `Outputs` record."""
-        return Outputs(*self.scalar_values(), self.internal)
 
     def __reduce__(self):
         return (Outputs, (*self.scalar_values(), self.internal))

@@ -90,9 +90,9 @@ class Model:
     # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual, stored energy)
     # (`pack_state`), ending in the function `packed_finisher` makes. The record it returns is the
     # step's outputs and, in its first PACKED_STATE_SIZE items, the next packed state:
-    # `Simulator.step` keeps it as the state between steps. The ledger and the energy guard's
-    # accumulators run every step as in `finish_step`; every other output (the guard's verdict
-    # too, a function of the accumulators it judges) is derived when read (outputs.PackedOutputs).
+    # `Simulator.step` keeps it as the state between steps. The ledger and the energy guard
+    # (accumulators and verdict) run every step as in `finish_step`; of the other outputs the
+    # record holds what the node reads every step and derives the rest when read (outputs.PackedOutputs).
     # Results match `step` to rounding (tests/test_step_paths.py). The models build these
     # functions as closures over Python floats: a step of a few dozen flops costs less than the
     # attribute look-ups of a method.
@@ -116,22 +116,27 @@ class Model:
         """`finish_step` for the packed path: a function
         ``finish(x, θ_S, ω_S, θ_C, ω_C, torque, load, dissipated, stored) -> PackedOutputs``
         from the state before the step and the model's results at its end (stored: the stored
-        energy there, `stored_energy_j`). The same ledger and guard accumulators as `finish_step`;
-        the record derives the other outputs when read, with `slip_speed` and `internal`
-        (functions of ω_S, ω_C at the step's end) for the model's own.
+        energy there, `stored_energy_j`). The same ledger, energy guard (accumulators and verdict)
+        and nut force as `finish_step`, and the nut's position and velocity (what the node reads
+        every step); the record derives the other outputs when read, with `slip_speed` and
+        `internal` (functions of ω_S, ω_C at the step's end) for the model's own.
         """
         h, p = self.dt_s, self.geo.lead_per_rad_m
-        k = PackedConstants(h, p, self.geo.gear_ratio, self.params.mass.moved_mass_kg * p, slip_speed, internal,
-                            efficiency, energy_fault)
+        mp = self.params.mass.moved_mass_kg * p
+        k = PackedConstants(h, p, self.geo.gear_ratio, slip_speed, internal, efficiency)
+        min_flow, rel = ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
         def finish(x, th_s, w_s, th_c, w_c, torque_nm, load_n, dissipated_j, stored_j):
             dtheta = th_s - x[1]
             w_in = torque_nm * dtheta
             w_out = load_n * p * dtheta
+            flow = x[8] + abs(w_in)
+            residual = x[9] + (w_in - w_out - (stored_j - x[10]) - dissipated_j)
             return PackedOutputs((
-                x[0] + h, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j,
-                x[8] + abs(w_in), x[9] + (w_in - w_out - (stored_j - x[10]) - dissipated_j), stored_j,
-                torque_nm, load_n, dissipated_j, dtheta, x[2], k))
+                x[0] + h, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j, flow, residual,
+                stored_j, torque_nm, load_n, dissipated_j, dtheta, load_n + mp * (w_s - x[2]) / h, p * th_s, p * w_s,
+                1.0 if flow > min_flow and abs(residual) > rel * flow else 0.0,  # energy_fault's verdict
+                k))
         return finish
 
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
