@@ -104,9 +104,12 @@ class Jones2016(Model):
             return math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
 
         def internal(w_s: float, w_c: float) -> np.ndarray:
-            """`_internal` of one step from plain floats (np.tile costs more than the values)."""
+            """`_internal` of one step from plain floats (one row broadcast into the rollers' block:
+            half the cost of converting the repeated tuple, a third of np.tile's)."""
             v0, v1, v2 = g[0] * w_s + g[1] * w_c, g[2] * w_s + g[3] * w_c, g[4] * w_s + g[5] * w_c
-            return np.array((v0, v1, v2, k * v0, k * v1, k * v2) * n_rollers)
+            block = np.empty((n_rollers, 6))
+            block[:] = (v0, v1, v2, k * v0, k * v1, k * v2)
+            return block.ravel()
 
         finish = self.packed_finisher(slip_speed, internal)
 
