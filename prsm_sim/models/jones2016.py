@@ -81,8 +81,8 @@ class Jones2016(Model):
 
         The same ZOH step x⁺ = Φ x + Γ u and dissipated work zᵀ W z (docs/model.md §4.1); only the
         order of the sums differs from the matrix products, so results agree to rounding (the net
-        torque τ − F L/2π as one input would save a few flops but not that: the efficiency near
-        zero output power then differs by 2e-11). The angles do not feed back (discretise makes Φ's
+        torque τ − F L/2π as the one input saves a few flops but moves the efficiency near zero
+        output power by 2e-11, beyond the 1e-12 the paths agree to). The angles do not feed back (discretise makes Φ's
         angle columns exactly (I, 0)), so only Φ's speed columns enter; W is symmetric, so each
         off-diagonal pair is summed once (×2 is exact).
         """
