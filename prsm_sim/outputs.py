@@ -15,7 +15,10 @@ when it resists positive nut motion (a compressive working load on an extending 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import math
+from abc import ABCMeta
+from dataclasses import FrozenInstanceError, dataclass, fields
+from operator import itemgetter
 
 import numpy as np
 
@@ -112,7 +115,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
 
 
 @dataclass(frozen=True, slots=True)
-class Outputs:
+class Outputs(metaclass=ABCMeta):  # ABCMeta: PackedOutputs registers as one
     """One step's outputs, SI units, at the step's end or averaged over it where a rate is meant.
 
     Every model fills the same record, so the node, the recorder and the viewer are written
@@ -454,44 +457,156 @@ class Trajectory:
         return Outputs(**{n: float(self.columns[n][k]) for n, _ in OUTPUT_FIELDS}, internal=self.internal[k])
 
 
-class PackedOutputs(Outputs):
-    """An `Outputs` backed by one tuple of the scalars, with `internal` built on first read.
+# -- the packed per-step record (Model.advance_packed) ----------------------------------------
+# Layout of a packed record: the next packed state (Model.pack_state: time, θ_S, ω_S, θ_C, ω_C,
+# W_in, W_out, W_diss, energy flow, energy residual, stored energy), what the step alone knows
+# (torque, load, dissipated work, Δθ_S), the outputs the node reads every step besides the state
+# (nut force, position and velocity, the energy guard's verdict) and the model's
+# `PackedConstants`. The other outputs are a few flops on these, done when read.
+PACKED_STATE_SIZE = 11
+_TAU, _LOAD, _DISS, _DTH, _NUT_F, _NUT_X, _NUT_V, _FAULT, _K = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 9)
 
-    The per-step fast path of the linear models (`Model.step_packed`) returns these: building
-    the frozen record field by field costs more than the step itself, and the node reads the
-    internal vector only at its (decimated) publishing rate. Every field reads as on `Outputs`
-    (the properties shadow the base class's slots); `isinstance(out, Outputs)` holds.
-    `internal_src` is an array, or a (function, argument) pair evaluated once on first read.
+
+class PackedConstants:
+    """What a model's packed records need to derive their other outputs: constants and functions.
+
+    Attributes
+    ----------
+    dt_s : float
+        The fixed step, s.
+    lead_per_rad_m : float
+        L/2π, m/rad.
+    gear_ratio : float
+        g of ω_r = −g ω_C.
+    slip_speed : callable
+        (ω_S, ω_C) at the step's end → slip speed, m/s.
+    internal : callable
+        (ω_S, ω_C) at the step's end → the internal-load vector.
+    efficiency : callable
+        `models.base.efficiency`, passed in by `Model.packed_finisher` (models.base imports this module).
     """
 
-    __slots__ = ("_values", "_internal_src")
+    __slots__ = ("dt_s", "lead_per_rad_m", "gear_ratio", "slip_speed", "internal", "efficiency")
 
-    def __init__(self, values: tuple[float, ...], internal_src) -> None:  # noqa: D107 (no dataclass init)
-        object.__setattr__(self, "_values", values)
-        object.__setattr__(self, "_internal_src", internal_src)
+    def __init__(self, dt_s, lead_per_rad_m, gear_ratio, slip_speed, internal, efficiency) -> None:
+        self.dt_s, self.lead_per_rad_m, self.gear_ratio = dt_s, lead_per_rad_m, gear_ratio
+        self.slip_speed, self.internal, self.efficiency = slip_speed, internal, efficiency
+
+
+class _BuiltOnce:
+    """A field computed on first read and kept in the record's own dict (a non-data descriptor)."""
+
+    def __init__(self, fn) -> None:
+        self.fn, self.name = fn, fn.__name__
+
+    def __get__(self, obj, cls=None):
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.fn(obj)
+        return value
+
+
+class PackedOutputs(tuple):
+    """One step's `Outputs` as the packed per-step path makes them: a tuple of what the step computed,
+    every other field derived when read.
+
+    Building a full record costs more than a linear model's step, and a caller reads few fields
+    (the node: the state, the nut's position, velocity and force and the energy guard's verdict
+    each step, the rest only for the internal-loads message), so the record holds those and what
+    the step computed anyway (layout above; its first `PACKED_STATE_SIZE` items are the next
+    packed state), and the other fields are properties with the arithmetic of `Model.finish_step`
+    (tests/test_step_paths.py compares every field). The internal vector is built on first read
+    and kept. Reads as an `Outputs` (registered as one: ``isinstance(out, Outputs)`` holds),
+    immutable; pickles and copies as a plain `Outputs`.
+    """
+
+    def __setattr__(self, name, value):
+        raise FrozenInstanceError(f"cannot assign to field {name!r}")  # as on the frozen `Outputs`
+
+    __delattr__ = __setattr__
+
+    time_s = property(itemgetter(0))
+    screw_angle_rad = property(itemgetter(1))
+    screw_speed_rad_s = property(itemgetter(2))
+    carrier_angle_rad = property(itemgetter(3))
+    carrier_speed_rad_s = property(itemgetter(4))
+    energy_flow_j = property(itemgetter(8))
+    energy_residual_j = property(itemgetter(9))
+    stored_energy_j = property(itemgetter(10))
+    screw_torque_nm = property(itemgetter(_TAU))
+    load_force_n = property(itemgetter(_LOAD))
+    nut_force_n = property(itemgetter(_NUT_F))
+    nut_position_m = property(itemgetter(_NUT_X))
+    nut_velocity_m_s = property(itemgetter(_NUT_V))
+    energy_fault = property(itemgetter(_FAULT))
 
     @property
-    def internal(self) -> np.ndarray:
-        src = self._internal_src
-        if type(src) is tuple:
-            src = src[0](src[1])
-            object.__setattr__(self, "_internal_src", src)
-        return src
+    def roller_spin_rad_s(self) -> float:
+        return -self[_K].gear_ratio * self[4]
 
-    def scalars(self) -> dict[str, float]:
-        return dict(zip(_FIELD_NAMES, self._values))
+    @property
+    def slip_speed_m_s(self) -> float:
+        return self[_K].slip_speed(self[2], self[4])
+
+    @property
+    def power_in_w(self) -> float:
+        return self[_TAU] * self[_DTH] / self[_K].dt_s
+
+    @property
+    def power_out_w(self) -> float:
+        k = self[_K]
+        return self[_LOAD] * k.lead_per_rad_m * self[_DTH] / k.dt_s
+
+    @property
+    def power_dissipated_w(self) -> float:
+        return self[_DISS] / self[_K].dt_s
+
+    @property
+    def efficiency(self) -> float:
+        return self[_K].efficiency(self.power_out_w, self.power_dissipated_w)
+
+    @property
+    def speed_ratio(self) -> float:
+        w_s = self[2]
+        return self[4] / w_s if w_s != 0.0 else math.nan
+
+    @_BuiltOnce
+    def internal(self) -> np.ndarray:
+        return self[_K].internal(self[2], self[4])
 
     def scalar_values(self) -> tuple[float, ...]:
-        return self._values
+        """The scalar outputs as one tuple, in OUTPUT_FIELDS order."""
+        (t, th_s, w_s, th_c, w_c, _, _, _, flow, residual, e1, tau, load, diss, dth, nut_f, nut_x, nut_v, fault,
+         k) = self
+        h, p = k.dt_s, k.lead_per_rad_m
+        p_out, p_d = load * p * dth / h, diss / h
+        return (t, th_s, w_s, tau, th_c, w_c, -k.gear_ratio * w_c, nut_x, nut_v, nut_f, load, k.slip_speed(w_s, w_c),
+                tau * dth / h, p_out, p_d, k.efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan, e1, flow,
+                residual, fault)
 
+    def scalars(self) -> dict[str, float]:
+        """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
+        return dict(zip(_FIELD_NAMES, self.scalar_values()))
 
-def _packed_field(i: int) -> property:
-    from operator import itemgetter
-    get = itemgetter(i)
-    return property(lambda self: get(self._values))
+    def __reduce__(self):
+        return (Outputs, (*self.scalar_values(), self.internal))
+
+    def __repr__(self) -> str:
+        return "PackedOutputs(" + ", ".join(f"{n}={v!r}" for n, v in self.scalars().items()) + ")"
+
+    # a record compares and hashes as its values (the constants' identity is no value)
+    def __eq__(self, other):
+        if isinstance(other, Outputs):
+            return self.scalar_values() == other.scalar_values() and np.array_equal(self.internal, other.internal)
+        return NotImplemented
+
+    def __ne__(self, other):
+        eq = self.__eq__(other)
+        return eq if eq is NotImplemented else not eq
+
+    __hash__ = None
 
 
 _FIELD_NAMES = tuple(n for n, _ in OUTPUT_FIELDS)
-for _i, _name in enumerate(_FIELD_NAMES):
-    setattr(PackedOutputs, _name, _packed_field(_i))
-del _i, _name
+assert set(_FIELD_NAMES) | {"internal"} <= set(dir(PackedOutputs))
+Outputs.register(PackedOutputs)

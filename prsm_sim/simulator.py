@@ -116,17 +116,30 @@ class Simulator:
                 f"time_s={self.time_s:.6g}, nstep={self.nstep})")
 
     # The current state is a `State`, or for models with a packed step (Model.advance_packed) the
-    # packed tuple between steps, turned into a `State` only when someone reads it.
+    # packed record of the last step (or `Model.pack_state`'s tuple), turned into a `State` only
+    # when someone reads it (`_state` caches the `State` of `_state_of`).
     @property
     def state(self) -> State:
-        if self._state is None:
-            self._state = self.model.unpack_state(self._packed)
+        x = self._packed
+        if x is not None and x is not self._state_of:
+            self._state, self._state_of = self.model.unpack_state(x), x
         return self._state
 
     @state.setter
     def state(self, value: State) -> None:
         self._state = value
-        self._packed = self.model.pack_state(value) if self.model.packed else None
+        self._packed = self._state_of = self.model.pack_state(value) if self.model.packed else None
+        self._advance_packed = self.model.advance_packed if self.model.packed else None
+
+    def __getstate__(self) -> dict:  # pickled with its state as a `State` (the packed record holds closures)
+        d = {k: v for k, v in self.__dict__.items() if k not in ("_state", "_packed", "_state_of", "_advance_packed")}
+        d["state"] = self.state
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        state = d.pop("state")
+        self.__dict__.update(d)
+        self.state = state
 
     @property
     def layout(self) -> InternalLayout:
@@ -136,7 +149,8 @@ class Simulator:
     @property
     def time_s(self) -> float:
         """Simulation time of the current state, s."""
-        return self._packed[0] if self._state is None else self._state.time_s
+        x = self._packed
+        return x[0] if x is not None else self._state.time_s
 
     def reset(self, nut_position_m: float | None = None) -> State:
         """Back to rest at the initial (or the given) nut position, time zero, counters cleared.
@@ -201,9 +215,9 @@ class Simulator:
                 if not _is_number(v) or not math.isfinite(v):
                     raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
             torque_nm, load_n = float(torque_nm), float(load_n)
-        if self._packed is not None:
-            self._packed, out = self.model.advance_packed(self._packed, torque_nm, load_n)
-            self._state = None
+        x = self._packed
+        if x is not None:  # the record is the outputs and the next packed state
+            self._packed = out = self._advance_packed(x, torque_nm, load_n)
         else:
             self._state, out = self.model.step(self._state, torque_nm, load_n)
         self.nstep += 1

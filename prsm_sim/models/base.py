@@ -21,7 +21,8 @@ from dataclasses import replace
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.outputs import OUTPUT_FIELDS, InternalLayout, Outputs, PackedOutputs, State, Trajectory
+from prsm_sim.outputs import (OUTPUT_FIELDS, InternalLayout, Outputs, PackedConstants, PackedOutputs, State,
+                              Trajectory)
 from prsm_sim.params import Params
 
 
@@ -84,18 +85,23 @@ class Model:
         return 0.5 * (kss * ws * ws + 2.0 * ksc * ws * wc + kcc * wc * wc)
 
     # -- per-step fast path (optional) ------------------------------------------------------
-    # A model whose step is a few float operations sets `packed = True` and implements
-    # `advance_packed(x, torque, load) -> (x, PackedOutputs)` on the packed state
-    # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual)
-    # (`pack_state`), finishing with
-    # `finish_packed`. `Simulator.step` then keeps the state packed between steps; results match
-    # `step` to rounding (tests/test_step_paths.py).
+    # A model whose step is a few float operations sets `packed = True` and provides
+    # `advance_packed(x, torque, load) -> PackedOutputs` on the packed state
+    # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual, stored energy)
+    # (`pack_state`), ending in the function `packed_finisher` makes. The record it returns is the
+    # step's outputs and, in its first PACKED_STATE_SIZE items, the next packed state:
+    # `Simulator.step` keeps it as the state between steps. The ledger and the energy guard
+    # (accumulators and verdict) run every step as in `finish_step`; of the other outputs the
+    # record holds what the node reads every step and derives the rest when read (outputs.PackedOutputs).
+    # Results match `step` to rounding (tests/test_step_paths.py). The models build these
+    # functions as closures over Python floats: a step of a few dozen flops costs less than the
+    # attribute look-ups of a method.
     packed = False
 
-    @staticmethod
-    def pack_state(s: State) -> tuple[float, ...]:
+    def pack_state(self, s: State) -> tuple[float, ...]:
         return (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad, s.carrier_speed_rad_s,
-                s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j, s.energy_residual_j)
+                s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j, s.energy_residual_j,
+                self.stored_energy_j(s.screw_speed_rad_s, s.carrier_speed_rad_s))
 
     @staticmethod
     def unpack_state(x: tuple[float, ...]) -> State:
@@ -103,40 +109,46 @@ class Model:
                      carrier_speed_rad_s=x[4], work_in_j=x[5], work_out_j=x[6], dissipated_j=x[7],
                      energy_flow_j=x[8], energy_residual_j=x[9])
 
-    def advance_packed(self, x: tuple[float, ...], torque_nm: float, load_n: float):
+    def advance_packed(self, x: tuple[float, ...], torque_nm: float, load_n: float) -> PackedOutputs:
         raise NotImplementedError
 
-    def finish_packed(self, x, th_s: float, w_s: float, th_c: float, w_c: float, torque_nm: float, load_n: float,
-                      dissipated_j: float, slip_speed_m_s: float, nut_force_n: float, internal_src):
-        """`finish_step` on packed floats: the same ledger, energy guard and outputs, no records built."""
+    def packed_finisher(self, slip_speed, internal):
+        """`finish_step` for the packed path: a function
+        ``finish(x, θ_S, ω_S, θ_C, ω_C, torque, load, dissipated, stored) -> PackedOutputs``
+        from the state before the step and the model's results at its end (stored: the stored
+        energy there, `stored_energy_j`). The same ledger, energy guard (accumulators and verdict)
+        and nut force as `finish_step`, and the nut's position and velocity (what the node reads
+        every step); the record derives the other outputs when read, with `slip_speed` and
+        `internal` (functions of ω_S, ω_C at the step's end) for the model's own.
+        """
         h, p = self.dt_s, self.geo.lead_per_rad_m
-        dtheta = th_s - x[1]
-        w_in = torque_nm * dtheta
-        w_out = load_n * p * dtheta
-        t = x[0] + h
-        p_out, p_d = w_out / h, dissipated_j / h
-        e0 = self.stored_energy_j(x[2], x[4])
-        e1 = self.stored_energy_j(w_s, w_c)
-        flow = x[8] + abs(w_in)
-        residual = x[9] + (w_in - w_out - (e1 - e0) - dissipated_j)
-        fault = 1.0 if flow > ENERGY_GUARD_MIN_FLOW_J and abs(residual) > ENERGY_GUARD_REL * flow else 0.0
-        xn = (t, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j, flow, residual)
-        return xn, PackedOutputs((
-            t, th_s, w_s, torque_nm, th_c, w_c, -self.geo.gear_ratio * w_c, p * th_s, p * w_s, nut_force_n, load_n,
-            slip_speed_m_s, w_in / h, p_out, p_d, efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan,
-            e1, flow, residual, fault),
-            internal_src)
+        mp = self.params.mass.moved_mass_kg * p
+        k = PackedConstants(h, p, self.geo.gear_ratio, slip_speed, internal, efficiency)
+        min_flow, rel = ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
+
+        def finish(x, th_s, w_s, th_c, w_c, torque_nm, load_n, dissipated_j, stored_j):
+            dtheta = th_s - x[1]
+            w_in = torque_nm * dtheta
+            w_out = load_n * p * dtheta
+            flow = x[8] + abs(w_in)
+            residual = x[9] + (w_in - w_out - (stored_j - x[10]) - dissipated_j)
+            return PackedOutputs((
+                x[0] + h, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j, flow, residual,
+                stored_j, torque_nm, load_n, dissipated_j, dtheta, load_n + mp * (w_s - x[2]) / h, p * th_s, p * w_s,
+                1.0 if flow > min_flow and abs(residual) > rel * flow else 0.0,  # energy_fault's verdict
+                k))
+        return finish
 
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """Advance len(torque_nm) steps; input k is held over step k, output k is at its end."""
         torque_nm, load_n = _inputs(torque_nm, load_n)
-        if self.packed:  # the packed step; columns straight from its value tuples
+        if self.packed:  # the packed step; columns from its records
             x, outs = self.pack_state(state), []
             for tau, f in zip(torque_nm.tolist(), load_n.tolist()):
-                x, out = self.advance_packed(x, tau, f)
-                outs.append(out)
+                x = self.advance_packed(x, tau, f)
+                outs.append(x)
             n = len(outs)
-            table = np.array([o._values for o in outs], dtype=float).reshape(n, len(OUTPUT_FIELDS))
+            table = np.array([o.scalar_values() for o in outs], dtype=float).reshape(n, len(OUTPUT_FIELDS))
             cols = {name: table[:, i].copy() for i, (name, _) in enumerate(OUTPUT_FIELDS)}
             size = self.layout.size
             return Trajectory(columns=cols, layout=self.layout, final_state=self.unpack_state(x),

@@ -49,35 +49,58 @@ class Ideal(Model):
         self.k_backward = 1.0 - il.efficiency_backward
         self.self_locking = il.efficiency_backward <= 0.0
         self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
+        self._solve = self._step_law()
+        p, s = self.geo.lead_per_rad_m, self.slip_per_nut_speed
+        finish = self.packed_finisher(lambda w_s, w_c: abs(w_s) * p * s, lambda w_s, w_c: _EMPTY)
+        solve, k, half_j = self._solve, self.k_carrier, 0.5 * self.J
 
-    def loss_limit_nm(self, load_torque_nm: float, direction: float, speed_rad_s: float) -> float:
-        """Mesh-loss torque magnitude for motion in `direction` (±1) at `speed_rad_s`."""
-        forward = direction * load_torque_nm >= 0.0
-        k = self.k_forward if forward else self.k_backward
-        loss = abs(load_torque_nm) * k
-        if not forward and self.self_locking:
-            return loss
-        return loss * math.tanh(abs(load_torque_nm * speed_rad_s) / self.params.ideal.power_threshold_w)
+        def advance_packed(x, torque_nm: float, load_n: float):
+            """`_advance` on the packed state (Model.advance_packed); the same step law."""
+            w1, dtheta, dissipated = solve(x[2], torque_nm, load_n)
+            # stored energy ½ J ω_S² (`stored_energy_j` with kinetic = (J, 0, 0); ×½ is exact)
+            return finish(x, x[1] + dtheta, w1, x[3] + k * dtheta, k * w1, torque_nm, load_n, dissipated,
+                          half_j * w1 * w1)
+        self.advance_packed = advance_packed
 
     packed = True
 
-    def _solve(self, w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
-        """Speed at the end of the step, the angle over it and the work dissipated (the one step law)."""
+    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+        return (type(self), (self.params, self.dt_s))
+
+    def _step_law(self):
+        """The step law, ``solve(ω_S at the start, τ, F) -> (ω_S at the end, Δθ_S, dissipated work)``,
+        as a closure over the constants (both paths step with it).
+
+        Mesh loss for motion in direction d = ±1 with the load torque τ_L = F L/2π: |τ_L| (1/η_f − 1)
+        rolling forward (d τ_L ≥ 0), |τ_L| (1 − η_b) backward, faded by tanh(|τ_L ω|/P_th) except
+        when backward and self-locking (then a stiction that holds the screw).
+        """
         h, J = self.dt_s, self.J
         b = self.params.ideal.viscous_nm_s_rad
-        tau_l = load_n * self.geo.lead_per_rad_m
-        w_free = (J * w0 + h * (torque_nm - tau_l)) / (J + h * b)
-        if w_free == 0.0:
-            w1 = 0.0
-        else:
-            d = math.copysign(1.0, w_free)
-            mu = self.loss_limit_nm(tau_l, d, w_free)
-            w_slide = w_free - d * h * mu / (J + h * b)
-            w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
-        dtheta = 0.5 * h * (w0 + w1)
-        # loss + bearing torque actually applied over the step, times the angle it acted through
-        friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
-        return w1, dtheta, friction_nm * dtheta
+        p = self.geo.lead_per_rad_m
+        j_hb = J + h * b
+        k_forward, k_backward, self_locking = self.k_forward, self.k_backward, self.self_locking
+        power_threshold_w = self.params.ideal.power_threshold_w
+        tanh, copysign = math.tanh, math.copysign
+
+        def solve(w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
+            tau_l = load_n * p
+            w_free = (J * w0 + h * (torque_nm - tau_l)) / j_hb
+            if w_free == 0.0:
+                w1 = 0.0
+            else:
+                d = copysign(1.0, w_free)
+                forward = d * tau_l >= 0.0
+                mu = abs(tau_l) * (k_forward if forward else k_backward)
+                if forward or not self_locking:
+                    mu *= tanh(abs(tau_l * w_free) / power_threshold_w)
+                w_slide = w_free - d * h * mu / j_hb
+                w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
+            dtheta = 0.5 * h * (w0 + w1)
+            # loss + bearing torque actually applied over the step, times the angle it acted through
+            friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
+            return w1, dtheta, friction_nm * dtheta
+        return solve
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
         w1, dtheta, dissipated = self._solve(state.screw_speed_rad_s, torque_nm, load_n)
@@ -87,16 +110,6 @@ class Ideal(Model):
         slip = abs(w1) * self.geo.lead_per_rad_m * self.slip_per_nut_speed
         return self.finish_step(state, after, torque_nm, load_n, dissipated_j=dissipated, slip_speed_m_s=slip,
                                 internal=_EMPTY)
-
-    def advance_packed(self, x, torque_nm: float, load_n: float):
-        """`_advance` on the packed state (Model.advance_packed); same arithmetic."""
-        w0 = x[2]
-        w1, dtheta, dissipated = self._solve(w0, torque_nm, load_n)
-        p = self.geo.lead_per_rad_m
-        nut_force = load_n + self.params.mass.moved_mass_kg * p * (w1 - w0) / self.dt_s
-        return self.finish_packed(x, x[1] + dtheta, w1, x[3] + self.k_carrier * dtheta, self.k_carrier * w1,
-                                  torque_nm, load_n, dissipated, abs(w1) * p * self.slip_per_nut_speed, nut_force,
-                                  _EMPTY)
 
 
 _EMPTY = np.zeros(0)

@@ -42,7 +42,10 @@ def discretise(M: np.ndarray, C: np.ndarray, B: np.ndarray, dt_s: float) -> Line
     F[n:2 * n, n:2 * n] = Ai
     F[n:2 * n, 2 * n:] = Bi
     E = expm(F * dt_s)
-    Phi = E[:2 * n, :2 * n]
+    Phi = E[:2 * n, :2 * n].copy()
+    # q does not feed back (F's q columns are zero), so Φ's q columns are exactly (I, 0); expm gives
+    # these to rounding at most, set them exact so that a step may skip them (jones2016.advance_packed)
+    Phi[:, :n] = np.vstack([np.eye(n), np.zeros((n, n))])
     Gam = E[:2 * n, 2 * n:]
     W = _friction_work_form(Ai, Bi, C, dt_s)
     lam, vec = np.linalg.eig(Phi[n:2 * n, n:2 * n])
