@@ -529,6 +529,10 @@ class Params:
         c0 = self.ratings.static_load_rating_n
         _check("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
                f"must not exceed the static load rating ratings.static_load_rating_n = {c0:.6g} N")
+        nt = self.geometry.n_teeth
+        _check("elastic", "preload_kind", self.elastic.preload_kind, self.elastic.preload_kind != "double_nut"
+               or (nt >= 2 and nt % 2 == 0), f"must not be double_nut for geometry.n_teeth = {nt} (two halves of "
+               "N_T/2 rows: an even n_teeth)")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""

@@ -49,8 +49,12 @@ def _s30() -> Params:
     docs/model.md §4.3, K ≈ 0.8 kN/µm); same-end mounting (a nut flange pushing on a load that the
     screw's bearing reacts, the usual actuator arrangement) [assumed]. Static rating: the ISO 76
     4.2 GPa criterion on the solved contacts (`load_sharing.iso76_static_rating_n`, about 236 kN).
-    Dynamic rating 100 kN [assumed: the order vendors list for 30 mm × 5 mm planetary roller
-    screws; not transcribed from a catalogue row — replace it with the rating of the screw you model].
+    Dynamic rating 100 kN [assumed]: an order of magnitude, not a catalogue value. Ratings of this size
+    are listed in the vendors' tables, e.g. SKF "Roller screws" (PUB MT/P1 14489 EN, 2014), planetary
+    roller screws SR, and Bosch Rexroth "Planetary Screw Assemblies PLSA" (R310EN 3308), nut sizes
+    around d₀ = 30 mm; no row of those tables was at hand to transcribe, so the figure was not taken
+    from either; it was chosen below the derived static rating (236 kN) [assumed]. Replace it with the
+    rating of the screw you model; only the life estimates (docs/model.md §5 item 10) use it.
     """
     return Params(
         name="s30",

@@ -23,14 +23,30 @@ the system conservative.
 Integration: each step of dt_s is split into `substeps` sub-steps sized so that ω h ≤ 0.5 for
 the stiffest axial mode (several hundred Hz at a 1 ms step: 8 sub-steps for `s30`); each sub-step is a kick–drift–kick
 (velocity Verlet) for the nut with one `fu2018` ROS2 step (L-stable, its own stiff carrier mode)
-for the rotating core under the thread force.
+for the rotating core under the thread force, taken at the sub-step's midpoint. Impacts: where the
+held elastic force's work f Δδ misses the change of V (a contact closing or opening inside the
+sub-step, the first sub-steps of a Hertz contact) by more than IMPACT_TOL of the sub-step's input
+work (+ IMPACT_FLOOR of V), the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ, a
+discrete gradient whose work is ΔV exactly (at most IMPACT_ITERATIONS times, the best attempt kept).
+The damping force and the Stribeck torque, held over the sub-step, are booked as dissipated with
+exactly the work they did, so the ledger closes to the integration error of the core.
 
-Stiction (the `stiction` group, Karnopp type): a screw slower than the stick window (the screw
-speed at which the screw–roller slip equals `stribeck_speed_m_s`) sticks while the torque lies in
-the breakaway band [p F η_b,s, p F/η_f,s] (sliding-only efficiencies of docs/model.md §4.2 at
-μ_s = breakaway_ratio · μ); held, it does not creep at all; outside the band it runs with
-`fu2018`'s friction (the drop from breakaway to running is immediate [assumed]). The core's kinetic
-energy at the moment it sticks is booked as dissipated. `breakaway_ratio` 1 turns this off.
+Preload kinds: `oversize_rollers` loads both flanks of all N_T rows; `double_nut` is two halves of
+N_T/2 rows each, half A (rows 0 … N_T/2 − 1 of the per-thread block) loaded by δ > 0 (P₀ plus its
+share of the thread force), half B (the other rows) unloaded by it (P₀ minus its share, zero after
+lift-off at 2^(3/2) P₀ for Hertz springs, docs/model.md §4.3); each half's rows carry its own solved
+distribution and sum to its force.
+
+Stiction (the `stiction` group, Karnopp type with a Stribeck decay): a screw slower than the stick
+window (the screw speed at which the screw–roller slip |v_N|/sin β, docs/model.md §3, equals fu2018's
+Coulomb regularisation speed ε, at most the Stribeck speed) sticks while the torque lies in the
+breakaway band [p F η_b,s, p F/η_f,s] (sliding-only efficiencies of docs/model.md §4.2 at μ_s =
+breakaway_ratio · μ); held, it does not creep at all. Sliding, the screw feels `fu2018`'s friction
+plus the Stribeck excess: μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²) at the slip v = |ω_S| p / sin β
+(v_s = `stribeck_speed_m_s`), applied as a resisting screw torque p|F| (1/η_f(μ(v)) − 1/η_f(μ_c))
+driving, p|F| (η_b(μ_c) − η_b(μ(v))) back-driven, held over each sub-step at its start speed and
+booked as dissipated. The core's kinetic energy at the moment it sticks is booked as dissipated.
+`breakaway_ratio` 1 turns both off (fu2018's friction, its own stick included).
 """
 
 from __future__ import annotations
@@ -58,6 +74,14 @@ PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
 _OUTPUT_NAMES = {n for n, _ in OUTPUT_FIELDS}
 OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
 FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
+# A sub-step whose held elastic force missed the change of V by more than IMPACT_TOL of the sub-step's input work
+# |τ Δθ_S| plus IMPACT_FLOOR of the elastic energy at its ends is redone with the secant force, at most
+# IMPACT_ITERATIONS times (each cuts the miss by about (ωh)²/2 ≈ 1/8). The ledger's cumulative miss is then of
+# order IMPACT_TOL of the flow; smooth contact passes on the first attempt (backlash crossings and the first
+# sub-steps of a Hertz contact pay: about 25 % more core steps on ±20 rad/s reversals into 50 µm of play).
+IMPACT_TOL = 1e-4
+IMPACT_FLOOR = 1e-3
+IMPACT_ITERATIONS = 4
 
 
 @dataclass(frozen=True)
@@ -97,9 +121,17 @@ def sliding_efficiencies(geo, mu: float) -> tuple[float, float]:
     """(η_f, η_b) of screw–roller sliding alone at friction coefficient μ (docs/model.md §4.2):
     η_f = 1 / (1 + μ / (sin β (c_zS − μ sin β))), η_b = 1 − μ / (sin β (c_zS + μ sin β)),
     c_zS = cos α_nS cos λ_S, α_nS = atan(tan β cos λ_S)."""
+    czs, sb = _czs_sin_beta(geo)
+    return _sliding_efficiencies(czs, sb, mu)
+
+
+def _czs_sin_beta(geo) -> tuple[float, float]:
     lam, beta = geo.screw_lead_angle_rad, geo.flank_angle_rad
-    czs = math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam)
-    sb = math.sin(beta)
+    return math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam), math.sin(beta)
+
+
+def _sliding_efficiencies(czs: float, sb: float, mu: float) -> tuple[float, float]:
+    """`sliding_efficiencies` from c_zS and sin β (scalar arithmetic only: the stepping loop calls it)."""
     return 1.0 / (1.0 + mu / (sb * (czs - mu * sb))), 1.0 - mu / (sb * (czs + mu * sb))
 
 
@@ -111,7 +143,8 @@ class AxialLaw:
         self.params = params
         self.clearance = el.axial_clearance_m
         self.preload = el.preload_n
-        n_side = max(1, g.n_teeth // 2) if el.preload_kind == "double_nut" else g.n_teeth
+        self.double_nut = el.preload_kind == "double_nut"
+        self.n_side = n_side = g.n_teeth // 2 if self.double_nut else g.n_teeth  # even: Params checks it
         self.joint = ls.joint_from_params(params, n_side)
         self.side = fit_side(self.joint, params.ratings.static_load_rating_n)
         self.ea = params.material.youngs_modulus_pa * ls.screw_section_m2(params)
@@ -169,6 +202,13 @@ class AxialLaw:
         vb = (qb * (d0 - x) - s.complementary(qb)) if qb > 0 else 0.0
         return f, k, va + vb - 2 * self.v0 + 0.5 * f * f * c_ext, 0.0
 
+    def pair_forces(self, delta: float, x_n: float) -> tuple[float, float]:
+        """(Q_A, Q_B) of a preloaded pair at δ: the flank set that δ > 0 loads, and the opposed one (N)."""
+        c_ext, _ = self.external_compliance(x_n)
+        f = self._preloaded(delta, c_ext)[0]
+        x = delta - f * c_ext
+        return self.side.force(self.d0 + x), self.side.force(self.d0 - x)
+
     def nut_side_force(self, force_n: float, x_n: float) -> float:
         """−∂V/∂x_N at fixed δ: (F²/2) d(ℓ/EA)/dx_N (the shaft length changes under the nut)."""
         _, dc = self.external_compliance(x_n)
@@ -209,6 +249,12 @@ class Elastic(Model):
         # stick window: the screw speed at which the screw–roller slip (|v_N|/sin β, docs/model.md §3) is the
         # Stribeck speed
         self.w_stick = st.stribeck_speed_m_s * math.sin(self.geo.flank_angle_rad) / self.p
+        # Stribeck decay of the excess (`_stribeck_torque`): μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²)
+        self.czs, self.sin_beta = _czs_sin_beta(self.geo)
+        self.mu_c = params.friction.mu_screw_roller
+        self.eta_running = _sliding_efficiencies(self.czs, self.sin_beta, self.mu_c)
+        self.d_mu = (st.breakaway_ratio - 1.0) * self.mu_c
+        self.p_over_sin_beta_per_vs = self.p / (self.sin_beta * st.stribeck_speed_m_s)  # ω_S → v/v_s
         nr, nt = self.geo.n_rollers, self.geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
@@ -239,6 +285,13 @@ class Elastic(Model):
         lo, hi = (t * eta_b, t / eta_f) if t >= 0 else (t / eta_f, t * eta_b)
         return lo <= torque_nm <= hi
 
+    def _core_holds(self, torque_nm: float, thread_force_n: float, sign, pin_abs, gear) -> bool:
+        """The running law's static friction (fu2018 `stick_forces`) holds the screw at rest under the torque
+        left once the static Stribeck excess has taken its share (`_rest_torque`)."""
+        st, r = self.core.stick_forces(self._rest_torque(torque_nm, thread_force_n), thread_force_n, sign, pin_abs,
+                                       1.0 if gear >= 0.0 else -1.0)
+        return st is not None and r <= 1.0
+
     def _core_kinetic_j(self, ws: float, wc: float) -> float:
         mm = self._m_core
         return 0.5 * (mm[0, 0] * ws * ws + 2 * mm[0, 1] * ws * wc + mm[1, 1] * wc * wc)
@@ -258,76 +311,171 @@ class Elastic(Model):
         f, k, v, lost = self.law.evaluate(delta, x_n, extra)
         c = 2.0 * self.zeta * math.sqrt(k * self.mu) if k > 0 else 0.0
         rate = self.p * w_s - v_n
-        return f + c * rate, f, k, v, lost, delta, c * rate * rate
+        return f + c * rate, f, k, v, lost, delta, c
+
+    def _stribeck_torque(self, ws: float, thread_force_n: float) -> float:
+        """Excess friction torque (N m, resisting ω_S) of the Stribeck law over `fu2018`'s running friction.
+
+        μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²) at the screw–roller slip v = |ω_S| p / sin β (docs/model.md §3),
+        expressed through the sliding-only efficiencies of docs/model.md §4.2: driving (ω_S F ≥ 0) the screw
+        torque of the sliding contacts is p|F|/η_f(μ), back-driven p|F| η_b(μ); the excess is the difference
+        between μ(v) and μ_c. Zero when `breakaway_ratio` is 1 or the screw is at rest (`_rest_torque` then).
+        """
+        if not self.breakaway or ws == 0.0:
+            return 0.0
+        r = ws * self.p_over_sin_beta_per_vs
+        g = math.exp(-r * r)
+        if g < 1e-12:
+            return 0.0
+        ex = self._excess(ws, thread_force_n, g)
+        return ex if ws > 0.0 else -ex
+
+    def _excess(self, direction: float, thread_force_n: float, g: float) -> float:
+        """|excess torque| (N m) for motion in `direction` (sign of ω_S) at Stribeck decay g = exp(−(v/v_s)²)."""
+        mu = self.mu_c + self.d_mu * g
+        eta_f, eta_b = _sliding_efficiencies(self.czs, self.sin_beta, mu)
+        eta_fc, eta_bc = self.eta_running
+        t = abs(self.p * thread_force_n)
+        # driving (ω_S F ≥ 0): p|F|/η_f(μ) less its running value; back-driven: p|F| η_b(μ_c) less p|F| η_b(μ)
+        return t * (1.0 / eta_f - 1.0 / eta_fc) if direction * thread_force_n >= 0.0 else t * (eta_bc - eta_b)
+
+    def _rest_torque(self, torque_nm: float, thread_force_n: float) -> float:
+        """Screw torque the core sees at rest: the Stribeck excess at zero slip acts as extra static friction
+        against the net torque τ − p F, up to its full value (the v → 0 limit of `_stribeck_torque`), so the
+        screw breaks away where the running law's stick band plus that excess ends (p F/η_f,s with frictionless
+        pins), and the friction just after breakaway is the friction just before it."""
+        d = torque_nm - self.p * thread_force_n
+        if not self.breakaway or d == 0.0:
+            return torque_nm
+        ex0 = self._excess(d, thread_force_n, 1.0)
+        return torque_nm - math.copysign(min(abs(d), ex0), d)
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
         s = state
         ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
         x_n, v_n = s.nut_axial_m, s.nut_speed_m_s
         sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
-        hs, m, core = self.core.dt_s, self.m, self.core
+        hs, m, core, law, p = self.core.dt_s, self.m, self.core, self.law, self.p
         diss = 0.0
         extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
-        f_th, *_rest = self._force(th_s, ws, x_n, v_n, extra)
+        f_th, f_el0, k, v_el0, lost, delta, c0 = self._force(th_s, ws, x_n, v_n, extra)
         w_out = 0.0
         acc = s.screw_accel_rad_s2
         for _ in range(self.substeps):
             # Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with
             # the accelerations at its start): equal and opposite impulses, second order in the axial mode.
-            a_n = (f_th - load_n + self.law.nut_side_force(f_th, x_n)) / m
-            f_mid, _, _, _, _, _, p_damp = self._force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
-                                                       x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n, v_n + 0.5 * hs * a_n, extra)
-            stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
-            if stuck:  # static friction holds the screw: no creep below breakaway
-                f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
-                ws1 = wc1 = dth_s = dth_c = d_core = 0.0
-            else:
-                ws1, wc1, dth_s, dth_c, d_core, f1, sign, pin_abs, gear, mem = self._core_step(
-                    ws, wc, sign, pin_abs, gear, mem, torque_nm, f_mid)
+            a_n = (f_th - load_n + law.nut_side_force(f_el0, x_n)) / m
+            x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
+            _, f_el, k_mid, _, _, _, c = self._force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
+                                                     x_mid, v_n + 0.5 * hs * a_n, extra)
+            rate = p * (ws + 0.5 * hs * acc) - (v_n + 0.5 * hs * a_n)
+            f_str = self._stribeck_torque(ws, f_el + c * rate)
+            best = None
+            for attempt in range(IMPACT_ITERATIONS + 1):
+                f_mid = f_el + c * rate
+                stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
+                if stuck:  # static friction holds the screw: no creep below breakaway
+                    f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
+                    ws1, wc1, dth_s, dth_c, d_core = 0.0, 0.0, 0.0, 0.0, 0.0
+                    sign1, pin1, gear1, mem1 = sign, pin_abs, gear, mem
+                else:
+                    if ws == 0.0 and wc == 0.0:
+                        f_str = torque_nm - self._rest_torque(torque_nm, f_mid)
+                    ws1, wc1, dth_s, dth_c, d_core, f1, sign1, pin1, gear1, mem1 = self._core_step(
+                        ws, wc, sign, pin_abs, gear, mem, torque_nm - f_str, f_mid)
+                nsf = law.nut_side_force(f_el, x_mid)
+                v1 = v_n + hs * (f_mid - load_n + nsf) / m
+                dx = 0.5 * hs * (v_n + v1)
+                d_delta = p * dth_s - dx
+                _, f_el1, k1, v_el1, lost1, delta1, c1 = self._force(th_s + dth_s, ws1, x_n + dx, v1, extra)
+                # Energy consistency of the held elastic force: its work f Δδ (+ the nut-side term) must equal
+                # the change of V. Where the contact closes or opens inside the sub-step (a backlash crossing,
+                # an impact) the midpoint force does not see it and misses by up to the whole V of the
+                # sub-step. There the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ of the
+                # last attempt (a discrete gradient: its work is ΔV exactly), a contraction since (ωh)²/2 < 1;
+                # the attempt with the smallest miss is kept. Only sub-steps that miss pay for it (crossings, the
+                # first sub-steps of a Hertz contact; smooth contact passes the first time).
+                err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
+                if best is None or abs(err) < abs(best[0]):
+                    best = (err, f_el, c, rate, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1,
+                            v1, dx, d_delta, f_el1, k1, v_el1, lost1, delta1, c1, f_mid)
+                if (attempt == IMPACT_ITERATIONS or abs(d_delta) < 1e-15
+                        or abs(err) <= IMPACT_TOL * abs(torque_nm * dth_s) + IMPACT_FLOOR * (abs(v_el1) + abs(v_el0))):
+                    break
+                f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
+                rate = d_delta / hs
+                # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen
+                # (at a contact entry the predicted midpoint may still lie in the gap, K = 0)
+                c = 2.0 * self.zeta * math.sqrt(max(k_mid, k1) * self.mu) if max(k_mid, k1) > 0 else 0.0
+            (err, f_el, c, rate, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1,
+             v1, dx, d_delta, f_el1, k1, v_el1, lost1, delta1, c1, f_mid) = best
+            # the held damping force and Stribeck torque take out exactly the work they did over the sub-step
+            diss += d_core + c * rate * d_delta + f_str * dth_s
+            sign, pin_abs, gear, mem = sign1, pin1, gear1, mem1
             acc = (ws1 - ws) / hs
             th_s += dth_s
             th_c += dth_c
-            diss += d_core
-            if self.breakaway and not stuck and abs(ws1) < self.w_stick and self._holds(torque_nm, f_mid):
-                # Karnopp: slower than the stick window with the torque inside the breakaway band, the screw
-                # sticks; its kinetic energy (and the carrier's) goes to friction, counted in the ledger
+            if (self.breakaway and not stuck and abs(ws1) < self.w_stick
+                    and (self._holds(torque_nm, f_mid) or self._core_holds(torque_nm, f_mid, sign, pin_abs, gear))):
+                # Karnopp: slower than the stick window with the torque inside the breakaway band (or the running
+                # law's stick band widened by the static excess), the screw sticks; its kinetic energy (and the
+                # carrier's) goes to friction, counted in the ledger
                 diss += self._core_kinetic_j(ws1, wc1)
                 ws1 = wc1 = acc = 0.0
-            v1 = v_n + hs * (f_mid - load_n + self.law.nut_side_force(f_mid, x_n + 0.5 * hs * v_n)) / m
-            dx = 0.5 * hs * (v_n + v1)
+                _, f_el1, k1, v_el1, lost1, delta1, c1 = self._force(th_s, 0.0, x_n + dx, v1, extra)
             x_n += dx
             v_n = v1
             w_out += load_n * dx
-            diss += hs * p_damp
             ws, wc = ws1, wc1
-            f_th, f_el, k, v_el, lost, delta, _ = self._force(th_s, ws, x_n, v_n, extra)
+            f_el0, k, v_el0, lost, delta = f_el1, k1, v_el1, lost1, delta1
+            f_th = f_el1 + c1 * (p * ws - v_n)
         after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
                         flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
                         nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
-        internal = self._internal(f1.compact, f_el, k, v_el, lost, delta, v_n)
+        internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
         return self._finish(s, after, torque_nm, load_n, diss, w_out,
                             math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f_th, internal)
 
-    def _internal(self, compact, f_el, k, v_el, lost, delta, v_n) -> np.ndarray:
+    def _internal(self, compact, f_el, k, v_el, lost, delta, v_n, x_n=0.0, extra=0.0) -> np.ndarray:
+        """Output block: fu2018's per-roller, per-tooth and carrier quantities, the chain, the per-thread loads.
+
+        Per thread: unpreloaded and oversize rollers, one row per tooth row, thread load ζ_k |F|/N_T with ζ
+        the solved distribution at |F| (sums to |F|). Double nut: rows 0 … N_T/2 − 1 are half A (the flank
+        set that δ > 0 loads: P₀ + its share of F), rows N_T/2 … N_T − 1 half B (P₀ − its share, zero once
+        lifted off); each half carries its own solved distribution at its own force Q_A or Q_B, so each half's
+        rows sum to that half's force and Q_A − Q_B = F. `load_share` is the thread load over the mean
+        thread load (Q_A + Q_B)/N_T, so the column sums to N_T. The per-tooth block spreads fu2018's contact
+        forces (for the net thread force) over the rows by `load_share`.
+        """
         geo = self.geo
         nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
-        loads, table = self.law.shares
-        fa = abs(f_el)
-        j = int(np.searchsorted(loads, fa))
-        if j <= 0:
-            shares = table[0]
-        elif j >= len(loads):
-            shares = table[-1]
+        if self.law.double_nut:
+            qa, qb = self.law.pair_forces(delta, x_n)
+            thread_load = np.concatenate([self._shares_at(qa) * qa, self._shares_at(qb) * qb]) / self.law.n_side
+            mean = (qa + qb) / nt
+            shares = thread_load / mean if mean > 0 else np.ones(nt)
         else:
-            w = (fa - loads[j - 1]) / (loads[j] - loads[j - 1])
-            shares = (1 - w) * table[j - 1] + w * table[j]
+            fa = abs(f_el)
+            shares = self._shares_at(fa)
+            thread_load = shares * fa / nt
         comp = np.asarray(compact, dtype=float)
         per_tooth = np.empty((nr, nt, 2))
         per_tooth[:, :, 0] = shares / nt * comp[0]
         per_tooth[:, :, 1] = shares / nt * comp[1]
-        thread = np.column_stack([shares * fa / nt, shares])
+        thread = np.column_stack([thread_load, shares])
         return np.concatenate([np.tile(comp[:nq], nr), per_tooth.ravel(), comp[nq:],
                                [delta, lost, f_el, k, v_el, v_n], thread.ravel()])
+
+    def _shares_at(self, force_n: float) -> np.ndarray:
+        """ζ of one flank set's rows at axial force `force_n` ≥ 0, interpolated in the solved table."""
+        loads, table = self.law.shares
+        j = int(np.searchsorted(loads, force_n))
+        if j <= 0:
+            return table[0]
+        if j >= len(loads):
+            return table[-1]
+        w = (force_n - loads[j - 1]) / (loads[j] - loads[j - 1])
+        return (1 - w) * table[j - 1] + w * table[j]
 
     def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
                 work_out_j: float, slip: float, thread_force: float, internal: np.ndarray):
