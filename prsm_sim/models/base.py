@@ -211,6 +211,24 @@ class Model:
         return state, out
 
 
+KERNELS = ("compiled", "reference")
+
+
+def load_kernels(kernel: str):
+    """The compiled step functions (`models._kernels`, numba) for ``kernel="compiled"``, None for
+    ``"reference"`` (the pure-Python path, the specification the compiled one is tested against).
+
+    numba is imported here, on first use, so that `import prsm_sim` stays light; compiled code is
+    cached on disk (the first run of a fresh install compiles once).
+    """
+    if kernel not in KERNELS:
+        raise ParamError(f"kernel = {kernel!r}: allowed values are {', '.join(map(repr, KERNELS))}")
+    if kernel == "reference":
+        return None
+    from prsm_sim.models import _kernels
+    return _kernels
+
+
 def efficiency(power_out_w: float, power_dissipated_w: float) -> float:
     """Efficiency of the mechanism itself, from the power through it (inertia excluded).
 
