@@ -56,9 +56,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from prsm_sim.models.base import Model, efficiency
-from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018
-from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.models.base import Model, _inputs, efficiency, energy_fault, load_kernels
+from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018, _kernel_mem
+from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State, Trajectory
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
 
@@ -224,7 +224,20 @@ def _share_table(joint: ls.Joint, rating_n: float) -> tuple[np.ndarray, np.ndarr
 class Elastic(Model):
     name = "elastic"
 
-    def __init__(self, params: Params, dt_s: float) -> None:
+    def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:
+        """
+        Parameters
+        ----------
+        params : Params
+            Validated parameters.
+        dt_s : float
+            Fixed output step, s.
+        kernel : {"compiled", "reference"}
+            "compiled": the sub-step loop (core included) and the batch loop run as numba code
+            (`models._kernels`, the same arithmetic); "reference": the pure-Python methods, their specification.
+        """
+        self._kn = load_kernels(kernel)
+        self.kernel = kernel
         super().__init__(params, dt_s)
         self.law = AxialLaw(params)
         self.m = params.mass.moved_mass_kg
@@ -239,7 +252,7 @@ class Elastic(Model):
                     for f in (0.0, 0.5 * params.ratings.static_load_rating_n))
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
-        self.core = Fu2018(core_params, self.dt_s / self.substeps)
+        self.core = Fu2018(core_params, self.dt_s / self.substeps, kernel=kernel)
         from prsm_sim.models.jones2016 import mass_matrix
         self._m_core = mass_matrix(core_params)
         # breakaway (the `stiction` group): a hold band of screw torque wider than the running one
@@ -263,6 +276,21 @@ class Elastic(Model):
             InternalBlock("elastic", ("quantity",), (len(ELASTIC_QUANTITIES),), ELASTIC_QUANTITIES),
             InternalBlock("per_thread", ("tooth", "quantity"), (nt, 2), PER_THREAD_QUANTITIES),
         ))
+        law = self.law
+        # the compiled kernel's constants (layout: models._kernels E_*)
+        self._kernel_e = np.array([
+            self.p, self.m, self.mu, self.zeta, self.substeps, self.core.dt_s, float(self.breakaway), *self.eta_static,
+            self.w_stick, self.czs, self.sin_beta, self.mu_c, *self.eta_running, self.d_mu,
+            self.p_over_sin_beta_per_vs, law.clearance, law.preload, law.side.a, law.side.b, law.ea, law.x_bearing,
+            law.c_housing, law.d0, law.v0, self._m_core[0, 0], self._m_core[0, 1], self._m_core[1, 1], IMPACT_TOL,
+            IMPACT_FLOOR, IMPACT_ITERATIONS], dtype=float)
+
+    def __getstate__(self) -> dict:  # the kernel module is looked up again on unpickling
+        return {k: v for k, v in self.__dict__.items() if k != "_kn"}
+
+    def __setstate__(self, d: dict) -> None:
+        self.__dict__.update(d)
+        self._kn = load_kernels(self.kernel)
 
     def initial_state(self, nut_position_m: float = 0.0) -> State:
         s = super().initial_state(nut_position_m)
@@ -350,7 +378,71 @@ class Elastic(Model):
         ex0 = self._excess(d, thread_force_n, 1.0)
         return torque_nm - math.copysign(min(abs(d), ex0), d)
 
+    def _kernel_args(self, s: State) -> tuple:
+        """The state as the compiled kernel takes it (floats; the solver memory as `fu2018._kernel_mem`)."""
+        return (float(s.screw_angle_rad), float(s.screw_speed_rad_s), float(s.carrier_angle_rad),
+                float(s.carrier_speed_rad_s), float(s.nut_axial_m), float(s.nut_speed_m_s), float(s.flank_sign),
+                float(s.pin_force_n), float(s.gear_force_n), _kernel_mem(s.solver), float(s.screw_accel_rad_s2),
+                float(s.extra_clearance_m))
+
+    def _advance_compiled(self, s: State, torque_nm: float, load_n: float):
+        (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
+         f_th) = self._kn.elastic_advance(*self._kernel_args(s), float(torque_nm), float(load_n), self._kernel_e,
+                                          self.core._kernel_k, self.core._kernel_s)
+        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                        flank_sign=int(sign), pin_force_n=pin_abs, gear_force_n=gear,
+                        solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n,
+                        screw_accel_rad_s2=acc)
+        internal = self._internal(f1[3:], f_el0, k, v_el0, lost, delta, v_n, x_n, s.extra_clearance_m)
+        return self._finish(s, after, torque_nm, load_n, diss, w_out, math.sqrt(f1[8]**2 + f1[9]**2 + f1[10]**2),
+                            f_th, internal)
+
+    def run(self, state: State, torque_nm, load_n) -> Trajectory:
+        """Batch form of `step`: with the compiled kernel the whole loop, ledger included, runs compiled and the
+        internal-load block is built when first read; the reference path steps `_advance`."""
+        if self._kn is None:
+            return super().run(state, torque_nm, load_n)
+        tau, load = _inputs(torque_nm, load_n)
+        n = len(tau)
+        cols, comp = np.empty((n, 19)), np.empty((n, len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)))
+        ledger = np.array([state.work_in_j, state.work_out_j, state.dissipated_j, state.energy_flow_j,
+                           state.energy_residual_j])
+        th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc = self._kn.elastic_run(
+            *self._kernel_args(state), ledger, np.array(tau), np.array(load), self._kernel_e, self.core._kernel_k,
+            self.core._kernel_s, cols, comp)
+        h = self.dt_s
+        final = replace(state, time_s=state.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws,
+                        carrier_angle_rad=th_c, carrier_speed_rad_s=wc, flank_sign=int(sign), pin_force_n=pin_abs,
+                        gear_force_n=gear, solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n,
+                        screw_accel_rad_s2=acc, work_in_j=float(ledger[0]), work_out_j=float(ledger[1]),
+                        dissipated_j=float(ledger[2]), energy_flow_j=float(ledger[3]),
+                        energy_residual_j=float(ledger[4]))
+        w_s, w_c, w_in, w_out, diss, flow, residual = (cols[:, i] for i in (1, 3, 8, 9, 10, 12, 13))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            p_out, p_d = w_out / h, diss / h
+            eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
+            ratio = np.where(w_s != 0, w_c / w_s, np.nan)
+        columns = {
+            "time_s": final.time_s - h * np.arange(n - 1, -1, -1), "screw_angle_rad": cols[:, 0],
+            "screw_speed_rad_s": w_s, "screw_torque_nm": tau.copy(), "carrier_angle_rad": cols[:, 2],
+            "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -self.geo.gear_ratio * w_c,
+            "nut_position_m": cols[:, 4], "nut_velocity_m_s": cols[:, 5], "nut_force_n": cols[:, 6],
+            "load_force_n": load.copy(), "slip_speed_m_s": cols[:, 7], "power_in_w": w_in / h, "power_out_w": p_out,
+            "power_dissipated_w": p_d, "efficiency": eff, "speed_ratio": ratio, "stored_energy_j": cols[:, 11],
+            "energy_flow_j": flow, "energy_residual_j": residual,
+            "energy_fault": energy_fault(flow, residual).astype(float),
+        }
+        columns = {name: np.ascontiguousarray(columns[name]) for name, _ in OUTPUT_FIELDS}
+        extra = state.extra_clearance_m
+
+        def internal():
+            return np.array([self._internal(comp[i], *cols[i, 14:19], cols[i, 5], cols[i, 4], extra)
+                             for i in range(n)], dtype=float).reshape(n, self.layout.size)
+        return Trajectory(columns=columns, internal=internal, layout=self.layout, final_state=final)
+
     def _advance(self, state: State, torque_nm: float, load_n: float):
+        if self._kn is not None:
+            return self._advance_compiled(state, torque_nm, load_n)
         s = state
         ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
         x_n, v_n = s.nut_axial_m, s.nut_speed_m_s
