@@ -373,32 +373,31 @@ def fu2018_run(ws, wc, th_s, th_c, sign, pin_abs, gear, mem, tau_a, load_a, K, S
 
 # -- elastic --------------------------------------------------------------------------------------
 @njit(cache=True)
-def _power_force(d, a, b):
-    """`PowerLaw.force` (`ToothRow.force_n` with one roller): Newton on s = F^(1/3), δ = a s² + b s³."""
+def _power_root(d, a, b):
+    """`elastic.power_law_root`: s = F^(1/3) with a s² + b s³ = d."""
     if d <= 0.0:
         return 0.0
     if a == 0.0:
-        return d / b
-    s = (d / a) ** 0.5 if b == 0.0 else min((d / a) ** 0.5, (d / b) ** (1.0 / 3.0))
+        return (d / b) ** (1.0 / 3.0)
+    s = math.sqrt(d / a) if b == 0.0 or a * a * a >= d * b * b else (d / b) ** (1.0 / 3.0)
     for _ in range(60):
-        r = a * s * s + b * s ** 3.0 - d
+        r = a * s * s + b * s * s * s - d
         s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
         if abs(s_new - s) <= 1e-15 * s:
-            s = s_new
-            break
+            return s_new
         s = s_new
-    return s ** 3.0
+    return s
 
 
 @njit(cache=True)
-def _compliance(f, a, b):
-    f = max(f, 1e-300)
-    return (2.0 / 3.0) * a * f ** (-1.0 / 3.0) + b
+def _stiffness_at_root(s, a, b):
+    return 1.0 / ((2.0 / 3.0) * a / max(s, 1e-100) + b)
 
 
 @njit(cache=True)
-def _complementary(f, a, b):
-    return 0.6 * a * f ** (5.0 / 3.0) + 0.5 * b * f * f
+def _complementary_at_root(s, a, b):
+    f = s * s * s
+    return 0.6 * a * (s * s * s * s * s) + 0.5 * b * f * f
 
 
 @njit(cache=True)
@@ -411,32 +410,35 @@ def law_evaluate(delta, x_n, extra, E):
         d0 = E[E_D0]
         x = delta / 2.0
         for _ in range(60):
-            qa, qb = _power_force(d0 + x, a, b), _power_force(d0 - x, a, b)
-            ka = 1.0 / _compliance(qa, a, b) if qa > 0 else 0.0
-            kb = 1.0 / _compliance(qb, a, b) if qb > 0 else 0.0
+            ra, rb = _power_root(d0 + x, a, b), _power_root(d0 - x, a, b)
+            qa, qb = ra * ra * ra, rb * rb * rb
+            ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
+            kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
             f = qa - qb
             r = x + f * c_ext - delta
             dx = -r / (1.0 + (ka + kb) * c_ext)
             x += dx
             if abs(dx) <= 1e-15 * max(abs(x), d0):
                 break
-        qa, qb = _power_force(d0 + x, a, b), _power_force(d0 - x, a, b)
-        ka = 1.0 / _compliance(qa, a, b) if qa > 0 else 0.0
-        kb = 1.0 / _compliance(qb, a, b) if qb > 0 else 0.0
+        ra, rb = _power_root(d0 + x, a, b), _power_root(d0 - x, a, b)
+        qa, qb = ra * ra * ra, rb * rb * rb
+        ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
+        kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
         f = qa - qb
         k_pair = ka + kb
         k = k_pair / (1.0 + k_pair * c_ext)
-        va = qa * (d0 + x) - _complementary(qa, a, b)
-        vb = (qb * (d0 - x) - _complementary(qb, a, b)) if qb > 0 else 0.0
+        va = qa * (d0 + x) - _complementary_at_root(ra, a, b)
+        vb = (qb * (d0 - x) - _complementary_at_root(rb, a, b)) if qb > 0 else 0.0
         return f, k, va + vb - 2 * E[E_V0] + 0.5 * f * f * c_ext, 0.0
     half = 0.5 * (E[E_CLEARANCE] + extra)
     mag = abs(delta) - half
     if mag <= 0.0:
         return 0.0, 0.0, 0.0, delta
     bb = b + c_ext
-    f = _power_force(mag, a, bb)
-    k = 1.0 / _compliance(f, a, bb)
-    v = f * mag - _complementary(f, a, bb)
+    r = _power_root(mag, a, bb)
+    f = r * r * r
+    k = _stiffness_at_root(r, a, bb)
+    v = f * mag - _complementary_at_root(r, a, bb)
     sgn = 1.0 if delta > 0 else -1.0
     return sgn * f, k, v, sgn * half
 
@@ -601,7 +603,7 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
 
 
 @njit(cache=True)
-def _stored_total(th_s, ws, wc, x_n, v_n, extra, E):
+def stored_total(th_s, ws, wc, x_n, v_n, extra, E):
     """`Elastic.total_stored_energy_j`."""
     _, _, v, _ = law_evaluate(E[E_P] * th_s - x_n, x_n, extra, E)
     return _core_kinetic(ws, wc, E) + 0.5 * E[E_M] * v_n ** 2.0 + v
@@ -614,14 +616,14 @@ def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, ext
     θ_S, ω_S, θ_C, ω_C, x_N, v_N, thread force, slip, W_in, W_out, dissipated, stored, flow, residual,
     then the chain's F, K, V, lost, δ) and comp (n × 26); `ledger` (W_in, W_out, dissipated, flow, residual)
     is updated in place. Returns the final (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin, gear, memory, acc)."""
-    e0 = _stored_total(th_s, ws, wc, x_n, v_n, extra, E)
+    e0 = stored_total(th_s, ws, wc, x_n, v_n, extra, E)
     for i in range(tau_a.shape[0]):
         tau, load = tau_a[i], load_a[i]
         th0 = th_s
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
          f_th) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau, load, E, K, S)
         w_in = tau * (th_s - th0)
-        e1 = _stored_total(th_s, ws, wc, x_n, v_n, extra, E)
+        e1 = stored_total(th_s, ws, wc, x_n, v_n, extra, E)
         ledger[0] += w_in
         ledger[1] += w_out
         ledger[2] += diss
@@ -636,3 +638,30 @@ def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, ext
         for j in range(26):
             comp[i, j] = f1[3 + j]
     return th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc
+
+
+@njit(cache=True)
+def elastic_internal(f1, f_el, k, v_el, lost, delta, v_n, loads, table, gather):
+    """`Elastic._internal` for a single flank set (no double nut): ζ interpolated in the solved table at |F|
+    (`Elastic._shares_at`), then the same gather from [compact, chain, per-tooth, thread loads, shares]."""
+    nt = table.shape[1]
+    fa = abs(f_el)
+    j = np.searchsorted(loads, fa)
+    if j <= 0:
+        shares = table[0].copy()
+    elif j >= loads.shape[0]:
+        shares = table[-1].copy()
+    else:
+        w = (fa - loads[j - 1]) / (loads[j] - loads[j - 1])
+        shares = (1 - w) * table[j - 1] + w * table[j]
+    src = np.empty(32 + 4 * nt)
+    for i in range(26):
+        src[i] = f1[3 + i]
+    src[26], src[27], src[28], src[29], src[30], src[31] = delta, lost, f_el, k, v_el, v_n
+    for i in range(nt):
+        spread = shares[i] / nt
+        src[32 + i] = spread * f1[3]
+        src[32 + nt + i] = spread * f1[4]
+        src[32 + 2 * nt + i] = shares[i] * fa / nt
+        src[32 + 3 * nt + i] = shares[i]
+    return src[gather]

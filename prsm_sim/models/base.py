@@ -50,6 +50,7 @@ class Model:
     """Base class: subclasses set `name`, `layout`, `kinetic` and implement `_advance`."""
 
     name = "base"
+    compiled_kernel = False  # True: the constructor takes kernel="compiled"|"reference" (`load_kernels`)
     # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
     # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
     kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)

@@ -51,6 +51,7 @@ booked as dissipated. The core's kinetic energy at the moment it sticks is booke
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, replace
 
@@ -94,10 +95,13 @@ class PowerLaw:
     def approach(self, f: float) -> float:
         return self.a * f ** (2.0 / 3.0) + self.b * f
 
+    def root(self, d: float) -> float:
+        """s = F^(1/3) at approach d (`power_law_root`)."""
+        return power_law_root(d, self.a, self.b)
+
     def force(self, d: float) -> float:
-        if d <= 0.0:
-            return 0.0
-        return ls.ToothRow(1, self.a, self.b).force_n(d)
+        s = power_law_root(d, self.a, self.b)
+        return s * s * s
 
     def compliance(self, f: float) -> float:
         f = max(f, 1e-300)
@@ -106,6 +110,40 @@ class PowerLaw:
     def complementary(self, f: float) -> float:
         """∫₀^F δ dF' = (3/5) a F^(5/3) + b F²/2; the stored energy is F δ − this."""
         return 0.6 * self.a * f ** (5.0 / 3.0) + 0.5 * self.b * f * f
+
+
+def power_law_root(d: float, a: float, b: float) -> float:
+    """s = F^(1/3) with δ = a F^(2/3) + b F, i.e. a s² + b s³ = d (0 for d ≤ 0): the inverse of the power law.
+
+    In s the law is a polynomial, convex and increasing for s > 0, so Newton from an upper bound
+    (the smaller of the pure-Hertz root √(d/a) and the pure-linear root ∛(d/b), picked by comparing
+    a³ with d b² so that only one root is taken) converges monotonically, with no fractional power
+    inside the loop. The stiffness and energy then follow from s without powers either
+    (`AxialLaw.evaluate`). The compiled kernel (`models._kernels._power_root`) does the same arithmetic.
+    """
+    if d <= 0.0:
+        return 0.0
+    if a == 0.0:
+        return (d / b) ** (1.0 / 3.0)
+    s = math.sqrt(d / a) if b == 0.0 or a * a * a >= d * b * b else (d / b) ** (1.0 / 3.0)
+    for _ in range(60):
+        r = a * s * s + b * s * s * s - d
+        s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
+        if abs(s_new - s) <= 1e-15 * s:
+            return s_new
+        s = s_new
+    return s
+
+
+def _stiffness_at_root(s: float, a: float, b: float) -> float:
+    """dF/dδ = 1 / ((2/3) a F^(−1/3) + b) at F = s³ (s floored where F^(−1/3) would overflow)."""
+    return 1.0 / ((2.0 / 3.0) * a / max(s, 1e-100) + b)
+
+
+def _complementary_at_root(s: float, a: float, b: float) -> float:
+    """∫₀^F δ dF' = (3/5) a F^(5/3) + b F²/2 at F = s³."""
+    f = s * s * s
+    return 0.6 * a * (s * s * s * s * s) + 0.5 * b * f * f
 
 
 def fit_side(joint: ls.Joint, rating_n: float) -> PowerLaw:
@@ -171,35 +209,38 @@ class AxialLaw:
         mag = abs(delta) - half
         if mag <= 0.0:
             return 0.0, 0.0, 0.0, delta
-        law = PowerLaw(self.side.a, self.side.b + c_ext)
-        f = law.force(mag)
-        k = 1.0 / law.compliance(f)
-        v = f * mag - law.complementary(f)
+        a, b = self.side.a, self.side.b + c_ext
+        r = power_law_root(mag, a, b)
+        f = r * r * r
+        k = _stiffness_at_root(r, a, b)
+        v = f * mag - _complementary_at_root(r, a, b)
         sgn = 1.0 if delta > 0 else -1.0
         return sgn * f, k, v, sgn * half
 
     def _preloaded(self, delta: float, c_ext: float) -> tuple[float, float, float, float]:
         """Pair shift x_p with δ = x_p + F(x_p) c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
-        s, d0 = self.side, self.d0
+        a, b, d0 = self.side.a, self.side.b, self.d0
         x = delta / 2.0
         for _ in range(60):
-            qa, qb = s.force(d0 + x), s.force(d0 - x)
-            ka = 1.0 / s.compliance(qa) if qa > 0 else 0.0
-            kb = 1.0 / s.compliance(qb) if qb > 0 else 0.0
+            ra, rb = power_law_root(d0 + x, a, b), power_law_root(d0 - x, a, b)
+            qa, qb = ra * ra * ra, rb * rb * rb
+            ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
+            kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
             f = qa - qb
             r = x + f * c_ext - delta
             dx = -r / (1.0 + (ka + kb) * c_ext)
             x += dx
             if abs(dx) <= 1e-15 * max(abs(x), d0):
                 break
-        qa, qb = s.force(d0 + x), s.force(d0 - x)
-        ka = 1.0 / s.compliance(qa) if qa > 0 else 0.0
-        kb = 1.0 / s.compliance(qb) if qb > 0 else 0.0
+        ra, rb = power_law_root(d0 + x, a, b), power_law_root(d0 - x, a, b)
+        qa, qb = ra * ra * ra, rb * rb * rb
+        ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
+        kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
         f = qa - qb
         k_pair = ka + kb
         k = k_pair / (1.0 + k_pair * c_ext)
-        va = qa * (d0 + x) - s.complementary(qa)
-        vb = (qb * (d0 - x) - s.complementary(qb)) if qb > 0 else 0.0
+        va = qa * (d0 + x) - _complementary_at_root(ra, a, b)
+        vb = (qb * (d0 - x) - _complementary_at_root(rb, a, b)) if qb > 0 else 0.0
         return f, k, va + vb - 2 * self.v0 + 0.5 * f * f * c_ext, 0.0
 
     def pair_forces(self, delta: float, x_n: float) -> tuple[float, float]:
@@ -223,6 +264,7 @@ def _share_table(joint: ls.Joint, rating_n: float) -> tuple[np.ndarray, np.ndarr
 
 class Elastic(Model):
     name = "elastic"
+    compiled_kernel = True
 
     def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:
         """
@@ -276,6 +318,8 @@ class Elastic(Model):
             InternalBlock("elastic", ("quantity",), (len(ELASTIC_QUANTITIES),), ELASTIC_QUANTITIES),
             InternalBlock("per_thread", ("tooth", "quantity"), (nt, 2), PER_THREAD_QUANTITIES),
         ))
+        self._gather = self._gather_index()
+        self._share_loads = self.law.shares[0].tolist()
         law = self.law
         # the compiled kernel's constants (layout: models._kernels E_*)
         self._kernel_e = np.array([
@@ -393,9 +437,18 @@ class Elastic(Model):
                         flank_sign=int(sign), pin_force_n=pin_abs, gear_force_n=gear,
                         solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n,
                         screw_accel_rad_s2=acc)
-        internal = self._internal(f1[3:], f_el0, k, v_el0, lost, delta, v_n, x_n, s.extra_clearance_m)
+        if self.law.double_nut:
+            internal = self._internal(f1[3:], f_el0, k, v_el0, lost, delta, v_n, x_n, s.extra_clearance_m)
+        else:
+            internal = self._kn.elastic_internal(f1, f_el0, k, v_el0, lost, delta, v_n, *self.law.shares,
+                                                 self._gather)
+        e_args = (float(s.extra_clearance_m), self._kernel_e)
+        stored = (self._kn.stored_total(float(s.screw_angle_rad), float(s.screw_speed_rad_s),
+                                        float(s.carrier_speed_rad_s), float(s.nut_axial_m), float(s.nut_speed_m_s),
+                                        *e_args),
+                  self._kn.stored_total(th_s, ws, wc, x_n, v_n, *e_args))
         return self._finish(s, after, torque_nm, load_n, diss, w_out, math.sqrt(f1[8]**2 + f1[9]**2 + f1[10]**2),
-                            f_th, internal)
+                            f_th, internal, stored)
 
     def run(self, state: State, torque_nm, load_n) -> Trajectory:
         """Batch form of `step`: with the compiled kernel the whole loop, ledger included, runs compiled and the
@@ -539,8 +592,7 @@ class Elastic(Model):
         thread load (Q_A + Q_B)/N_T, so the column sums to N_T. The per-tooth block spreads fu2018's contact
         forces (for the net thread force) over the rows by `load_share`.
         """
-        geo = self.geo
-        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        nt = self.geo.n_teeth
         if self.law.double_nut:
             qa, qb = self.law.pair_forces(delta, x_n)
             thread_load = np.concatenate([self._shares_at(qa) * qa, self._shares_at(qb) * qb]) / self.law.n_side
@@ -550,18 +602,28 @@ class Elastic(Model):
             fa = abs(f_el)
             shares = self._shares_at(fa)
             thread_load = shares * fa / nt
-        comp = np.asarray(compact, dtype=float)
-        per_tooth = np.empty((nr, nt, 2))
-        per_tooth[:, :, 0] = shares / nt * comp[0]
-        per_tooth[:, :, 1] = shares / nt * comp[1]
-        thread = np.column_stack([thread_load, shares])
-        return np.concatenate([np.tile(comp[:nq], nr), per_tooth.ravel(), comp[nq:],
-                               [delta, lost, f_el, k, v_el, v_n], thread.ravel()])
+        spread = shares / nt
+        # one gather from [compact, the chain, ζ/N_T N_S, ζ/N_T N_N, thread loads, shares] (`_gather_index`)
+        src = np.concatenate((compact, (delta, lost, f_el, k, v_el, v_n), spread * compact[0], spread * compact[1],
+                              thread_load, shares))
+        return src[self._gather]
+
+    def _gather_index(self) -> np.ndarray:
+        """Positions in `_internal`'s source vector of every element of the layout."""
+        geo = self.geo
+        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        ncomp = nq + len(CARRIER_QUANTITIES)
+        nel = len(ELASTIC_QUANTITIES)
+        start = ncomp + nel  # the two per-tooth columns, then thread loads and shares, nt each
+        per_tooth = np.tile((start + np.arange(nt)[:, None] + nt * np.arange(2)[None, :]).ravel(), nr)
+        thread = (start + 2 * nt + np.arange(nt)[:, None] + nt * np.arange(2)[None, :]).ravel()
+        return np.concatenate([np.tile(np.arange(nq), nr), per_tooth, np.arange(nq, ncomp),
+                               np.arange(ncomp, ncomp + nel), thread])
 
     def _shares_at(self, force_n: float) -> np.ndarray:
         """ζ of one flank set's rows at axial force `force_n` ≥ 0, interpolated in the solved table."""
         loads, table = self.law.shares
-        j = int(np.searchsorted(loads, force_n))
+        j = bisect.bisect_left(self._share_loads, force_n)  # np.searchsorted's answer without its call overhead
         if j <= 0:
             return table[0]
         if j >= len(loads):
@@ -570,8 +632,10 @@ class Elastic(Model):
         return (1 - w) * table[j - 1] + w * table[j]
 
     def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
-                work_out_j: float, slip: float, thread_force: float, internal: np.ndarray):
-        """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply)."""
+                work_out_j: float, slip: float, thread_force: float, internal: np.ndarray,
+                stored: tuple[float, float] | None = None):
+        """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply).
+        `stored`: the stored energy before and after the step where the caller has it (the compiled path)."""
         h = self.dt_s
         w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
         state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
@@ -580,10 +644,10 @@ class Elastic(Model):
         extra = {}
         if "energy_residual_j" in _OUTPUT_NAMES:  # the energy guard of models/base (where the tree has it)
             from prsm_sim.models.base import energy_fault
-            e1 = self.total_stored_energy_j(state)
+            e0, e1 = stored if stored is not None else (self.total_stored_energy_j(before),
+                                                        self.total_stored_energy_j(state))
             flow = before.energy_flow_j + abs(w_in)
-            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j
-                                                   - (e1 - self.total_stored_energy_j(before)))
+            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j - (e1 - e0))
             state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
             extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
                      "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}

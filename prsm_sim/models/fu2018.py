@@ -192,6 +192,7 @@ class Forces(NamedTuple):
 
 class Fu2018(Model):
     name = "fu2018"
+    compiled_kernel = True
 
     @classmethod
     def check_params(cls, params: Params) -> None:
