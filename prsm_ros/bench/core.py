@@ -142,11 +142,12 @@ def fu2018_figures(quick: bool = False) -> list[dict]:
     rev = _fu2018_reversal_case(quick, repeats)
     rt_ref = sim_s / wall_ref
     return [
-        figure("fu2018 (10 rollers × 40 teeth) simulated s per wall s", rt, "×", "≥ 1000", rt >= 1000 and err <= 1e-3,
-               spread, f"error vs 20× finer step: {err:.1e}; {wall / n * 1e6:.2f} µs per step (compiled kernel); "
+        figure("fu2018 (10 rollers × 40 teeth) simulated s per wall s", rt, "×", "≥ 1000",
+               rt >= 1000 and err <= 1e-3, spread, f"error vs 20× finer step: {err:.1e}; {wall / n * 1e6:.2f} µs per step (compiled kernel); "
                "per-tooth array built on first read"),
         figure("fu2018 reference path (pure Python, same run) simulated s per wall s", rt_ref, "×", "(peer)",
-               same <= 1e-12, spread_ref, f"{wall_ref / n * 1e6:.1f} µs per step; compiled {rt / rt_ref:.0f}× faster, "
+               same <= 1e-12, spread_ref,
+               f"{wall_ref / n * 1e6:.1f} µs per step; compiled {rt / rt_ref:.0f}× faster, "
                f"results within {same:.1e} of it (relative to range)"),
         figure("fu2018 step cost 100 teeth / 10 teeth", ratio, "", "≤ 1.2", ratio <= 1.2, None,
                f"Simulator.step: {cost[10] * 1e6:.1f} vs {cost[100] * 1e6:.1f} µs; batch run with every step's "

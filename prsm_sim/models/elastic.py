@@ -72,7 +72,6 @@ ELASTIC_QUANTITIES = (
     ("nut_velocity_m_s", "m/s"),
 )
 PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
-_OUTPUT_NAMES = {n for n, _ in OUTPUT_FIELDS}
 OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
 FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
 # A sub-step whose held elastic force missed the change of V by more than IMPACT_TOL of the sub-step's input work
@@ -638,19 +637,17 @@ class Elastic(Model):
         `stored`: the stored energy before and after the step where the caller has it (the compiled path)."""
         h = self.dt_s
         w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
-        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
-                        work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j)
         p_out, p_d = work_out_j / h, dissipated_j / h
-        extra = {}
-        if "energy_residual_j" in _OUTPUT_NAMES:  # the energy guard of models/base (where the tree has it)
-            from prsm_sim.models.base import energy_fault
-            e0, e1 = stored if stored is not None else (self.total_stored_energy_j(before),
-                                                        self.total_stored_energy_j(state))
-            flow = before.energy_flow_j + abs(w_in)
-            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j - (e1 - e0))
-            state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
-            extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
-                     "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
+        # the energy guard of models/base; the stored energy depends on nothing the ledger fields change
+        e0, e1 = stored if stored is not None else (self.total_stored_energy_j(before),
+                                                    self.total_stored_energy_j(after))
+        flow = before.energy_flow_j + abs(w_in)
+        residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j - (e1 - e0))
+        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
+                        work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j,
+                        energy_flow_j=flow, energy_residual_j=residual)
+        extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
+                 "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
         w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
         out = Outputs(time_s=state.time_s, screw_angle_rad=state.screw_angle_rad, screw_speed_rad_s=w_s,
                       screw_torque_nm=torque_nm, carrier_angle_rad=state.carrier_angle_rad, carrier_speed_rad_s=w_c,

@@ -187,7 +187,8 @@ class Forces(NamedTuple):
     def pin_force_sum_n(self) -> float:
         """|F_pin,1| + |F_pin,2|: what pin friction scales with (√(x² + y²) rather than `math.hypot`, whose
         rounding differs from the C library's: the compiled kernel takes the same square roots)."""
-        return math.sqrt(self.p1r * self.p1r + self.p1t * self.p1t) + math.sqrt(self.p2r * self.p2r + self.p2t * self.p2t)
+        return (math.sqrt(self.p1r * self.p1r + self.p1t * self.p1t)
+                + math.sqrt(self.p2r * self.p2r + self.p2t * self.p2t))
 
 
 class Fu2018(Model):
