@@ -371,10 +371,13 @@ class Elastic(Model):
     def total_stored_energy_j(self, state: State) -> float:
         """Kinetic energy of the core and the nut plus the chain's elastic energy (J), at the state's
         clearance (`State.extra_clearance_m` added to the parameter's)."""
-        delta = self.p * state.screw_angle_rad - state.nut_axial_m
-        _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m, state.extra_clearance_m)
-        return (self._core_kinetic_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
-                + 0.5 * self.m * state.nut_speed_m_s**2 + v)
+        return self._stored_at(state.screw_angle_rad, state.screw_speed_rad_s, state.carrier_speed_rad_s,
+                               state.nut_axial_m, state.nut_speed_m_s, state.extra_clearance_m)
+
+    def _stored_at(self, th_s, w_s, w_c, x_n, v_n, extra) -> float:
+        delta = self.p * th_s - x_n
+        _, _, v, _ = self.law.evaluate(delta, x_n, extra)
+        return self._core_kinetic_j(w_s, w_c) + 0.5 * self.m * v_n**2 + v
 
     # -- stepping -------------------------------------------------------------------------
     def _force(self, th_s, w_s, x_n, v_n, extra=0.0):
@@ -432,10 +435,9 @@ class Elastic(Model):
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
          f_th) = self._kn.elastic_advance(*self._kernel_args(s), float(torque_nm), float(load_n), self._kernel_e,
                                           self.core._kernel_k, self.core._kernel_s)
-        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
-                        flank_sign=int(sign), pin_force_n=pin_abs, gear_force_n=gear,
-                        solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n,
-                        screw_accel_rad_s2=acc)
+        after = dict(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                     flank_sign=int(sign), pin_force_n=pin_abs, gear_force_n=gear,
+                     solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
         if self.law.double_nut:
             internal = self._internal(f1[3:], f_el0, k, v_el0, lost, delta, v_n, x_n, s.extra_clearance_m)
         else:
@@ -573,9 +575,9 @@ class Elastic(Model):
             ws, wc = ws1, wc1
             f_el0, k, v_el0, lost, delta = f_el1, k1, v_el1, lost1, delta1
             f_th = f_el1 + c1 * (p * ws - v_n)
-        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
-                        flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
-                        nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
+        after = dict(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                     flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
+                     nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
         internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
         return self._finish(s, after, torque_nm, load_n, diss, w_out,
                             math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f_th, internal)
@@ -630,20 +632,23 @@ class Elastic(Model):
         w = (force_n - loads[j - 1]) / (loads[j] - loads[j - 1])
         return (1 - w) * table[j - 1] + w * table[j]
 
-    def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
+    def _finish(self, before: State, after: dict, torque_nm: float, load_n: float, dissipated_j: float,
                 work_out_j: float, slip: float, thread_force: float, internal: np.ndarray,
                 stored: tuple[float, float] | None = None):
         """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply).
-        `stored`: the stored energy before and after the step where the caller has it (the compiled path)."""
+        `after`: the state fields the step changed (one `replace` makes the next state); `stored`: the stored
+        energy before and after the step where the caller has it (the compiled path)."""
         h = self.dt_s
-        w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
+        w_in = torque_nm * (after["screw_angle_rad"] - before.screw_angle_rad)
         p_out, p_d = work_out_j / h, dissipated_j / h
-        # the energy guard of models/base; the stored energy depends on nothing the ledger fields change
-        e0, e1 = stored if stored is not None else (self.total_stored_energy_j(before),
-                                                    self.total_stored_energy_j(after))
+        # the energy guard of models/base
+        e0, e1 = stored if stored is not None else (
+            self.total_stored_energy_j(before),
+            self._stored_at(after["screw_angle_rad"], after["screw_speed_rad_s"], after["carrier_speed_rad_s"],
+                            after["nut_axial_m"], after["nut_speed_m_s"], before.extra_clearance_m))
         flow = before.energy_flow_j + abs(w_in)
         residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j - (e1 - e0))
-        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
+        state = replace(before, **after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
                         work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j,
                         energy_flow_j=flow, energy_residual_j=residual)
         extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,

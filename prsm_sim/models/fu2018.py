@@ -737,9 +737,12 @@ class Fu2018(Model):
 JACOBIAN_REFRESH_STEPS = 2  # 10 lost stability in the stiff carrier mode at μ = 0.1 under 20 kN
 
 
+_NO_MEM = (0.0,) * 6
+
+
 def _kernel_mem(mem: tuple) -> tuple:
     """The solver memory as the compiled kernel holds it: 6 floats, sign 0 for none."""
-    return tuple(float(v) for v in mem) if len(mem) == 6 else (0.0,) * 6
+    return mem if len(mem) == 6 else _NO_MEM  # the paths store it as floats
 
 
 def _dot(x, y) -> float:
