@@ -111,7 +111,7 @@ class Simulator:
             self.model = build_model(params, model, dt_s, kernel)
         else:  # the actuator around the screw (prsm_sim.actuator): `step`'s first input is then its command
             from prsm_sim.actuator import Actuator
-            self.model = Actuator(params, dt_s, model, actuator)
+            self.model = Actuator(params, dt_s, model, actuator, kernel)
         self.params = params
         self.dt_s = self.model.dt_s
         self._initial_nut_position_m = float(nut_position_m)
