@@ -517,12 +517,14 @@ def _core_kinetic(ws, wc, E):
 @njit(cache=True)
 def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, K, S):
     """`Elastic._advance`'s sub-step loop: (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin force, gear force,
-    memory, acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread force)."""
+    memory, acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread force,
+    stored energy at the start and at the end (`Elastic.total_stored_energy_j`))."""
     hs, m, p = E[E_HS], E[E_M], E[E_P]
     breakaway = E[E_BREAKAWAY] != 0.0
     n_iter = int(E[E_IMPACT_ITER])
     diss = 0.0
     f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
+    e_start = _core_kinetic(ws, wc, E) + 0.5 * m * v_n ** 2.0 + v_el0
     w_out = 0.0
     f1 = _NAN29
     for _ in range(int(E[E_SUBSTEPS])):
@@ -598,15 +600,10 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
         ws, wc = ws1, wc1
         f_el0, k, v_el0, lost, delta = f_el1, k1, v_el1, lost1, delta1
         f_th = f_el1 + c1 * (p * ws - v_n)
+    # V at the end state is the last sub-step's (recomputed at the end state where the screw stuck)
+    e_end = _core_kinetic(ws, wc, E) + 0.5 * m * v_n ** 2.0 + v_el0
     return (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost,
-            delta, f_th)
-
-
-@njit(cache=True)
-def stored_total(th_s, ws, wc, x_n, v_n, extra, E):
-    """`Elastic.total_stored_energy_j`."""
-    _, _, v, _ = law_evaluate(E[E_P] * th_s - x_n, x_n, extra, E)
-    return _core_kinetic(ws, wc, E) + 0.5 * E[E_M] * v_n ** 2.0 + v
+            delta, f_th, e_start, e_end)
 
 
 @njit(cache=True)
@@ -616,20 +613,18 @@ def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, ext
     θ_S, ω_S, θ_C, ω_C, x_N, v_N, thread force, slip, W_in, W_out, dissipated, stored, flow, residual,
     then the chain's F, K, V, lost, δ) and comp (n × 26); `ledger` (W_in, W_out, dissipated, flow, residual)
     is updated in place. Returns the final (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin, gear, memory, acc)."""
-    e0 = stored_total(th_s, ws, wc, x_n, v_n, extra, E)
     for i in range(tau_a.shape[0]):
         tau, load = tau_a[i], load_a[i]
         th0 = th_s
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
-         f_th) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau, load, E, K, S)
+         f_th, e0, e1) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau, load,
+                                         E, K, S)
         w_in = tau * (th_s - th0)
-        e1 = stored_total(th_s, ws, wc, x_n, v_n, extra, E)
         ledger[0] += w_in
         ledger[1] += w_out
         ledger[2] += diss
         ledger[3] = ledger[3] + abs(w_in)
         ledger[4] = ledger[4] + (w_in - w_out - diss - (e1 - e0))
-        e0 = e1
         cols[i, 0], cols[i, 1], cols[i, 2], cols[i, 3], cols[i, 4], cols[i, 5] = th_s, ws, th_c, wc, x_n, v_n
         cols[i, 6], cols[i, 7] = f_th, math.sqrt(f1[8] ** 2 + f1[9] ** 2 + f1[10] ** 2)
         cols[i, 8], cols[i, 9], cols[i, 10], cols[i, 11], cols[i, 12], cols[i, 13] = w_in, w_out, diss, e1, \

@@ -426,6 +426,8 @@ class Elastic(Model):
 
     def _kernel_args(self, s: State) -> tuple:
         """The state as the compiled kernel takes it (floats; the solver memory as `fu2018._kernel_mem`)."""
+        # float() on every field: an int (a user's replace(state, nut_axial_m=0)) would make numba compile a
+        # second specialisation on the spot
         return (float(s.screw_angle_rad), float(s.screw_speed_rad_s), float(s.carrier_angle_rad),
                 float(s.carrier_speed_rad_s), float(s.nut_axial_m), float(s.nut_speed_m_s), float(s.flank_sign),
                 float(s.pin_force_n), float(s.gear_force_n), _kernel_mem(s.solver), float(s.screw_accel_rad_s2),
@@ -433,8 +435,8 @@ class Elastic(Model):
 
     def _advance_compiled(self, s: State, torque_nm: float, load_n: float):
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
-         f_th) = self._kn.elastic_advance(*self._kernel_args(s), float(torque_nm), float(load_n), self._kernel_e,
-                                          self.core._kernel_k, self.core._kernel_s)
+         f_th, e0, e1) = self._kn.elastic_advance(*self._kernel_args(s), float(torque_nm), float(load_n),
+                                                  self._kernel_e, self.core._kernel_k, self.core._kernel_s)
         after = dict(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
                      flank_sign=int(sign), pin_force_n=pin_abs, gear_force_n=gear,
                      solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
@@ -443,13 +445,8 @@ class Elastic(Model):
         else:
             internal = self._kn.elastic_internal(f1, f_el0, k, v_el0, lost, delta, v_n, *self.law.shares,
                                                  self._gather)
-        e_args = (float(s.extra_clearance_m), self._kernel_e)
-        stored = (self._kn.stored_total(float(s.screw_angle_rad), float(s.screw_speed_rad_s),
-                                        float(s.carrier_speed_rad_s), float(s.nut_axial_m), float(s.nut_speed_m_s),
-                                        *e_args),
-                  self._kn.stored_total(th_s, ws, wc, x_n, v_n, *e_args))
         return self._finish(s, after, torque_nm, load_n, diss, w_out, math.sqrt(f1[8]**2 + f1[9]**2 + f1[10]**2),
-                            f_th, internal, stored)
+                            f_th, internal, (e0, e1))
 
     def run(self, state: State, torque_nm, load_n) -> Trajectory:
         """Batch form of `step`: with the compiled kernel the whole loop, ledger included, runs compiled and the

@@ -742,7 +742,7 @@ _NO_MEM = (0.0,) * 6
 
 def _kernel_mem(mem: tuple) -> tuple:
     """The solver memory as the compiled kernel holds it: 6 floats, sign 0 for none."""
-    return mem if len(mem) == 6 else _NO_MEM  # the paths store it as floats
+    return tuple(map(float, mem)) if len(mem) == 6 else _NO_MEM  # floats: one compiled specialisation
 
 
 def _dot(x, y) -> float:
