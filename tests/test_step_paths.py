@@ -16,7 +16,7 @@ from prsm_sim import OUTPUT_FIELDS, Outputs, Simulator, preset
 from prsm_sim.errors import InputError
 from prsm_sim.outputs import PackedOutputs, State
 
-CASES = [("ideal", "s30"), ("jones2016", "s30"), ("jones2016", "jones2016"), ("fu2018", "s30")]
+CASES = [("ideal", "s30"), ("jones2016", "s30"), ("jones2016", "jones2016"), ("fu2018", "s30"), ("elastic", "s30")]
 
 
 @pytest.mark.parametrize("model,name", CASES)
