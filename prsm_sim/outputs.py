@@ -466,7 +466,6 @@ class Trajectory:
 # `aux` record (what the model's own outputs are derived from: fu2018 its end forces). The other
 # outputs are a few flops on these, done when read.
 PACKED_STATE_SIZE = 12
-_EXTRA = PACKED_STATE_SIZE - 1
 (_TAU, _LOAD, _DISS, _WIN, _WOUT, _NUT_F, _NUT_X, _NUT_V, _FAULT, _K,
  _AUX) = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 11)
 
@@ -519,8 +518,9 @@ class PackedOutputs(tuple):
     packed state), and the other fields are properties with the arithmetic of `Model.finish_step`
     (tests/test_step_paths.py compares every field). The slip speed and the internal vector come
     from the model's own code on the step's `aux` record (fu2018: its end forces, expanded by
-    `Fu2018.expand_one`); the internal vector is built on first read and kept. Reads as an `Outputs` (registered as one: ``isinstance(out, Outputs)`` holds),
-    immutable; pickles and copies as a plain `Outputs`.
+    `Fu2018.expand_one`); the internal vector is built on first read and kept. Reads as an
+    `Outputs` (registered as one: ``isinstance(out, Outputs)`` holds), immutable; pickles and
+    copies as a plain `Outputs`.
     """
 
     def __setattr__(self, name, value):
@@ -583,8 +583,8 @@ class PackedOutputs(tuple):
         h = k.dt_s
         p_out, p_d = w_out / h, diss / h
         return (t, th_s, w_s, tau, th_c, w_c, -k.gear_ratio * w_c, nut_x, nut_v, nut_f, load,
-                k.slip_speed(w_s, w_c, aux), w_in / h, p_out, p_d, k.efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan, e1, flow,
-                residual, fault)
+                k.slip_speed(w_s, w_c, aux), w_in / h, p_out, p_d, k.efficiency(p_out, p_d),
+                w_c / w_s if w_s != 0.0 else math.nan, e1, flow, residual, fault)
 
     def scalars(self) -> dict[str, float]:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
