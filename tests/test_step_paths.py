@@ -75,7 +75,8 @@ def test_packed_step_matches_reference(model, name):
 # without friction, the reverse stroke with the load reversed (the loaded flanks switch), braking and
 # holding. Options: fu2018's nut sliding (g ≠ r_N/r_R) and heavy load with pin and rolling friction;
 # elastic's backlash, preload (oversize rollers, double nut), Stribeck breakaway (the preset's) and the
-# growing-backlash fault (extra clearance set in the state mid-run, as the actuator does). `drive`: the
+# growing-backlash fault (extra clearance set in the state mid-run, as the actuator does); every run's energy
+# books are opened mid-run so that the guard's verdict trips on both paths. `drive`: the
 # loop's feed-forward torque over p F (the heavy load needs more than the loop's integral builds up in a
 # stroke to break away).
 RICH_CASES = [
@@ -112,9 +113,13 @@ def test_packed_step_matches_reference_through_stick_reversals_and_contact(model
         else:  # the torque that balances the load without friction: friction brakes the screw and holds it
             load = load_n if phase == 1 else -load_n
             torque = lead * load
-        if model == "elastic" and k == n // 2:  # the growing-backlash fault widens the clearance
-            sim.state = replace(sim.state, extra_clearance_m=20e-6)
-            ref_state = replace(ref_state, extra_clearance_m=20e-6)
+        if k == n // 2:
+            # books that do not close (a residual of 1 % of the flow): the energy guard's verdict from here on;
+            # elastic: the growing-backlash fault widens the clearance
+            fault = {"energy_residual_j": 0.01 * ref_state.energy_flow_j + 1e-3,
+                     **({"extra_clearance_m": 20e-6} if model == "elastic" else {})}
+            sim.state = replace(sim.state, **fault)
+            ref_state = replace(ref_state, **fault)
         out = sim.step(torque, load)
         ref_state, ref_out = ref_model.step(ref_state, torque, load)
         got.append(_rows(out))
@@ -123,6 +128,8 @@ def test_packed_step_matches_reference_through_stick_reversals_and_contact(model
         flanks.add(ref_state.flank_sign)
         stuck += ref_state.screw_speed_rad_s == 0.0 and ref_state.carrier_speed_rad_s == 0.0 and k > 0
     speeds = np.array(speeds)
+    fault = np.array(want)[:, [f for f, _ in OUTPUT_FIELDS].index("energy_fault")]
+    assert not fault[: n // 2].any() and fault[-1] == 1.0  # the guard tripped on the books, not before
     assert speeds.max() > 15.0 and speeds.min() < -15.0 and flanks == {1, -1} and stuck > 10  # the run did all that
     if model == "elastic" and overrides.get("elastic.axial_clearance_m"):
         lost = np.array(want)[:, len(OUTPUT_FIELDS) + sim.layout.offsets()["elastic"] + 1]
