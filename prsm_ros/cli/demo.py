@@ -148,7 +148,7 @@ def summary_text(s: dict, dt_s: float, record: Path | None) -> str:
         f"  steps            {round(s['sim_time_s'] / dt_s):10d}     ({s['sim_time_s']:.3f} s simulated, "
         f"{s['states_received']} states received)",
         f"  real-time factor {s['real_time_factor']:10.3f}     ({s['wall_time_s']:.2f} s wall)",
-        f"  controller       {s['scheduling']}",
+        f"  scheduling       controller {s['scheduling']}",
     ]
     if not s["completed"]:
         lines.append("  (incomplete: the controller stopped before the end of the run)")

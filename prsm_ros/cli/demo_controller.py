@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> dict:
                                     TOPICS["nut_position_reference"].qos)
     pause = node.create_client(SetBool, resolve_name("~/pause"))
     track = Tracking()
-    # one thread (the executor's) writes st; the main thread reads it only between spins
+    # callbacks run in this thread, inside spin_once: st has one owner and needs no lock
     st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_ns": None, "nut": None}
 
     def on_state(raw: bytes) -> None:
