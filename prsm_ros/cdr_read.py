@@ -96,7 +96,9 @@ def joint_state_at(b: bytes, index: int) -> tuple[int, float, float]:
     _, ((p_at, p_n), (v_at, v_n), _) = _joint_state_arrays(b)
     if not (0 <= index < p_n and index < v_n):
         raise IndexError(f"joint {index} not in a state of {p_n} positions and {v_n} velocities")
-    return _stamp_ns(b), struct.unpack_from("<d", b, p_at + 8 * index)[0], struct.unpack_from("<d", b, v_at + 8 * index)[0]
+    (x,) = struct.unpack_from("<d", b, p_at + 8 * index)
+    (v,) = struct.unpack_from("<d", b, v_at + 8 * index)
+    return _stamp_ns(b), x, v
 
 
 def time_reference_stamps(b: bytes) -> tuple[int, int]:
