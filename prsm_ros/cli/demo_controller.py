@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> dict:
             st["nut"] = joint_state_names(raw).index(NUT_JOINT)
         stamp_ns, x, v = joint_state_at(raw, st["nut"])
         if st["last_ns"] is not None and stamp_ns <= st["last_ns"]:
-            return  # a state we have acted on already (a lockstep batch's last state sent twice)
+            return  # not newer than the state acted on last: answering it would repeat a step's command
         t = stamp_ns * 1e-9
         if st["t0"] is None:
             st["t0"], st["wall0"] = t, time.perf_counter()
