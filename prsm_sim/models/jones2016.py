@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from prsm_sim.errors import InputError
 from prsm_sim.physics.contact import ContactPoint, contact_for
@@ -148,6 +147,7 @@ class Jones2016(Model):
         Vi = np.linalg.inv(V)
         drive = Vi @ (lin.Gam[2:] @ u)  # modal input, 2 × n
         z0 = Vi @ w0
+        from scipy.signal import lfilter  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
         modes = np.empty((2, n))
         for i in range(2):
             # z[k+1] = λ z[k] + drive[k]; filter output is z[1..n]
