@@ -634,29 +634,3 @@ def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, ext
             comp[i, j] = f1[3 + j]
     return th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc
 
-
-@njit(cache=True)
-def elastic_internal(f1, f_el, k, v_el, lost, delta, v_n, loads, table, gather):
-    """`Elastic._internal` for a single flank set (no double nut): ζ interpolated in the solved table at |F|
-    (`Elastic._shares_at`), then the same gather from [compact, chain, per-tooth, thread loads, shares]."""
-    nt = table.shape[1]
-    fa = abs(f_el)
-    j = np.searchsorted(loads, fa)
-    if j <= 0:
-        shares = table[0].copy()
-    elif j >= loads.shape[0]:
-        shares = table[-1].copy()
-    else:
-        w = (fa - loads[j - 1]) / (loads[j] - loads[j - 1])
-        shares = (1 - w) * table[j - 1] + w * table[j]
-    src = np.empty(32 + 4 * nt)
-    for i in range(26):
-        src[i] = f1[3 + i]
-    src[26], src[27], src[28], src[29], src[30], src[31] = delta, lost, f_el, k, v_el, v_n
-    for i in range(nt):
-        spread = shares[i] / nt
-        src[32 + i] = spread * f1[3]
-        src[32 + nt + i] = spread * f1[4]
-        src[32 + 2 * nt + i] = shares[i] * fa / nt
-        src[32 + 3 * nt + i] = shares[i]
-    return src[gather]

@@ -58,7 +58,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from prsm_sim.models.base import Model, _inputs, efficiency, energy_fault, load_kernels
-from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018, _kernel_mem
+from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
+                                    _kernel_mem, slip_speed)
 from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State, Trajectory
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
@@ -72,6 +73,7 @@ ELASTIC_QUANTITIES = (
     ("nut_velocity_m_s", "m/s"),
 )
 PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
+_OUTPUT_NAMES = {n for n, _ in OUTPUT_FIELDS}
 OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
 FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
 # A sub-step whose held elastic force missed the change of V by more than IMPACT_TOL of the sub-step's input work
@@ -327,13 +329,7 @@ class Elastic(Model):
             self.p_over_sin_beta_per_vs, law.clearance, law.preload, law.side.a, law.side.b, law.ea, law.x_bearing,
             law.c_housing, law.d0, law.v0, self._m_core[0, 0], self._m_core[0, 1], self._m_core[1, 1], IMPACT_TOL,
             IMPACT_FLOOR, IMPACT_ITERATIONS], dtype=float)
-
-    def __getstate__(self) -> dict:  # the kernel module is looked up again on unpickling
-        return {k: v for k, v in self.__dict__.items() if k != "_kn"}
-
-    def __setstate__(self, d: dict) -> None:
-        self.__dict__.update(d)
-        self._kn = load_kernels(self.kernel)
+        self._packed_setup()
 
     def initial_state(self, nut_position_m: float = 0.0) -> State:
         s = super().initial_state(nut_position_m)
@@ -371,13 +367,13 @@ class Elastic(Model):
     def total_stored_energy_j(self, state: State) -> float:
         """Kinetic energy of the core and the nut plus the chain's elastic energy (J), at the state's
         clearance (`State.extra_clearance_m` added to the parameter's)."""
-        return self._stored_at(state.screw_angle_rad, state.screw_speed_rad_s, state.carrier_speed_rad_s,
-                               state.nut_axial_m, state.nut_speed_m_s, state.extra_clearance_m)
+        delta = self.p * state.screw_angle_rad - state.nut_axial_m
+        _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m, state.extra_clearance_m)
+        return self._stored_j(state.screw_speed_rad_s, state.carrier_speed_rad_s, state.nut_speed_m_s, v)
 
-    def _stored_at(self, th_s, w_s, w_c, x_n, v_n, extra) -> float:
-        delta = self.p * th_s - x_n
-        _, _, v, _ = self.law.evaluate(delta, x_n, extra)
-        return self._core_kinetic_j(w_s, w_c) + 0.5 * self.m * v_n**2 + v
+    def _stored_j(self, ws: float, wc: float, v_n: float, v_el: float) -> float:
+        """Core and nut kinetic energy plus the chain's elastic energy `v_el` (J)."""
+        return self._core_kinetic_j(ws, wc) + 0.5 * self.m * v_n**2 + v_el
 
     # -- stepping -------------------------------------------------------------------------
     def _force(self, th_s, w_s, x_n, v_n, extra=0.0):
@@ -433,24 +429,9 @@ class Elastic(Model):
                 float(s.pin_force_n), float(s.gear_force_n), _kernel_mem(s.solver), float(s.screw_accel_rad_s2),
                 float(s.extra_clearance_m))
 
-    def _advance_compiled(self, s: State, torque_nm: float, load_n: float):
-        (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
-         f_th, e0, e1) = self._kn.elastic_advance(*self._kernel_args(s), float(torque_nm), float(load_n),
-                                                  self._kernel_e, self.core._kernel_k, self.core._kernel_s)
-        after = dict(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
-                     flank_sign=int(sign), pin_force_n=pin_abs, gear_force_n=gear,
-                     solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
-        if self.law.double_nut:
-            internal = self._internal(f1[3:], f_el0, k, v_el0, lost, delta, v_n, x_n, s.extra_clearance_m)
-        else:
-            internal = self._kn.elastic_internal(f1, f_el0, k, v_el0, lost, delta, v_n, *self.law.shares,
-                                                 self._gather)
-        return self._finish(s, after, torque_nm, load_n, diss, w_out, math.sqrt(f1[8]**2 + f1[9]**2 + f1[10]**2),
-                            f_th, internal, (e0, e1))
-
     def run(self, state: State, torque_nm, load_n) -> Trajectory:
         """Batch form of `step`: with the compiled kernel the whole loop, ledger included, runs compiled and the
-        internal-load block is built when first read; the reference path steps `_advance`."""
+        internal-load block is built when first read; the reference path is `Model.run` over the packed step."""
         if self._kn is None:
             return super().run(state, torque_nm, load_n)
         tau, load = _inputs(torque_nm, load_n)
@@ -492,18 +473,69 @@ class Elastic(Model):
         return Trajectory(columns=columns, internal=internal, layout=self.layout, final_state=final)
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
-        if self._kn is not None:
-            return self._advance_compiled(state, torque_nm, load_n)
         s = state
-        ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
-        x_n, v_n = s.nut_axial_m, s.nut_speed_m_s
-        sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
+        extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
+        (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el0, k, v_el0, lost,
+         delta) = self._substeps(s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad,
+                                 s.nut_axial_m, s.nut_speed_m_s, s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver,
+                                 s.screw_accel_rad_s2, extra, torque_nm, load_n)
+        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                        flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
+                        nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
+        internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
+        return self._finish(s, after, torque_nm, load_n, diss, w_out, slip_speed(f1), f_th, internal)
+
+    packed = True
+    # the core's lagged friction state and solver memory, the nut's axial state, the coupling's last
+    # acceleration and the clearance a fault added (`_substeps`' arguments beyond the rigid state)
+    extra_state_fields = ("flank_sign", "pin_force_n", "gear_force_n", "solver", "nut_axial_m", "nut_speed_m_s",
+                          "screw_accel_rad_s2", "extra_clearance_m")
+
+    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+        return (type(self), (self.params, self.dt_s))
+
+    def _packed_setup(self) -> None:
+        """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
+
+        The same `_substeps`; the stored energy from the chain's energy they end with (`_stored_j`, the
+        sum `total_stored_energy_j` forms, which would evaluate the chain law again), and the step's
+        end forces and chain figures as the record's aux, from which the slip speed and the internal
+        vector (`_internal`) are derived when read.
+        """
+        model, stored, internal = self, self._stored_j, self._internal
+        finish = self.packed_finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
+                                      lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
+
+        def advance_packed(x, torque_nm: float, load_n: float):
+            sign, pin_abs, gear, mem, x_n, v_n, acc, extra = x[11]
+            (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el, k, v_el, lost,
+             delta) = model._substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra,
+                                      torque_nm, load_n)
+            return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, stored(ws, wc, v_n, v_el),
+                          (sign, pin_abs, gear, mem, x_n, v_n, acc, extra), (f1, f_el, k, v_el, lost, delta, v_n, x_n,
+                                                                              extra), f_th, (x_n, v_n, w_out))
+        self.advance_packed = advance_packed
+
+    def _substeps(self, ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n):
+        """One output step of `substeps` sub-steps (module doc), on plain floats.
+
+        Returns (ω_S, ω_C, θ_S, θ_C, x_N, v_N, flank sign, pin force, gear force, solver memory, screw
+        acceleration, dissipated J, the load's work J, thread force on the nut N, the core's end forces, and
+        the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end).
+        With the compiled kernel: `models._kernels.elastic_advance`, the same arithmetic.
+        """
+        if self._kn is not None:
+            (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
+             f_th, _, _) = self._kn.elastic_advance(
+                float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
+                float(gear), _kernel_mem(mem), float(acc), float(extra), float(torque_nm), float(load_n),
+                self._kernel_e, self.core._kernel_k, self.core._kernel_s)
+            return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, mem if mem[4] != 0.0 else (), acc, diss,
+                    w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta)
         hs, m, core, law, p = self.core.dt_s, self.m, self.core, self.law, self.p
         diss = 0.0
-        extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
         f_th, f_el0, k, v_el0, lost, delta, c0 = self._force(th_s, ws, x_n, v_n, extra)
         w_out = 0.0
-        acc = s.screw_accel_rad_s2
         for _ in range(self.substeps):
             # Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with
             # the accelerations at its start): equal and opposite impulses, second order in the axial mode.
@@ -572,12 +604,8 @@ class Elastic(Model):
             ws, wc = ws1, wc1
             f_el0, k, v_el0, lost, delta = f_el1, k1, v_el1, lost1, delta1
             f_th = f_el1 + c1 * (p * ws - v_n)
-        after = dict(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
-                     flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
-                     nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
-        internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
-        return self._finish(s, after, torque_nm, load_n, diss, w_out,
-                            math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f_th, internal)
+        return (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el0, k, v_el0,
+                lost, delta)
 
     def _internal(self, compact, f_el, k, v_el, lost, delta, v_n, x_n=0.0, extra=0.0) -> np.ndarray:
         """Output block: fu2018's per-roller, per-tooth and carrier quantities, the chain, the per-thread loads.
@@ -629,27 +657,24 @@ class Elastic(Model):
         w = (force_n - loads[j - 1]) / (loads[j] - loads[j - 1])
         return (1 - w) * table[j - 1] + w * table[j]
 
-    def _finish(self, before: State, after: dict, torque_nm: float, load_n: float, dissipated_j: float,
-                work_out_j: float, slip: float, thread_force: float, internal: np.ndarray,
-                stored: tuple[float, float] | None = None):
-        """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply).
-        `after`: the state fields the step changed (one `replace` makes the next state); `stored`: the stored
-        energy before and after the step where the caller has it (the compiled path)."""
+    def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
+                work_out_j: float, slip: float, thread_force: float, internal: np.ndarray):
+        """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply)."""
         h = self.dt_s
-        w_in = torque_nm * (after["screw_angle_rad"] - before.screw_angle_rad)
+        w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
+        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
+                        work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j)
         p_out, p_d = work_out_j / h, dissipated_j / h
-        # the energy guard of models/base
-        e0, e1 = stored if stored is not None else (
-            self.total_stored_energy_j(before),
-            self._stored_at(after["screw_angle_rad"], after["screw_speed_rad_s"], after["carrier_speed_rad_s"],
-                            after["nut_axial_m"], after["nut_speed_m_s"], before.extra_clearance_m))
-        flow = before.energy_flow_j + abs(w_in)
-        residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j - (e1 - e0))
-        state = replace(before, **after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
-                        work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j,
-                        energy_flow_j=flow, energy_residual_j=residual)
-        extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
-                 "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
+        extra = {}
+        if "energy_residual_j" in _OUTPUT_NAMES:  # the energy guard of models/base (where the tree has it)
+            from prsm_sim.models.base import energy_fault
+            e1 = self.total_stored_energy_j(state)
+            flow = before.energy_flow_j + abs(w_in)
+            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j
+                                                   - (e1 - self.total_stored_energy_j(before)))
+            state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
+            extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
+                     "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
         w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
         out = Outputs(time_s=state.time_s, screw_angle_rad=state.screw_angle_rad, screw_speed_rad_s=w_s,
                       screw_torque_nm=torque_nm, carrier_angle_rad=state.carrier_angle_rad, carrier_speed_rad_s=w_c,
