@@ -156,12 +156,15 @@ def test_bad_kernel_is_one_line_naming_field_value_and_allowed():
         assert "\n" not in msg and "kernel = 'fast'" in msg and "'compiled'" in msg and "'reference'" in msg
 
 
-def test_default_is_compiled_and_a_compiled_simulator_pickles():
+def test_default_is_compiled_and_pickling_keeps_the_choice():
     sim = Simulator(preset("s30"), "elastic", 1e-3)
     assert sim.model.kernel == "compiled" and sim.model.core.kernel == "compiled"
     sim.step(1.0, 100.0)
     twin = pickle.loads(pickle.dumps(sim))
     assert twin.step(1.0, 100.0).screw_angle_rad == sim.step(1.0, 100.0).screw_angle_rad
+    for name in ("fu2018", "elastic"):  # a sweep worker gets the path it was given
+        ref = pickle.loads(pickle.dumps(build_model(preset("s30"), name, 1e-3, kernel="reference")))
+        assert ref.kernel == "reference" and ref._kn is None
 
 
 def test_import_prsm_sim_does_not_import_numba():

@@ -96,10 +96,6 @@ class PowerLaw:
     def approach(self, f: float) -> float:
         return self.a * f ** (2.0 / 3.0) + self.b * f
 
-    def root(self, d: float) -> float:
-        """s = F^(1/3) at approach d (`power_law_root`)."""
-        return power_law_root(d, self.a, self.b)
-
     def force(self, d: float) -> float:
         s = power_law_root(d, self.a, self.b)
         return s * s * s
@@ -492,7 +488,7 @@ class Elastic(Model):
                           "screw_accel_rad_s2", "extra_clearance_m")
 
     def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s))
+        return (type(self), (self.params, self.dt_s, self.kernel))
 
     def _packed_setup(self) -> None:
         """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
