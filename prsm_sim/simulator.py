@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.base import KERNELS, Model
+from prsm_sim.models.base import Model, check_kernel
 from prsm_sim.models.elastic import Elastic
 from prsm_sim.models.fu2018 import Fu2018
 from prsm_sim.models.ideal import Ideal
@@ -56,8 +56,7 @@ def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled
         cls = MODELS[model]
     except (KeyError, TypeError):
         raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
-    if kernel not in KERNELS:
-        raise ParamError(f"kernel = {kernel!r}: allowed values are {', '.join(map(repr, KERNELS))}")
+    check_kernel(kernel)
     cls.check_params(params)
     return cls(params, dt_s, kernel=kernel) if cls.compiled_kernel else cls(params, dt_s)
 

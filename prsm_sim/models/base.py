@@ -232,6 +232,12 @@ class Model:
 KERNELS = ("compiled", "reference")
 
 
+def check_kernel(kernel) -> None:
+    """ParamError (one line: field, value, allowed values) unless `kernel` is one of KERNELS."""
+    if kernel not in KERNELS:
+        raise ParamError(f"kernel = {kernel!r}: allowed values are {', '.join(map(repr, KERNELS))}")
+
+
 def load_kernels(kernel: str):
     """The compiled step functions (`models._kernels`, numba) for ``kernel="compiled"``, None for
     ``"reference"`` (the pure-Python path, the specification the compiled one is tested against).
@@ -239,8 +245,7 @@ def load_kernels(kernel: str):
     numba is imported here, on first use, so that `import prsm_sim` stays light; compiled code is
     cached on disk (the first run of a fresh install compiles once).
     """
-    if kernel not in KERNELS:
-        raise ParamError(f"kernel = {kernel!r}: allowed values are {', '.join(map(repr, KERNELS))}")
+    check_kernel(kernel)
     if kernel == "reference":
         return None
     from prsm_sim.models import _kernels
