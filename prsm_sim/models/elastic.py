@@ -325,6 +325,9 @@ class Elastic(Model):
             self.p_over_sin_beta_per_vs, law.clearance, law.preload, law.side.a, law.side.b, law.ea, law.x_bearing,
             law.c_housing, law.d0, law.v0, self._m_core[0, 0], self._m_core[0, 1], self._m_core[1, 1], IMPACT_TOL,
             IMPACT_FLOOR, IMPACT_ITERATIONS], dtype=float)
+        if self._kn is not None:  # compiled or loaded from the disk cache now, not in a realtime loop's first step
+            self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
+                                     self.core._kernel_k, self.core._kernel_s)
         self._packed_setup()
 
     def initial_state(self, nut_position_m: float = 0.0) -> State:

@@ -291,6 +291,10 @@ class Fu2018(Model):
             self.dt_s, self._h_min, self._h_zone, self._slip_tol, self.eps_v, *self.kinetic,
             float(JACOBIAN_REFRESH_STEPS), SLIP_ZONE, STEP_BALANCE_TOL, STEP_BALANCE_FLOOR_J, self.p])
         self._kernel_s = np.array([self._side_k[1], self._side_k[-1]])
+        if self._kn is not None:
+            # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
+            # the model is built, rather than in the first step of a realtime loop
+            self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, _NO_MEM, 0.0, 0.0, self._kernel_k, self._kernel_s)
         self._packed_setup()
 
     def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
