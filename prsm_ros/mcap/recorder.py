@@ -255,6 +255,25 @@ class McapRecorder:
             else:
                 self._queue.append((topic, msg, stamp_ns))
 
+    def write_many(self, items: list[tuple[str, object, int]]) -> None:
+        """Enqueue several `(topic, message, stamp_ns)` at once, as `write` would one by one (one lock
+        and one queue extension: the node hands over each step's messages together). Never blocks;
+        what does not fit in the queue is counted as dropped, the newest first."""
+        classes = self._classes
+        for topic, msg, _ in items:
+            cls = classes.get(topic)
+            if cls is None or (type(msg) is not cls and type(msg) is not bytes):
+                self.write(topic, msg, 0)  # raises the same error as a single write
+        with self._lock:
+            if not self._writing:
+                self._lost += len(items)
+                return
+            room = self._queue_size - len(self._queue)
+            if room < len(items):
+                self._dropped_full += len(items) - max(room, 0)
+                items = items[:max(room, 0)]
+            self._queue.extend(items)
+
     def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
         """Write what is queued, then the summary and footer; True when the file was finished cleanly.
 

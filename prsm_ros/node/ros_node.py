@@ -25,6 +25,7 @@ cleared, fault cleared). SIGINT and SIGTERM stop the node cleanly (exit 0, MCAP 
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import signal
@@ -44,13 +45,16 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_sim import PrsmError
 
+from prsm_ros.node.cdr import Float64Reader
 from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.ownership import CommandOwnership, participant_of
 from prsm_ros.node.record_path import RecordPathError, claim_record_path
 from prsm_ros.node.scheduling import raise_process_threads
@@ -72,6 +76,9 @@ REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Pytho
 STEP_THREAD_STOP_S = 5.0  # a step in progress (a stiff model step) finishes well within this
 RECORDER_CLOSE_S = 5.0  # the queue (at most queue_size messages) and the summary; a stalled disk gives up
 RERUN_CLOSE_S = 5.0
+# the command topics and the interface each commands (joint_commands: the active one; the reference is only recorded)
+COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "position_command": "position",
+                  "joint_commands": None, "nut_position_reference": None}
 
 
 class PrsmNode(Node):
@@ -103,6 +110,8 @@ class PrsmNode(Node):
         self.stepper.paused = cfg.start_paused
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
+        self._float64 = Float64Reader()  # Float64 commands read from their CDR bytes
+        self._batch: list | None = None  # a step's messages for the bag, handed over at once (`_advance`)
         self._set_decimation()
 
         def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
@@ -113,16 +122,24 @@ class PrsmNode(Node):
                         for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
                                   "events") + (("clock",) if cfg.publish_clock else ())
                         + (("ground_truth",) if self.stepper.actuator is not None else ())}
-            self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
-                                                    qos_overriding_options=qos_opts())
-                        for k, cb in (("screw_torque", self._on_screw_torque),
-                                      ("joint_commands", self._on_joint_commands),
-                                      ("velocity_command", self._on_velocity_command),
-                                      ("position_command", self._on_position_command),
-                                      ("inject_fault", self._on_inject_fault),
-                                      ("nut_position_reference", self._on_reference))}
+            # commands arrive as raw CDR (recorded as they are); in realtime and fast mode the step
+            # thread takes them itself before each step (command_poll), in lockstep the executor
+            # delivers them because a command is what advances time
+            polled = cfg.time_mode != "lockstep"
+            group = PolledGroup() if polled else None
+            self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k),
+                                                    functools.partial(self._on_command_message, k), TOPICS[k].qos,
+                                                    qos_overriding_options=qos_opts(), raw=True, callback_group=group)
+                        for k in COMMAND_TOPICS}
+            self.sub["inject_fault"] = self.create_subscription(
+                TOPICS["inject_fault"].msg_class, self._topic("inject_fault"), self._on_inject_fault,
+                TOPICS["inject_fault"].qos, qos_overriding_options=qos_opts())
         except (InvalidQosOverridesError, ParameterException) as e:
             raise ConfigError(f"QoS override: {e}") from None
+        self.poller = CommandPoller()
+        if polled:
+            for k in COMMAND_TOPICS:
+                self.poller.add(k, self.sub[k], self._on_command)
         self._check_unknown_overrides()
         self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
         self._topic_names.update({k: s.topic_name for k, s in self.sub.items()})
@@ -309,64 +326,56 @@ class PrsmNode(Node):
             self.publish_failures += 1
             self._warn_throttled(f"publish:{key}", f"publishing on {self._topic_names[key]} failed "
                                                    f"({self.publish_failures} so far): {e}")
-        if self.recorder is not None:
-            self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
+        self._record(key, msg, stamp_ns)
 
-    def _record_input(self, key: str, msg) -> None:
-        if self.recorder is not None:
-            self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s))
+    def _record(self, key: str, data, stamp_ns: int | None = None) -> None:
+        """Into the bag (lock held): with the step's batch when a step is being published, else at once."""
+        if self.recorder is None:
+            return
+        item = (self._topic_names[key], data, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
+        if self._batch is not None:
+            self._batch.append(item)
+        else:
+            self.recorder.write(*item)
 
     # -- commands in -----------------------------------------------------------------------
-    def _on_screw_torque(self, msg, info) -> None:
+    def _on_command_message(self, key: str, raw: bytes, info) -> None:
+        """Executor callback (lockstep): one raw command message."""
         with self._lock:
-            self._record_input("screw_torque", msg)
-            who = participant_of(info)
-            reason = self.ownership.admit(who)
-            if reason is not None:
-                self._warn_throttled("ownership", f"{self._topic_names['screw_torque']}: {reason}")
-                return  # refused: counted, and in lockstep it does not advance time
-            reason = self.gate.offer_torque(msg.data, self.stepper.time_s)
-            self._command_taken("screw_torque", reason, who, stamp_of(None, info.get("source_timestamp")))
-            self._after_command("screw_torque", reason)
+            self._on_command(key, raw, info)
 
-    def _on_joint_commands(self, msg, info) -> None:
-        with self._lock:
-            self._record_input("joint_commands", msg)
-            who = participant_of(info)
-            reason = self.ownership.admit(who)
-            if reason is not None:
-                self._warn_throttled("ownership", f"{self._topic_names['joint_commands']}: {reason}")
-                return
-            reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
-                                                   self.stepper.time_s)
-            hs = msg.header.stamp
-            self._command_taken("joint_commands", reason, who,
-                                stamp_of(hs.sec * 1_000_000_000 + hs.nanosec, info.get("source_timestamp")))
-            self._after_command("joint_commands", reason)
+    def _on_command(self, key: str, raw: bytes, info: dict) -> None:
+        """Lock held: one command message as CDR bytes, from the executor (lockstep) or the step thread's poll.
 
-    def _command_taken(self, key: str, reason: str | None, who, stamp_ns: int | None) -> None:
-        """Lock held: a command the gate accepted (saturated or not) makes its sender the owner and is echoed."""
+        Recorded as received; refused when another participant owns the actuator (counted, and in
+        lockstep it does not advance time); else offered to the gate, and an accepted command makes
+        its sender the owner and is echoed with the step that applies it (every command topic).
+        """
+        self._record(key, raw)
+        if key == "nut_position_reference":
+            return
+        who = participant_of(info)
+        reason = self.ownership.admit(who)
+        if reason is not None:
+            self._warn_throttled("ownership", f"{self._topic_names[key]}: {reason}")
+            return
+        header_ns = None
+        if key == "joint_commands":
+            msg = deserialize_message(raw, JointState)
+            reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity, self.stepper.time_s)
+            header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        else:
+            reason = self.gate.offer(COMMAND_TOPICS[key], self._float64.read(raw), self.stepper.time_s)
         if reason is None:
             self.ownership.accepted(who)
-            self.echo.offer(stamp_ns, self._topic_names[key])
-
-    def _on_velocity_command(self, msg) -> None:
-        with self._lock:
-            self._record_input("velocity_command", msg)
-            reason = self.gate.offer("velocity", msg.data, self.stepper.time_s)
-            self._after_command("velocity_command", reason)
-
-    def _on_position_command(self, msg) -> None:
-        with self._lock:
-            self._record_input("position_command", msg)
-            reason = self.gate.offer("position", msg.data, self.stepper.time_s)
-            self._after_command("position_command", reason)
+            self.echo.offer(stamp_of(header_ns, info.get("source_timestamp")), self._topic_names[key])
+        self._after_command(key, reason)
 
     def _on_inject_fault(self, msg) -> None:
         """A fault spec 'kind=…,start_s=…,duration_s=…,value=…' (start_s in simulation time; omitted: now)."""
         from prsm_sim.actuator import parse_fault
         with self._lock:
-            self._record_input("inject_fault", msg)
+            self._record("inject_fault", msg)
             text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={self.stepper.time_s!r}"
             try:
                 reason = self.stepper.inject(parse_fault(text))
@@ -376,10 +385,6 @@ class PrsmNode(Node):
                 self._warn_throttled("inject_fault", f"{self._topic_names['inject_fault']}: {reason}")
             else:
                 self.get_logger().info(f"fault scheduled: {msg.data}")
-
-    def _on_reference(self, msg) -> None:
-        with self._lock:
-            self._record_input("nut_position_reference", msg)
 
     def _after_command(self, key: str, reason: str | None) -> None:
         """Called with the lock held: warn (throttled per topic) about a refused command; step in lockstep."""
@@ -399,14 +404,19 @@ class PrsmNode(Node):
         """Step n times and publish (lock held); the last state is always published when asked
         (a lockstep controller waits for it). Returns the steps done (fewer after a fault)."""
         done = 0
+        rec = self.recorder
         for i in range(n):
             t0 = time.perf_counter()
-            out = self.stepper.step()
-            if out is None:
-                self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
-                break
-            done += 1
+            # the step's messages (the commands it takes, the states it publishes) go to the bag in
+            # one hand-over: one lock and one queue append per step instead of one per message
+            self._batch = [] if rec is not None else None
             try:
+                self.poller.poll()  # realtime and fast: the commands that arrived since the last step
+                out = self.stepper.step()
+                if out is None:
+                    self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
+                    break
+                done += 1
                 if out.energy_fault and not self._energy_fault_reported:
                     self._report_energy_fault(out)
                 self._publish_step(out, force_state=publish_last_state and i == n - 1)
@@ -416,6 +426,10 @@ class PrsmNode(Node):
                 self.stepper.fault = f"publishing step {self.stepper.nstep} failed: {type(e).__name__}: {e}"
                 self.get_logger().error(self.stepper.fault)
                 break
+            finally:
+                batch, self._batch = self._batch, None
+                if batch:
+                    rec.write_many(batch)
             self._step_wall_max_s = max(self._step_wall_max_s, time.perf_counter() - t0)
         return done
 
@@ -456,7 +470,7 @@ class PrsmNode(Node):
         if k % self._il_every == 0:
             self._publish(self.pub["internal_loads"], "internal_loads", enc.internal_loads(out), ns)
         elif self.recorder is not None:  # decimated on DDS, every step in the bag
-            self.recorder.write(self._topic_names["internal_loads"], enc.internal_loads(out), ns)
+            self._record("internal_loads", enc.internal_loads(out), ns)
         if self.rerun is not None:
             self.rerun.submit(out)
 
@@ -481,6 +495,8 @@ class PrsmNode(Node):
         while not self._stop.is_set():
             if self.stepper.paused or self.stepper.fault is not None:
                 was_running = False
+                with self._lock:  # commands still count, own and reach the bag while nothing steps
+                    self.poller.poll()
                 self._resumed.wait(0.05)
                 continue
             if not was_running:
