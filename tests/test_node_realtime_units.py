@@ -112,6 +112,25 @@ def test_the_bench_controller_reads_cdr_as_rclpy_writes_it():
     assert time_reference_stamps(serialize_message(t)) == (3_000_000_004, 1_795_000_000_999_999_999)
 
 
+def test_float64_commands_read_from_cdr_as_rclpy_writes_them():
+    """The node's polled Float64 commands (raw CDR): the value rclpy's deserialiser gives, for
+    little-endian bytes (read in place) and big-endian ones (the other encapsulation: deserialised)."""
+    import math
+    import struct
+
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64
+
+    from prsm_ros.node.cdr import Float64Reader
+    reader = Float64Reader()
+    for x in (0.0, -0.0, 0.25, -3.5e-300, 1e308, math.inf, -math.inf):
+        got = reader.read(serialize_message(Float64(data=x)))
+        assert got == x and math.copysign(1, got) == math.copysign(1, x)
+    assert math.isnan(reader.read(serialize_message(Float64(data=math.nan))))
+    big = b"\x00\x00\x00\x00" + struct.pack(">d", -1.75)  # CDR_BE encapsulation
+    assert deserialize_message(big, Float64).data == -1.75 == reader.read(big)
+
+
 @pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
 def test_step_encoder_bytes_decode_to_the_mapper_messages(model):
     """The node's CDR templates, decoded by rclpy's own deserialiser, equal MessageMapper's messages."""

@@ -642,6 +642,9 @@ class PrsmNode(Node):
             "commands_received": c.received, "commands_accepted": c.accepted,
             "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
             "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
+            # rclpy does not report what a reliable writer discards for a slow reader: readers count
+            # gaps in the state stamps; the node can say how many there are
+            "joint_states_readers": self.pub["joint_states"].get_subscription_count(),
             "fault": st.fault or "", "command_interface": gate.interface, "command": gate.value,
             **self.ownership.diagnostics(), **self.echo.report(),
         }
