@@ -111,7 +111,8 @@ def test_a_second_controller_is_refused_counted_and_does_not_advance_lockstep(tm
 def test_velocity_and_position_commands_are_owned_and_echoed_in_realtime(tmp_path):
     """The realtime node takes its commands in the step thread (command_poll), on every command
     topic: a velocity command is echoed with its own DDS stamp and makes its sender the owner;
-    another participant's position and velocity commands are then refused, counted and named;
+    bytes that are no Float64 are counted as malformed (the step thread goes on); another
+    participant's position and velocity commands are then refused, counted and named;
     after ~/release_control the other participant's position command is accepted and echoed.
     Each command is sent once and waited for (an event), so no timing is asserted."""
     from diagnostic_msgs.msg import DiagnosticArray
@@ -143,6 +144,8 @@ def test_velocity_and_position_commands_are_owned_and_echoed_in_realtime(tmp_pat
             return diagnostics_of(diag[-1])[2] if diag else {}
         a.spin_until(lambda: values().get("command_owner", "none") != "none", 30.0, "the owner on /diagnostics")
         owner = values()["command_owner"]
+        a.publisher(vel, Float64).publish(b"\x00\x01\x00\x00\x01")  # raw bytes that are no Float64: refused
+        a.spin_until(lambda: int(values().get("rejected_malformed", 0)) >= 1, 30.0, "the malformed command counted")
         b.publish(pos, Float64(data=0.001))
         a.spin_until(lambda: int(values().get("commands_refused_not_owner", 0)) >= 1, 30.0, "a refused position command")
         b.publish(vel, Float64(data=-1.0))

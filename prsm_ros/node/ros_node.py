@@ -319,7 +319,9 @@ class PrsmNode(Node):
         if type(msg) is not bytes:
             msg = serialize_message(msg)
         try:
-            pub.publish(msg)
+            handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
+            with handle:
+                handle.publish_raw(msg)
         except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
             if not rclpy.ok(context=self.context):
                 raise
@@ -360,12 +362,17 @@ class PrsmNode(Node):
             self._warn_throttled("ownership", f"{self._topic_names[key]}: {reason}")
             return
         header_ns = None
-        if key == "joint_commands":
-            msg = deserialize_message(raw, JointState)
-            reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity, self.stepper.time_s)
-            header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        else:
-            reason = self.gate.offer(COMMAND_TOPICS[key], self._float64.read(raw), self.stepper.time_s)
+        try:
+            if key == "joint_commands":
+                msg = deserialize_message(raw, JointState)
+                reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
+                                                       self.stepper.time_s)
+                header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            else:
+                reason = self.gate.offer(COMMAND_TOPICS[key], self._float64.read(raw), self.stepper.time_s)
+        except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
+            reason = self.gate.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
+                                                f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})")
         if reason is None:
             self.ownership.accepted(who)
             self.echo.offer(stamp_of(header_ns, info.get("source_timestamp")), self._topic_names[key])
@@ -495,8 +502,11 @@ class PrsmNode(Node):
         while not self._stop.is_set():
             if self.stepper.paused or self.stepper.fault is not None:
                 was_running = False
-                with self._lock:  # commands still count, own and reach the bag while nothing steps
-                    self.poller.poll()
+                try:
+                    with self._lock:  # commands still count, own and reach the bag while nothing steps
+                        self.poller.poll()
+                except Exception as e:  # a bug: logged, never the end of the step thread
+                    self._warn_throttled("poll", f"taking commands failed: {type(e).__name__}: {e}")
                 self._resumed.wait(0.05)
                 continue
             if not was_running:
