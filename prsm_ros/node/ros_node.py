@@ -10,7 +10,9 @@ clock, and hands each step's outputs to the publishers (`messages.MessageMapper`
 recorder and the Rerun sink.
 
 Time modes. `realtime`: a dedicated thread steps on absolute deadlines (`stepping.DeadlinePacer`);
-`fast`: the same thread without sleeping; `lockstep`: every message received on a command topic
+`fast`: the same thread without sleeping; in both, that thread takes the commands waiting on
+the command topics itself before each step (`command_poll`: no executor wake-up per command, the
+main cost at 1 kHz otherwise). `lockstep`: every message received on a command topic
 (valid or not: the controller's tick keeps the loop going) advances `lockstep_steps` steps in the
 command callback, so a slow controller or a debugger never breaks the loop and the same command
 sequence always gives the same states. `/clock` is published on every step; joint_states and the
@@ -66,7 +68,7 @@ from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, re
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
-# the GIL and the lock from the executor (services, commands) — it re-takes the lock before a waiting
+# the GIL and the lock from the executor (services, parameters) — it re-takes the lock before a waiting
 # thread wakes — so it really sleeps briefly every few steps that did not sleep.
 FAST_YIELD_EVERY = 32
 FAST_YIELD_S = 2e-5
