@@ -459,12 +459,15 @@ class Trajectory:
 
 # -- the packed per-step record (Model.advance_packed) ----------------------------------------
 # Layout of a packed record: the next packed state (Model.pack_state: time, θ_S, ω_S, θ_C, ω_C,
-# W_in, W_out, W_diss, energy flow, energy residual, stored energy), what the step alone knows
-# (torque, load, dissipated work, Δθ_S), the outputs the node reads every step besides the state
-# (nut force, position and velocity, the energy guard's verdict) and the model's
-# `PackedConstants`. The other outputs are a few flops on these, done when read.
-PACKED_STATE_SIZE = 11
-_TAU, _LOAD, _DISS, _DTH, _NUT_F, _NUT_X, _NUT_V, _FAULT, _K = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 9)
+# W_in, W_out, W_diss, energy flow, energy residual, stored energy, and the model's own state as
+# one tuple, `Model.extra_state_fields`), what the step alone knows (torque, load, dissipated work,
+# input and output work), the outputs the node reads every step besides the state (nut force,
+# position and velocity, the energy guard's verdict), the model's `PackedConstants` and the step's
+# `aux` record (what the model's own outputs are derived from: fu2018 its end forces). The other
+# outputs are a few flops on these, done when read.
+PACKED_STATE_SIZE = 12
+(_TAU, _LOAD, _DISS, _WIN, _WOUT, _NUT_F, _NUT_X, _NUT_V, _FAULT, _K,
+ _AUX) = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 11)
 
 
 class PackedConstants:
@@ -474,22 +477,20 @@ class PackedConstants:
     ----------
     dt_s : float
         The fixed step, s.
-    lead_per_rad_m : float
-        L/2π, m/rad.
     gear_ratio : float
         g of ω_r = −g ω_C.
     slip_speed : callable
-        (ω_S, ω_C) at the step's end → slip speed, m/s.
+        (ω_S, ω_C at the step's end, the record's aux) → slip speed, m/s.
     internal : callable
-        (ω_S, ω_C) at the step's end → the internal-load vector.
+        (ω_S, ω_C at the step's end, the record's aux) → the internal-load vector.
     efficiency : callable
         `models.base.efficiency`, passed in by `Model.packed_finisher` (models.base imports this module).
     """
 
-    __slots__ = ("dt_s", "lead_per_rad_m", "gear_ratio", "slip_speed", "internal", "efficiency")
+    __slots__ = ("dt_s", "gear_ratio", "slip_speed", "internal", "efficiency")
 
-    def __init__(self, dt_s, lead_per_rad_m, gear_ratio, slip_speed, internal, efficiency) -> None:
-        self.dt_s, self.lead_per_rad_m, self.gear_ratio = dt_s, lead_per_rad_m, gear_ratio
+    def __init__(self, dt_s, gear_ratio, slip_speed, internal, efficiency) -> None:
+        self.dt_s, self.gear_ratio = dt_s, gear_ratio
         self.slip_speed, self.internal, self.efficiency = slip_speed, internal, efficiency
 
 
@@ -515,9 +516,11 @@ class PackedOutputs(tuple):
     each step, the rest only for the internal-loads message), so the record holds those and what
     the step computed anyway (layout above; its first `PACKED_STATE_SIZE` items are the next
     packed state), and the other fields are properties with the arithmetic of `Model.finish_step`
-    (tests/test_step_paths.py compares every field). The internal vector is built on first read
-    and kept. Reads as an `Outputs` (registered as one: ``isinstance(out, Outputs)`` holds),
-    immutable; pickles and copies as a plain `Outputs`.
+    (tests/test_step_paths.py compares every field). The slip speed and the internal vector come
+    from the model's own code on the step's `aux` record (fu2018: its end forces, expanded by
+    `Fu2018.expand_one`); the internal vector is built on first read and kept. Reads as an
+    `Outputs` (registered as one: ``isinstance(out, Outputs)`` holds), immutable; pickles and
+    copies as a plain `Outputs`.
     """
 
     def __setattr__(self, name, value):
@@ -546,16 +549,15 @@ class PackedOutputs(tuple):
 
     @property
     def slip_speed_m_s(self) -> float:
-        return self[_K].slip_speed(self[2], self[4])
+        return self[_K].slip_speed(self[2], self[4], self[_AUX])
 
     @property
     def power_in_w(self) -> float:
-        return self[_TAU] * self[_DTH] / self[_K].dt_s
+        return self[_WIN] / self[_K].dt_s
 
     @property
     def power_out_w(self) -> float:
-        k = self[_K]
-        return self[_LOAD] * k.lead_per_rad_m * self[_DTH] / k.dt_s
+        return self[_WOUT] / self[_K].dt_s
 
     @property
     def power_dissipated_w(self) -> float:
@@ -572,17 +574,17 @@ class PackedOutputs(tuple):
 
     @_BuiltOnce
     def internal(self) -> np.ndarray:
-        return self[_K].internal(self[2], self[4])
+        return self[_K].internal(self[2], self[4], self[_AUX])
 
     def scalar_values(self) -> tuple[float, ...]:
         """The scalar outputs as one tuple, in OUTPUT_FIELDS order."""
-        (t, th_s, w_s, th_c, w_c, _, _, _, flow, residual, e1, tau, load, diss, dth, nut_f, nut_x, nut_v, fault,
-         k) = self
-        h, p = k.dt_s, k.lead_per_rad_m
-        p_out, p_d = load * p * dth / h, diss / h
-        return (t, th_s, w_s, tau, th_c, w_c, -k.gear_ratio * w_c, nut_x, nut_v, nut_f, load, k.slip_speed(w_s, w_c),
-                tau * dth / h, p_out, p_d, k.efficiency(p_out, p_d), w_c / w_s if w_s != 0.0 else math.nan, e1, flow,
-                residual, fault)
+        (t, th_s, w_s, th_c, w_c, _, _, _, flow, residual, e1, _, tau, load, diss, w_in, w_out, nut_f, nut_x, nut_v,
+         fault, k, aux) = self
+        h = k.dt_s
+        p_out, p_d = w_out / h, diss / h
+        return (t, th_s, w_s, tau, th_c, w_c, -k.gear_ratio * w_c, nut_x, nut_v, nut_f, load,
+                k.slip_speed(w_s, w_c, aux), w_in / h, p_out, p_d, k.efficiency(p_out, p_d),
+                w_c / w_s if w_s != 0.0 else math.nan, e1, flow, residual, fault)
 
     def scalars(self) -> dict[str, float]:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""

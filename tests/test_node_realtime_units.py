@@ -93,18 +93,31 @@ def test_record_paths_are_claimed_and_never_overwritten(tmp_path):
         claim_record_path(str(tmp_path / "no_such_dir" / "x.mcap"), "/prsm_actuator")
 
 
-def test_the_bench_controller_reads_cdr_as_rclpy_writes_it():
-    """The reference controller's raw CDR readers against rclpy's own serializer."""
+def test_the_controllers_read_cdr_as_rclpy_writes_it():
+    """The controllers' raw CDR readers (prsm_ros.cdr_read) against rclpy's own serializer; odd frame
+    and name lengths move every later field off its alignment."""
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import JointState, TimeReference
 
-    from prsm_ros.bench.rt_controller import joint_state_stamp_effort0, time_reference_stamps
+    from prsm_ros.cdr_read import joint_state_at, joint_state_names, joint_state_stamp_effort0, time_reference_stamps
     for frame, names, effort in (("", ["screw_joint", "nut_joint"], [0.25, -3.0]), ("nut_link", ["a"], []),
                                  ("x" * 7, ["screw_joint", "nut_joint", "c"], [1e-300, 2.0, 3.0])):
         m = JointState(name=names, position=[1.0] * len(names), velocity=[], effort=effort)
         m.header.frame_id = frame
         m.header.stamp.sec, m.header.stamp.nanosec = 12, 345
         assert joint_state_stamp_effort0(serialize_message(m)) == (12_000_000_345, effort[0] if effort else None)
+        assert joint_state_names(serialize_message(m)) == names
+        with pytest.raises(IndexError):  # no velocities in these states
+            joint_state_at(serialize_message(m), 0)
+    m = JointState(name=["screw_joint", "nut_joint"], position=[3.5, -0.0125], velocity=[-7.25, 1e-3], effort=[])
+    m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec = "abcde", 2, 999_999_999
+    raw = serialize_message(m)
+    assert joint_state_at(raw, 1) == (2_999_999_999, -0.0125, 1e-3)
+    assert joint_state_at(raw, 0) == (2_999_999_999, 3.5, -7.25)
+    with pytest.raises(IndexError):
+        joint_state_at(raw, 2)
+    with pytest.raises(ValueError, match="little-endian"):
+        joint_state_at(raw[:1] + b"\x00" + raw[2:], 1)  # big-endian CDR is refused, not misread
     t = TimeReference(source="/prsm_actuator/screw_torque")
     t.header.stamp.sec, t.header.stamp.nanosec = 3, 4
     t.header.frame_id = "abc"

@@ -1,13 +1,15 @@
 """The packed per-step path (`Simulator.step` for models with `advance_packed`) against the
-reference path (`Model.step`, records built field by field; the packed records derive most fields when read):
-the same arithmetic up to the order of the sums, so every output, the internal vector and the state agree to 1e-12 (relative to the
-quantity's scale; the energy residual relative to the energy that flowed) over a run with
-reversals, stops and a self-locking load."""
+reference path (`Model.step`, records built field by field; the packed records derive most fields
+when read): the same arithmetic up to the order of the sums, so every output, the internal vector
+and the state agree to 1e-12 (relative to the quantity's scale; the energy residual relative to the
+energy that flowed) over runs with reversals, stops, stick, flank switches, a self-locking load,
+backlash and preload."""
 
 from __future__ import annotations
 
 import math
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -17,6 +19,32 @@ from prsm_sim.errors import InputError
 from prsm_sim.outputs import PackedOutputs, State
 
 CASES = [("ideal", "s30"), ("jones2016", "s30"), ("jones2016", "jones2016")]
+STATE_FIELDS = ("time_s", "screw_angle_rad", "screw_speed_rad_s", "carrier_angle_rad", "carrier_speed_rad_s",
+                "work_in_j", "work_out_j", "dissipated_j", "energy_flow_j")
+
+
+def _rows(out: Outputs) -> list[float]:
+    return [getattr(out, f) for f, _ in OUTPUT_FIELDS] + list(out.internal)
+
+
+def _assert_close(got, want, sim, ref_state):
+    """Every output and internal element to 1e-12 of its column's scale (the energy residual: of the energy
+    that flowed, the guard's own scale), and the state's fields to 1e-12."""
+    got, want = np.array(got), np.array(want)
+    scale = np.maximum(np.nanmax(np.abs(want), axis=0), 1e-300)
+    # the energy residual is rounding noise by design (~1e-14 J): judged against the energy that flowed,
+    # the guard's own scale (models/base.py energy guard)
+    names = [f for f, _ in OUTPUT_FIELDS]
+    scale[names.index("energy_residual_j")] = scale[names.index("energy_flow_j")]
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    assert np.nanmax(np.abs(got - want) / scale) <= 1e-12
+    s, r = sim.state, ref_state
+    for f in STATE_FIELDS:
+        a, b = getattr(s, f), getattr(r, f)
+        assert math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12 * max(1.0, abs(b))), f
+    # the model's own memory (fu2018's lagged forces and solver memory, elastic's nut and chain state)
+    for f in sim.model.extra_state_fields:
+        np.testing.assert_allclose(getattr(s, f), getattr(r, f), rtol=1e-12, atol=1e-300, err_msg=f)
 
 
 @pytest.mark.parametrize("model,name", CASES)
@@ -34,28 +62,83 @@ def test_packed_step_matches_reference(model, name):
         out = sim.step(float(torque[k]), float(load[k]))
         ref_state, ref_out = ref_model.step(ref_state, torque[k], load[k])
         assert isinstance(out, Outputs)
-        got.append([getattr(out, f) for f, _ in OUTPUT_FIELDS] + list(out.internal))
-        want.append([getattr(ref_out, f) for f, _ in OUTPUT_FIELDS] + list(ref_out.internal))
+        got.append(_rows(out))
+        want.append(_rows(ref_out))
         if k % 500 == 0:  # reading the state mid-run and stepping on gives the same run
             assert isinstance(sim.state, State)
-    got, want = np.array(got), np.array(want)
-    scale = np.maximum(np.nanmax(np.abs(want), axis=0), 1e-300)
-    # the energy residual is rounding noise by design (~1e-14 J): judged against the energy that flowed,
-    # the guard's own scale (models/base.py energy guard)
-    names = [f for f, _ in OUTPUT_FIELDS]
-    if "energy_residual_j" in names:
-        scale[names.index("energy_residual_j")] = scale[names.index("energy_flow_j")]
-    assert np.array_equal(np.isnan(got), np.isnan(want))
-    assert np.nanmax(np.abs(got - want) / scale) <= 1e-12
-    s, r = sim.state, ref_state
-    for f in ("time_s", "screw_angle_rad", "screw_speed_rad_s", "carrier_angle_rad", "carrier_speed_rad_s",
-              "work_in_j", "work_out_j", "dissipated_j", "energy_flow_j"):
-        a, b = getattr(s, f), getattr(r, f)
-        assert math.isclose(a, b, rel_tol=1e-12, abs_tol=1e-12 * max(1.0, abs(b))), f
+    _assert_close(got, want, sim, ref_state)
     assert sim.nstep == n
 
 
-@pytest.mark.parametrize("model", ["ideal", "jones2016"])
+# fu2018 and elastic through what changes their friction state: a speed loop driving a resisting load at
+# +20 rad/s, braking to rest and held there by friction (stick) under the torque that balances the load
+# without friction, the reverse stroke with the load reversed (the loaded flanks switch), braking and
+# holding. Options: fu2018's nut sliding (g ≠ r_N/r_R) and heavy load with pin and rolling friction;
+# elastic's backlash, preload (oversize rollers, double nut), Stribeck breakaway (the preset's) and the
+# growing-backlash fault (extra clearance set in the state mid-run, as the actuator does); every run's energy
+# books are opened mid-run so that the guard's verdict trips on both paths. `drive`: the
+# loop's feed-forward torque over p F (the heavy load needs more than the loop's integral builds up in a
+# stroke to break away).
+RICH_CASES = [
+    ("fu2018", {}, 1000.0, 1.0),
+    ("fu2018", {"geometry.gear_ratio": 4.5, "friction.mu_nut_roller_sliding": 0.05}, 1000.0, 1.0),
+    ("fu2018", {"friction.mu_pin": 0.1, "friction.mu_nut_roller_rolling": 0.005}, 20_000.0, 1.4),
+    ("elastic", {}, 1000.0, 1.0),
+    ("elastic", {"elastic.axial_clearance_m": 50e-6}, 1000.0, 1.0),
+    ("elastic", {"elastic.preload_n": 3000.0, "elastic.preload_kind": "oversize_rollers"}, 1000.0, 1.0),
+    ("elastic", {"elastic.preload_n": 1000.0, "elastic.preload_kind": "double_nut"}, 4000.0, 1.0),
+]
+
+
+@pytest.mark.parametrize("model,overrides,load_n,drive", RICH_CASES)
+def test_packed_step_matches_reference_through_stick_reversals_and_contact(model, overrides, load_n, drive):
+    p = preset("s30").with_overrides(overrides)
+    sim = Simulator(p, model, 1e-3)
+    assert sim.model.packed
+    ref_model, ref_state = sim.model, sim.state
+    lead = p.geometry.lead_per_rad_m
+    n = 600 if model == "fu2018" else 240
+    got, want, speeds, flanks, stuck = [], [], [], set(), 0
+    integ = 0.0
+    for k in range(n):
+        phase = (k * 4 // n) % 4
+        if k % (n // 4) == 0:
+            integ = 0.0
+        if phase in (0, 2):  # speed loop (inputs from the reference state, the same for both paths)
+            target = 20.0 if phase == 0 else -20.0
+            err = target - ref_state.screw_speed_rad_s
+            integ += err * 1e-3
+            load = math.copysign(load_n, target)
+            torque = drive * lead * load + 0.05 * err + 2.0 * integ
+        else:  # the torque that balances the load without friction: friction brakes the screw and holds it
+            load = load_n if phase == 1 else -load_n
+            torque = lead * load
+        if k == n // 2:
+            # books that do not close (a residual of 1 % of the flow): the energy guard's verdict from here on;
+            # elastic: the growing-backlash fault widens the clearance
+            fault = {"energy_residual_j": 0.01 * ref_state.energy_flow_j + 1e-3,
+                     **({"extra_clearance_m": 20e-6} if model == "elastic" else {})}
+            sim.state = replace(sim.state, **fault)
+            ref_state = replace(ref_state, **fault)
+        out = sim.step(torque, load)
+        ref_state, ref_out = ref_model.step(ref_state, torque, load)
+        got.append(_rows(out))
+        want.append(_rows(ref_out))
+        speeds.append(ref_state.screw_speed_rad_s)
+        flanks.add(ref_state.flank_sign)
+        stuck += ref_state.screw_speed_rad_s == 0.0 and ref_state.carrier_speed_rad_s == 0.0 and k > 0
+    speeds = np.array(speeds)
+    fault = np.array(want)[:, [f for f, _ in OUTPUT_FIELDS].index("energy_fault")]
+    assert not fault[: n // 2].any() and fault[-1] == 1.0  # the guard tripped on the books, not before
+    assert speeds.max() > 15.0 and speeds.min() < -15.0 and flanks == {1, -1} and stuck > 10  # the run did all that
+    if model == "elastic" and overrides.get("elastic.axial_clearance_m"):
+        lost = np.array(want)[:, len(OUTPUT_FIELDS) + sim.layout.offsets()["elastic"] + 1]
+        assert np.any(lost > 0) and np.any(lost < 0)  # crossed the play both ways
+    _assert_close(got, want, sim, ref_state)
+    assert sim.state == sim.model.unpack_state(sim.model.pack_state(sim.state))
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
 def test_packed_outputs_behave_as_records(model):
     """The lazy record reads as the eager one: every field, the bulk readers, pickling, immutability."""
     sim = Simulator(preset("s30"), model, 1e-3)

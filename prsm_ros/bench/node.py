@@ -11,11 +11,15 @@
 - Lockstep round trips: `prsm-node` (lockstep, 1 step per command, recording) and the demo
   controller (`prsm_ros.cli.demo_controller`) as two processes over DDS; the controller answers each
   state with a command, so states received / wall time is command→state round trips per second.
+- Realtime demo loop (10 s; quick: 2 s, 500 N): the same two processes with the node in realtime,
+  as `prsm-demo` runs them; the controller's RMS tracking error against the same law closed
+  offline with no delay (`prsm_sim.control.run_position_loop`) plus 5 ms of reference travel.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -93,23 +97,51 @@ def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str
             "scheduling": scheduling}
 
 
-def lockstep_round_trips(model: str, sim_seconds: float, *, record: bool = True, preset: str = "s30") -> dict:
-    """prsm-node (lockstep) and the demo controller as two processes: round trips per wall second."""
+def demo_loop(model: str, sim_seconds: float, time_mode: str, *, record: bool = True, preset: str = "s30",
+              load_n: float = 0.0) -> dict:
+    """prsm-node and the demo controller as two processes, as `prsm-demo` runs them: the controller's
+    summary (tracking error, states received, wall time), the node started paused until it listens."""
     env = isolated_env(respect_user=False, RERUN="off")
+    priority = 10 if time_mode == "realtime" else 0
     with tempfile.TemporaryDirectory(prefix="prsm_bench_node_") as tmp:
-        params = {"model": model, "preset": preset, "time_mode": "lockstep", "record": record,
-                  "record_path": str(Path(tmp) / "lockstep.mcap"), "cmd_timeout": 0.0}
+        params = {"model": model, "preset": preset, "time_mode": time_mode, "record": record,
+                  "record_path": str(Path(tmp) / f"{time_mode}.mcap"), "cmd_timeout": 0.0, "load_force": load_n,
+                  "start_paused": True, "realtime_priority": priority}
         with open(Path(tmp) / "node.log", "wb") as log:
             node = start_module("prsm_ros.node.ros_node", ros_args(params), env, stdout=log, stderr=subprocess.STDOUT)
             try:
-                ctl = start_module("prsm_ros.cli.demo_controller", ["--duration", repr(sim_seconds), "--preset", preset],
-                                   env, stdout=subprocess.PIPE)
+                ctl = start_module("prsm_ros.cli.demo_controller",
+                                   ["--duration", repr(sim_seconds), "--preset", preset, "--load", repr(load_n),
+                                    "--realtime-priority", str(priority)], env, stdout=subprocess.PIPE)
                 out, _ = ctl.communicate(timeout=120 + 10 * sim_seconds)
             finally:
                 node.send_signal(2)
                 node.wait(timeout=30)
-    summary = json.loads(out.decode().strip().splitlines()[-1])
+    return json.loads(out.decode().strip().splitlines()[-1])
+
+
+def lockstep_round_trips(model: str, sim_seconds: float, *, record: bool = True, preset: str = "s30") -> dict:
+    """prsm-node (lockstep) and the demo controller as two processes: round trips per wall second."""
+    summary = demo_loop(model, sim_seconds, "lockstep", record=record, preset=preset)
     return {"round_trips_per_s": summary["states_received"] / summary["wall_time_s"], **summary}
+
+
+def realtime_tracking(model: str, sim_seconds: float, load_n: float = 500.0, preset: str = "s30") -> dict:
+    """The demo's loop in realtime over DDS against the same law closed offline with no delay.
+
+    Bound (as in tests/test_node_demo.py): the offline RMS plus what the reference travels in a
+    5 ms loop delay, v_max·5 ms with v_max = π A f (2π·8 Hz·5 ms = 0.25 rad of phase at the loop's
+    bandwidth)."""
+    from prsm_sim import Simulator, preset as make_preset
+    from prsm_sim.control import DEFAULT_AMPLITUDE_M, DEFAULT_FREQUENCY_HZ, PositionController, run_position_loop
+    from prsm_sim.models.ideal import reflected_inertia
+
+    params = make_preset(preset)
+    ctl = PositionController(reflected_inertia(params), params.geometry.lead_per_rad_m, load_n=load_n)
+    _, offline = run_position_loop(Simulator(params, model, 1e-3), ctl, sim_seconds, load_n)
+    summary = demo_loop(model, sim_seconds, "realtime", preset=preset, load_n=load_n)
+    bound_m = offline.rms_m + math.pi * DEFAULT_AMPLITUDE_M * DEFAULT_FREQUENCY_HZ * 5e-3
+    return {"offline_rms_m": offline.rms_m, "bound_m": bound_m, **summary}
 
 
 def measure(quick: bool = False) -> list[dict]:
@@ -117,6 +149,7 @@ def measure(quick: bool = False) -> list[dict]:
     seconds = 3.0 if quick else 60.0
     rt = realtime_run(model, seconds)
     ls = lockstep_round_trips(model, 1.0 if quick else 10.0)
+    tr = realtime_tracking(model, 2.0 if quick else 10.0)
     base = f"{model}, s30, recording on, {seconds:g} s" + (f"; {note}" if note else "")
     return [
         figure("node realtime 1 kHz long-run rate error", abs(rt["rate_error_pct"]), "%", "< 0.1",
@@ -131,6 +164,11 @@ def measure(quick: bool = False) -> list[dict]:
                ls["round_trips_per_s"] >= 2000, None,
                f"{model}, 1 step per command, recording on; rclpy controller process over DDS; "
                f"{ls['states_received']} round trips in {ls['wall_time_s']:.2f} s"),
+        figure("node realtime demo loop: RMS tracking error", tr["rms_error_m"] * 1e3, "mm",
+               f"≤ {tr['bound_m'] * 1e3:.3f}", tr["completed"] and tr["rms_error_m"] <= tr["bound_m"], None,
+               f"{model}, s30, 500 N, {tr['sim_time_s']:.1f} s; same law offline with no delay "
+               f"{tr['offline_rms_m'] * 1e3:.3f} mm (bound: that + 5 ms of reference travel); "
+               f"{tr['states_received']} states received; controller {tr['scheduling']}"),
     ]
 
 

@@ -26,61 +26,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import struct
 import sys
 import threading
 import time
 
 import numpy as np
 
+# The controller reads the fields it needs straight from the CDR bytes (raw subscriptions): building a
+# Python message object per sample costs more than the rest of the callback, and at 2,000 samples/s
+# on a busy machine a reference controller must not be what limits the loop.
+from prsm_ros.cdr_read import joint_state_stamp_effort0, time_reference_stamps
+
 WARMUP_TIMEOUT_S = 60.0  # a loaded machine can take long to discover the node
-
-
-# The controller reads the two fields it needs straight from the CDR bytes (raw subscriptions):
-# building a Python message object per sample costs more than the rest of the callback, and at
-# 2,000 samples/s on a busy machine a reference controller must not be what limits the loop.
-def _align(o: int, n: int) -> int:
-    """CDR alignment, counted from the end of the 4-byte encapsulation header."""
-    return 4 + (o - 4 + n - 1) // n * n
-
-
-def _skip_string(b: bytes, o: int) -> int:
-    o = _align(o, 4)
-    return o + 4 + struct.unpack_from("<I", b, o)[0]
-
-
-def joint_state_stamp_effort0(b: bytes) -> tuple[int, float | None]:
-    """(header stamp ns, effort[0] or None) of a little-endian CDR sensor_msgs/JointState."""
-    if b[1] != 1:
-        raise ValueError("only little-endian CDR is read")
-    sec, nsec = struct.unpack_from("<iI", b, 4)
-    o = _skip_string(b, 12)  # header.frame_id
-    o = _align(o, 4)
-    (count,) = struct.unpack_from("<I", b, o)
-    o += 4
-    for _ in range(count):  # name
-        o = _skip_string(b, o)
-    effort0 = None
-    for seq in range(3):  # position, velocity, effort
-        o = _align(o, 4)
-        (count,) = struct.unpack_from("<I", b, o)
-        o += 4
-        if count:
-            o = _align(o, 8)
-            if seq == 2:
-                effort0 = struct.unpack_from("<d", b, o)[0]
-        o += 8 * count
-    return sec * 1_000_000_000 + nsec, effort0
-
-
-def time_reference_stamps(b: bytes) -> tuple[int, int]:
-    """(header stamp ns, time_ref ns) of a little-endian CDR sensor_msgs/TimeReference."""
-    if b[1] != 1:
-        raise ValueError("only little-endian CDR is read")
-    sec, nsec = struct.unpack_from("<iI", b, 4)
-    o = _align(_skip_string(b, 12), 4)
-    rsec, rnsec = struct.unpack_from("<iI", b, o)
-    return sec * 1_000_000_000 + nsec, rsec * 1_000_000_000 + rnsec
 
 
 def _percentiles(values: list[float]) -> dict[str, float | None]:

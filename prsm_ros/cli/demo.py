@@ -8,7 +8,11 @@
 It starts `prsm-node` and `python -m prsm_ros.cli.demo_controller` as separate OS processes, lets the
 controller track a smooth nut-position profile through the torque topic for `--duration` seconds
 of simulation time, stops the node with SIGINT, and prints the tracking summary (RMS and maximum
-error, final position, steps, real-time factor) and where the bag is.
+error, final position, steps, real-time factor) and where the bag is. The node starts paused and
+the controller resumes it once it listens, so the run starts at t = 0 whatever the start-up takes.
+In realtime mode both processes run SCHED_FIFO `--realtime-priority` where the OS allows (root or
+an rtprio limit; otherwise normal priority, as the summary says). `--time-mode fast` is refused:
+the node would step as fast as it can without waiting for the controller, so no loop closes.
 
 Isolation: a ROS_DOMAIN_ID you set is used as it is (so `ros2 topic echo` in another shell sees the
 run); otherwise the demo picks one from its process id and prints it. Discovery stays on this
@@ -28,7 +32,7 @@ from pathlib import Path
 
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
-TIME_MODES = ("realtime", "fast", "lockstep")
+TIME_MODES = ("realtime", "lockstep")  # fast: the node does not wait for the controller (refused in main)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,7 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to run (default 4)")
     p.add_argument("--preset", default="s30", choices=sorted(PRESETS))
     p.add_argument("--model", default="jones2016", choices=list(MODELS))
-    p.add_argument("--time-mode", default="lockstep", choices=TIME_MODES)
+    p.add_argument("--time-mode", default="realtime", metavar="{realtime,lockstep}",
+                   help="realtime (default): the node steps at 1 kHz on the wall clock; lockstep: every command "
+                        "advances one step (deterministic)")
+    p.add_argument("--realtime-priority", type=int, default=10,
+                   help="realtime: SCHED_FIFO priority (1..99) of the node's step thread and of the controller "
+                        "where the OS allows; 0 keeps both at normal priority (default 10)")
     p.add_argument("--load", type=float, default=500.0, help="external nut load force in N (default 500)")
     p.add_argument("--command-interface", default="effort", choices=("effort", "velocity", "position"),
                    help="what the controller commands: screw torque (effort, default), screw speed (velocity: "
@@ -58,6 +67,16 @@ def main(argv: list[str] | None = None) -> int:
     if not (0 < args.duration <= 3600):
         print(f"prsm-demo: error: --duration {args.duration:g}: must be in (0, 3600] s", file=sys.stderr)
         return 2
+    if args.time_mode not in TIME_MODES:
+        why = (": the node steps as fast as it can without waiting for the controller, so the loop cannot close"
+               if args.time_mode == "fast" else "")
+        print(f"prsm-demo: error: --time-mode {args.time_mode}{why}; allowed: {', '.join(TIME_MODES)}",
+              file=sys.stderr)
+        return 2
+    if not 0 <= args.realtime_priority <= 99:
+        print(f"prsm-demo: error: --realtime-priority {args.realtime_priority}: must be in 0..99 (0: normal)",
+              file=sys.stderr)
+        return 2
     try:
         env = isolated_env(args.domain_id)
     except ValueError as e:
@@ -67,7 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         args.record or f"prsm_demo_{datetime.now(timezone.utc).strftime('%Y%m%d_%H%M%S')}.mcap").resolve()
     node_params = {"preset": args.preset, "model": args.model, "time_mode": args.time_mode,
                    "load_force": args.load, "record": record is not None, "record_path": str(record or ""),
-                   "rerun": args.rerun, "rerun_target": args.rerun_target, "command_interface": args.command_interface}
+                   "rerun": args.rerun, "rerun_target": args.rerun_target, "command_interface": args.command_interface,
+                   "start_paused": True, "realtime_priority": args.realtime_priority}
+    realtime_priority = args.realtime_priority if args.time_mode == "realtime" else 0
     print(f"prsm-demo: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} "
           f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}; "
           f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N, "
@@ -80,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             ctl = start_module("prsm_ros.cli.demo_controller",
                                ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
                                 "--wall-timeout", repr(60.0 + 20 * args.duration),
-                                "--command-interface", args.command_interface],
+                                "--command-interface", args.command_interface,
+                                "--realtime-priority", str(realtime_priority)],
                                env, stdout=subprocess.PIPE)
             try:
                 out = wait_for_controller(ctl, node)
@@ -126,6 +148,7 @@ def summary_text(s: dict, dt_s: float, record: Path | None) -> str:
         f"  steps            {round(s['sim_time_s'] / dt_s):10d}     ({s['sim_time_s']:.3f} s simulated, "
         f"{s['states_received']} states received)",
         f"  real-time factor {s['real_time_factor']:10.3f}     ({s['wall_time_s']:.2f} s wall)",
+        f"  scheduling       controller {s['scheduling']}",
     ]
     if not s["completed"]:
         lines.append("  (incomplete: the controller stopped before the end of the run)")

@@ -2,14 +2,18 @@
 
     python -m prsm_ros.cli.demo_controller --duration 4 --preset s30 --load 0
 
-It listens to `/joint_states`, answers every state with a command in the node's command interface
+It listens to `/joint_states` through a keep-last-1 reader that reads the CDR bytes (only the newest
+state, never a backlog), answers every state with a command in the node's command interface
 (`--command-interface`: a screw torque on `/prsm_actuator/screw_torque`, a screw speed on
 `~/velocity_command` or the nut position itself on `~/position_command`, where the node's drive
 closes the loops) and publishes its reference on `/prsm_actuator/nut_position_reference`
 (so the reference lands in the node's bag). The reference runs on simulation time (the states'
-header stamps), so the loop behaves the same in realtime, fast and lockstep modes; in lockstep the
-controller's first command starts the simulation. At the end it prints one JSON line with the
-tracking summary, which `prsm-demo` reads.
+header stamps), so the loop behaves the same in realtime and lockstep modes. The node starts paused
+(`start_paused`): once both topics are matched the controller resumes it through `~/pause`, so no
+step runs before it listens, and in lockstep its first command starts the simulation; at the end it
+pauses the node again. With `--realtime-priority` every thread of the controller, the middleware's
+included, runs SCHED_FIFO where the OS allows. At the end it prints one JSON line with the tracking
+summary, which `prsm-demo` reads.
 
 The control law and its reference live in the pure core (`prsm_sim.control`, where its equation
 is documented) so that studies and gain tuning (`prsm-sweep tune`) run the very same law offline.
@@ -40,71 +44,116 @@ def velocity_command(x_ref_m: float, v_ref_m_s: float, x_m: float, lead_per_rad_
     return (v_ref_m_s + 2 * math.pi * bandwidth_hz * (x_ref_m - x_m)) / lead_per_rad_m
 
 
+def state_reader_qos(qos):
+    """The topic's reliability with a keep-last-1 history: the reader holds only the newest state.
+
+    The node offers `joint_states` keep-last 100 so that loggers lose nothing; a controller that
+    reads such a queue in order acts, whenever it falls behind once, on states up to 100 ms old, and
+    a position loop at 8 Hz bandwidth goes unstable with that delay (issue 15: tracking error
+    hundreds of mm, torque at max_effort)."""
+    from rclpy.qos import HistoryPolicy, QoSProfile
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=qos.reliability,
+                      durability=qos.durability)
+
+
+def _executor():
+    """rclpy's C++ events executor where it exists: a small fraction of the per-callback latency of the
+    Python one (prsm_ros.bench.rt_controller measures the loop with the same choice)."""
+    try:
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor()
+    except ImportError:
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor()
+
+
 def run(args: argparse.Namespace) -> dict:
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
+    from std_srvs.srv import SetBool
 
+    from prsm_ros.cdr_read import joint_state_at, joint_state_names
+    from prsm_ros.interface import NUT_JOINT, resolve_name
     from prsm_ros.messages import TOPICS, with_depth
+    from prsm_ros.node.scheduling import raise_process_threads
 
     params = preset(args.preset)
     ctl = PositionController(reflected_inertia(params), params.geometry.lead_per_rad_m, bandwidth_hz=args.bandwidth,
                              load_n=args.load, max_torque_nm=args.max_torque)
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    node = Node("prsm_demo_controller")
+    node = rclpy.create_node("prsm_demo_controller")
     cmd_topic = TOPICS[COMMAND_TOPICS[args.command_interface]]
     tau_pub = node.create_publisher(Float64, cmd_topic.resolved(), with_depth(cmd_topic.qos, 10))
     ref_pub = node.create_publisher(Float64, TOPICS["nut_position_reference"].resolved(),
                                     TOPICS["nut_position_reference"].qos)
+    pause = node.create_client(SetBool, resolve_name("~/pause"))
     track = Tracking()
-    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_t": None}
+    # callbacks run in this thread, inside spin_once: st has one owner and needs no lock
+    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_ns": None, "nut": None}
 
-    def on_state(msg: JointState) -> None:
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        i = list(msg.name).index("nut_joint")
-        x, v = msg.position[i], msg.velocity[i]
+    def on_state(raw: bytes) -> None:
+        if st["done"]:
+            return
+        if st["nut"] is None:
+            st["nut"] = joint_state_names(raw).index(NUT_JOINT)
+        stamp_ns, x, v = joint_state_at(raw, st["nut"])
+        if st["last_ns"] is not None and stamp_ns <= st["last_ns"]:
+            return  # not newer than the state acted on last: answering it would repeat a step's command
+        t = stamp_ns * 1e-9
         if st["t0"] is None:
             st["t0"], st["wall0"] = t, time.perf_counter()
-        dt = t - st["last_t"] if st["last_t"] is not None else 0.0
-        st["last_t"], st["t"], st["x"] = t, t, x
+        dt = t - st["last_ns"] * 1e-9 if st["last_ns"] is not None else 0.0
+        st["last_ns"], st["t"], st["x"] = stamp_ns, t, x
         x_ref, v_ref, a_ref = reference(t, args.amplitude, args.frequency)
         track.add(x_ref - x)
         if t >= args.duration:
             st["done"] = True
             return
-        ref_pub.publish(Float64(data=x_ref))
         if args.command_interface == "velocity":
             command = velocity_command(x_ref, v_ref, x, params.geometry.lead_per_rad_m, args.bandwidth)
         elif args.command_interface == "position":
             command = x_ref
         else:
             command = ctl.torque(x_ref - x, v_ref - v, a_ref, dt)
-        tau_pub.publish(Float64(data=command))
+        tau_pub.publish(Float64(data=command))  # the command first: the reference only goes to the bag
+        ref_pub.publish(Float64(data=x_ref))
 
     state_sub = node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state,
-                                         TOPICS["joint_states"].qos)
-    executor = SingleThreadedExecutor()  # one executor: rclpy.spin_once(node) re-adds the node on every call
+                                         state_reader_qos(TOPICS["joint_states"].qos), raw=True)
+    executor = _executor()
     executor.add_node(node)
+    # after the middleware's threads exist, so that they are raised too (a state must not wait in a socket)
+    scheduling = raise_process_threads(args.realtime_priority)
     try:
         deadline = time.monotonic() + args.connect_timeout
-        # matched both ways: in lockstep a first state sent before we listen would be lost for good
-        while tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0:
+        # matched both ways and the pause service up: the node waits, paused, for us to resume it,
+        # so no step runs before we listen (in lockstep a first state sent before then is lost for good)
+        while (tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0
+               or not pause.service_is_ready()):
             if time.monotonic() > deadline:
-                print(f"prsm-demo controller: no node listening on {cmd_topic.resolved()} "
+                print(f"prsm-demo controller: no node listening on {cmd_topic.resolved()} with {pause.srv_name} "
                       f"after {args.connect_timeout:g} s", file=sys.stderr)
                 break
             executor.spin_once(timeout_sec=0.05)
         else:
-            tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
-            kicked = time.monotonic()
-            wall_limit = kicked + args.wall_timeout
-            while not st["done"] and time.monotonic() < wall_limit:
-                executor.spin_once(timeout_sec=0.1)
-                if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
-                    tau_pub.publish(Float64(data=0.0))
-                    kicked = time.monotonic()
+            resumed = pause.call_async(SetBool.Request(data=False))
+            executor.spin_until_future_complete(resumed, timeout_sec=max(0.0, deadline - time.monotonic()))
+            if not resumed.done():
+                print(f"prsm-demo controller: {pause.srv_name} did not answer within {args.connect_timeout:g} s",
+                      file=sys.stderr)
+            else:
+                tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
+                kicked = time.monotonic()
+                wall_limit = kicked + args.wall_timeout
+                while not st["done"] and time.monotonic() < wall_limit:
+                    executor.spin_once(timeout_sec=0.1)
+                    if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
+                        tau_pub.publish(Float64(data=0.0))
+                        kicked = time.monotonic()
+                # pause the node where the run ends, so the bag stops with the tracked profile rather
+                # than with the load pushing an uncontrolled nut (not waited for beyond a few seconds)
+                executor.spin_until_future_complete(pause.call_async(SetBool.Request(data=True)), timeout_sec=5.0)
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -114,7 +163,7 @@ def run(args: argparse.Namespace) -> dict:
     return {"rms_error_m": track.rms_m, "max_error_m": track.max_abs_m, "final_position_m": st["x"],
             "final_reference_m": reference(st["t"], args.amplitude, args.frequency)[0], "sim_time_s": st["t"],
             "states_received": track.n, "wall_time_s": wall, "real_time_factor": sim / wall if wall > 0 else math.nan,
-            "completed": st["done"]}
+            "completed": st["done"], "scheduling": scheduling}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -128,6 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-torque", type=float, default=DEFAULT_MAX_TORQUE_NM, help="controller torque limit (N·m)")
     p.add_argument("--command-interface", default="effort", choices=tuple(COMMAND_TOPICS),
                    help="what to command: screw torque (effort), screw speed (velocity) or nut position (position)")
+    p.add_argument("--realtime-priority", type=int, default=0,
+                   help="SCHED_FIFO priority of every thread of the controller where the OS allows (0: normal)")
     p.add_argument("--connect-timeout", type=float, default=20.0, help="wall seconds to wait for the node")
     p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
     return p

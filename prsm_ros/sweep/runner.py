@@ -213,8 +213,11 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
                     bar.update(len(results))
         finally:
             bar.close()
-            for ref in pending:
-                ray.cancel(ref, force=True)
+            if not owned:  # our own embedded Ray ends its workers at shutdown; a shared cluster is asked
+                # to stop ours. Never force=True: a batch finishing as its worker is killed makes Ray 2.60's
+                # driver abort ("Tried to complete task that was not pending"), losing the exit status.
+                for ref in pending:
+                    ray.cancel(ref)
             consolidate(out)
     finally:
         disconnect(ray, owned, tmp)

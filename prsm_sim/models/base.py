@@ -84,59 +84,76 @@ class Model:
         ws, wc = screw_speed_rad_s, carrier_speed_rad_s
         return 0.5 * (kss * ws * ws + 2.0 * ksc * ws * wc + kcc * wc * wc)
 
-    # -- per-step fast path (optional) ------------------------------------------------------
-    # A model whose step is a few float operations sets `packed = True` and provides
-    # `advance_packed(x, torque, load) -> PackedOutputs` on the packed state
-    # x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual, stored energy)
-    # (`pack_state`), ending in the function `packed_finisher` makes. The record it returns is the
-    # step's outputs and, in its first PACKED_STATE_SIZE items, the next packed state:
-    # `Simulator.step` keeps it as the state between steps. The ledger and the energy guard
-    # (accumulators and verdict) run every step as in `finish_step`; of the other outputs the
-    # record holds what the node reads every step and derives the rest when read (outputs.PackedOutputs).
-    # Results match `step` to rounding (tests/test_step_paths.py). The models build these
-    # functions as closures over Python floats: a step of a few dozen flops costs less than the
-    # attribute look-ups of a method.
-    packed = False
+    def total_stored_energy_j(self, state: State) -> float:
+        """Energy the model stores in `state`, J (`stored_energy_j` at its speeds; `elastic` adds the
+        nut and the chain, which need more of the state)."""
+        return self.stored_energy_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
 
-    def pack_state(self, s: State) -> tuple[float, ...]:
+    # -- per-step fast path (optional) ------------------------------------------------------
+    # A model that sets `packed = True` provides `advance_packed(x, torque, load) -> PackedOutputs`
+    # on the packed state x = (time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy
+    # residual, stored energy, extra) (`pack_state`; extra: the values of the State fields named in
+    # `extra_state_fields`, the model's own memory: fu2018's flank sign, lagged forces and solver
+    # memory), ending in the function `packed_finisher` makes. The record it returns is the step's
+    # outputs and, in its first PACKED_STATE_SIZE items, the next packed state: `Simulator.step`
+    # keeps it as the state between steps. The ledger and the energy guard (accumulators and
+    # verdict) run every step as in `finish_step`; of the other outputs the record holds what the
+    # node reads every step and derives the rest when read (outputs.PackedOutputs) with the model's
+    # own code. Results match `step` to rounding (tests/test_step_paths.py). The models build these
+    # functions as closures: a step of a few dozen flops costs less than the attribute look-ups of a
+    # method, and a model with a costlier step saves the State and Outputs it no longer builds.
+    packed = False
+    extra_state_fields: tuple[str, ...] = ()
+
+    def pack_state(self, s: State) -> tuple:
         return (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad, s.carrier_speed_rad_s,
                 s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j, s.energy_residual_j,
-                self.stored_energy_j(s.screw_speed_rad_s, s.carrier_speed_rad_s))
+                self.total_stored_energy_j(s), tuple(getattr(s, f) for f in self.extra_state_fields))
 
-    @staticmethod
-    def unpack_state(x: tuple[float, ...]) -> State:
+    def unpack_state(self, x: tuple) -> State:
         return State(time_s=x[0], screw_angle_rad=x[1], screw_speed_rad_s=x[2], carrier_angle_rad=x[3],
                      carrier_speed_rad_s=x[4], work_in_j=x[5], work_out_j=x[6], dissipated_j=x[7],
-                     energy_flow_j=x[8], energy_residual_j=x[9])
+                     energy_flow_j=x[8], energy_residual_j=x[9], **dict(zip(self.extra_state_fields, x[11])))
 
-    def advance_packed(self, x: tuple[float, ...], torque_nm: float, load_n: float) -> PackedOutputs:
+    def advance_packed(self, x: tuple, torque_nm: float, load_n: float) -> PackedOutputs:
         raise NotImplementedError
 
     def packed_finisher(self, slip_speed, internal):
         """`finish_step` for the packed path: a function
-        ``finish(x, θ_S, ω_S, θ_C, ω_C, torque, load, dissipated, stored) -> PackedOutputs``
+        ``finish(x, θ_S, ω_S, θ_C, ω_C, torque, load, dissipated, stored, extra=(), aux=None,
+        nut_force=None, nut=None) -> PackedOutputs``
         from the state before the step and the model's results at its end (stored: the stored
-        energy there, `stored_energy_j`). The same ledger, energy guard (accumulators and verdict)
-        and nut force as `finish_step`, and the nut's position and velocity (what the node reads
-        every step); the record derives the other outputs when read, with `slip_speed` and
-        `internal` (functions of ω_S, ω_C at the step's end) for the model's own.
+        energy there, `stored_energy_j`; extra: the model's own next state, `extra_state_fields`).
+        The same ledger, energy guard (accumulators and verdict) and nut force as `finish_step`
+        (or the model's `nut_force`, as `finish_step` takes it), and the nut's position and
+        velocity (what the node reads every step): (L/2π) θ_S and its rate, or for a nut with an
+        axial state of its own (`elastic`) `nut` = (x_N, v_N, the load's work over the step). The
+        record derives the other outputs when read, with `slip_speed` and `internal` (functions of
+        ω_S, ω_C at the step's end and the step's `aux`) for the model's own.
         """
         h, p = self.dt_s, self.geo.lead_per_rad_m
         mp = self.params.mass.moved_mass_kg * p
-        k = PackedConstants(h, p, self.geo.gear_ratio, slip_speed, internal, efficiency)
+        k = PackedConstants(h, self.geo.gear_ratio, slip_speed, internal, efficiency)
         min_flow, rel = ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
-        def finish(x, th_s, w_s, th_c, w_c, torque_nm, load_n, dissipated_j, stored_j):
+        def finish(x, th_s, w_s, th_c, w_c, torque_nm, load_n, dissipated_j, stored_j, extra=(), aux=None,
+                   nut_force=None, nut=None):
             dtheta = th_s - x[1]
             w_in = torque_nm * dtheta
-            w_out = load_n * p * dtheta
+            if nut is None:  # the nut rides the threads: x_nut = (L/2π) θ_S
+                w_out = load_n * p * dtheta
+                nut_x, nut_v = p * th_s, p * w_s
+            else:
+                nut_x, nut_v, w_out = nut
+            if nut_force is None:
+                nut_force = load_n + mp * (w_s - x[2]) / h
             flow = x[8] + abs(w_in)
             residual = x[9] + (w_in - w_out - (stored_j - x[10]) - dissipated_j)
             return PackedOutputs((
                 x[0] + h, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j, flow, residual,
-                stored_j, torque_nm, load_n, dissipated_j, dtheta, load_n + mp * (w_s - x[2]) / h, p * th_s, p * w_s,
+                stored_j, extra, torque_nm, load_n, dissipated_j, w_in, w_out, nut_force, nut_x, nut_v,
                 1.0 if flow > min_flow and abs(residual) > rel * flow else 0.0,  # energy_fault's verdict
-                k))
+                k, aux))
         return finish
 
     def run(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:

@@ -57,7 +57,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from prsm_sim.models.base import Model, efficiency
-from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018
+from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018, slip_speed
 from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
@@ -263,6 +263,7 @@ class Elastic(Model):
             InternalBlock("elastic", ("quantity",), (len(ELASTIC_QUANTITIES),), ELASTIC_QUANTITIES),
             InternalBlock("per_thread", ("tooth", "quantity"), (nt, 2), PER_THREAD_QUANTITIES),
         ))
+        self._packed_setup()
 
     def initial_state(self, nut_position_m: float = 0.0) -> State:
         s = super().initial_state(nut_position_m)
@@ -302,8 +303,11 @@ class Elastic(Model):
         clearance (`State.extra_clearance_m` added to the parameter's)."""
         delta = self.p * state.screw_angle_rad - state.nut_axial_m
         _, _, v, _ = self.law.evaluate(delta, state.nut_axial_m, state.extra_clearance_m)
-        return (self._core_kinetic_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
-                + 0.5 * self.m * state.nut_speed_m_s**2 + v)
+        return self._stored_j(state.screw_speed_rad_s, state.carrier_speed_rad_s, state.nut_speed_m_s, v)
+
+    def _stored_j(self, ws: float, wc: float, v_n: float, v_el: float) -> float:
+        """Core and nut kinetic energy plus the chain's elastic energy `v_el` (J)."""
+        return self._core_kinetic_j(ws, wc) + 0.5 * self.m * v_n**2 + v_el
 
     # -- stepping -------------------------------------------------------------------------
     def _force(self, th_s, w_s, x_n, v_n, extra=0.0):
@@ -352,15 +356,59 @@ class Elastic(Model):
 
     def _advance(self, state: State, torque_nm: float, load_n: float):
         s = state
-        ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
-        x_n, v_n = s.nut_axial_m, s.nut_speed_m_s
-        sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
+        extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
+        (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el0, k, v_el0, lost,
+         delta) = self._substeps(s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad,
+                                 s.nut_axial_m, s.nut_speed_m_s, s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver,
+                                 s.screw_accel_rad_s2, extra, torque_nm, load_n)
+        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                        flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
+                        nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
+        internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
+        return self._finish(s, after, torque_nm, load_n, diss, w_out, slip_speed(f1), f_th, internal)
+
+    packed = True
+    # the core's lagged friction state and solver memory, the nut's axial state, the coupling's last
+    # acceleration and the clearance a fault added (`_substeps`' arguments beyond the rigid state)
+    extra_state_fields = ("flank_sign", "pin_force_n", "gear_force_n", "solver", "nut_axial_m", "nut_speed_m_s",
+                          "screw_accel_rad_s2", "extra_clearance_m")
+
+    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+        return (type(self), (self.params, self.dt_s))
+
+    def _packed_setup(self) -> None:
+        """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
+
+        The same `_substeps`; the stored energy from the chain's energy they end with (`_stored_j`, the
+        sum `total_stored_energy_j` forms, which would evaluate the chain law again), and the step's
+        end forces and chain figures as the record's aux, from which the slip speed and the internal
+        vector (`_internal`) are derived when read.
+        """
+        model, stored, internal = self, self._stored_j, self._internal
+        finish = self.packed_finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
+                                      lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
+
+        def advance_packed(x, torque_nm: float, load_n: float):
+            sign, pin_abs, gear, mem, x_n, v_n, acc, extra = x[11]
+            (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el, k, v_el, lost,
+             delta) = model._substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra,
+                                      torque_nm, load_n)
+            return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, stored(ws, wc, v_n, v_el),
+                          (sign, pin_abs, gear, mem, x_n, v_n, acc, extra), (f1, f_el, k, v_el, lost, delta, v_n, x_n,
+                                                                              extra), f_th, (x_n, v_n, w_out))
+        self.advance_packed = advance_packed
+
+    def _substeps(self, ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n):
+        """One output step of `substeps` sub-steps (module doc), on plain floats.
+
+        Returns (ω_S, ω_C, θ_S, θ_C, x_N, v_N, flank sign, pin force, gear force, solver memory, screw
+        acceleration, dissipated J, the load's work J, thread force on the nut N, the core's end forces, and
+        the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end).
+        """
         hs, m, core, law, p = self.core.dt_s, self.m, self.core, self.law, self.p
         diss = 0.0
-        extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
         f_th, f_el0, k, v_el0, lost, delta, c0 = self._force(th_s, ws, x_n, v_n, extra)
         w_out = 0.0
-        acc = s.screw_accel_rad_s2
         for _ in range(self.substeps):
             # Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with
             # the accelerations at its start): equal and opposite impulses, second order in the axial mode.
@@ -429,12 +477,8 @@ class Elastic(Model):
             ws, wc = ws1, wc1
             f_el0, k, v_el0, lost, delta = f_el1, k1, v_el1, lost1, delta1
             f_th = f_el1 + c1 * (p * ws - v_n)
-        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
-                        flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
-                        nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
-        internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
-        return self._finish(s, after, torque_nm, load_n, diss, w_out,
-                            math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f_th, internal)
+        return (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el0, k, v_el0,
+                lost, delta)
 
     def _internal(self, compact, f_el, k, v_el, lost, delta, v_n, x_n=0.0, extra=0.0) -> np.ndarray:
         """Output block: fu2018's per-roller, per-tooth and carrier quantities, the chain, the per-thread loads.

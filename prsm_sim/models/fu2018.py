@@ -270,6 +270,10 @@ class Fu2018(Model):
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
             InternalBlock("carrier", ("quantity",), (len(CARRIER_QUANTITIES),), CARRIER_QUANTITIES),
         ))
+        self._packed_setup()
+
+    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+        return (type(self), (self.params, self.dt_s))
 
     def _side(self, sign: int) -> _Side:
         ev = self.params.friction.contact_evaluation
@@ -619,9 +623,31 @@ class Fu2018(Model):
                       carrier_angle_rad=s.carrier_angle_rad + dth_c, carrier_speed_rad_s=wc1, flank_sign=sign,
                       pin_force_n=pin_abs, gear_force_n=gear, solver=mem)
         internal = self.expand_one(f1.compact)
-        return self.finish_step(s, after, torque_nm, load_n, dissipated_j=diss,
-                                slip_speed_m_s=math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), internal=internal,
-                                nut_force_n=f1.axial)
+        return self.finish_step(s, after, torque_nm, load_n, dissipated_j=diss, slip_speed_m_s=slip_speed(f1),
+                                internal=internal, nut_force_n=f1.axial)
+
+    packed = True
+    # the lagged friction state and the integrator memory (`_step`'s sign, pin_abs, gear, mem)
+    extra_state_fields = ("flank_sign", "pin_force_n", "gear_force_n", "solver")
+
+    def _packed_setup(self) -> None:
+        """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
+
+        The same `_step`; the record keeps the end forces as its aux, from which the slip speed and the
+        internal vector (`expand_one`) are derived when read, and their axial thread force as the nut
+        force (what `_advance` hands `finish_step`).
+        """
+        model, stored = self, self.stored_energy_j
+        expand_one = self.expand_one
+        finish = self.packed_finisher(lambda w_s, w_c, f1: slip_speed(f1), lambda w_s, w_c, f1: expand_one(f1.compact))
+
+        def advance_packed(x, torque_nm: float, load_n: float):
+            sign, pin_abs, gear, mem = x[11]
+            ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = model._step(
+                x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n)
+            return finish(x, x[1] + dth_s, ws1, x[3] + dth_c, wc1, torque_nm, load_n, diss, stored(ws1, wc1),
+                          (sign, pin_abs, gear, mem), f1, f1.axial)
+        self.advance_packed = advance_packed
 
     def run(self, state: State, torque_nm, load_n) -> Trajectory:
         """Batch form of `step`: the same arithmetic on local scalars, per-tooth expansion once at the end."""
@@ -640,7 +666,7 @@ class Fu2018(Model):
             w_in += tau * dth
             w_out += load * p * dth
             diss += d
-            rows.append((ws, wc, th_s, th_c, dth, d, math.sqrt(f1.vx**2 + f1.vy**2 + f1.vz**2), f1.axial))
+            rows.append((ws, wc, th_s, th_c, dth, d, slip_speed(f1), f1.axial))
             comp.append(f1.compact)
         n = len(rows)
         final = State(time_s=s.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c,
@@ -687,6 +713,11 @@ class Fu2018(Model):
         np.multiply((self.zeta / nt)[None, None, :, None], compact[:, None, None, :2], out=teeth)
         out[:, start + nr * nt * 2:] = compact[:, nq:]
         return out
+
+
+def slip_speed(f: Forces) -> float:
+    """|v_s|, m/s: the screw–roller sliding speed of an evaluation (the `slip_speed_m_s` output)."""
+    return math.sqrt(f.vx**2 + f.vy**2 + f.vz**2)
 
 
 JACOBIAN_REFRESH_STEPS = 2  # 10 lost stability in the stiff carrier mode at μ = 0.1 under 20 kN

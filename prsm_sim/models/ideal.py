@@ -51,7 +51,7 @@ class Ideal(Model):
         self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
         self._solve = self._step_law()
         p, s = self.geo.lead_per_rad_m, self.slip_per_nut_speed
-        finish = self.packed_finisher(lambda w_s, w_c: abs(w_s) * p * s, lambda w_s, w_c: _EMPTY)
+        finish = self.packed_finisher(lambda w_s, w_c, aux: abs(w_s) * p * s, lambda w_s, w_c, aux: _EMPTY)
         solve, k, half_j = self._solve, self.k_carrier, 0.5 * self.J
 
         def advance_packed(x, torque_nm: float, load_n: float):

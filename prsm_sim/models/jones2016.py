@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
 
 from prsm_sim.errors import InputError
 from prsm_sim.physics.contact import ContactPoint, contact_for
@@ -99,11 +98,11 @@ class Jones2016(Model):
         k = -self.params.friction.viscous_n_s_m * self.geo.n_teeth
         n_rollers = self.geo.n_rollers
 
-        def slip_speed(w_s: float, w_c: float) -> float:
+        def slip_speed(w_s: float, w_c: float, aux=None) -> float:
             v0, v1, v2 = g[0] * w_s + g[1] * w_c, g[2] * w_s + g[3] * w_c, g[4] * w_s + g[5] * w_c
             return math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
 
-        def internal(w_s: float, w_c: float) -> np.ndarray:
+        def internal(w_s: float, w_c: float, aux=None) -> np.ndarray:
             """`_internal` of one step from plain floats (one row broadcast into the rollers' block:
             half the cost of converting the repeated tuple, a third of np.tile's)."""
             v0, v1, v2 = g[0] * w_s + g[1] * w_c, g[2] * w_s + g[3] * w_c, g[4] * w_s + g[5] * w_c
@@ -148,6 +147,7 @@ class Jones2016(Model):
         Vi = np.linalg.inv(V)
         drive = Vi @ (lin.Gam[2:] @ u)  # modal input, 2 × n
         z0 = Vi @ w0
+        from scipy.signal import lfilter  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
         modes = np.empty((2, n))
         for i in range(2):
             # z[k+1] = λ z[k] + drive[k]; filter output is z[1..n]

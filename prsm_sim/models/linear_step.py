@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm, solve
 
 
 @dataclass(frozen=True)
@@ -32,6 +31,7 @@ class LinearStep:
 
 def discretise(M: np.ndarray, C: np.ndarray, B: np.ndarray, dt_s: float) -> LinearStep:
     """ZOH step of q̈ = M⁻¹(−C q̇ + B u): exact for piecewise-constant u."""
+    from scipy.linalg import expm, solve  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
     n = M.shape[0]
     m = B.shape[1]
     Ai = -solve(M, C)
@@ -59,6 +59,7 @@ def _friction_work_form(A: np.ndarray, Bi: np.ndarray, C: np.ndarray, h: float) 
     mode), so the integral is taken in closed form on the modes of A (real, negative: A is
     similar to −M^{-1/2} C M^{-1/2}): q̇(t) = q̇∞ + V e^{Λt} V⁻¹ (q̇₀ − q̇∞), q̇∞ = −A⁻¹ Bi u.
     """
+    from scipy.linalg import solve
     n, m = Bi.shape
     lam, V = np.linalg.eig(A)
     lam, V = lam.real, V.real

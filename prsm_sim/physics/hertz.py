@@ -23,8 +23,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.special import ellipe, ellipk
 
 from prsm_sim.errors import InputError
 from prsm_sim.params import Geometry
@@ -36,6 +34,7 @@ def curvature_difference(kappa: float) -> float:
     """F(ρ) of an ellipse ratio κ ≥ 1 (docs/model.md §4.3, Harris ch. 6)."""
     if kappa <= 1.0:
         return 0.0
+    from scipy.special import ellipe, ellipk  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
     m = 1.0 - 1.0 / kappa**2
     e, k = ellipe(m), ellipk(m)
     return float(((kappa**2 + 1.0) * e - 2.0 * k) / ((kappa**2 - 1.0) * e))
@@ -53,6 +52,8 @@ def ellipticity(f_rho: float) -> tuple[float, float, float]:
     hi = math.log(_KAPPA_MAX)
     if f_rho >= curvature_difference(_KAPPA_MAX):
         raise InputError(f"curvature difference F(rho) = {f_rho!r}: ellipse ratio beyond {_KAPPA_MAX:g} (a line contact)")
+    from scipy.optimize import brentq
+    from scipy.special import ellipe, ellipk
     # near κ = 1, F ≈ (3/4)(κ² − 1)/2 … bracket from just above 1
     t = brentq(lambda t: curvature_difference(math.exp(t)) - f_rho, 1e-9, hi, xtol=1e-15, rtol=1e-15, maxiter=200)
     kappa = math.exp(t)
