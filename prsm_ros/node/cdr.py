@@ -26,10 +26,10 @@ import numpy as np
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
-from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from prsm_sim import OUTPUT_FIELDS, InternalLayout, Outputs
 
@@ -201,28 +201,6 @@ class StepEncoder:
     def time_reference(stamp_ns: int, time_ref_ns: int, source: str) -> bytes:
         """sensor_msgs/TimeReference (the command echo), from a template per source topic."""
         return _time_reference_template(source).fill(*split_ns(stamp_ns), *split_ns(time_ref_ns))
-
-
-class Float64Reader:
-    """The value of a `std_msgs/Float64` from its CDR bytes (the node's polled commands, issue 15).
-
-    The value's offset and byte order come from rclpy's own serialisation, as the templates' slots
-    do; bytes with another encapsulation header (a publisher of the other byte order) go through
-    rclpy's deserialiser. `read(raw)` costs one comparison and one unpack instead of building a message.
-    """
-
-    def __init__(self) -> None:
-        t = _Template(lambda v: Float64(data=float(v[0])), "d")
-        ((_, at),) = t.runs((1,))
-        self._header = t.bytes[:4]  # CDR encapsulation: representation id and options
-        self._unpack = struct.Struct(t.order + "d").unpack_from
-        self._at = at
-        self._size = len(t.bytes)
-
-    def read(self, raw: bytes) -> float:
-        if raw[:4] == self._header and len(raw) >= self._size:
-            return self._unpack(raw, self._at)[0]
-        return deserialize_message(raw, Float64).data
 
 
 @functools.lru_cache(maxsize=16)  # one source per command topic; lru_cache is thread-safe

@@ -49,12 +49,13 @@ from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_sim import PrsmError
 
-from prsm_ros.node.cdr import Float64Reader
+from prsm_ros.cdr_read import float64_data
 from prsm_ros.node.command_gate import CommandGate
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.ownership import CommandOwnership, participant_of
@@ -112,7 +113,6 @@ class PrsmNode(Node):
         self.stepper.paused = cfg.start_paused
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
-        self._float64 = Float64Reader()  # Float64 commands read from their CDR bytes
         self._batch: list | None = None  # a step's messages for the bag, handed over at once (`_advance`)
         self._set_decimation()
 
@@ -371,7 +371,7 @@ class PrsmNode(Node):
                                                        self.stepper.time_s)
                 header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             else:
-                reason = self.gate.offer(COMMAND_TOPICS[key], self._float64.read(raw), self.stepper.time_s)
+                reason = self.gate.offer(COMMAND_TOPICS[key], _float64(raw), self.stepper.time_s)
         except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
             reason = self.gate.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
                                                 f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})")
@@ -724,6 +724,14 @@ class PrsmNode(Node):
             self.get_logger().error(f"{self.recorder.error} ({self.recorder.messages_dropped} messages not recorded)")
         if self.rerun is not None and not self.rerun.close(timeout_s=RERUN_CLOSE_S):
             self.get_logger().error(str(self.rerun.error))
+
+
+def _float64(raw: bytes) -> float:
+    """A Float64 command's value from its CDR bytes; another encapsulation (big-endian) through rclpy."""
+    try:
+        return float64_data(raw)
+    except ValueError:
+        return deserialize_message(raw, Float64).data
 
 
 def _descriptor(p: NodeParam) -> ParameterDescriptor:
