@@ -170,9 +170,10 @@ class McapRecorder:
     `flush_interval_s`: wall time between forced chunk flushes. It bounds the loss on SIGKILL, and
     each chunk's finishing work: its message index is built in Python (about 1 µs per message,
     more on a busy machine) holding the GIL, so the node's step thread waits for it. At the
-    node's ~6,000 messages/s, 0.25 s chunks held the GIL for 1.5–3 ms and set the realtime
-    loop's latency p99 (2.0 ms against 0.9 ms unrecorded, issue 15); 0.05 s chunks hold it
-    about 0.3 ms, for one chunk record and index entry more per 50 ms.
+    node's ~6,000 messages/s a 0.25 s chunk holds it for 1.5 ms or more, a 0.05 s chunk about
+    0.3 ms, for one chunk record and index entry more per 50 ms (issue 15; interleaved runs on a
+    busy machine, command-to-state latency p99: 1.46–1.79 ms with 0.25 s, 1.15–1.89 ms with
+    0.05 s, 0.88 ms unrecorded; batch throughput a few per cent lower, within the run-to-run spread).
     """
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
