@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.base import Model
+from prsm_sim.models.base import Model, check_kernel
 from prsm_sim.models.elastic import Elastic
 from prsm_sim.models.fu2018 import Fu2018
 from prsm_sim.models.ideal import Ideal
@@ -26,7 +26,7 @@ from prsm_sim.params import Params
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018, "elastic": Elastic}
 
 
-def build_model(params: Params, model: str, dt_s: float) -> Model:
+def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled") -> Model:
     """Build the named model for a parameter set and a fixed step.
 
     Parameters
@@ -38,6 +38,9 @@ def build_model(params: Params, model: str, dt_s: float) -> Model:
         viscous, docs/model.md §4.1) or ``"fu2018"`` (spatial force system, docs/model.md §4.2).
     dt_s : float
         Fixed step, s, in (0, 0.1].
+    kernel : {"compiled", "reference"}, default "compiled"
+        For the models with a compiled step (``"fu2018"``, ``"elastic"``): numba code, or the
+        pure-Python reference it is tested against (same results to 1e-12). The others have one path.
 
     Returns
     -------
@@ -47,14 +50,15 @@ def build_model(params: Params, model: str, dt_s: float) -> Model:
     Raises
     ------
     ParamError
-        Unknown model name (the message lists the known ones) or a step out of range.
+        Unknown model name (the message lists the known ones), a step out of range or an unknown kernel.
     """
     try:
         cls = MODELS[model]
     except (KeyError, TypeError):
         raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
+    check_kernel(kernel)
     cls.check_params(params)
-    return cls(params, dt_s)
+    return cls(params, dt_s, kernel=kernel) if cls.compiled_kernel else cls(params, dt_s)
 
 
 def _is_number(v) -> bool:
@@ -74,6 +78,8 @@ class Simulator:
         Fixed step, s. Inputs are held constant over each step (zero-order hold).
     nut_position_m : float, default 0.0
         Initial nut position x_nut, m (the screw angle follows from x_nut = (L/2π) θ_S).
+    kernel : {"compiled", "reference"}, default "compiled"
+        Compiled (numba) or pure-Python step for ``fu2018`` and ``elastic`` (see `build_model`).
 
     Attributes
     ----------
@@ -99,12 +105,12 @@ class Simulator:
     """
 
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
-                 nut_position_m: float = 0.0, actuator=None) -> None:
+                 nut_position_m: float = 0.0, actuator=None, kernel: str = "compiled") -> None:
         if actuator is None:
-            self.model = build_model(params, model, dt_s)
+            self.model = build_model(params, model, dt_s, kernel)
         else:  # the actuator around the screw (prsm_sim.actuator): `step`'s first input is then its command
             from prsm_sim.actuator import Actuator
-            self.model = Actuator(params, dt_s, model, actuator)
+            self.model = Actuator(params, dt_s, model, actuator, kernel)
         self.params = params
         self.dt_s = self.model.dt_s
         self._initial_nut_position_m = float(nut_position_m)

@@ -131,9 +131,10 @@ class Actuator(Model):
     name = "actuator"
 
     def __init__(self, params: Params, dt_s: float, model: str = "jones2016",
-                 actuator: ActuatorParams | None = None) -> None:
+                 actuator: ActuatorParams | None = None, kernel: str = "compiled") -> None:
         super().__init__(params, dt_s)
         self.model_name = model
+        self.kernel = kernel  # of the screw models it builds (`build_model`)
         self.elastic = model == "elastic"
         self.actuator = a = actuator if actuator is not None else ActuatorParams()
         if not isinstance(a, ActuatorParams):
@@ -178,7 +179,7 @@ class Actuator(Model):
         if mod is None:
             p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
             from prsm_sim.simulator import build_model  # late: the simulator builds actuators
-            mod = self._models[key] = build_model(p, self.model_name, self.h_sub)
+            mod = self._models[key] = build_model(p, self.model_name, self.h_sub, self.kernel)
         return mod
 
     def _probe_inertia(self, model: Model) -> float:

@@ -50,6 +50,7 @@ class Model:
     """Base class: subclasses set `name`, `layout`, `kinetic` and implement `_advance`."""
 
     name = "base"
+    compiled_kernel = False  # True: the constructor takes kernel="compiled"|"reference" (`load_kernels`)
     # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
     # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
     kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)
@@ -226,6 +227,29 @@ class Model:
             internal=internal,
         )
         return state, out
+
+
+KERNELS = ("compiled", "reference")
+
+
+def check_kernel(kernel) -> None:
+    """ParamError (one line: field, value, allowed values) unless `kernel` is one of KERNELS."""
+    if kernel not in KERNELS:
+        raise ParamError(f"kernel = {kernel!r}: allowed values are {', '.join(map(repr, KERNELS))}")
+
+
+def load_kernels(kernel: str):
+    """The compiled step functions (`models._kernels`, numba) for ``kernel="compiled"``, None for
+    ``"reference"`` (the pure-Python path, the specification the compiled one is tested against).
+
+    numba is imported here, on first use, so that `import prsm_sim` stays light; compiled code is
+    cached on disk (the first run of a fresh install compiles once).
+    """
+    check_kernel(kernel)
+    if kernel == "reference":
+        return None
+    from prsm_sim.models import _kernels
+    return _kernels
 
 
 def efficiency(power_out_w: float, power_dissipated_w: float) -> float:

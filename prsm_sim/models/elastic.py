@@ -51,14 +51,16 @@ booked as dissipated. The core's kinetic energy at the moment it sticks is booke
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from prsm_sim.models.base import Model, efficiency
-from prsm_sim.models.fu2018 import CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Fu2018, slip_speed
-from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.models.base import Model, _inputs, efficiency, energy_fault, load_kernels
+from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
+                                    _kernel_mem, slip_speed)
+from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State, Trajectory
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
 
@@ -95,9 +97,8 @@ class PowerLaw:
         return self.a * f ** (2.0 / 3.0) + self.b * f
 
     def force(self, d: float) -> float:
-        if d <= 0.0:
-            return 0.0
-        return ls.ToothRow(1, self.a, self.b).force_n(d)
+        s = power_law_root(d, self.a, self.b)
+        return s * s * s
 
     def compliance(self, f: float) -> float:
         f = max(f, 1e-300)
@@ -106,6 +107,40 @@ class PowerLaw:
     def complementary(self, f: float) -> float:
         """∫₀^F δ dF' = (3/5) a F^(5/3) + b F²/2; the stored energy is F δ − this."""
         return 0.6 * self.a * f ** (5.0 / 3.0) + 0.5 * self.b * f * f
+
+
+def power_law_root(d: float, a: float, b: float) -> float:
+    """s = F^(1/3) with δ = a F^(2/3) + b F, i.e. a s² + b s³ = d (0 for d ≤ 0): the inverse of the power law.
+
+    In s the law is a polynomial, convex and increasing for s > 0, so Newton from an upper bound
+    (the smaller of the pure-Hertz root √(d/a) and the pure-linear root ∛(d/b), picked by comparing
+    a³ with d b² so that only one root is taken) converges monotonically, with no fractional power
+    inside the loop. The stiffness and energy then follow from s without powers either
+    (`AxialLaw.evaluate`). The compiled kernel (`models._kernels._power_root`) does the same arithmetic.
+    """
+    if d <= 0.0:
+        return 0.0
+    if a == 0.0:
+        return (d / b) ** (1.0 / 3.0)
+    s = math.sqrt(d / a) if b == 0.0 or a * a * a >= d * b * b else (d / b) ** (1.0 / 3.0)
+    for _ in range(60):
+        r = a * s * s + b * s * s * s - d
+        s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
+        if abs(s_new - s) <= 1e-15 * s:
+            return s_new
+        s = s_new
+    return s
+
+
+def _stiffness_at_root(s: float, a: float, b: float) -> float:
+    """dF/dδ = 1 / ((2/3) a F^(−1/3) + b) at F = s³ (s floored where F^(−1/3) would overflow)."""
+    return 1.0 / ((2.0 / 3.0) * a / max(s, 1e-100) + b)
+
+
+def _complementary_at_root(s: float, a: float, b: float) -> float:
+    """∫₀^F δ dF' = (3/5) a F^(5/3) + b F²/2 at F = s³."""
+    f = s * s * s
+    return 0.6 * a * (s * s * s * s * s) + 0.5 * b * f * f
 
 
 def fit_side(joint: ls.Joint, rating_n: float) -> PowerLaw:
@@ -171,35 +206,38 @@ class AxialLaw:
         mag = abs(delta) - half
         if mag <= 0.0:
             return 0.0, 0.0, 0.0, delta
-        law = PowerLaw(self.side.a, self.side.b + c_ext)
-        f = law.force(mag)
-        k = 1.0 / law.compliance(f)
-        v = f * mag - law.complementary(f)
+        a, b = self.side.a, self.side.b + c_ext
+        r = power_law_root(mag, a, b)
+        f = r * r * r
+        k = _stiffness_at_root(r, a, b)
+        v = f * mag - _complementary_at_root(r, a, b)
         sgn = 1.0 if delta > 0 else -1.0
         return sgn * f, k, v, sgn * half
 
     def _preloaded(self, delta: float, c_ext: float) -> tuple[float, float, float, float]:
         """Pair shift x_p with δ = x_p + F(x_p) c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
-        s, d0 = self.side, self.d0
+        a, b, d0 = self.side.a, self.side.b, self.d0
         x = delta / 2.0
         for _ in range(60):
-            qa, qb = s.force(d0 + x), s.force(d0 - x)
-            ka = 1.0 / s.compliance(qa) if qa > 0 else 0.0
-            kb = 1.0 / s.compliance(qb) if qb > 0 else 0.0
+            ra, rb = power_law_root(d0 + x, a, b), power_law_root(d0 - x, a, b)
+            qa, qb = ra * ra * ra, rb * rb * rb
+            ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
+            kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
             f = qa - qb
             r = x + f * c_ext - delta
             dx = -r / (1.0 + (ka + kb) * c_ext)
             x += dx
             if abs(dx) <= 1e-15 * max(abs(x), d0):
                 break
-        qa, qb = s.force(d0 + x), s.force(d0 - x)
-        ka = 1.0 / s.compliance(qa) if qa > 0 else 0.0
-        kb = 1.0 / s.compliance(qb) if qb > 0 else 0.0
+        ra, rb = power_law_root(d0 + x, a, b), power_law_root(d0 - x, a, b)
+        qa, qb = ra * ra * ra, rb * rb * rb
+        ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
+        kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
         f = qa - qb
         k_pair = ka + kb
         k = k_pair / (1.0 + k_pair * c_ext)
-        va = qa * (d0 + x) - s.complementary(qa)
-        vb = (qb * (d0 - x) - s.complementary(qb)) if qb > 0 else 0.0
+        va = qa * (d0 + x) - _complementary_at_root(ra, a, b)
+        vb = (qb * (d0 - x) - _complementary_at_root(rb, a, b)) if qb > 0 else 0.0
         return f, k, va + vb - 2 * self.v0 + 0.5 * f * f * c_ext, 0.0
 
     def pair_forces(self, delta: float, x_n: float) -> tuple[float, float]:
@@ -223,8 +261,22 @@ def _share_table(joint: ls.Joint, rating_n: float) -> tuple[np.ndarray, np.ndarr
 
 class Elastic(Model):
     name = "elastic"
+    compiled_kernel = True
 
-    def __init__(self, params: Params, dt_s: float) -> None:
+    def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:
+        """
+        Parameters
+        ----------
+        params : Params
+            Validated parameters.
+        dt_s : float
+            Fixed output step, s.
+        kernel : {"compiled", "reference"}
+            "compiled": the sub-step loop (core included) and the batch loop run as numba code
+            (`models._kernels`, the same arithmetic); "reference": the pure-Python methods, their specification.
+        """
+        self._kn = load_kernels(kernel)
+        self.kernel = kernel
         super().__init__(params, dt_s)
         self.law = AxialLaw(params)
         self.m = params.mass.moved_mass_kg
@@ -239,7 +291,7 @@ class Elastic(Model):
                     for f in (0.0, 0.5 * params.ratings.static_load_rating_n))
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
-        self.core = Fu2018(core_params, self.dt_s / self.substeps)
+        self.core = Fu2018(core_params, self.dt_s / self.substeps, kernel=kernel)
         from prsm_sim.models.jones2016 import mass_matrix
         self._m_core = mass_matrix(core_params)
         # breakaway (the `stiction` group): a hold band of screw torque wider than the running one
@@ -263,6 +315,19 @@ class Elastic(Model):
             InternalBlock("elastic", ("quantity",), (len(ELASTIC_QUANTITIES),), ELASTIC_QUANTITIES),
             InternalBlock("per_thread", ("tooth", "quantity"), (nt, 2), PER_THREAD_QUANTITIES),
         ))
+        self._gather = self._gather_index()
+        self._share_loads = self.law.shares[0].tolist()
+        law = self.law
+        # the compiled kernel's constants (layout: models._kernels E_*)
+        self._kernel_e = np.array([
+            self.p, self.m, self.mu, self.zeta, self.substeps, self.core.dt_s, float(self.breakaway), *self.eta_static,
+            self.w_stick, self.czs, self.sin_beta, self.mu_c, *self.eta_running, self.d_mu,
+            self.p_over_sin_beta_per_vs, law.clearance, law.preload, law.side.a, law.side.b, law.ea, law.x_bearing,
+            law.c_housing, law.d0, law.v0, self._m_core[0, 0], self._m_core[0, 1], self._m_core[1, 1], IMPACT_TOL,
+            IMPACT_FLOOR, IMPACT_ITERATIONS], dtype=float)
+        if self._kn is not None:  # compiled or loaded from the disk cache now, not in a realtime loop's first step
+            self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
+                                     self.core._kernel_k, self.core._kernel_s)
         self._packed_setup()
 
     def initial_state(self, nut_position_m: float = 0.0) -> State:
@@ -354,6 +419,58 @@ class Elastic(Model):
         ex0 = self._excess(d, thread_force_n, 1.0)
         return torque_nm - math.copysign(min(abs(d), ex0), d)
 
+    def _kernel_args(self, s: State) -> tuple:
+        """The state as the compiled kernel takes it (floats; the solver memory as `fu2018._kernel_mem`)."""
+        # float() on every field: an int (a user's replace(state, nut_axial_m=0)) would make numba compile a
+        # second specialisation on the spot
+        return (float(s.screw_angle_rad), float(s.screw_speed_rad_s), float(s.carrier_angle_rad),
+                float(s.carrier_speed_rad_s), float(s.nut_axial_m), float(s.nut_speed_m_s), float(s.flank_sign),
+                float(s.pin_force_n), float(s.gear_force_n), _kernel_mem(s.solver), float(s.screw_accel_rad_s2),
+                float(s.extra_clearance_m))
+
+    def run(self, state: State, torque_nm, load_n) -> Trajectory:
+        """Batch form of `step`: with the compiled kernel the whole loop, ledger included, runs compiled and the
+        internal-load block is built when first read; the reference path is `Model.run` over the packed step."""
+        if self._kn is None:
+            return super().run(state, torque_nm, load_n)
+        tau, load = _inputs(torque_nm, load_n)
+        n = len(tau)
+        cols, comp = np.empty((n, 19)), np.empty((n, len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)))
+        ledger = np.array([state.work_in_j, state.work_out_j, state.dissipated_j, state.energy_flow_j,
+                           state.energy_residual_j])
+        th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc = self._kn.elastic_run(
+            *self._kernel_args(state), ledger, np.array(tau), np.array(load), self._kernel_e, self.core._kernel_k,
+            self.core._kernel_s, cols, comp)
+        h = self.dt_s
+        final = replace(state, time_s=state.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws,
+                        carrier_angle_rad=th_c, carrier_speed_rad_s=wc, flank_sign=int(sign), pin_force_n=pin_abs,
+                        gear_force_n=gear, solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n,
+                        screw_accel_rad_s2=acc, work_in_j=float(ledger[0]), work_out_j=float(ledger[1]),
+                        dissipated_j=float(ledger[2]), energy_flow_j=float(ledger[3]),
+                        energy_residual_j=float(ledger[4]))
+        w_s, w_c, w_in, w_out, diss, flow, residual = (cols[:, i] for i in (1, 3, 8, 9, 10, 12, 13))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            p_out, p_d = w_out / h, diss / h
+            eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
+            ratio = np.where(w_s != 0, w_c / w_s, np.nan)
+        columns = {
+            "time_s": final.time_s - h * np.arange(n - 1, -1, -1), "screw_angle_rad": cols[:, 0],
+            "screw_speed_rad_s": w_s, "screw_torque_nm": tau.copy(), "carrier_angle_rad": cols[:, 2],
+            "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -self.geo.gear_ratio * w_c,
+            "nut_position_m": cols[:, 4], "nut_velocity_m_s": cols[:, 5], "nut_force_n": cols[:, 6],
+            "load_force_n": load.copy(), "slip_speed_m_s": cols[:, 7], "power_in_w": w_in / h, "power_out_w": p_out,
+            "power_dissipated_w": p_d, "efficiency": eff, "speed_ratio": ratio, "stored_energy_j": cols[:, 11],
+            "energy_flow_j": flow, "energy_residual_j": residual,
+            "energy_fault": energy_fault(flow, residual).astype(float),
+        }
+        columns = {name: np.ascontiguousarray(columns[name]) for name, _ in OUTPUT_FIELDS}
+        extra = state.extra_clearance_m
+
+        def internal():
+            return np.array([self._internal(comp[i], *cols[i, 14:19], cols[i, 5], cols[i, 4], extra)
+                             for i in range(n)], dtype=float).reshape(n, self.layout.size)
+        return Trajectory(columns=columns, internal=internal, layout=self.layout, final_state=final)
+
     def _advance(self, state: State, torque_nm: float, load_n: float):
         s = state
         extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
@@ -374,7 +491,7 @@ class Elastic(Model):
                           "screw_accel_rad_s2", "extra_clearance_m")
 
     def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s))
+        return (type(self), (self.params, self.dt_s, self.kernel))
 
     def _packed_setup(self) -> None:
         """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
@@ -404,7 +521,16 @@ class Elastic(Model):
         Returns (ω_S, ω_C, θ_S, θ_C, x_N, v_N, flank sign, pin force, gear force, solver memory, screw
         acceleration, dissipated J, the load's work J, thread force on the nut N, the core's end forces, and
         the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end).
+        With the compiled kernel: `models._kernels.elastic_advance`, the same arithmetic.
         """
+        if self._kn is not None:
+            (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
+             f_th, _, _) = self._kn.elastic_advance(
+                float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
+                float(gear), _kernel_mem(mem), float(acc), float(extra), float(torque_nm), float(load_n),
+                self._kernel_e, self.core._kernel_k, self.core._kernel_s)
+            return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, mem if mem[4] != 0.0 else (), acc, diss,
+                    w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta)
         hs, m, core, law, p = self.core.dt_s, self.m, self.core, self.law, self.p
         diss = 0.0
         f_th, f_el0, k, v_el0, lost, delta, c0 = self._force(th_s, ws, x_n, v_n, extra)
@@ -491,8 +617,7 @@ class Elastic(Model):
         thread load (Q_A + Q_B)/N_T, so the column sums to N_T. The per-tooth block spreads fu2018's contact
         forces (for the net thread force) over the rows by `load_share`.
         """
-        geo = self.geo
-        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        nt = self.geo.n_teeth
         if self.law.double_nut:
             qa, qb = self.law.pair_forces(delta, x_n)
             thread_load = np.concatenate([self._shares_at(qa) * qa, self._shares_at(qb) * qb]) / self.law.n_side
@@ -502,18 +627,28 @@ class Elastic(Model):
             fa = abs(f_el)
             shares = self._shares_at(fa)
             thread_load = shares * fa / nt
-        comp = np.asarray(compact, dtype=float)
-        per_tooth = np.empty((nr, nt, 2))
-        per_tooth[:, :, 0] = shares / nt * comp[0]
-        per_tooth[:, :, 1] = shares / nt * comp[1]
-        thread = np.column_stack([thread_load, shares])
-        return np.concatenate([np.tile(comp[:nq], nr), per_tooth.ravel(), comp[nq:],
-                               [delta, lost, f_el, k, v_el, v_n], thread.ravel()])
+        spread = shares / nt
+        # one gather from [compact, the chain, ζ/N_T N_S, ζ/N_T N_N, thread loads, shares] (`_gather_index`)
+        src = np.concatenate((compact, (delta, lost, f_el, k, v_el, v_n), spread * compact[0], spread * compact[1],
+                              thread_load, shares))
+        return src[self._gather]
+
+    def _gather_index(self) -> np.ndarray:
+        """Positions in `_internal`'s source vector of every element of the layout."""
+        geo = self.geo
+        nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
+        ncomp = nq + len(CARRIER_QUANTITIES)
+        nel = len(ELASTIC_QUANTITIES)
+        start = ncomp + nel  # the two per-tooth columns, then thread loads and shares, nt each
+        per_tooth = np.tile((start + np.arange(nt)[:, None] + nt * np.arange(2)[None, :]).ravel(), nr)
+        thread = (start + 2 * nt + np.arange(nt)[:, None] + nt * np.arange(2)[None, :]).ravel()
+        return np.concatenate([np.tile(np.arange(nq), nr), per_tooth, np.arange(nq, ncomp),
+                               np.arange(ncomp, ncomp + nel), thread])
 
     def _shares_at(self, force_n: float) -> np.ndarray:
         """ζ of one flank set's rows at axial force `force_n` ≥ 0, interpolated in the solved table."""
         loads, table = self.law.shares
-        j = int(np.searchsorted(loads, force_n))
+        j = bisect.bisect_left(self._share_loads, force_n)  # np.searchsorted's answer without its call overhead
         if j <= 0:
             return table[0]
         if j >= len(loads):

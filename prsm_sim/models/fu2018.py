@@ -45,7 +45,7 @@ import numpy as np
 
 from prsm_sim.physics.contact import ContactPoint, contact_for
 from prsm_sim.errors import ParamError
-from prsm_sim.models.base import Model, _inputs, columns_to_trajectory
+from prsm_sim.models.base import Model, _inputs, columns_to_trajectory, load_kernels
 from prsm_sim.models.jones2016 import mass_matrix
 from prsm_sim.outputs import InternalBlock, InternalLayout, State, Trajectory
 from prsm_sim.params import Params
@@ -185,12 +185,15 @@ class Forces(NamedTuple):
 
     @property
     def pin_force_sum_n(self) -> float:
-        """|F_pin,1| + |F_pin,2|: what pin friction scales with."""
-        return math.hypot(self.p1r, self.p1t) + math.hypot(self.p2r, self.p2t)
+        """|F_pin,1| + |F_pin,2|: what pin friction scales with (√(x² + y²) rather than `math.hypot`, whose
+        rounding differs from the C library's: the compiled kernel takes the same square roots)."""
+        return (math.sqrt(self.p1r * self.p1r + self.p1t * self.p1t)
+                + math.sqrt(self.p2r * self.p2r + self.p2t * self.p2t))
 
 
 class Fu2018(Model):
     name = "fu2018"
+    compiled_kernel = True
 
     @classmethod
     def check_params(cls, params: Params) -> None:
@@ -213,7 +216,20 @@ class Fu2018(Model):
                              f"needs at least {MIN_REGULARISATION_M_S:g} m/s (stick is modelled exactly at rest; "
                              "the regularisation only shapes slip through zero)")
 
-    def __init__(self, params: Params, dt_s: float) -> None:
+    def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:
+        """
+        Parameters
+        ----------
+        params : Params
+            Validated parameters (`check_params` refuses what this model cannot honour).
+        dt_s : float
+            Fixed output step, s.
+        kernel : {"compiled", "reference"}
+            "compiled": the step and the batch loop run as numba code (`models._kernels`, the same
+            arithmetic); "reference": the pure-Python methods of this class, its specification.
+        """
+        self._kn = load_kernels(kernel)
+        self.kernel = kernel
         self.check_params(params)
         super().__init__(params, dt_s)
         geo, fr, m = self.geo, params.friction, params.mass
@@ -270,10 +286,19 @@ class Fu2018(Model):
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
             InternalBlock("carrier", ("quantity",), (len(CARRIER_QUANTITIES),), CARRIER_QUANTITIES),
         ))
+        # the compiled kernel's constants (layout: models._kernels K_*): `_k`, the step's own, the lead
+        self._kernel_k = np.array([float(v) for v in self._k] + [
+            self.dt_s, self._h_min, self._h_zone, self._slip_tol, self.eps_v, *self.kinetic,
+            float(JACOBIAN_REFRESH_STEPS), SLIP_ZONE, STEP_BALANCE_TOL, STEP_BALANCE_FLOOR_J, self.p])
+        self._kernel_s = np.array([self._side_k[1], self._side_k[-1]])
+        if self._kn is not None:
+            # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
+            # the model is built, rather than in the first step of a realtime loop
+            self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, _NO_MEM, 0.0, 0.0, self._kernel_k, self._kernel_s)
         self._packed_setup()
 
     def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s))
+        return (type(self), (self.params, self.dt_s, self.kernel))
 
     def _side(self, sign: int) -> _Side:
         ev = self.params.friction.contact_evaluation
@@ -547,6 +572,11 @@ class Fu2018(Model):
         and the kinetic energy left (slip within a few ε: tiny) is booked as the work of the
         static friction impulse.
         """
+        if self._kn is not None:
+            ws, wc, dth_s, dth_c, diss, f, sg, pin_abs, gear, m = self._kn.step(
+                float(ws), float(wc), float(sign), float(pin_abs), float(gear), _kernel_mem(mem), float(tau),
+                float(load), self._kernel_k, self._kernel_s)
+            return ws, wc, dth_s, dth_c, diss, Forces(*f), int(sg), pin_abs, gear, m if m[4] != 0.0 else ()
         h = self.dt_s
         ros = self._rosenbrock
         zone2 = (SLIP_ZONE * self.eps_v) ** 2
@@ -657,6 +687,18 @@ class Fu2018(Model):
         ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
         sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
         w_in = w_out = diss = 0.0
+        if self._kn is not None:
+            n = len(tau_a)
+            cols = np.empty((n, 8))
+            compact = np.empty((n, self._compact_size))
+            ws, wc, th_s, th_c, w_in, w_out, diss, sg, pin_abs, gear, m = self._kn.fu2018_run(
+                float(ws), float(wc), float(th_s), float(th_c), float(sign), float(pin_abs), float(gear),
+                _kernel_mem(mem), np.array(tau_a), np.array(load_a), self._kernel_k, self._kernel_s, cols, compact)
+            final = State(time_s=s.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c,
+                          carrier_speed_rad_s=wc, work_in_j=s.work_in_j + w_in, work_out_j=s.work_out_j + w_out,
+                          dissipated_j=s.dissipated_j + diss, flank_sign=int(sg), pin_force_n=pin_abs,
+                          gear_force_n=gear, solver=m if m[4] != 0.0 else ())
+            return columns_to_trajectory(self, tau_a, load_a, cols, lambda: self.expand(compact), final, state)
         rows, comp = [], []
         step = self._step
         for tau, load in zip(tau_a.tolist(), load_a.tolist()):
@@ -721,6 +763,14 @@ def slip_speed(f: Forces) -> float:
 
 
 JACOBIAN_REFRESH_STEPS = 2  # 10 lost stability in the stiff carrier mode at μ = 0.1 under 20 kN
+
+
+_NO_MEM = (0.0,) * 6
+
+
+def _kernel_mem(mem: tuple) -> tuple:
+    """The solver memory as the compiled kernel holds it: 6 floats, sign 0 for none."""
+    return tuple(map(float, mem)) if len(mem) == 6 else _NO_MEM  # floats: one compiled specialisation
 
 
 def _dot(x, y) -> float:
