@@ -13,8 +13,8 @@ The subscriptions belong to a `PolledGroup`, a callback group the executor never
 `can_execute` is false), so the executor neither wakes for them nor takes their messages. Their
 QoS event handlers (rclpy's default warnings about a publisher with incompatible QoS or type)
 stay in that group, so those two warnings are not logged for the command topics: handed to the
-executor, they made it spin without pause while a command was waiting (measured: the main
-thread at 52–69 % of a core instead of 1 %), as if the event were ready whenever data are. The
+executor, they kept it spinning without pause under 1 kHz commands (measured: the main thread
+at 52–69 % of a core instead of 1 %; the cause inside the middleware was not traced). The
 messages stay raw CDR bytes: the node records them as they are and decodes only what it reads.
 `lockstep` keeps the executor: there a command is what advances time, so it must wake the node.
 """
