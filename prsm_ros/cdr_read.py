@@ -5,8 +5,9 @@ field goes through a checked setter) than on its own law, and a reader that fall
 stale states. So the controllers of this project (`prsm_ros.cli.demo_controller`,
 `prsm_ros.bench.rt_controller`) subscribe with `raw=True` and read only what they use from the bytes.
 The writing side is `prsm_ros.node.cdr` (templates serialised by rclpy); this is the reading side,
-for little-endian plain CDR (what Fast DDS writes on x86 and ARM). The tests check every reader
-against rclpy's own serialiser.
+for little-endian plain CDR (what Fast DDS writes on x86 and ARM), used by the node too for its
+`std_msgs/Float64` commands (`float64_data`). The tests check every reader against rclpy's own
+serialiser.
 
 CDR layout rules used here: after the 4-byte encapsulation header, each primitive is aligned to
 its size counted from the end of that header; a string is a uint32 length (terminating NUL
@@ -107,3 +108,12 @@ def time_reference_stamps(b: bytes) -> tuple[int, int]:
     o = _align(_skip_string(b, _HEADER + 8), 4)
     rsec, rnsec = struct.unpack_from("<iI", b, o)
     return _stamp_ns(b), rsec * 1_000_000_000 + rnsec
+
+
+def float64_data(b: bytes) -> float:
+    """`data` of a CDR std_msgs/Float64 (the node's commands, taken raw by its step thread).
+
+    Raises ValueError for another encapsulation (the caller deserialises those), struct.error
+    when the bytes are too short."""
+    _check(b)
+    return struct.unpack_from("<d", b, _HEADER)[0]

@@ -3,7 +3,8 @@
 - `~/command_echo`: each command's own stamp comes back with the step that first applied it, and
   the node reports the command-to-state latency on /diagnostics;
 - one controller owns the actuator: another participant's commands are refused, counted and named
-  (in lockstep they do not advance time) until `~/release_control`;
+  (in lockstep they do not advance time) until `~/release_control`, on every command topic (in
+  realtime the step thread takes the commands itself);
 - two actuators in one graph, a controller each: one /clock that never goes backwards, two
   /diagnostics names, two complete bags in one directory (never one overwriting the other).
 
@@ -104,6 +105,61 @@ def test_a_second_controller_is_refused_counted_and_does_not_advance_lockstep(tm
         a.publish(topic, Float64(data=0.1))  # now the first controller is the other one
         a.spin_until(refused(4), 30.0, "the old owner refused")
         assert len(js) == 2 and diagnostics_of(diag[-1])[2]["command_owner"] not in ("none", owner)
+        assert proc.stop(signal.SIGINT) == 0, proc.stderr
+
+
+def test_velocity_and_position_commands_are_owned_and_echoed_in_realtime(tmp_path):
+    """The realtime node takes its commands in the step thread (command_poll), on every command
+    topic: a velocity command is echoed with its own DDS stamp and makes its sender the owner;
+    bytes that are no Float64 are counted as malformed (the step thread goes on); another
+    participant's position and velocity commands are then refused, counted and named;
+    after ~/release_control the other participant's position command is accepted and echoed.
+    Each command is sent once and waited for (an event), so no timing is asserted."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import TimeReference
+    from std_msgs.msg import Float64
+    from std_srvs.srv import Trigger
+    params = {"time_mode": "realtime", "record": False, "update_rate": 200, "diagnostics_rate": 10.0,
+              "cmd_timeout": 0.0, "ownership_timeout": 0.0, "actuator": "{motor: {}}",
+              "command_interface": "velocity"}
+    vel, pos = "/prsm_actuator/velocity_command", "/prsm_actuator/position_command"
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as a, \
+            RosClient(ENV, name="prsm_second_controller") as b:
+        echo = a.subscribe("/prsm_actuator/command_echo", TimeReference)
+        diag = a.subscribe("/diagnostics", DiagnosticArray)
+        for cli in (a, b):
+            cli.publisher(vel, Float64)
+            cli.publisher(pos, Float64)
+        a.wait_for_node(proc, timeout=60.0)
+        b.wait_for_node(proc, timeout=60.0)
+
+        before = time.time_ns()
+        a.publish(vel, Float64(data=2.0))
+        after = time.time_ns()
+        a.spin_until(lambda: any(e.source == vel for e in echo), 30.0, "the velocity command's echo")
+        e = next(e for e in echo if e.source == vel)
+        assert before <= stamp_ns(e.time_ref) <= after
+
+        def values() -> dict:
+            return diagnostics_of(diag[-1])[2] if diag else {}
+        a.spin_until(lambda: values().get("command_owner", "none") != "none", 30.0, "the owner on /diagnostics")
+        owner = values()["command_owner"]
+        a.publisher(vel, Float64).publish(b"\x00\x01\x00\x00\x01")  # raw bytes that are no Float64: refused
+        a.spin_until(lambda: int(values().get("rejected_malformed", 0)) >= 1, 30.0, "the malformed command counted")
+        b.publish(pos, Float64(data=0.001))
+        a.spin_until(lambda: int(values().get("commands_refused_not_owner", 0)) >= 1, 30.0, "a refused position command")
+        b.publish(vel, Float64(data=-1.0))
+        a.spin_until(lambda: int(values().get("commands_refused_not_owner", 0)) >= 2, 30.0, "a refused velocity command")
+        v = values()
+        assert owner not in v["refused_participants"] and "(2)" in v["refused_participants"]
+        assert int(v["joint_states_readers"]) == 0  # nobody here reads the states
+
+        assert b.call("/prsm_actuator/release_control", Trigger).success
+        assert b.call("/prsm_actuator/release_control", Trigger).message == "no owner"
+        n = len(echo)
+        b.publish(vel, Float64(data=-1.0))
+        a.spin_until(lambda: len(echo) > n and echo[-1].source == vel, 30.0, "the new owner's command echoed")
+        a.spin_until(lambda: values().get("command_owner") not in (None, "none", owner), 30.0, "the new owner")
         assert proc.stop(signal.SIGINT) == 0, proc.stderr
 
 

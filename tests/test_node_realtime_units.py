@@ -125,6 +125,30 @@ def test_the_controllers_read_cdr_as_rclpy_writes_it():
     assert time_reference_stamps(serialize_message(t)) == (3_000_000_004, 1_795_000_000_999_999_999)
 
 
+def test_float64_commands_read_from_cdr_as_rclpy_writes_them():
+    """The node's polled Float64 commands (raw CDR): the value rclpy's deserialiser gives, for
+    little-endian bytes (read in place) and big-endian ones (another encapsulation: deserialised);
+    bytes too short for a Float64 raise, and the node refuses them as malformed."""
+    import math
+    import struct
+
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64
+
+    from prsm_ros.cdr_read import float64_data
+    from prsm_ros.node.ros_node import _float64
+    for x in (0.0, -0.0, 0.25, -3.5e-300, 1e308, math.inf, -math.inf):
+        got = float64_data(serialize_message(Float64(data=x)))
+        assert got == x and math.copysign(1, got) == math.copysign(1, x)
+    assert math.isnan(float64_data(serialize_message(Float64(data=math.nan))))
+    big = b"\x00\x00\x00\x00" + struct.pack(">d", -1.75)  # CDR_BE encapsulation
+    with pytest.raises(ValueError, match="little-endian"):
+        float64_data(big)
+    assert deserialize_message(big, Float64).data == -1.75 == _float64(big)
+    with pytest.raises(struct.error):
+        _float64(b"\x00\x01\x00\x00\x01")
+
+
 @pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
 def test_step_encoder_bytes_decode_to_the_mapper_messages(model):
     """The node's CDR templates, decoded by rclpy's own deserialiser, equal MessageMapper's messages."""

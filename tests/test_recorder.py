@@ -197,6 +197,10 @@ def test_recorder_refuses_caller_mistakes_at_once(tmp_path):
             rec.write("/b", Float64(), 0)
         with pytest.raises(TypeError, match="std_msgs/msg/Float64"):
             rec.write("/a", JointState(), 0)
+        with pytest.raises(KeyError, match="not added"):  # a batch is checked as single writes are
+            rec.write_many([("/a", Float64(), 0), ("/b", Float64(), 0)])
+        with pytest.raises(TypeError, match="std_msgs/msg/Float64"):
+            rec.write_many([("/a", JointState(), 0)])
         with pytest.raises(ValueError, match="cannot add it again"):
             rec.add_channel("/a", JointState, TOPICS["joint_states"].qos)
     with pytest.raises(ValueError, match="queue_size"):
@@ -208,8 +212,10 @@ def test_full_queue_drops_and_counts_instead_of_blocking(tmp_path):
 
     rec = McapRecorder(tmp_path / "q.mcap", queue_size=10)
     rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
-    for k in range(2000):
+    for k in range(1000):
         rec.write("/a", Float64(data=float(k)), k)
+    for k in range(1000, 2000, 8):  # batches (the node's per-step hand-over) count the same way
+        rec.write_many([("/a", Float64(data=float(j)), j) for j in range(k, min(k + 8, 2000))])
     rec.close()
     assert rec.messages_dropped > 0
     assert rec.messages_written + rec.messages_dropped == 2000

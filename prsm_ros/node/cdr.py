@@ -18,11 +18,11 @@ them with the `MessageMapper` messages.
 
 from __future__ import annotations
 
-import array
 import functools
 import struct
-import sys
 from typing import Callable, Sequence
+
+import numpy as np
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
@@ -163,7 +163,11 @@ class StepEncoder:
         if at != len(base) - 8 or base[head_len:] != bytes(8 * self._n_values):
             raise ValueError("Float64MultiArray data are not the serialisation's last bytes")
         self._il_head = base[:head_len]
-        self._il_swap = (order == "<") != (sys.byteorder == "little")
+        # the scalars packed by one Struct, the internal loads as the array's bytes in the same order;
+        # the layout's size is read once (a property summing numpy products: 7 µs per call)
+        self._il_scalars = struct.Struct(f"{order}{len(self._fields)}d").pack
+        self._il_dtype = np.dtype(f"{order}f8")
+        self._n_internal = layout.size
 
     def joint_state(self, out: Outputs, stamp_ns: int) -> bytes:
         buf = bytearray(self._js.bytes)
@@ -188,12 +192,10 @@ class StepEncoder:
         return bytes(buf)
 
     def internal_loads(self, out: Outputs) -> bytes:
-        row = array.array("d", out.scalar_values())
-        if self.layout.size:
-            row.frombytes(out.internal.astype("=f8", copy=False).tobytes())
-        if self._il_swap:
-            row.byteswap()
-        return self._il_head + row.tobytes()
+        data = self._il_head + self._il_scalars(*out.scalar_values())
+        if self._n_internal:
+            data += out.internal.astype(self._il_dtype, copy=False).tobytes()
+        return data
 
     @staticmethod
     def time_reference(stamp_ns: int, time_ref_ns: int, source: str) -> bytes:

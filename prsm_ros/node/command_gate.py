@@ -114,6 +114,13 @@ class CommandGate:
         """A screw torque command (effort interface)."""
         return self.offer("effort", torque_nm, now_s)
 
+    def refuse_malformed(self, reason: str) -> str:
+        """A command message that could not be read at all (e.g. bytes that are not its type's CDR):
+        counted as received and malformed; returns the reason."""
+        self.counters.received += 1
+        self.counters.rejected_malformed += 1
+        return reason
+
     def offer_joint_command(self, names: Sequence[str], effort: Sequence[float], position: Sequence[float],
                             velocity: Sequence[float], now_s: float) -> str | None:
         """A JointState command as ros2_control's topic-based hardware interface writes it; the reason or None."""

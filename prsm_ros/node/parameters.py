@@ -90,7 +90,7 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
     NodeParam("realtime_priority", 10, "", "realtime: SCHED_FIFO priority of the step thread when the OS allows "
               "it, the node's other threads one below (0: normal scheduling); reported on /diagnostics",
               lo=0, hi=99, read_only=True),
-    NodeParam("pacing_spin", 1e-4, "s", "realtime: poll the clock for this long before each deadline instead "
+    NodeParam("pacing_spin", 0.0, "s", "realtime: poll the clock for this long before each deadline instead "
               "of trusting the sleep's wake-up latency (CPU for jitter; 0: sleep only)", lo=0.0, hi=1e-2, read_only=True),
     NodeParam("lockstep_steps", 1, "steps", "steps advanced per received command in lockstep mode", lo=1, hi=1_000_000),
     NodeParam("step_count", 1, "steps", "steps advanced by one ~/step call (std_srvs/Trigger) while paused",

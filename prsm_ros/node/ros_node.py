@@ -10,7 +10,9 @@ clock, and hands each step's outputs to the publishers (`messages.MessageMapper`
 recorder and the Rerun sink.
 
 Time modes. `realtime`: a dedicated thread steps on absolute deadlines (`stepping.DeadlinePacer`);
-`fast`: the same thread without sleeping; `lockstep`: every message received on a command topic
+`fast`: the same thread without sleeping; in both, that thread takes the commands waiting on
+the command topics itself before each step (`command_poll`: no executor wake-up per command, the
+main cost at 1 kHz otherwise). `lockstep`: every message received on a command topic
 (valid or not: the controller's tick keeps the loop going) advances `lockstep_steps` steps in the
 command callback, so a slow controller or a debugger never breaks the loop and the same command
 sequence always gives the same states. `/clock` is published on every step; joint_states and the
@@ -25,6 +27,7 @@ cleared, fault cleared). SIGINT and SIGTERM stop the node cleanly (exit 0, MCAP 
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import signal
@@ -44,13 +47,17 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_sim import PrsmError
 
+from prsm_ros.cdr_read import float64_data
 from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.ownership import CommandOwnership, participant_of
 from prsm_ros.node.record_path import RecordPathError, claim_record_path
 from prsm_ros.node.scheduling import raise_process_threads
@@ -62,7 +69,7 @@ from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, re
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
-# the GIL and the lock from the executor (services, commands) — it re-takes the lock before a waiting
+# the GIL and the lock from the executor (services, parameters) — it re-takes the lock before a waiting
 # thread wakes — so it really sleeps briefly every few steps that did not sleep.
 FAST_YIELD_EVERY = 32
 FAST_YIELD_S = 2e-5
@@ -72,6 +79,9 @@ REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Pytho
 STEP_THREAD_STOP_S = 5.0  # a step in progress (a stiff model step) finishes well within this
 RECORDER_CLOSE_S = 5.0  # the queue (at most queue_size messages) and the summary; a stalled disk gives up
 RERUN_CLOSE_S = 5.0
+# the command topics and the interface each commands (joint_commands: the active one; the reference is only recorded)
+COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "position_command": "position",
+                  "joint_commands": None, "nut_position_reference": None}
 
 
 class PrsmNode(Node):
@@ -103,6 +113,7 @@ class PrsmNode(Node):
         self.stepper.paused = cfg.start_paused
         self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
+        self._batch: list | None = None  # a step's messages for the bag, handed over at once (`_advance`)
         self._set_decimation()
 
         def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
@@ -113,16 +124,24 @@ class PrsmNode(Node):
                         for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
                                   "events") + (("clock",) if cfg.publish_clock else ())
                         + (("ground_truth",) if self.stepper.actuator is not None else ())}
-            self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k), cb, TOPICS[k].qos,
-                                                    qos_overriding_options=qos_opts())
-                        for k, cb in (("screw_torque", self._on_screw_torque),
-                                      ("joint_commands", self._on_joint_commands),
-                                      ("velocity_command", self._on_velocity_command),
-                                      ("position_command", self._on_position_command),
-                                      ("inject_fault", self._on_inject_fault),
-                                      ("nut_position_reference", self._on_reference))}
+            # commands arrive as raw CDR (recorded as they are); in realtime and fast mode the step
+            # thread takes them itself before each step (command_poll), in lockstep the executor
+            # delivers them because a command is what advances time
+            polled = cfg.time_mode != "lockstep"
+            group = PolledGroup() if polled else None
+            self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k),
+                                                    functools.partial(self._on_command_message, k), TOPICS[k].qos,
+                                                    qos_overriding_options=qos_opts(), raw=True, callback_group=group)
+                        for k in COMMAND_TOPICS}
+            self.sub["inject_fault"] = self.create_subscription(
+                TOPICS["inject_fault"].msg_class, self._topic("inject_fault"), self._on_inject_fault,
+                TOPICS["inject_fault"].qos, qos_overriding_options=qos_opts())
         except (InvalidQosOverridesError, ParameterException) as e:
             raise ConfigError(f"QoS override: {e}") from None
+        self.poller = CommandPoller()
+        if polled:
+            for k in COMMAND_TOPICS:
+                self.poller.add(k, self.sub[k], self._on_command)
         self._check_unknown_overrides()
         self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
         self._topic_names.update({k: s.topic_name for k, s in self.sub.items()})
@@ -302,71 +321,70 @@ class PrsmNode(Node):
         if type(msg) is not bytes:
             msg = serialize_message(msg)
         try:
-            pub.publish(msg)
+            handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
+            with handle:
+                handle.publish_raw(msg)
         except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
             if not rclpy.ok(context=self.context):
                 raise
             self.publish_failures += 1
             self._warn_throttled(f"publish:{key}", f"publishing on {self._topic_names[key]} failed "
                                                    f"({self.publish_failures} so far): {e}")
-        if self.recorder is not None:
-            self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
+        self._record(key, msg, stamp_ns)
 
-    def _record_input(self, key: str, msg) -> None:
-        if self.recorder is not None:
-            self.recorder.write(self._topic_names[key], msg, time_ns(self.stepper.time_s))
+    def _record(self, key: str, data, stamp_ns: int | None = None) -> None:
+        """Into the bag (lock held): with the step's batch when a step is being published, else at once."""
+        if self.recorder is None:
+            return
+        item = (self._topic_names[key], data, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
+        if self._batch is not None:
+            self._batch.append(item)
+        else:
+            self.recorder.write(*item)
 
     # -- commands in -----------------------------------------------------------------------
-    def _on_screw_torque(self, msg, info) -> None:
+    def _on_command_message(self, key: str, raw: bytes, info) -> None:
+        """Executor callback (lockstep): one raw command message."""
         with self._lock:
-            self._record_input("screw_torque", msg)
-            who = participant_of(info)
-            reason = self.ownership.admit(who)
-            if reason is not None:
-                self._warn_throttled("ownership", f"{self._topic_names['screw_torque']}: {reason}")
-                return  # refused: counted, and in lockstep it does not advance time
-            reason = self.gate.offer_torque(msg.data, self.stepper.time_s)
-            self._command_taken("screw_torque", reason, who, stamp_of(None, info.get("source_timestamp")))
-            self._after_command("screw_torque", reason)
+            self._on_command(key, raw, info)
 
-    def _on_joint_commands(self, msg, info) -> None:
-        with self._lock:
-            self._record_input("joint_commands", msg)
-            who = participant_of(info)
-            reason = self.ownership.admit(who)
-            if reason is not None:
-                self._warn_throttled("ownership", f"{self._topic_names['joint_commands']}: {reason}")
-                return
-            reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
-                                                   self.stepper.time_s)
-            hs = msg.header.stamp
-            self._command_taken("joint_commands", reason, who,
-                                stamp_of(hs.sec * 1_000_000_000 + hs.nanosec, info.get("source_timestamp")))
-            self._after_command("joint_commands", reason)
+    def _on_command(self, key: str, raw: bytes, info: dict) -> None:
+        """Lock held: one command message as CDR bytes, from the executor (lockstep) or the step thread's poll.
 
-    def _command_taken(self, key: str, reason: str | None, who, stamp_ns: int | None) -> None:
-        """Lock held: a command the gate accepted (saturated or not) makes its sender the owner and is echoed."""
+        Recorded as received; refused when another participant owns the actuator (counted, and in
+        lockstep it does not advance time); else offered to the gate, and an accepted command makes
+        its sender the owner and is echoed with the step that applies it (every command topic).
+        """
+        self._record(key, raw)
+        if key == "nut_position_reference":
+            return
+        who = participant_of(info)
+        reason = self.ownership.admit(who)
+        if reason is not None:
+            self._warn_throttled("ownership", f"{self._topic_names[key]}: {reason}")
+            return
+        header_ns = None
+        try:
+            if key == "joint_commands":
+                msg = deserialize_message(raw, JointState)
+                reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
+                                                       self.stepper.time_s)
+                header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            else:
+                reason = self.gate.offer(COMMAND_TOPICS[key], _float64(raw), self.stepper.time_s)
+        except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
+            reason = self.gate.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
+                                                f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})")
         if reason is None:
             self.ownership.accepted(who)
-            self.echo.offer(stamp_ns, self._topic_names[key])
-
-    def _on_velocity_command(self, msg) -> None:
-        with self._lock:
-            self._record_input("velocity_command", msg)
-            reason = self.gate.offer("velocity", msg.data, self.stepper.time_s)
-            self._after_command("velocity_command", reason)
-
-    def _on_position_command(self, msg) -> None:
-        with self._lock:
-            self._record_input("position_command", msg)
-            reason = self.gate.offer("position", msg.data, self.stepper.time_s)
-            self._after_command("position_command", reason)
+            self.echo.offer(stamp_of(header_ns, info.get("source_timestamp")), self._topic_names[key])
+        self._after_command(key, reason)
 
     def _on_inject_fault(self, msg) -> None:
         """A fault spec 'kind=…,start_s=…,duration_s=…,value=…' (start_s in simulation time; omitted: now)."""
         from prsm_sim.actuator import parse_fault
         with self._lock:
-            self._record_input("inject_fault", msg)
+            self._record("inject_fault", msg)
             text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={self.stepper.time_s!r}"
             try:
                 reason = self.stepper.inject(parse_fault(text))
@@ -376,10 +394,6 @@ class PrsmNode(Node):
                 self._warn_throttled("inject_fault", f"{self._topic_names['inject_fault']}: {reason}")
             else:
                 self.get_logger().info(f"fault scheduled: {msg.data}")
-
-    def _on_reference(self, msg) -> None:
-        with self._lock:
-            self._record_input("nut_position_reference", msg)
 
     def _after_command(self, key: str, reason: str | None) -> None:
         """Called with the lock held: warn (throttled per topic) about a refused command; step in lockstep."""
@@ -399,14 +413,19 @@ class PrsmNode(Node):
         """Step n times and publish (lock held); the last state is always published when asked
         (a lockstep controller waits for it). Returns the steps done (fewer after a fault)."""
         done = 0
+        rec = self.recorder
         for i in range(n):
             t0 = time.perf_counter()
-            out = self.stepper.step()
-            if out is None:
-                self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
-                break
-            done += 1
+            # the step's messages (the commands it takes, the states it publishes) go to the bag in
+            # one hand-over: one lock and one queue append per step instead of one per message
+            self._batch = [] if rec is not None else None
             try:
+                self.poller.poll()  # realtime and fast: the commands that arrived since the last step
+                out = self.stepper.step()
+                if out is None:
+                    self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
+                    break
+                done += 1
                 if out.energy_fault and not self._energy_fault_reported:
                     self._report_energy_fault(out)
                 self._publish_step(out, force_state=publish_last_state and i == n - 1)
@@ -416,6 +435,10 @@ class PrsmNode(Node):
                 self.stepper.fault = f"publishing step {self.stepper.nstep} failed: {type(e).__name__}: {e}"
                 self.get_logger().error(self.stepper.fault)
                 break
+            finally:
+                batch, self._batch = self._batch, None
+                if batch:
+                    rec.write_many(batch)
             self._step_wall_max_s = max(self._step_wall_max_s, time.perf_counter() - t0)
         return done
 
@@ -456,7 +479,7 @@ class PrsmNode(Node):
         if k % self._il_every == 0:
             self._publish(self.pub["internal_loads"], "internal_loads", enc.internal_loads(out), ns)
         elif self.recorder is not None:  # decimated on DDS, every step in the bag
-            self.recorder.write(self._topic_names["internal_loads"], enc.internal_loads(out), ns)
+            self._record("internal_loads", enc.internal_loads(out), ns)
         if self.rerun is not None:
             self.rerun.submit(out)
 
@@ -481,6 +504,11 @@ class PrsmNode(Node):
         while not self._stop.is_set():
             if self.stepper.paused or self.stepper.fault is not None:
                 was_running = False
+                try:
+                    with self._lock:  # commands still count, own and reach the bag while nothing steps
+                        self.poller.poll()
+                except Exception as e:  # a bug: logged, never the end of the step thread
+                    self._warn_throttled("poll", f"taking commands failed: {type(e).__name__}: {e}")
                 self._resumed.wait(0.05)
                 continue
             if not was_running:
@@ -626,6 +654,9 @@ class PrsmNode(Node):
             "commands_received": c.received, "commands_accepted": c.accepted,
             "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
             "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
+            # rclpy does not report what a reliable writer discards for a slow reader: readers count
+            # gaps in the state stamps; the node can say how many there are
+            "joint_states_readers": self.pub["joint_states"].get_subscription_count(),
             "fault": st.fault or "", "command_interface": gate.interface, "command": gate.value,
             **self.ownership.diagnostics(), **self.echo.report(),
         }
@@ -693,6 +724,14 @@ class PrsmNode(Node):
             self.get_logger().error(f"{self.recorder.error} ({self.recorder.messages_dropped} messages not recorded)")
         if self.rerun is not None and not self.rerun.close(timeout_s=RERUN_CLOSE_S):
             self.get_logger().error(str(self.rerun.error))
+
+
+def _float64(raw: bytes) -> float:
+    """A Float64 command's value from its CDR bytes; another encapsulation (big-endian) through rclpy."""
+    try:
+        return float64_data(raw)
+    except ValueError:
+        return deserialize_message(raw, Float64).data
 
 
 def _descriptor(p: NodeParam) -> ParameterDescriptor:
