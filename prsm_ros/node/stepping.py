@@ -32,8 +32,9 @@ from prsm_ros.node.command_gate import CommandGate
 def state_is_finite(out: Outputs) -> bool:
     """The state-carrying outputs are finite (efficiency and speed_ratio may be NaN by design).
 
-    A `PackedOutputs` record's internal loads are a linear function of its finite speeds
-    (Model.advance_packed), so they are not built here just to be checked.
+    A `PackedOutputs` record's internal loads are derived when read, from its speeds (ideal,
+    jones2016) or from the step's solved end forces, of which the nut force checked here is one
+    (fu2018, elastic); building them every step just to check them would cost more than the step.
     """
     return all(math.isfinite(v) for v in (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_angle_rad,
                                           out.carrier_speed_rad_s, out.nut_force_n)) \
