@@ -307,22 +307,33 @@ def columns_to_trajectory(model: Model, tau: np.ndarray, load: np.ndarray, cols:
     residual = initial.energy_residual_j + np.cumsum(w_in - w_out - diss) - (stored - e0)
     if n:
         final = replace(final, energy_flow_j=float(flow[-1]), energy_residual_j=float(residual[-1]))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        p_in, p_out = w_in / h, w_out / h
-        p_d = diss / h
-        eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
-        ratio = np.where(w_s != 0, w_c / w_s, np.nan)
     if np.isnan(nut_force).any():
         nut_force = np.where(np.isnan(nut_force), load + model.params.mass.moved_mass_kg * p * (w_s - w_prev) / h,
                              nut_force)
+    columns = output_columns(model, tau, load, final.time_s, th_s=th_s, w_s=w_s, th_c=th_c, w_c=w_c,
+                             nut_x=p * th_s, nut_v=p * w_s, nut_force=nut_force, slip=slip, w_in=w_in, w_out=w_out,
+                             diss=diss, stored=stored, flow=flow, residual=residual)
+    return Trajectory(columns=columns, internal=internal, layout=model.layout, final_state=final)
+
+
+def output_columns(model: Model, tau: np.ndarray, load: np.ndarray, end_time_s: float, *, th_s, w_s, th_c, w_c,
+                   nut_x, nut_v, nut_force, slip, w_in, w_out, diss, stored, flow, residual) -> dict:
+    """Every scalar output column of a batch run, in `OUTPUT_FIELDS` order, from its per-step
+    kinematics, works (J over each step) and ledger: the powers, efficiency (`efficiency`'s rule,
+    vectorised), speed ratio, time and the energy guard's verdict are derived here."""
+    h = model.dt_s
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p_out, p_d = w_out / h, diss / h
+        eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
+        ratio = np.where(w_s != 0, w_c / w_s, np.nan)
     columns = {
-        "time_s": final.time_s - h * np.arange(n - 1, -1, -1),
+        "time_s": end_time_s - h * np.arange(len(tau) - 1, -1, -1),
         "screw_angle_rad": th_s, "screw_speed_rad_s": w_s, "screw_torque_nm": tau.copy(),
-        "carrier_angle_rad": th_c, "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -geo.gear_ratio * w_c,
-        "nut_position_m": p * th_s, "nut_velocity_m_s": p * w_s, "nut_force_n": nut_force,
-        "load_force_n": load.copy(), "slip_speed_m_s": slip, "power_in_w": p_in, "power_out_w": p_out,
-        "power_dissipated_w": diss / h, "efficiency": eff, "speed_ratio": ratio,
+        "carrier_angle_rad": th_c, "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -model.geo.gear_ratio * w_c,
+        "nut_position_m": nut_x, "nut_velocity_m_s": nut_v, "nut_force_n": nut_force,
+        "load_force_n": load.copy(), "slip_speed_m_s": slip, "power_in_w": w_in / h, "power_out_w": p_out,
+        "power_dissipated_w": p_d, "efficiency": eff, "speed_ratio": ratio,
         "stored_energy_j": stored, "energy_flow_j": flow, "energy_residual_j": residual,
         "energy_fault": energy_fault(flow, residual).astype(float),
     }
-    return Trajectory(columns=columns, internal=internal, layout=model.layout, final_state=final)
+    return {name: np.ascontiguousarray(columns[name]) for name, _ in OUTPUT_FIELDS}

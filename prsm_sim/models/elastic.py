@@ -57,7 +57,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from prsm_sim.models.base import Model, _inputs, efficiency, energy_fault, load_kernels
+from prsm_sim.models.base import Model, _inputs, efficiency, load_kernels, output_columns
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
                                     _kernel_mem, slip_speed)
 from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State, Trajectory
@@ -448,22 +448,10 @@ class Elastic(Model):
                         screw_accel_rad_s2=acc, work_in_j=float(ledger[0]), work_out_j=float(ledger[1]),
                         dissipated_j=float(ledger[2]), energy_flow_j=float(ledger[3]),
                         energy_residual_j=float(ledger[4]))
-        w_s, w_c, w_in, w_out, diss, flow, residual = (cols[:, i] for i in (1, 3, 8, 9, 10, 12, 13))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            p_out, p_d = w_out / h, diss / h
-            eff = np.where(p_out > 0, p_out / (p_out + p_d), np.where(p_out < 0, 1.0 - p_d / -p_out, np.nan))
-            ratio = np.where(w_s != 0, w_c / w_s, np.nan)
-        columns = {
-            "time_s": final.time_s - h * np.arange(n - 1, -1, -1), "screw_angle_rad": cols[:, 0],
-            "screw_speed_rad_s": w_s, "screw_torque_nm": tau.copy(), "carrier_angle_rad": cols[:, 2],
-            "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -self.geo.gear_ratio * w_c,
-            "nut_position_m": cols[:, 4], "nut_velocity_m_s": cols[:, 5], "nut_force_n": cols[:, 6],
-            "load_force_n": load.copy(), "slip_speed_m_s": cols[:, 7], "power_in_w": w_in / h, "power_out_w": p_out,
-            "power_dissipated_w": p_d, "efficiency": eff, "speed_ratio": ratio, "stored_energy_j": cols[:, 11],
-            "energy_flow_j": flow, "energy_residual_j": residual,
-            "energy_fault": energy_fault(flow, residual).astype(float),
-        }
-        columns = {name: np.ascontiguousarray(columns[name]) for name, _ in OUTPUT_FIELDS}
+        columns = output_columns(self, tau, load, final.time_s, th_s=cols[:, 0], w_s=cols[:, 1], th_c=cols[:, 2],
+                                 w_c=cols[:, 3], nut_x=cols[:, 4], nut_v=cols[:, 5], nut_force=cols[:, 6],
+                                 slip=cols[:, 7], w_in=cols[:, 8], w_out=cols[:, 9], diss=cols[:, 10],
+                                 stored=cols[:, 11], flow=cols[:, 12], residual=cols[:, 13])
         extra = state.extra_clearance_m
 
         def internal():
