@@ -69,8 +69,13 @@ def stop_procs(procs: list[subprocess.Popen]) -> None:
         p.wait(timeout=10)
 
 
-def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None) -> dict:
-    """The node at its defaults and the reference controller; the controller's summary plus node CPU."""
+NODE_MODULE = "prsm_ros.node.ros_node"
+FLOOR_MODULE = "prsm_ros.bench.rclpy_floor"  # the node's DDS traffic and nothing else (its module doc)
+
+
+def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, module: str = NODE_MODULE) -> dict:
+    """The node (or `module` in its place) at its defaults and the reference controller; the controller's
+    summary plus the node process's CPU."""
     from prsm_ros.ros_env import ros_args
     env = isolated_env(respect_user=False, RERUN="off")
     hogs = start_hogs() if loaded else []
@@ -78,7 +83,7 @@ def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None) -
         with tempfile.TemporaryDirectory(prefix="prsm_bench_rt_") as tmp:
             with open(Path(tmp) / "node.log", "wb") as log:
                 args = ros_args(node_params) if node_params else []
-                node = start_module("prsm_ros.node.ros_node", args, env, cwd=tmp, stdout=log,
+                node = start_module(module, args, env, cwd=tmp, stdout=log,
                                     stderr=subprocess.STDOUT)
                 try:
                     ctl = start_module("prsm_ros.bench.rt_controller", ["--duration", repr(seconds)], env,
@@ -160,8 +165,24 @@ def loop_figures(quick: bool) -> list[dict]:
                            s["node_cpu_pct"] <= 15, None,
                            "all threads of the node process (step loop, executor, middleware, recorder) over "
                            "the measured window"))
+    figs.append(floor_figure(seconds))
     figs.extend(model_cpu_figures(quick))
     return figs
+
+
+def floor_figure(seconds: float) -> dict:
+    """The peer of the node's CPU figure: `rclpy_floor` (the node's realtime DDS traffic, nothing else)
+    with the same controller, unloaded. The node cannot cost less than this with rclpy in Python."""
+    name = "rclpy floor: CPU of a bare loop with the node's DDS traffic (unloaded)"
+    try:
+        s = loop_run(seconds, loaded=False, module=FLOOR_MODULE)
+    except Exception as e:
+        return figure(name, math.nan, "%", "(peer)", None, None, f"{type(e).__name__}: {e}")
+    return figure(name, s["node_cpu_pct"], "%", "(peer)", None, None,
+                  "python -m prsm_ros.bench.rclpy_floor: paced at 1 kHz, takes ~/screw_torque, publishes "
+                  "joint_states and ~/command_echo (reliable) with the node's encoder; no model, no recording, "
+                  f"no other topic; {seconds:g} s with the reference controller; states delivered "
+                  f"{100 * s['states_received'] / max(s['states_expected'], 1):.2f} %")
 
 
 def model_cpu_figures(quick: bool) -> list[dict]:

@@ -19,6 +19,14 @@ sequence always gives the same states. `/clock` is published on every step; join
 wrench at `joint_states_rate` (and after every lockstep batch), internal loads at
 `internal_loads_rate`. Nothing is published before the first step.
 
+What nobody reads costs little (issue 15, node CPU at 1 kHz): in realtime and fast mode a per-step
+topic whose publisher had no matched reader at the last count (every `READER_COUNT_EVERY` steps,
+and before a state asked for with `~/step` or `~/reset`) is not handed to DDS, only to the bag. These
+topics are volatile, so DDS would have delivered such a sample to nobody; a reader that joins sees
+its first message at most that many steps later than it would otherwise, as if discovery had taken
+that much longer. A publisher made transient-local by a QoS override is always published; lockstep
+always publishes (a controller waits for each state).
+
 Services (std_srvs): `~/pause` (SetBool: true pauses, false resumes), `~/step` (Trigger: advances
 `step_count` steps, only while paused — std_srvs has no integer request, so the count is a
 parameter), `~/reset` (Trigger: time zero, at rest at `initial_nut_position`, command and counters
@@ -43,9 +51,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock as RosClock
 from rclpy.clock_type import ClockType
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy.node import Node
-from rclpy.qos import QoSPolicyKind
+from rclpy.qos import DurabilityPolicy, QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
@@ -79,6 +87,7 @@ REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Pytho
 STEP_THREAD_STOP_S = 5.0  # a step in progress (a stiff model step) finishes well within this
 RECORDER_CLOSE_S = 5.0  # the queue (at most queue_size messages) and the summary; a stalled disk gives up
 RERUN_CLOSE_S = 5.0
+READER_COUNT_EVERY = 10  # steps between two counts of the per-step topics' matched readers (module doc)
 # the command topics and the interface each commands (joint_commands: the active one; the reference is only recorded)
 COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "position_command": "position",
                   "joint_commands": None, "nut_position_reference": None}
@@ -144,6 +153,11 @@ class PrsmNode(Node):
                 self.poller.add(k, self.sub[k], self._on_command)
         self._check_unknown_overrides()
         self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
+        # realtime and fast: a per-step topic with no matched reader is not handed to DDS (module doc)
+        self._unread: frozenset[str] = frozenset()
+        self._skippable = () if cfg.time_mode == "lockstep" else tuple(
+            k for k in ("joint_states", "ground_truth", "wrench", "internal_loads", "command_echo", "clock")
+            if k in self.pub and self.pub[k].qos_profile.durability == DurabilityPolicy.VOLATILE)
         self._topic_names.update({k: s.topic_name for k, s in self.sub.items()})
 
         self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
@@ -320,6 +334,9 @@ class PrsmNode(Node):
         """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
         if type(msg) is not bytes:
             msg = serialize_message(msg)
+        if key in self._unread:  # no reader matched at the last count: DDS would deliver it to nobody
+            self._record(key, msg, stamp_ns)
+            return
         try:
             handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
             with handle:
@@ -454,10 +471,23 @@ class PrsmNode(Node):
             {"residual_j": out.energy_residual_j, "flow_j": out.energy_flow_j, "model": self.config.model}))
         self.get_logger().error(text)
 
+    def _count_readers(self) -> None:
+        """Note which per-step topics have no matched reader now (lock held; `_publish` skips them on DDS)."""
+        unread = []
+        for key in self._skippable:
+            try:
+                if self.pub[key].get_subscription_count() == 0:
+                    unread.append(key)
+            except InvalidHandle:  # destroyed (shutdown): nothing to publish to either
+                unread.append(key)
+        self._unread = frozenset(unread)
+
     def _publish_step(self, out, force_state: bool = False) -> None:
         k = self.stepper.nstep
         ns = time_ns(out.time_s)
         enc = self.encoder
+        if force_state or k % READER_COUNT_EVERY == 0:  # a state asked for goes to a reader that just joined
+            self._count_readers()
         # joint_states first: a lockstep controller computes its next command while the rest goes out
         act = self.stepper.actuator
         if force_state or k % self._js_every == 0:
@@ -487,6 +517,7 @@ class PrsmNode(Node):
         """Lock held: the state just set (reset) on the state topics at once, though no step ran."""
         out = rest_outputs(self.stepper)
         st, ns = stamp(out.time_s), time_ns(out.time_s)
+        self._count_readers()  # a reader that joined while paused gets the reset state
         self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
         self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
         if "clock" in self.pub:
@@ -506,7 +537,7 @@ class PrsmNode(Node):
                 was_running = False
                 try:
                     with self._lock:  # commands still count, own and reach the bag while nothing steps
-                        self.poller.poll()
+                        self.poller.sweep()
                 except Exception as e:  # a bug: logged, never the end of the step thread
                     self._warn_throttled("poll", f"taking commands failed: {type(e).__name__}: {e}")
                 self._resumed.wait(0.05)
