@@ -108,6 +108,30 @@ def test_a_second_controller_is_refused_counted_and_does_not_advance_lockstep(tm
         assert proc.stop(signal.SIGINT) == 0, proc.stderr
 
 
+def test_a_reader_that_joins_later_gets_the_per_step_topics(tmp_path):
+    """In realtime a per-step topic with no matched reader is handed only to the bag, not to DDS
+    (ros_node module doc: the readers are counted every READER_COUNT_EVERY steps). A reader that
+    subscribes after the node has stepped for a while, past several counts, still gets every such
+    topic: the wrench, /clock and the internal loads, stamped with the node's own increasing steps."""
+    from geometry_msgs.msg import WrenchStamped
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+    from prsm_ros.node.ros_node import READER_COUNT_EVERY
+    params = {"time_mode": "realtime", "record": False, "update_rate": 200, "internal_loads_rate": 50.0}
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        js = cli.subscribe("/joint_states", JointState)
+        cli.wait_for_node(proc, timeout=60.0)
+        cli.spin_until(lambda: len(js) >= 3 * READER_COUNT_EVERY, 60.0, "the node stepping past three reader counts")
+        wrench = cli.subscribe("/prsm_actuator/nut/wrench", WrenchStamped)
+        clock = cli.subscribe("/clock", Clock)
+        loads = cli.subscribe("/prsm_actuator/internal_loads", Float64MultiArray)
+        cli.spin_until(lambda: len(wrench) >= 5 and len(clock) >= 5 and len(loads) >= 2, 60.0,
+                       "wrench, /clock and internal loads after joining")
+        for stamps in ([stamp_ns(m.header.stamp) for m in wrench], [stamp_ns(m.clock) for m in clock]):
+            assert stamps == sorted(set(stamps)) and stamps[0] > stamp_ns(js[0].header.stamp)
+
+
 def test_velocity_and_position_commands_are_owned_and_echoed_in_realtime(tmp_path):
     """The realtime node takes its commands in the step thread (command_poll), on every command
     topic: a velocity command is echoed with its own DDS stamp and makes its sender the owner;

@@ -87,7 +87,7 @@ REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Pytho
 STEP_THREAD_STOP_S = 5.0  # a step in progress (a stiff model step) finishes well within this
 RECORDER_CLOSE_S = 5.0  # the queue (at most queue_size messages) and the summary; a stalled disk gives up
 RERUN_CLOSE_S = 5.0
-READER_COUNT_EVERY = 10  # steps between two counts of the per-step topics' matched readers (module doc)
+READER_COUNT_EVERY = 50  # steps between two counts of the per-step topics' matched readers (module doc)
 # the command topics and the interface each commands (joint_commands: the active one; the reference is only recorded)
 COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "position_command": "position",
                   "joint_commands": None, "nut_position_reference": None}
