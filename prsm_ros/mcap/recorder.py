@@ -34,7 +34,11 @@ DEFAULT_CHUNK_SIZE = 1 << 20  # bytes before compression; a flush usually closes
 # writer sleeps for real after each slice of work: the step loop then waits at most one slice.
 WORK_SLICE_S = 2e-4
 YIELD_S = 5e-5
-MAX_WAKE_S = 0.05  # the writer thread's longest sleep while idle (`_run`)
+# The writer thread's sleep between drains (`_run`). Longer sleeps save wake-ups (issue 15, the node's six
+# messages a step at 1 kHz: writer thread 9.5 % of a core waking every 10 ms, 7.5-7.9 % every 50 ms) but
+# each drain is then a burst of ~3 ms of writes that competes with the step loop and the controller: the
+# bench's command-to-state latency p99 went from 1.9-3.2 ms to 4.4-6.6 ms, so latency wins.
+MAX_WAKE_S = 0.01
 FLUSH_INTERVAL_S = 0.05  # see McapRecorder: the GIL held by a chunk's index, and the loss on SIGKILL
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
 
@@ -339,9 +343,7 @@ class McapRecorder:
         last_flush = time.monotonic()
         queue = self._queue
         clock = time.perf_counter
-        # one wake-up per flush: each costs far more than its share of the work (the thread slept, its
-        # caches went cold; issue 15, measured at 1 kHz with the node's six messages a step: the writer
-        # thread at 9.5 % of a core waking every 10 ms, 7.5-7.9 % every 50 ms); close() wakes it at once
+        # short drains (see MAX_WAKE_S); close() wakes the thread at once
         wake_s = min(self._flush_interval_s, MAX_WAKE_S)
         while True:
             stopping = self._stop.wait(wake_s)
