@@ -110,13 +110,15 @@ def test_a_second_controller_is_refused_counted_and_does_not_advance_lockstep(tm
 
 def test_a_reader_that_joins_later_gets_the_per_step_topics(tmp_path):
     """In realtime a per-step topic with no matched reader is handed only to the bag, not to DDS
-    (ros_node module doc: the readers are counted every READER_COUNT_EVERY steps). A reader that
-    subscribes after the node has stepped for a while, past several counts, still gets every such
-    topic: the wrench, /clock and the internal loads, stamped with the node's own increasing steps."""
+    (ros_node module doc: the readers are counted every READER_COUNT_EVERY steps, and such a topic
+    asks again before each message). A reader that subscribes after the node has stepped for a while,
+    past several counts, still gets every such topic: the wrench, /clock and the internal loads,
+    stamped with the node's own increasing steps; and the echo of a command sent as soon as its
+    reader is matched, between two counts (a sparse topic: a wait for the next count loses it)."""
     from geometry_msgs.msg import WrenchStamped
     from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64MultiArray
+    from sensor_msgs.msg import JointState, TimeReference
+    from std_msgs.msg import Float64, Float64MultiArray
     from prsm_ros.node.ros_node import READER_COUNT_EVERY
     params = {"time_mode": "realtime", "record": False, "update_rate": 200, "internal_loads_rate": 50.0}
     with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
@@ -130,6 +132,12 @@ def test_a_reader_that_joins_later_gets_the_per_step_topics(tmp_path):
                        "wrench, /clock and internal loads after joining")
         for stamps in ([stamp_ns(m.header.stamp) for m in wrench], [stamp_ns(m.clock) for m in clock]):
             assert stamps == sorted(set(stamps)) and stamps[0] > stamp_ns(js[0].header.stamp)
+        echo = cli.subscribe("/prsm_actuator/command_echo", TimeReference)
+        cli.publisher("/prsm_actuator/screw_torque", Float64)
+        cli.wait_for_node(proc, timeout=60.0)
+        for k in range(3):  # one command at a time, each echoed once
+            cli.publish("/prsm_actuator/screw_torque", Float64(data=1e-4 * (k + 1)))
+            cli.spin_until(lambda: len(echo) > k, 30.0, f"the echo of command {k}")
 
 
 def test_velocity_and_position_commands_are_owned_and_echoed_in_realtime(tmp_path):
