@@ -34,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     from prsm_ros.interface import TOPIC_DEFS
     from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper
     from prsm_ros.node.command_echo import stamp_of
+    from prsm_ros.node.command_poll import CommandPoller
     from prsm_ros.node.stepping import DeadlinePacer, reduce_timer_slack
     from prsm_sim import Simulator, preset
 
@@ -54,25 +55,26 @@ def main(argv: list[str] | None = None) -> int:
     pacer = DeadlinePacer(period_s)
     state = SimpleNamespace(screw_angle_rad=0.0, nut_position_m=0.0, screw_speed_rad_s=0.0, nut_velocity_m_s=0.0,
                             screw_torque_nm=0.0, nut_force_n=0.0)
+    command = SimpleNamespace(ns=None)  # the DDS stamp of the last command taken this period
+
+    def on_command(_key: str, data: bytes, info: dict) -> None:
+        state.screw_torque_nm = float64_data(data)
+        command.ns = stamp_of(None, info.get("source_timestamp"))
+    poller = CommandPoller()
+    poller.add("screw_torque", sub, on_command)
     k = 0
-    handle, js_handle, echo_handle = sub.handle, js.handle, echo.handle
+    js_handle, echo_handle = js.handle, echo.handle
     while not stop.is_set():
         pacer.wait()
         k += 1
         stamp_ns = round(k * period_s * 1e9)
-        command_ns = None
-        while True:
-            with handle:
-                taken = handle.take_message(Float64, True)
-            if taken is None:
-                break
-            state.screw_torque_nm = float64_data(taken[0])
-            command_ns = stamp_of(None, taken[1].get("source_timestamp"))
+        command.ns = None
+        poller.poll()
         with js_handle:
             js_handle.publish_raw(encoder.joint_state(state, stamp_ns))
-        if command_ns is not None:
+        if command.ns is not None:
             with echo_handle:
-                echo_handle.publish_raw(encoder.time_reference(stamp_ns, command_ns, source))
+                echo_handle.publish_raw(encoder.time_reference(stamp_ns, command.ns, source))
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
