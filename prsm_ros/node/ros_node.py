@@ -94,6 +94,14 @@ COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "pos
                   "joint_commands": None, "nut_position_reference": None}
 
 
+def _unmatched(pub) -> bool:
+    """True when `pub` has no matched reader (or is destroyed, at shutdown: nobody to publish to either)."""
+    try:
+        return pub.get_subscription_count() == 0
+    except InvalidHandle:
+        return True
+
+
 class PrsmNode(Node):
     """Publishers, subscriptions, services and the step loop; all logic lives in the helpers."""
 
@@ -336,11 +344,7 @@ class PrsmNode(Node):
         if type(msg) is not bytes:
             msg = serialize_message(msg)
         if key in self._unread:  # no reader at the last count: ask again, a publish to nobody is dearer
-            try:
-                unread = pub.get_subscription_count() == 0
-            except InvalidHandle:  # destroyed (shutdown): nobody to publish to
-                unread = True
-            if unread:  # DDS would deliver it to nobody (volatile): the bag only
+            if _unmatched(pub):  # DDS would deliver it to nobody (volatile): the bag only
                 self._record(key, msg, stamp_ns)
                 return
             self._unread = self._unread - {key}  # a reader matched since: it gets this message on
@@ -480,14 +484,7 @@ class PrsmNode(Node):
 
     def _count_readers(self) -> None:
         """Note which per-step topics have no matched reader now (lock held; `_publish` skips them on DDS)."""
-        unread = []
-        for key in self._skippable:
-            try:
-                if self.pub[key].get_subscription_count() == 0:
-                    unread.append(key)
-            except InvalidHandle:  # destroyed (shutdown): nothing to publish to either
-                unread.append(key)
-        self._unread = frozenset(unread)
+        self._unread = frozenset(key for key in self._skippable if _unmatched(self.pub[key]))
 
     def _publish_step(self, out, force_state: bool = False) -> None:
         k = self.stepper.nstep
