@@ -8,6 +8,7 @@ from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outpu
 from prsm_sim.params import Friction, Geometry, IdealLoss, Loads, MassProperties, Params
 from prsm_sim.presets import PRESETS, preset
 from prsm_sim.simulator import MODELS, Simulator, build_model
+from prsm_sim.session import Session
 
 
 def _version() -> str:
@@ -38,5 +39,5 @@ __all__ = [
     "PrsmError", "ParamError", "InputError", "ModelError",
     "OUTPUT_FIELDS", "InternalBlock", "InternalLayout", "Outputs", "State", "Trajectory",
     "Friction", "Geometry", "IdealLoss", "Loads", "MassProperties", "Params",
-    "PRESETS", "preset", "MODELS", "Simulator", "build_model",
+    "PRESETS", "preset", "MODELS", "Simulator", "build_model", "Session",
 ]

@@ -59,19 +59,20 @@ def test_refused_with_a_reason(names, arrays, active, says):
 
 def test_gate_takes_the_active_interface_only_and_switches():
     """Oracle: the rules in command_gate's docstring (issue 14)."""
-    from prsm_ros.node.command_gate import CommandGate
+    from prsm_sim.command_gate import CommandGate
     g = CommandGate(5.0, cmd_timeout_s=0.01, interface="velocity")
     assert g.command(0.0) == 0.0
     assert "active command interface is 'velocity'" in g.offer_torque(1.0, 0.0)
     names, arrays = plugin_message(URDF, VALUES)
-    assert g.offer_joint_command(names, arrays["effort"], arrays["position"], arrays["velocity"], 0.0) is None
+    assert g.offer("velocity", decode_joint_command(names, arrays, "velocity")[0], 0.0) is None
     assert g.command(0.005) == 12.5 and g.offer("velocity", 400.0, 0.005) is None and g.command(0.005) == 400.0
     assert g.command(0.05) == 0.0 and g.timed_out  # zero speed after the watchdog
     g.set_interface("position", 0.03)
     assert g.command(0.06) == 0.03  # starts from the present position; position never falls back to 0
     assert g.offer("position", 0.04, 0.06) is None and g.command(0.2) == 0.04 and g.timed_out
     assert g.counters.rejected_malformed == 1 and g.counters.accepted == 3
-    assert "not a finite number" in g.offer_joint_command(["nut_joint"], [], [math.inf], [], 0.3)
+    assert "not a finite number" in g.offer("position", decode_joint_command(["nut_joint"], {"position": [math.inf]},
+                                                                             "position")[0], 0.3)
     assert g.counters.rejected_non_finite == 1 and g.command(0.3) == 0.04
     with pytest.raises(Exception, match="command_interface = 'torque'"):
         g.set_interface("torque", 0.0)
@@ -109,27 +110,25 @@ def test_node_actuator_parameters_build_the_actuator():
 def test_stepper_engages_the_brake_on_watchdog_and_reports_fault_events():
     """Oracle: the node's rules, without DDS — after cmd_timeout the brake engages (engage_on_watchdog);
     a fault injected now is reported by the next step; the bare model refuses a velocity interface."""
-    from prsm_sim import preset
+    from prsm_sim import Session, preset
     from prsm_sim.actuator import ActuatorParams, BrakeParams, Fault, MotorParams
-    from prsm_ros.node.command_gate import CommandGate
-    from prsm_ros.node.stepping import SimStepper
 
     a = ActuatorParams(motor=MotorParams(), brake=BrakeParams(holding_torque_nm=5.0, engage_on_watchdog=True))
-    gate = CommandGate(10.0, cmd_timeout_s=0.005)
-    st = SimStepper(preset("s30"), "ideal", 1e-3, gate, load_n=500.0, actuator=a)
-    gate.offer_torque(1.0, 0.0)
+    st = Session(preset("s30"), "ideal", 1e-3, a, load_n=500.0, max_effort_nm=10.0, cmd_timeout_s=0.005)
+    gate = st.gate
+    st.offer("effort", 1.0)
     for _ in range(5):
         st.step()
-    assert not st.sim.state.brake_engaged
+    assert not st.simulator.state.brake_engaged
     for _ in range(3):
         st.step()
-    assert gate.timed_out and st.sim.state.brake_engaged
+    assert gate.timed_out and st.simulator.state.brake_engaged
     assert st.inject(Fault("drive_fault", start_s=st.time_s, duration_s=0.002)) is None
     for _ in range(4):
         st.step()
     assert [(e.what, e.fault.kind) for e in st.take_events()] == [("start", "drive_fault"), ("clear", "drive_fault")]
-    assert st.brake(False) is None and not st.sim.state.brake_engaged
+    assert st.brake(False) is None and not st.simulator.state.brake_engaged
     assert st.set_interface("velocity") is None and gate.interface == "velocity"
-    bare = SimStepper(preset("s30"), "ideal", 1e-3, CommandGate(10.0))
+    bare = Session(preset("s30"), "ideal", 1e-3, max_effort_nm=10.0)
     assert "runs the bare model" in bare.set_interface("velocity") and bare.gate.interface == "effort"
     assert "no actuator" in bare.inject(Fault("jam", value=1.0))

@@ -182,13 +182,11 @@ def test_step_encoder_bytes_decode_to_the_mapper_messages(model):
 
 def test_rest_outputs_is_a_complete_record_of_the_reset_state():
     """What `~/reset` publishes while paused: every output field, the state at rest, nothing flowing."""
-    from prsm_ros.node.command_gate import CommandGate
-    from prsm_ros.node.stepping import SimStepper, rest_outputs
-    from prsm_sim import OUTPUT_FIELDS, preset
-    st = SimStepper(preset("s30"), "jones2016", 1e-3, CommandGate(50.0), nut_position_m=0.01, load_n=30.0)
+    from prsm_sim import OUTPUT_FIELDS, Session, preset
+    st = Session(preset("s30"), "jones2016", 1e-3, nut_position_m=0.01, load_n=30.0)
     st.step()
     st.reset()
-    out = rest_outputs(st)
+    out = st.rest_outputs()
     assert out.time_s == 0.0 and out.nut_position_m == pytest.approx(0.01) and out.nut_velocity_m_s == 0.0
     assert out.nut_force_n == out.load_force_n == 30.0 and out.power_in_w == 0.0 and out.energy_fault == 0.0
-    assert set(out.scalars()) == {f for f, _ in OUTPUT_FIELDS} and out.internal.shape == (st.sim.layout.size,)
+    assert set(out.scalars()) == {f for f, _ in OUTPUT_FIELDS} and out.internal.shape == (st.layout.size,)

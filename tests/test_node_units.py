@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from prsm_sim import MODELS, OUTPUT_FIELDS, Simulator, preset
-from prsm_ros.node.command_gate import CommandGate
+from prsm_sim import MODELS, OUTPUT_FIELDS, ModelError, Session, Simulator, preset
+from prsm_sim.command_gate import CommandGate
+from prsm_ros.node.joint_commands import offer_joint_command
 from prsm_ros.node.parameters import ConfigError, NodeConfig, runtime_change
-from prsm_ros.node.stepping import DeadlinePacer, SimStepper, every_n_steps
+from prsm_ros.node.pacing import DeadlinePacer, every_n_steps
 
 
 def test_gate_rejects_non_finite_keeps_last_and_saturates():
@@ -33,12 +34,13 @@ def test_gate_rejects_non_finite_keeps_last_and_saturates():
     (["screw_joint", "nut_joint"], [], [0.1], [], "the active command interface is 'effort'"),
 ])
 def test_gate_rejects_malformed_joint_commands_by_name(names, effort, position, velocity, problem):
-    g = CommandGate(5.0)
-    g.offer_torque(1.0, 0.0)
-    assert problem in g.offer_joint_command(names, effort, position, velocity, 0.0)
-    assert g.torque(0.0) == 1.0 and g.counters.rejected_malformed == 1
-    assert g.offer_joint_command(["b", "screw_joint"], [7.0, -0.5], [0.0, 0.0], [], 0.0) is None
-    assert g.torque(0.0) == -0.5
+    s = Session(preset("s30"), "ideal", 1e-3, max_effort_nm=5.0)
+    s.offer("effort", 1.0)
+    assert problem in offer_joint_command(s, names, {"effort": effort, "position": position, "velocity": velocity})
+    assert s.gate.torque(0.0) == 1.0 and s.gate.counters.rejected_malformed == 1
+    arrays = {"effort": [7.0, -0.5], "position": [0.0, 0.0], "velocity": []}
+    assert offer_joint_command(s, ["b", "screw_joint"], arrays) is None
+    assert s.gate.torque(0.0) == -0.5
 
 
 @pytest.mark.parametrize("behaviour, after", [("zero", 0.0), ("hold", 1.0)])
@@ -187,29 +189,31 @@ def test_every_n_steps():
     assert [every_n_steps(r, 1000) for r in (0, 1000, 5000, 100, 300, 0.5)] == [1, 1, 1, 10, 3, 2000]
 
 
-def test_stepper_equals_simulator_and_rebuild_keeps_state():
+def test_session_equals_simulator_and_rebuild_keeps_state():
     p = preset("s30")
-    st = SimStepper(p, "jones2016", 1e-3, CommandGate(10.0), load_n=100.0)
-    st.gate.offer_torque(1.0, 0.0)
+    st = Session(p, "jones2016", 1e-3, load_n=100.0, max_effort_nm=10.0)
+    st.offer("effort", 1.0)
     sim = Simulator(p, "jones2016", 1e-3)
     for _ in range(5):
         a, b = st.step(), sim.step(1.0, 100.0)
         np.testing.assert_array_equal(list(a.scalars().values()), list(b.scalars().values()))  # NaN == NaN here
         np.testing.assert_array_equal(a.internal, b.internal)
-    assert st.sim.state == sim.state
+    assert st.simulator.state == sim.state
     p2 = p.with_overrides({"friction.viscous_n_s_m": 50.0})
     st.rebuild(p2)
-    assert st.sim.state == sim.state and st.nstep == 5 and st.sim.params == p2
+    assert st.simulator.state == sim.state and st.nstep == 5 and st.simulator.params == p2
 
 
-def test_stepper_faults_on_non_finite_state_and_reset_clears_it():
+def test_session_faults_on_non_finite_state_and_reset_clears_it():
     p = preset("s30").with_overrides({"mass.moved_mass_kg": 1e-300, "mass.screw_inertia_kgm2": 0.0,
                                       "mass.roller_mass_kg": 0.0, "mass.roller_inertia_kgm2": 0.0})
-    st = SimStepper(p, "fu2018", 1e-3, CommandGate(10.0))
-    st.gate.offer_torque(1.0, 0.0)
-    assert st.step() is None and "non-finite state" in st.fault
+    st = Session(p, "fu2018", 1e-3, max_effort_nm=10.0)
+    with pytest.raises(ModelError, match="non-finite state"):
+        st.step(1.0)
+    assert "non-finite state" in st.fault
     assert st.nstep == 0 and st.time_s == 0.0  # the last finite state is kept
-    assert st.step() is None  # stays stopped
+    with pytest.raises(ModelError, match="non-finite state"):  # stays stopped
+        st.step()
     st.reset()
     assert st.fault is None and st.gate.command_nm == 0.0
 

@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper
     from prsm_ros.node.command_echo import stamp_of
     from prsm_ros.node.command_poll import CommandPoller
-    from prsm_ros.node.stepping import DeadlinePacer, reduce_timer_slack
+    from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack
     from prsm_sim import Simulator, preset
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)

@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     from sensor_msgs.msg import JointState, TimeReference
     from std_msgs.msg import Float64
 
-    from prsm_ros.node.stepping import DeadlinePacer, reduce_timer_slack
+    from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node("prsm_rt_controller")

@@ -15,11 +15,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from prsm_sim import Session
+from prsm_sim.command_gate import INTERFACE_UNIT
+
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 
 # which joint takes which command interface (ROS conventions: the nut is prismatic, the screw revolute)
 INTERFACE_JOINT = {"position": NUT_JOINT, "velocity": SCREW_JOINT, "effort": SCREW_JOINT}
-INTERFACE_UNIT = {"position": "m (nut position)", "velocity": "rad/s (screw speed)", "effort": "N·m (screw torque)"}
 
 
 def decode_joint_command(names: Sequence[str], arrays: dict[str, Sequence[float]], active: str,
@@ -57,3 +59,15 @@ def decode_joint_command(names: Sequence[str], arrays: dict[str, Sequence[float]
         return None, (f"joint command has {n} names but {len(arr)} {active} values; expected 1 (packed, only "
                       f"{joint} has a {active} command interface), {n} (one per name) or 0")
     return value, None  # the gate checks it is a finite number
+
+
+def offer_joint_command(session: Session, names: Sequence[str], arrays: dict[str, Sequence[float]]) -> str | None:
+    """A JointState command to `session` for its active interface: the reason it was refused, or None.
+
+    A message that does not hold a value for the active interface is counted by the gate as
+    received and malformed; the value it holds goes to the gate, which checks it is a finite number.
+    """
+    value, reason = decode_joint_command(names, arrays, session.interface)
+    if reason is not None:
+        return session.refuse_malformed(reason)
+    return session.offer(session.interface, value)

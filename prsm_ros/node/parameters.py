@@ -23,7 +23,7 @@ from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
 from prsm_sim.actuator import COMMAND_INTERFACES, ActuatorParams, actuator_params_from_dict, parse_faults
 from prsm_sim.params import parse_float
 
-from prsm_ros.node.command_gate import TIMEOUT_BEHAVIOURS
+from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
 
 TIME_MODES = ("realtime", "fast", "lockstep")
 RERUN_MODES = ("off", "save", "spawn", "connect")

@@ -61,11 +61,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from prsm_ros.node.command_echo import CommandEcho, stamp_of
-from prsm_sim import PrsmError
+from prsm_sim import ModelError, PrsmError, Session
 
 from prsm_ros.cdr_read import float64_data
-from prsm_ros.node.command_gate import CommandGate
+from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.ownership import CommandOwnership, participant_of
 from prsm_ros.node.record_path import RecordPathError, claim_record_path
@@ -73,8 +72,8 @@ from prsm_ros.node.scheduling import raise_process_threads
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
                           params_template, physics_parameters, physics_type, physics_unit, runtime_change)
-from prsm_ros.node.stepping import (DeadlinePacer, SimStepper, every_n_steps, reduce_timer_slack, request_realtime_priority,
-                                    rest_outputs)
+from prsm_ros.node.joint_commands import offer_joint_command
+from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
 
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
@@ -121,15 +120,15 @@ class PrsmNode(Node):
         self.config = self._declare_parameters()
         cfg = self.config
         self._lock = threading.Lock()
-        self.gate = CommandGate(cfg.max_effort, cfg.cmd_timeout, cfg.timeout_behaviour, cfg.command_interface)
-        self.gate.reset(cfg.initial_nut_position)
         self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
         self.echo = CommandEcho()
-        self.stepper = SimStepper(cfg.params, cfg.model, cfg.dt_s, self.gate,
-                                  nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
-                                  actuator=cfg.actuator if cfg.with_actuator else None)
-        self.stepper.paused = cfg.start_paused
-        self.mapper = MessageMapper(self.stepper.sim.layout, cfg.model)
+        self.session = Session(cfg.params, cfg.model, cfg.dt_s, cfg.actuator if cfg.with_actuator else None,
+                               nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
+                               interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
+                               cmd_timeout_s=cfg.cmd_timeout, timeout_behaviour=cfg.timeout_behaviour)
+        if cfg.start_paused:
+            self.session.pause()
+        self.mapper = MessageMapper(self.session.layout, cfg.model)
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
         self._batch: list | None = None  # a step's messages for the bag, handed over at once (`_advance`)
         self._set_decimation()
@@ -141,7 +140,7 @@ class PrsmNode(Node):
                                                  qos_overriding_options=qos_opts())
                         for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
                                   "events") + (("clock",) if cfg.publish_clock else ())
-                        + (("ground_truth",) if self.stepper.actuator is not None else ())}
+                        + (("ground_truth",) if self.session.actuator is not None else ())}
             # commands arrive as raw CDR (recorded as they are); in realtime and fast mode the step
             # thread takes them itself before each step (command_poll), in lockstep the executor
             # delivers them because a command is what advances time
@@ -279,15 +278,17 @@ class PrsmNode(Node):
             return SetParametersResult(successful=False, reason=str(e))
         with self._lock:
             if new.command_interface != self.config.command_interface:
-                reason = self.stepper.set_interface(new.command_interface)
+                reason = self.session.set_interface(new.command_interface)
                 if reason is not None:
+                    if self.session.actuator is None:
+                        reason += "; start the node with an actuator (e.g. -p actuator:='{}') to switch"
                     return SetParametersResult(successful=False, reason=reason)
             old, self.config = self.config, new
-            self.gate.configure(new.max_effort, new.cmd_timeout, new.timeout_behaviour)
-            self.stepper.load_n = new.load_force
-            self.stepper.nut_position_m = new.initial_nut_position
+            self.session.configure_gate(new.max_effort, new.cmd_timeout, new.timeout_behaviour)
+            self.session.load_n = new.load_force
+            self.session.nut_position_m = new.initial_nut_position
             if new.params != old.params:
-                self.stepper.rebuild(new.params)
+                self.session.rebuild(new.params)
             if new.real_time_factor != old.real_time_factor:
                 self.pacer.set_rate(new.real_time_factor)
             self._set_decimation()
@@ -335,7 +336,7 @@ class PrsmNode(Node):
             return None
         from prsm_ros.viz.sink import RerunSink
         try:
-            return RerunSink(cfg.rerun, cfg.rerun_target, cfg.params, self.stepper.sim.layout, cfg.model)
+            return RerunSink(cfg.rerun, cfg.rerun_target, cfg.params, self.session.layout, cfg.model)
         except (ValueError, RuntimeError) as e:
             raise ConfigError(str(e)) from None
 
@@ -364,7 +365,7 @@ class PrsmNode(Node):
         """Into the bag (lock held): with the step's batch when a step is being published, else at once."""
         if self.recorder is None:
             return
-        item = (self._topic_names[key], data, time_ns(self.stepper.time_s) if stamp_ns is None else stamp_ns)
+        item = (self._topic_names[key], data, time_ns(self.session.time_s) if stamp_ns is None else stamp_ns)
         if self._batch is not None:
             self._batch.append(item)
         else:
@@ -395,13 +396,13 @@ class PrsmNode(Node):
         try:
             if key == "joint_commands":
                 msg = deserialize_message(raw, JointState)
-                reason = self.gate.offer_joint_command(msg.name, msg.effort, msg.position, msg.velocity,
-                                                       self.stepper.time_s)
+                reason = offer_joint_command(self.session, msg.name, {"position": msg.position,
+                                                                      "velocity": msg.velocity, "effort": msg.effort})
                 header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             else:
-                reason = self.gate.offer(COMMAND_TOPICS[key], _float64(raw), self.stepper.time_s)
+                reason = self.session.offer(COMMAND_TOPICS[key], _float64(raw))
         except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
-            reason = self.gate.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
+            reason = self.session.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
                                                 f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})")
         if reason is None:
             self.ownership.accepted(who)
@@ -413,9 +414,9 @@ class PrsmNode(Node):
         from prsm_sim.actuator import parse_fault
         with self._lock:
             self._record("inject_fault", msg)
-            text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={self.stepper.time_s!r}"
+            text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={self.session.time_s!r}"
             try:
-                reason = self.stepper.inject(parse_fault(text))
+                reason = self.session.inject(parse_fault(text))
             except PrsmError as e:
                 reason = str(e)
             if reason is not None:
@@ -427,7 +428,7 @@ class PrsmNode(Node):
         """Called with the lock held: warn (throttled per topic) about a refused command; step in lockstep."""
         if reason is not None:
             self._warn_throttled(key, f"{self._topic_names[key]}: {reason}")
-        if self.config.time_mode == "lockstep" and not self.stepper.paused and not self._stop.is_set():
+        if self.config.time_mode == "lockstep" and not self.session.paused and not self._stop.is_set():
             self._advance(self.config.lockstep_steps, publish_last_state=True)
 
     def _warn_throttled(self, key: str, text: str) -> None:
@@ -449,9 +450,10 @@ class PrsmNode(Node):
             self._batch = [] if rec is not None else None
             try:
                 self.poller.poll()  # realtime and fast: the commands that arrived since the last step
-                out = self.stepper.step()
-                if out is None:
-                    self.get_logger().error(self.stepper.fault, throttle_duration_sec=WARN_THROTTLE_S)
+                try:
+                    out = self.session.step()
+                except ModelError as e:
+                    self.get_logger().error(str(e), throttle_duration_sec=WARN_THROTTLE_S)
                     break
                 done += 1
                 if out.energy_fault and not self._energy_fault_reported:
@@ -460,8 +462,8 @@ class PrsmNode(Node):
             except Exception as e:  # never let a publishing failure take the process down
                 if not rclpy.ok(context=self.context):
                     break
-                self.stepper.fault = f"publishing step {self.stepper.nstep} failed: {type(e).__name__}: {e}"
-                self.get_logger().error(self.stepper.fault)
+                self.session.fail(f"publishing step {self.session.nstep} failed: {type(e).__name__}: {e}")
+                self.get_logger().error(self.session.fault)
                 break
             finally:
                 batch, self._batch = self._batch, None
@@ -487,22 +489,16 @@ class PrsmNode(Node):
         self._unread = frozenset(key for key in self._skippable if _unmatched(self.pub[key]))
 
     def _publish_step(self, out, force_state: bool = False) -> None:
-        k = self.stepper.nstep
+        k = self.session.nstep
         ns = time_ns(out.time_s)
         enc = self.encoder
         if k % READER_COUNT_EVERY == 0:
             self._count_readers()
         # joint_states first: a lockstep controller computes its next command while the rest goes out
-        act = self.stepper.actuator
         if force_state or k % self._js_every == 0:
-            # with an actuator joint_states carries what the sensors measure, the truth goes beside it
-            measured = act.measured(out) if act is not None else out
-            if act is not None:
-                self._publish(self.pub["ground_truth"], "ground_truth", enc.joint_state(out, ns), ns)
-            self._publish(self.pub["joint_states"], "joint_states", enc.joint_state(measured, ns), ns)
-            self._publish(self.pub["wrench"], "wrench", enc.wrench(out, ns), ns)
-        if act is not None and self.stepper.events:
-            self._publish_fault_events(self.stepper.take_events())
+            self._publish_state(out, ns)
+        if self.session.pending_events:
+            self._publish_fault_events(self.session.take_events())
         echoed = self.echo.take()
         if echoed is not None:
             cmd_ns, source = echoed
@@ -517,14 +513,23 @@ class PrsmNode(Node):
         if self.rerun is not None:
             self.rerun.submit(out)
 
+    def _publish_state(self, out, ns: int) -> None:
+        """joint_states and the wrench; with an actuator joint_states carries what the sensors
+        measure, and the truth goes beside it on ground_truth."""
+        enc, act = self.encoder, self.session.actuator
+        if act is not None:
+            self._publish(self.pub["ground_truth"], "ground_truth", enc.joint_state(out, ns), ns)
+        self._publish(self.pub["joint_states"], "joint_states",
+                      enc.joint_state(act.measured(out) if act is not None else out, ns), ns)
+        self._publish(self.pub["wrench"], "wrench", enc.wrench(out, ns), ns)
+
     def _publish_rest_state(self) -> None:
         """Lock held: the state just set (reset) on the state topics at once, though no step ran."""
-        out = rest_outputs(self.stepper)
-        st, ns = stamp(out.time_s), time_ns(out.time_s)
-        self._publish(self.pub["joint_states"], "joint_states", self.mapper.joint_state(out, st), ns)
-        self._publish(self.pub["wrench"], "wrench", self.mapper.wrench(out, st), ns)
+        out = self.session.rest_outputs()
+        ns = time_ns(out.time_s)
+        self._publish_state(out, ns)
         if "clock" in self.pub:
-            self._publish(self.pub["clock"], "clock", self.mapper.clock(out.time_s), ns)
+            self._publish(self.pub["clock"], "clock", self.encoder.clock(ns), ns)
 
     def _loop(self) -> None:
         """realtime / fast: the step thread (lockstep steps in the command callback instead)."""
@@ -536,7 +541,7 @@ class PrsmNode(Node):
         was_running = False
         unslept = 0  # steps since the thread last slept (and so let the executor take the lock)
         while not self._stop.is_set():
-            if self.stepper.paused or self.stepper.fault is not None:
+            if self.session.paused or self.session.fault is not None:
                 was_running = False
                 try:
                     with self._lock:  # commands still count, own and reach the bag while nothing steps
@@ -561,13 +566,13 @@ class PrsmNode(Node):
                 unslept = 0
             try:
                 with self._lock:
-                    if not self.stepper.paused:
+                    if not self.session.paused:
                         self._advance(1)
             except Exception as e:  # a publish after shutdown, or a bug: never kill the process from here
                 if self._stop.is_set() or not rclpy.ok(context=self.context):
                     return
-                self.stepper.fault = f"step loop error: {type(e).__name__}: {e}"
-                self.get_logger().error(self.stepper.fault)
+                self.session.fail(f"step loop error: {type(e).__name__}: {e}")
+                self.get_logger().error(self.session.fault)
 
     def _wait_for_recorder(self) -> None:
         """`fast` mode has no deadline to keep: when the bag writer falls behind (a busy machine),
@@ -581,35 +586,36 @@ class PrsmNode(Node):
     # -- services --------------------------------------------------------------------------
     def _srv_pause(self, request, response):
         with self._lock:
-            self.stepper.paused = bool(request.data)
-            if self.stepper.paused:
+            if request.data:
+                self.session.pause()
                 self._resumed.clear()
             else:
+                self.session.resume()
                 self._resumed.set()
             response.success = True
-            response.message = f"{'paused' if self.stepper.paused else 'running'} at t = {self.stepper.time_s:.6f} s"
+            response.message = f"{'paused' if self.session.paused else 'running'} at t = {self.session.time_s:.6f} s"
         return response
 
     def _srv_step(self, request, response):
         with self._lock:
             n = self.config.step_count
-            if not self.stepper.paused:
+            if not self.session.paused:
                 response.success, response.message = False, "not paused: ~/step works only while paused (call ~/pause true first)"
-            elif self.stepper.fault is not None:
-                response.success, response.message = False, f"faulted: {self.stepper.fault}"
+            elif self.session.fault is not None:
+                response.success, response.message = False, f"faulted: {self.session.fault}"
             else:
                 done = self._advance(n, publish_last_state=True)
                 response.success = done == n
-                response.message = f"stepped {done} of {n} steps to t = {self.stepper.time_s:.6f} s"
+                response.message = f"stepped {done} of {n} steps to t = {self.session.time_s:.6f} s"
         return response
 
     def _srv_reset(self, request, response):
         with self._lock:
-            self.stepper.reset(self.config.initial_nut_position)
+            self.session.reset(self.config.initial_nut_position)
             self.echo.reset()
             self._energy_fault_reported = False
             self.pacer.restart()
-            if self.stepper.paused:  # nothing steps while paused: a controller still sees the reset now
+            if self.session.paused:  # nothing steps while paused: a controller still sees the reset now
                 self._publish_rest_state()
             response.success = True
             response.message = f"reset to t = 0, nut at {self.config.initial_nut_position:g} m"
@@ -625,17 +631,17 @@ class PrsmNode(Node):
 
     def _srv_brake(self, request, response):
         with self._lock:
-            reason = self.stepper.brake(bool(request.data))
+            reason = self.session.brake(bool(request.data))
             response.success = reason is None
             response.message = reason or (f"brake {'engaging' if request.data else 'releasing'} "
-                                          f"at t = {self.stepper.time_s:.6f} s")
+                                          f"at t = {self.session.time_s:.6f} s")
         return response
 
     def _srv_clear_faults(self, request, response):
         with self._lock:
-            n = self.stepper.clear_faults()
+            n = self.session.clear_faults()
             response.success = True
-            response.message = f"{n} runtime fault(s) ended at t = {self.stepper.time_s:.6f} s"
+            response.message = f"{n} runtime fault(s) ended at t = {self.session.time_s:.6f} s"
         return response
 
     def _publish_fault_events(self, events) -> None:
@@ -651,7 +657,7 @@ class PrsmNode(Node):
                                               KeyValue(key="time_s", value=f"{e.time_s:.6f}"),
                                               KeyValue(key="fault", value=e.fault.describe())])
             msg = DiagnosticArray(status=[status])
-            msg.header.stamp = stamp(self.stepper.time_s)
+            msg.header.stamp = stamp(self.session.time_s)
             self._publish(self.pub["diagnostics"], "diagnostics", msg)
             self._publish(self.pub["events"], "events", event_message(
                 e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
@@ -664,11 +670,11 @@ class PrsmNode(Node):
         with self._lock:
             status = self._diagnostic_status()
             msg = DiagnosticArray(status=[status])
-            msg.header.stamp = stamp(self.stepper.time_s)
+            msg.header.stamp = stamp(self.session.time_s)
             self._publish(self.pub["diagnostics"], "diagnostics", msg)
 
     def _diagnostic_status(self) -> DiagnosticStatus:
-        cfg, st, gate = self.config, self.stepper, self.gate
+        cfg, st, gate = self.config, self.session, self.session.gate
         now_wall, sim_now = time.perf_counter(), st.time_s
         wall0, sim0, over0 = self._diag_last
         rtf = (sim_now - sim0) / (now_wall - wall0) if now_wall > wall0 else math.nan
@@ -698,7 +704,7 @@ class PrsmNode(Node):
         problems = []
         act = st.actuator
         if act is not None:
-            a = st.sim.state
+            a = st.simulator.state
             active = [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]
             values.update(brake_engaged=a.brake_engaged, brake_level=f"{a.brake_level:.3f}",
                           motor_current_a=f"{a.current_a:.6g}", torque_limited=a.limited,

@@ -1,16 +1,14 @@
-"""Command safety and the watchdog, pure Python (no ROS): what command the simulator gets.
+"""Command safety and the watchdog: what command the model gets.
 
-The node hands every received command to a `CommandGate` and asks it, once per step, for the
-command of the active interface (`effort`: screw torque N·m, `velocity`: screw speed rad/s,
-`position`: nut position m; issue 14). Rules (issue 4, item 4; issue 14):
+A `Session` hands every command it is offered to its `CommandGate` and asks it, once per step,
+for the command of the active interface (`effort`: screw torque N·m, `velocity`: screw speed
+rad/s, `position`: nut position m). Rules:
 
 - a command for an interface that is not the active one is refused with a reason naming the
   active one; a non-finite value is rejected and counted; the last valid command stays in force;
 - a torque beyond ±max_effort is saturated to the limit and counted;
-- joint commands (sensor_msgs/JointState) are read as ros2_control's topic-based hardware
-  interface writes them (`joint_commands.decode_joint_command`: `name` lists every joint, the
-  arrays are packed per command interface, empty ones are fine); a malformed one is rejected
-  with the reason (the node logs it, throttled);
+- a message a transport could not read at all (`refuse_malformed`) is counted as received and
+  malformed;
 - with `cmd_timeout_s` > 0, a command older than that in *simulation* time triggers the timeout
   behaviour: "zero" applies no torque (effort) or no speed (velocity), "hold" keeps the last
   valid command; in `position` mode both hold the last position (commanding the nut to 0 m is
@@ -24,14 +22,15 @@ paused or debugged simulation from timing out while no time passes.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
-from prsm_sim.actuator import COMMAND_INTERFACES, check_interface
-
-from prsm_ros.node.joint_commands import INTERFACE_UNIT, decode_joint_command
+from prsm_sim.actuator.params import check_interface
+from prsm_sim.checks import is_finite_number
+from prsm_sim.errors import ParamError
 
 TIMEOUT_BEHAVIOURS = ("zero", "hold")
+# the unit of each command interface's value, for messages
+INTERFACE_UNIT = {"position": "m (nut position)", "velocity": "rad/s (screw speed)", "effort": "N·m (screw torque)"}
 
 
 @dataclass
@@ -57,12 +56,13 @@ class CommandGate:
 
     def configure(self, max_effort_nm: float, cmd_timeout_s: float, timeout_behaviour: str) -> None:
         """Change the limits; a runtime parameter change calls this after validation."""
-        if not (math.isfinite(max_effort_nm) and max_effort_nm > 0):
-            raise ValueError(f"max_effort = {max_effort_nm!r}: must be a finite number > 0 (N·m)")
-        if not (math.isfinite(cmd_timeout_s) and cmd_timeout_s >= 0):
-            raise ValueError(f"cmd_timeout = {cmd_timeout_s!r}: must be a finite number >= 0 (s; 0 disables)")
+        for name, v, ok, allowed in (
+                ("max_effort_nm", max_effort_nm, lambda x: x > 0, "a finite number > 0 (N·m)"),
+                ("cmd_timeout_s", cmd_timeout_s, lambda x: x >= 0, "a finite number >= 0 (s; 0 disables)")):
+            if not (is_finite_number(v) and ok(v)):
+                raise ParamError(f"{name} = {v!r}: must be {allowed}")
         if timeout_behaviour not in TIMEOUT_BEHAVIOURS:
-            raise ValueError(f"timeout_behaviour = {timeout_behaviour!r}: must be one of {', '.join(TIMEOUT_BEHAVIOURS)}")
+            raise ParamError(f"timeout_behaviour = {timeout_behaviour!r}: must be one of {', '.join(TIMEOUT_BEHAVIOURS)}")
         self.max_effort_nm = float(max_effort_nm)
         self.cmd_timeout_s = float(cmd_timeout_s)
         self.timeout_behaviour = timeout_behaviour
@@ -92,7 +92,7 @@ class CommandGate:
         if interface != self.interface:
             self.counters.rejected_malformed += 1
             return (f"{interface} command refused: the active command interface is {self.interface!r} "
-                    f"({INTERFACE_UNIT[self.interface]}); switch with the command_interface parameter")
+                    f"({INTERFACE_UNIT[self.interface]})")
         try:
             v = float(value)
         except (TypeError, ValueError):
@@ -121,17 +121,6 @@ class CommandGate:
         self.counters.rejected_malformed += 1
         return reason
 
-    def offer_joint_command(self, names: Sequence[str], effort: Sequence[float], position: Sequence[float],
-                            velocity: Sequence[float], now_s: float) -> str | None:
-        """A JointState command as ros2_control's topic-based hardware interface writes it; the reason or None."""
-        value, reason = decode_joint_command(names, {"position": position, "velocity": velocity, "effort": effort},
-                                             self.interface)
-        if reason is not None:
-            self.counters.received += 1
-            self.counters.rejected_malformed += 1
-            return reason
-        return self.offer(self.interface, value, now_s)
-
     # -- command out ----------------------------------------------------------------------
     def command(self, now_s: float) -> float:
         """The command of the active interface to hold over the step starting at simulation time `now_s`."""
@@ -152,5 +141,3 @@ class CommandGate:
         """Simulation time since the last valid command (inf before the first)."""
         return math.inf if self.command_time_s is None else now_s - self.command_time_s
 
-
-assert set(INTERFACE_UNIT) == set(COMMAND_INTERFACES)

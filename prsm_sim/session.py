@@ -1,0 +1,398 @@
+"""`Session`: an actuator (or a bare screw model) run the way a controller drives it, one step at a time.
+
+    s = Session(preset("s30"), "fu2018", 1e-3, ActuatorParams(motor=MotorParams()), interface="velocity")
+    s.offer("velocity", 40.0)          # a command, checked by the gate (None, or why it was refused)
+    out = s.step(load_n=500.0)         # → Outputs; the gate's command, the load kept until changed
+    s.brake(True); s.inject(Fault("jam", value=5.0)); s.take_events()
+    s.status()                         # plain data: time, command, watchdog, faults, brake, energy
+
+A `Simulator` advances a model; a `Session` adds what a runtime needs around it, the same for
+every transport (the ROS node, offline runs, studies): the command gate and its watchdog
+(`CommandGate`), the nut load held between steps, the interface switch, brake, runtime faults and
+the fault events they raise, pause, reset, and the run's fault: a model that fails or produces a
+non-finite state stops the session (`ModelError`, and `fault` says why) until `reset`, with the
+last finite state kept.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from prsm_sim.actuator import Actuator, ActuatorParams, ActuatorState, Fault
+from prsm_sim.checks import is_finite_number
+from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate
+from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
+from prsm_sim.models.base import energy_fault
+from prsm_sim.outputs import InternalLayout, Outputs, PackedOutputs
+from prsm_sim.params import Params
+from prsm_sim.simulator import Simulator, build_model
+
+
+def state_is_finite(out: Outputs) -> bool:
+    """The state-carrying outputs are finite (efficiency and speed_ratio may be NaN by design).
+
+    A `PackedOutputs` record's internal loads are derived when read, from its speeds (ideal,
+    jones2016) or from the step's solved end forces, of which the nut force checked here is one
+    (fu2018, elastic); building them every step just to check them would cost more than the step.
+    """
+    return all(math.isfinite(v) for v in (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_angle_rad,
+                                          out.carrier_speed_rad_s, out.nut_force_n)) \
+        and (type(out) is PackedOutputs or bool(np.all(np.isfinite(out.internal))))
+
+
+class Session:
+    """A simulator with its command gate, load, pause and fault state: one `step()` per step.
+
+    Parameters
+    ----------
+    params, model, dt_s, actuator
+        As for `Simulator`: the parameter set, the screw model's name, the fixed step (s), and
+        the actuator around the screw (`ActuatorParams`) or None for the bare model (effort only).
+    nut_position_m : float, default 0.0
+        Initial nut position, m; `reset` returns there.
+    load_n : float, default 0.0
+        Nut load, N, held until `step(load_n=...)` or `load_n` changes it.
+    initial_load_n : float, optional
+        The load `reset` returns to; None: `load_n`.
+    kernel : {"compiled", "reference"}
+        As for `Simulator`.
+    interface : {"effort", "velocity", "position"}
+        The active command interface (the bare model has effort only).
+    max_effort_nm, cmd_timeout_s, timeout_behaviour
+        The gate's torque limit, watchdog timeout (simulation s; 0 disables) and what a timeout
+        does ("zero" or "hold"); see `prsm_sim.command_gate`.
+
+    Attributes
+    ----------
+    simulator : Simulator
+        The simulator stepped (its model is an `Actuator` when one is fitted).
+    gate : CommandGate
+        The command gate: the active interface, the command in force, counters, watchdog.
+    load_n : float
+        The nut load held over the next steps, N.
+    fault : str or None
+        Why stepping stopped (until `reset`), or None.
+    """
+
+    def __init__(self, params: Params, model: str, dt_s: float, actuator: ActuatorParams | None = None, *,
+                 nut_position_m: float = 0.0, load_n: float = 0.0, initial_load_n: float | None = None,
+                 kernel: str = "compiled", interface: str = "effort", max_effort_nm: float = 50.0,
+                 cmd_timeout_s: float = 0.0, timeout_behaviour: str = "zero") -> None:
+        for name, v in (("nut_position_m", nut_position_m), ("load_n", load_n), ("initial_load_n", initial_load_n)):
+            if not (v is None and name == "initial_load_n") and not is_finite_number(v):
+                raise InputError(f"{name} = {v!r}: must be a finite number")
+        self.model_name = model
+        self.kernel = kernel
+        self.actuator_params = actuator
+        self.simulator = Simulator(params, model, dt_s, nut_position_m, actuator=actuator, kernel=kernel)
+        self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
+        self.nut_position_m = float(nut_position_m)
+        self.load_n = float(load_n)
+        self.initial_load_n = self.load_n if initial_load_n is None else float(initial_load_n)
+        self._paused = False
+        self.fault: str | None = None
+        self._last: Outputs | None = None
+        self._events: list = []  # fault starts and clears (actuator.FaultEvent) not yet taken
+        self._screw_model = None  # the actuator's screw model, built when rest outputs first need it
+        reason = self.set_interface(interface) if interface != "effort" or actuator is not None else None
+        if reason is not None:
+            raise ParamError(reason)
+        self.gate.reset(self.nut_position_m)
+
+    def __repr__(self) -> str:
+        return (f"Session(model={self.model_name!r}, actuator={self.actuator is not None}, "
+                f"interface={self.gate.interface!r}, time_s={self.time_s:.6g}, nstep={self.nstep}"
+                + (f", fault={self.fault!r}" if self.fault else "") + ")")
+
+    # -- what it is -----------------------------------------------------------------------
+    @property
+    def actuator(self) -> Actuator | None:
+        """The actuator around the screw, or None for the bare model."""
+        m = self.simulator.model
+        return m if isinstance(m, Actuator) else None
+
+    @property
+    def params(self) -> Params:
+        return self.simulator.params
+
+    @property
+    def dt_s(self) -> float:
+        return self.simulator.dt_s
+
+    @property
+    def layout(self) -> InternalLayout:
+        """Labels of the internal-load vector of every step's `Outputs`."""
+        return self.simulator.layout
+
+    @property
+    def time_s(self) -> float:
+        """Simulation time, s."""
+        return self.simulator.time_s
+
+    @property
+    def nstep(self) -> int:
+        """Steps since construction or the last `reset`."""
+        return self.simulator.nstep
+
+    @property
+    def interface(self) -> str:
+        """The active command interface."""
+        return self.gate.interface
+
+    @property
+    def last(self) -> Outputs:
+        """The last step's outputs; before the first step after a reset, the state at rest (`rest_outputs`)."""
+        return self._last if self._last is not None else self.rest_outputs()
+
+    @property
+    def stepped(self) -> bool:
+        """A step has run since construction or the last `reset`."""
+        return self._last is not None
+
+    # -- stepping -------------------------------------------------------------------------
+    def step(self, command: float | None = None, load_n: float | None = None) -> Outputs:
+        """One step with the gated command and the load held over it.
+
+        Parameters
+        ----------
+        command : float, optional
+            A command in the active interface's unit (N·m, screw rad/s or nut m), handed to the
+            gate at the present simulation time (saturated, counted) before the step; None: the
+            gate's command in force (zero or held after a watchdog timeout).
+        load_n : float, optional
+            A new nut load, N, kept for later steps; None: the load in force.
+
+        Raises
+        ------
+        InputError
+            A command or load that is not a finite number; nothing changed.
+        ModelError
+            The model failed or produced a non-finite state (now or before, until `reset`); the
+            last finite state is kept.
+        """
+        if self.fault is not None:
+            raise ModelError(self.fault)
+        if load_n is not None and not is_finite_number(load_n):
+            raise InputError(f"load_n = {load_n!r}: must be a finite number (N)")
+        if command is not None:
+            if not is_finite_number(command):
+                raise InputError(f"command = {command!r}: must be a finite number "
+                                 f"({INTERFACE_UNIT[self.gate.interface]})")
+            self.gate.offer(self.gate.interface, command, self.simulator.time_s)
+        if load_n is not None:
+            self.load_n = float(load_n)
+        sim, gate = self.simulator, self.gate
+        command = gate.command(sim.time_s)
+        act = self.actuator
+        if act is not None and gate.timed_out and act.actuator.brake.engage_on_watchdog \
+                and act.actuator.brake.fitted and not sim.state.brake_engaged:
+            sim.state = act.command_brake(sim.state, True)
+        before = sim.state
+        try:
+            out = sim.step(command, self.load_n)
+        except Exception as e:  # any model failure stops stepping until reset
+            self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {type(e).__name__}: {e}"
+            raise ModelError(self.fault) from e
+        if not state_is_finite(out):
+            sim.restore(before, sim.nstep - 1)  # keep the last finite state; reset clears the fault
+            self.fault = (f"model {self.model_name} produced a non-finite state at t = {out.time_s:.6f} s "
+                          f"(command {command:g} {gate.interface}, load {self.load_n:g} N); "
+                          "stepping stopped until reset")
+            raise ModelError(self.fault)
+        if act is not None:
+            self._events += act.events(before, sim.state)
+        self._last = out
+        return out
+
+    def fail(self, reason: str) -> None:
+        """Stop stepping for a reason outside the model (e.g. a transport that cannot deliver the
+        step's outputs), until `reset`."""
+        self.fault = str(reason)
+
+    # -- commands ---------------------------------------------------------------------------
+    def offer(self, interface: str, value: float) -> str | None:
+        """A command for `interface` at the present simulation time; the reason it was refused, or None."""
+        return self.gate.offer(interface, value, self.simulator.time_s)
+
+    def refuse_malformed(self, reason: str) -> str:
+        """A command a transport could not read at all: counted as received and malformed; returns `reason`."""
+        return self.gate.refuse_malformed(reason)
+
+    def configure_gate(self, max_effort_nm: float, cmd_timeout_s: float, timeout_behaviour: str) -> None:
+        """New gate limits (ParamError, nothing changed, when refused)."""
+        self.gate.configure(max_effort_nm, cmd_timeout_s, timeout_behaviour)
+
+    def set_interface(self, interface: str) -> str | None:
+        """Switch the command interface; the command starts at the measured speed or position (or
+        0 N·m). The reason it was refused, or None."""
+        act = self.actuator
+        if act is None:
+            if interface == "effort":
+                return None
+            return (f"command_interface = {interface!r}: the session runs the bare model (no actuator), "
+                    "which takes effort only")
+        try:
+            state = act.set_mode(self.simulator.state, interface)
+        except PrsmError as e:
+            return str(e)
+        meas = act.measured(self._last) if self._last is not None else None
+        present = {"effort": 0.0,
+                   "velocity": meas.screw_speed_rad_s if meas else 0.0,
+                   "position": meas.nut_position_m if meas else self.nut_position_m}[interface]
+        self.simulator.state = state
+        self.gate.set_interface(interface, present)
+        return None
+
+    # -- the actuator's other inputs ----------------------------------------------------------
+    def brake(self, engage: bool) -> str | None:
+        """Engage or release the holding brake; the reason it was refused, or None."""
+        return self._change_actuator(lambda act, s: act.command_brake(s, engage),
+                                     "brake command refused: no actuator, so no brake fitted")
+
+    def inject(self, fault: Fault) -> str | None:
+        """Add a fault (start in absolute simulation time); the reason it was refused, or None."""
+        return self._change_actuator(lambda act, s: act.inject(s, fault),
+                                     "fault refused: no actuator (the bare model has no faults to inject)")
+
+    def _change_actuator(self, change, no_actuator: str) -> str | None:
+        """Apply `change(actuator, state) -> state`; the refusal (no actuator, or the actuator's
+        one-line PrsmError) or None. The state is unchanged when refused."""
+        act = self.actuator
+        if act is None:
+            return no_actuator
+        try:
+            self.simulator.state = change(act, self.simulator.state)
+        except PrsmError as e:
+            return str(e)
+        return None
+
+    def clear_faults(self) -> int:
+        """End the runtime faults now; returns how many were active or pending."""
+        act = self.actuator
+        if act is None:
+            return 0
+        s = self.simulator.state
+        n = sum(1 for f in s.faults if f.end_s > s.time_s)
+        self.simulator.state = act.clear_faults(s)
+        return n
+
+    def take_events(self) -> list:
+        """The fault events (`FaultEvent`: starts and clears) since the last call."""
+        ev, self._events = self._events, []
+        return ev
+
+    @property
+    def pending_events(self) -> bool:
+        """Fault events wait to be taken."""
+        return bool(self._events)
+
+    # -- run control ------------------------------------------------------------------------
+    @property
+    def paused(self) -> bool:
+        """Paused: the transport steps only on request (`step` itself does not look at it)."""
+        return self._paused
+
+    def pause(self) -> None:
+        self._paused = True
+
+    def resume(self) -> None:
+        self._paused = False
+
+    def reset(self, nut_position_m: float | None = None) -> None:
+        """Back to time zero at rest (at `nut_position_m`, kept for later resets); clears the fault,
+        the command, the gate's counters and the events, and returns the load to `initial_load_n`.
+        The interface and the pause state stay."""
+        if nut_position_m is not None:
+            if not is_finite_number(nut_position_m):
+                raise InputError(f"nut_position_m = {nut_position_m!r}: must be a finite number (m)")
+            self.nut_position_m = float(nut_position_m)
+        mode = self.gate.interface
+        self.simulator.reset(self.nut_position_m)
+        self.gate.reset(self.nut_position_m)
+        if self.actuator is not None:
+            self.simulator.state = self.actuator.set_mode(self.simulator.state, mode)
+        self.load_n = self.initial_load_n
+        self.fault = None
+        self._last = None
+        self._events = []
+
+    def rebuild(self, params: Params) -> None:
+        """New parameters for the same model, keeping the state and the step count (a runtime change)."""
+        sim = Simulator(params, self.model_name, self.simulator.dt_s, self.nut_position_m,
+                        actuator=self.actuator_params, kernel=self.kernel)
+        sim.restore(self.simulator.state, self.simulator.nstep)
+        self.simulator = sim
+        self._screw_model = None
+
+    # -- what it says -------------------------------------------------------------------------
+    def rest_outputs(self) -> Outputs:
+        """Outputs for the current state as it stands, no step taken (after `reset`, at rest).
+
+        Speeds and positions come from the state; the torque is the gate's command, the nut force
+        the load (nothing accelerates before a step), no power flows and the internal loads are
+        zero, except, with an actuator, what the sensors last measured (its `measured` block), so
+        a measured joint state can be read from it as from a step's outputs.
+        """
+        sim, act = self.simulator, self.actuator
+        s = sim.state
+        screw = s.screw if isinstance(s, ActuatorState) else s
+        geo = sim.params.geometry
+        p = geo.lead_per_rad_m
+        internal = np.zeros(sim.layout.size)
+        if act is not None:
+            sim.layout.view(internal, "measured")[:] = s.measured
+        if self.model_name == "elastic":  # the nut has its own coordinate there
+            nut_x, nut_v = screw.nut_axial_m, screw.nut_speed_m_s
+        else:
+            nut_x, nut_v = p * screw.screw_angle_rad, p * screw.screw_speed_rad_s
+        return Outputs(time_s=screw.time_s, screw_angle_rad=screw.screw_angle_rad,
+                       screw_speed_rad_s=screw.screw_speed_rad_s, screw_torque_nm=self.gate.command_nm,
+                       carrier_angle_rad=screw.carrier_angle_rad, carrier_speed_rad_s=screw.carrier_speed_rad_s,
+                       roller_spin_rad_s=-geo.gear_ratio * screw.carrier_speed_rad_s,
+                       nut_position_m=nut_x, nut_velocity_m_s=nut_v, nut_force_n=self.load_n,
+                       load_force_n=self.load_n, slip_speed_m_s=0.0, power_in_w=0.0, power_out_w=0.0,
+                       power_dissipated_w=0.0, efficiency=math.nan, speed_ratio=math.nan,
+                       stored_energy_j=self._screw().total_stored_energy_j(screw),
+                       energy_flow_j=screw.energy_flow_j, energy_residual_j=screw.energy_residual_j,
+                       energy_fault=1.0 if energy_fault(screw.energy_flow_j, screw.energy_residual_j) else 0.0,
+                       internal=internal)
+
+    def _screw(self):
+        """The screw model whose state `rest_outputs` describes (the actuator's is built here once)."""
+        act = self.actuator
+        if act is None:
+            return self.simulator.model
+        if self._screw_model is None:
+            self._screw_model = build_model(act.screw_params, self.model_name, act.h_sub, self.kernel)
+        return self._screw_model
+
+    def status(self) -> dict:
+        """The session as plain data (numbers, strings, lists, dicts): time, run state, command,
+        watchdog and counters, load, energy books of the last step, and with an actuator its brake,
+        current and active faults."""
+        gate, t = self.gate, self.simulator.time_s
+        age = gate.command_age_s(t)
+        c = gate.counters
+        d: dict = {
+            "time_s": t, "nstep": self.simulator.nstep, "model": self.model_name, "paused": self._paused,
+            "fault": self.fault, "command_interface": gate.interface, "command": gate.value,
+            "command_nm": gate.command_nm, "command_age_s": None if math.isinf(age) else age,
+            "timed_out": gate.timed_out, "timeout_behaviour": gate.timeout_behaviour,
+            "cmd_timeout_s": gate.cmd_timeout_s, "load_n": self.load_n,
+            "counters": {"received": c.received, "accepted": c.accepted, "rejected_non_finite": c.rejected_non_finite,
+                         "rejected_malformed": c.rejected_malformed, "saturated": c.saturated, "timeouts": c.timeouts},
+        }
+        last = self._last
+        d["energy"] = None if last is None else {"residual_j": last.energy_residual_j, "flow_j": last.energy_flow_j,
+                                                 "fault": bool(last.energy_fault)}
+        act = self.actuator
+        if act is None:
+            d["actuator"] = None
+        else:
+            a = self.simulator.state
+            d["actuator"] = {"brake_engaged": a.brake_engaged, "brake_level": a.brake_level,
+                             "motor_current_a": a.current_a, "torque_limited": a.limited,
+                             "faults_active": [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]}
+        return d
