@@ -20,14 +20,20 @@ import math
 
 import numpy as np
 
-from prsm_sim.actuator import Actuator, ActuatorParams, ActuatorState, Fault
+from prsm_sim.actuator import Actuator, ActuatorParams, ActuatorState, Fault, FaultEvent
 from prsm_sim.checks import is_finite_number
-from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate
+from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate, GateCounters
 from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
 from prsm_sim.models.base import energy_fault
 from prsm_sim.outputs import InternalLayout, Outputs, PackedOutputs
 from prsm_sim.params import Params
+from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.simulator import Simulator, build_model
+
+
+STATE_FORMAT = "prsm_session/1"
+# what a session holds besides its simulator and its gate, saved by `get_state`
+_RUN_FIELDS = ("nut_position_m", "load_n", "initial_load_n", "_paused", "fault", "_last", "_events")
 
 
 def state_is_finite(out: Outputs) -> bool:
@@ -367,6 +373,43 @@ class Session:
         if self._screw_model is None:
             self._screw_model = build_model(act.screw_params, self.model_name, act.h_sub, self.kernel)
         return self._screw_model
+
+    # -- save and restore -------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """Everything that decides the next steps, as plain data (`json.dumps` writes it): the
+        simulator's state (model, actuator, faults, brake, sensors), the gate and its watchdog, the
+        load, pause, fault, the last outputs and the events not yet taken. `set_state` on a
+        session built with the same arguments continues bit for bit, in this process or another."""
+        return {"format": STATE_FORMAT, "model": self.model_name, "dt_s": self.simulator.dt_s,
+                "actuator": self.actuator is not None, "simulator": self.simulator.get_state(),
+                "gate": to_plain(vars(self.gate), "gate"),
+                "session": to_plain({k: getattr(self, k) for k in _RUN_FIELDS}, "session")}
+
+    def set_state(self, data: dict) -> None:
+        """Continue from `get_state`'s data. InputError (one line, nothing changed) for data of
+        another format, model, step or actuator fitting, or data `get_state` did not write."""
+        if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
+            raise InputError(f"state format = {data.get('format') if isinstance(data, dict) else data!r}: "
+                             f"expected {STATE_FORMAT!r} (a Session.get_state result)")
+        mine = {"model": self.model_name, "dt_s": self.simulator.dt_s, "actuator": self.actuator is not None}
+        for k, v in mine.items():
+            if data.get(k) != v:
+                raise InputError(f"state {k} = {data.get(k)!r}: this session has {k} = {v!r}; build it with "
+                                 "the arguments of the session that saved the state")
+        types = reachable_types(self.simulator.state, Outputs, FaultEvent, GateCounters)
+        gate, run = from_plain(data.get("gate"), types, "gate"), from_plain(data.get("session"), types, "session")
+        if not (isinstance(gate, dict) and gate.keys() == vars(self.gate).keys()
+                and isinstance(run, dict) and run.keys() == set(_RUN_FIELDS)):
+            raise InputError("state: the gate or session entries do not match this version's (save and restore "
+                             "with the same prsm version)")
+        try:  # the limits and the interface, validated as when built
+            CommandGate(gate["max_effort_nm"], gate["cmd_timeout_s"], gate["timeout_behaviour"], gate["interface"])
+        except ParamError as e:
+            raise InputError(f"state gate: {e}") from None
+        self.simulator.set_state(data.get("simulator"))
+        vars(self.gate).update(gate)
+        for k, v in run.items():
+            setattr(self, k, v)
 
     def status(self) -> dict:
         """The session as plain data (numbers, strings, lists, dicts): time, run state, command,

@@ -20,8 +20,9 @@ from prsm_sim.models.elastic import Elastic
 from prsm_sim.models.fu2018 import Fu2018
 from prsm_sim.models.ideal import Ideal
 from prsm_sim.models.jones2016 import Jones2016
-from prsm_sim.outputs import InternalLayout, Outputs, State, Trajectory
+from prsm_sim.outputs import PACKED_STATE_SIZE, InternalLayout, Outputs, State, Trajectory
 from prsm_sim.params import Params
+from prsm_sim.plain import from_plain, reachable_types, to_plain
 
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018, "elastic": Elastic}
 
@@ -194,6 +195,23 @@ class Simulator:
             raise InputError(f"nstep = {nstep!r}: must be a whole number >= 0")
         self.state = state
         self.nstep = int(nstep)
+
+    def get_state(self) -> dict:
+        """Everything that decides the next steps as plain data (`prsm_sim.plain`: json.dumps writes it)."""
+        x = self._packed
+        return to_plain({"nstep": self.nstep, "nut_position_m": self._initial_nut_position_m, "state": self.state,
+                         "packed": None if x is None else tuple(x[:PACKED_STATE_SIZE])})
+
+    def set_state(self, data: dict) -> None:
+        """Continue from `get_state`'s data, bit for bit (also in another process, same parameters)."""
+        d = from_plain(data, reachable_types(self.state))
+        packed = d["packed"]
+        if packed is not None and not (self.model.packed and type(packed) is tuple and len(packed) == PACKED_STATE_SIZE):
+            raise InputError(f"state.packed: a packed record of {PACKED_STATE_SIZE} items for a packed model expected")
+        self.restore(d["state"], d["nstep"])
+        self._initial_nut_position_m = float(d["nut_position_m"])
+        if packed is not None:  # the packed record as it was (its stored energy is not recomputed)
+            self._packed = self._state_of = packed
 
     def step(self, torque_nm: float, load_n: float = 0.0) -> Outputs:
         """Advance one step with the screw torque and the nut load held over it.
