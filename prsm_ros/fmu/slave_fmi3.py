@@ -1,0 +1,55 @@
+"""The FMI 3.0 co-simulation slave (pythonfmu3): the module an FMU built by `prsm-fmu build --fmi 3` loads.
+
+pythonfmu3's C++ wrapper finds the slave by reading this file for a class deriving from
+Fmi3Slave; it delegates everything to `prsm_ros.fmu.core.SlaveCore`. A doStep returns its FMI
+status: refused inputs and model failures end the step with fmi3Error (the instance and its state
+intact) and the message in the FMU's log. A Python exception would be fmi3Fatal, so none escapes.
+"""
+
+from pythonfmu3 import Fmi3Causality, Fmi3Slave, Fmi3Status, Fmi3StepResult, Fmi3Variability, Float64
+from pythonfmu3.default_experiment import DefaultExperiment
+from pythonfmu3.unit import Unit
+
+from prsm_ros.fmu.core import UNITS, SlaveCore, describe
+
+_STATUS = {"ok": Fmi3Status.ok, "warning": Fmi3Status.warning, "error": Fmi3Status.error}
+_CAUSALITY = {"input": Fmi3Causality.input, "output": Fmi3Causality.output, "parameter": Fmi3Causality.parameter}
+_OK = Fmi3StepResult()
+_ERROR = Fmi3StepResult(status=Fmi3Status.error)
+
+
+class PrsmActuator(Fmi3Slave):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.core = core = SlaveCore(self.resources, lambda msg, status: self.log(msg, _STATUS[status]))
+        self.author = "prsm"
+        self.description = describe(core.config)
+        self.default_experiment = DefaultExperiment(start_time=0.0, step_size=core.dt_s)
+        self.time = 0.0
+        self.register_variable(Float64("time", causality=Fmi3Causality.independent,
+                                       variability=Fmi3Variability.continuous, description="simulation time",
+                                       unit="s"))
+        used = {"s"}
+        for v in core.variables:
+            name = v.name
+            getter = (lambda n=name: core.get(n))
+            setter = None if v.causality == "output" else (lambda value, n=name: core.set(n, value))
+            variability = Fmi3Variability.tunable if v.causality == "parameter" else Fmi3Variability.continuous
+            self.register_variable(Float64(name, causality=_CAUSALITY[v.causality], variability=variability,
+                                           description=v.description, unit=v.unit, getter=getter, setter=setter))
+            used.add(v.unit)
+        self.register_units([Unit(u, **UNITS[u]) for u in sorted(used)])
+
+    def do_step(self, current_time, step_size):
+        if self.core.do_step(current_time, step_size) is not None:
+            return _ERROR
+        self.time = current_time + step_size
+        return _OK
+
+    def _get_fmu_state(self):
+        return {"time": self.time, "core": self.core.get_state()}
+
+    def _set_fmu_state(self, state):
+        self.core.set_state(state.get("core") if isinstance(state, dict) else None)
+        if isinstance(state, dict) and isinstance(state.get("time"), float):
+            self.time = state["time"]
