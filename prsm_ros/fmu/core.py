@@ -203,7 +203,7 @@ class SlaveCore:
             else:
                 raise InputError(f"{name}: not an input or a tunable parameter of this FMU")
         except PrsmError as e:
-            msg = f"{name} = {value!r} refused: {e}"
+            msg = str(e) if str(e).startswith(f"{name} = ") else f"{name} = {value!r} refused: {e}"
             self._refused[name] = msg
             self.log(msg, "error")
             return

@@ -54,7 +54,10 @@ class PrsmActuator(Fmi2Slave):
             SubElement(SubElement(defs, "Unit", name=u), "BaseUnit", {k: str(e) for k, e in UNITS[u].items()})
         root.insert(list(root).index(root.find("CoSimulation")) + 1, defs)
         for sv in root.find("ModelVariables"):
-            sv.find("Real").set("unit", self._units[sv.get("name")])
+            real = sv.find("Real")
+            real.set("unit", self._units[sv.get("name")])
+            if real.get("start") is not None:  # pythonfmu writes 16 digits; a double needs up to 17 to come back exact
+                real.set("start", repr(self.core.get(sv.get("name"))))
         outputs = root.find("ModelStructure/Outputs")
         unknowns = SubElement(root.find("ModelStructure"), "InitialUnknowns")
         for u in outputs:

@@ -40,6 +40,14 @@ class PrsmActuator(Fmi3Slave):
             used.add(v.unit)
         self.register_units([Unit(u, **UNITS[u]) for u in sorted(used)])
 
+    def to_xml(self, model_options=dict()):
+        """pythonfmu3's description with start values written to come back exact (it writes 16 digits)."""
+        root = super().to_xml(model_options)
+        for v in root.find("ModelVariables"):
+            if v.get("start") is not None and v.get("name") != "time":
+                v.set("start", repr(self.core.get(v.get("name"))))
+        return root
+
     def do_step(self, current_time, step_size):
         if self.core.do_step(current_time, step_size) is not None:
             return _ERROR

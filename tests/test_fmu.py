@@ -1,0 +1,374 @@
+"""prsm-fmu: the actuator as FMI 2.0 and 3.0 co-simulation FMUs, driven through fmpy.
+
+Oracle: the library itself. An FMU's slave is a `Session`, so the FMU's outputs under a prescribed
+input must equal, bit for bit, a `Session.step` loop on the same inputs (held over each
+communication step of K model steps), and lie within 1e-12 of `Simulator.run` on the same
+sequence (the batch path, equal to rounding). fmpy's `validate_fmu` and
+`read_model_description(validate=True)` are the independent check of the model descriptions.
+Building an FMU takes about two seconds: one FMI 2.0 and one FMI 3.0 FMU run by default, the
+whole matrix (s30; fu2018 and elastic; bare and an actuator in velocity mode) in the slow tier.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.simulation import instantiate_fmu
+from fmpy.validation import validate_fmu
+
+from prsm_sim import InputError, ParamError, Session, Simulator, __version__, preset
+from prsm_sim.actuator import ACTUATOR_QUANTITIES, ActuatorParams, DriveParams, MotorParams
+from prsm_ros.fmu.build import build_fmu
+from prsm_ros.fmu.config import CONFIG_NAME, make_config, session_from_config
+from prsm_ros.fmu.core import SlaveCore
+from prsm_ros.fmu.driver import OK, FmuDriver
+
+DT = 1e-3
+K = 3  # model steps per communication step
+N = 40  # communication steps
+LOAD_N = 300.0
+FMI_DISCARD, FMI_ERROR = 2, 3
+COMMAND = {"effort": "screw_torque_nm", "velocity": "screw_speed_command_rad_s"}
+
+
+def commands(interface: str) -> np.ndarray:
+    """A prescribed command: steps and reversals (N·m, or screw rad/s in velocity mode)."""
+    k = np.arange(N)
+    if interface == "effort":
+        return np.where(k < 5, 0.0, 2.5) - np.where(k > 25, 3.5, 0.0) + 0.25 * np.sin(0.7 * k)
+    return np.where(k < 5, 0.0, 40.0) - np.where(k > 25, 70.0, 0.0)
+
+
+def loads() -> np.ndarray:
+    return LOAD_N + 50.0 * np.cos(0.3 * np.arange(N))
+
+
+def actuator_for(case: str) -> ActuatorParams | None:
+    return None if case == "bare" else ActuatorParams(motor=MotorParams())
+
+
+def config_for(model: str, case: str, fmi: int = 2, **kw) -> dict:
+    interface = "effort" if case == "bare" else "velocity"
+    return make_config(preset("s30"), model, DT, actuator_for(case), interface=interface, load_n=LOAD_N, fmi=fmi,
+                       preset_name="s30", **kw)
+
+
+def expected_outputs(session: Session) -> dict[str, float]:
+    """The FMU's outputs recomputed from the session's last Outputs (independently of prsm_ros.fmu.core)."""
+    out = session.last
+    row = {n: getattr(out, n) for n in ("nut_position_m", "nut_velocity_m_s", "nut_force_n", "screw_angle_rad",
+                                        "screw_speed_rad_s", "efficiency", "energy_residual_j")}
+    lay = session.layout
+    names = {b.name for b in lay.blocks}
+    if "per_tooth" in names:
+        row["peak_tooth_load_n"] = float(np.abs(lay.view(out.internal, "per_tooth")).max())
+        roller = lay.view(out.internal, "per_roller")[:, :2]  # screw and nut normal forces lead the block
+        row["peak_roller_load_n"] = float(np.abs(roller).max())
+    if session.actuator is not None:
+        a = dict(zip((n for n, _ in ACTUATOR_QUANTITIES), lay.view(out.internal, "actuator")))
+        m = lay.view(out.internal, "measured")
+        row.update(motor_current_a=a["motor_current_a"], motor_torque_nm=a["motor_torque_nm"],
+                   stop_force_n=a["stop_force_n"], measured_screw_angle_rad=m[1], measured_screw_speed_rad_s=m[2],
+                   measured_nut_position_m=m[3], measured_nut_velocity_m_s=m[4], measured_nut_force_n=m[5])
+    return {k: float(v) for k, v in row.items()}
+
+
+def session_loop(config: dict, cmd: np.ndarray, load: np.ndarray, k: int = K) -> list[dict[str, float]]:
+    """The oracle: `Session.step` with the inputs held over each communication step."""
+    s = session_from_config(config)
+    rows = []
+    for u, f in zip(cmd.tolist(), load.tolist()):
+        for _ in range(k):
+            s.step(u, f)
+        rows.append(expected_outputs(s))
+    return rows
+
+
+def assert_rows_equal(got: list[dict], want: list[dict]) -> None:
+    assert len(got) == len(want)
+    for i, (g, w) in enumerate(zip(got, want)):
+        for name, value in w.items():
+            # bit for bit; NaN (efficiency undefined) equals NaN
+            assert g[name] == value or (math.isnan(g[name]) and math.isnan(value)), (i, name, g[name], value)
+
+
+# -- the slave logic, without building an FMU ----------------------------------------------------------
+def make_core(tmp_path, config: dict):
+    res = tmp_path / "resources"
+    res.mkdir(exist_ok=True)
+    (res / CONFIG_NAME).write_text(json.dumps(config), encoding="utf-8")
+    logs: list[tuple[str, str]] = []
+    return SlaveCore(str(res), lambda msg, status: logs.append((status, msg))), logs
+
+
+def core_run(core: SlaveCore, cmd, load, k: int = K, t0: int = 0) -> list[dict[str, float]]:
+    names = [v.name for v in core.variables if v.causality == "output"]
+    rows = []
+    for i, (u, f) in enumerate(zip(cmd.tolist(), load.tolist())):
+        core.set(core._command_name, u)
+        core.set("load_force_n", f)
+        assert core.do_step((t0 + i) * k * DT, k * DT) is None
+        rows.append({n: core.get(n) for n in names})
+    return rows
+
+
+@pytest.mark.parametrize("case", ["bare", "velocity"])
+def test_substeps_equal_a_session_loop(tmp_path, case):
+    cfg = config_for("fu2018", case)
+    core, logs = make_core(tmp_path, cfg)
+    interface = "effort" if case == "bare" else "velocity"
+    assert_rows_equal(core_run(core, commands(interface), loads()), session_loop(cfg, commands(interface), loads()))
+    assert logs == []
+
+
+def test_a_step_that_is_not_a_whole_multiple_is_refused(tmp_path):
+    core, logs = make_core(tmp_path, config_for("jones2016", "bare"))
+    reason = core.do_step(0.0, 1.5 * DT)
+    assert reason is not None and "whole multiple" in reason and "0.0015" in reason
+    assert logs == [("error", reason)]
+    assert core.session.nstep == 0  # nothing stepped
+    for h in (0.0, -DT, math.nan, math.inf):
+        assert core.do_step(0.0, h) is not None
+    assert core.do_step(0.0, 2 * DT) is None and core.session.nstep == 2
+
+
+def test_nan_input_is_refused_by_name_and_the_step_fails_until_a_valid_value(tmp_path):
+    cfg = config_for("jones2016", "bare")
+    core, logs = make_core(tmp_path, cfg)
+    core.set("screw_torque_nm", math.nan)
+    assert logs and logs[0][0] == "error" and "screw_torque_nm = nan" in logs[0][1]
+    reason = core.do_step(0.0, DT)
+    assert reason is not None and "screw_torque_nm = nan" in reason and core.session.nstep == 0
+    core.set("load_force_n", -math.inf)
+    assert "load_force_n = -inf" in logs[-1][1]
+    core.set("screw_torque_nm", 1.0)
+    core.set("load_force_n", LOAD_N)
+    assert core.do_step(0.0, DT) is None  # the refused values never reached the session
+    assert_rows_equal([{n: core.get(n) for n in expected_outputs(core.session)}],
+                      session_loop(cfg, np.array([1.0]), np.array([LOAD_N]), k=1))
+
+
+def test_bad_parameters_are_refused_by_name_and_nothing_changes(tmp_path):
+    core, logs = make_core(tmp_path, config_for("jones2016", "velocity"))
+    kp = core.get("drive_speed_kp_nm_s_rad")
+    for name, value in (("drive_speed_kp_nm_s_rad", -1.0), ("max_effort_nm", 0.0), ("motor_torque_limit_nm", math.nan),
+                        ("drive_speed_limit_rad_s", math.inf)):
+        core.set(name, value)
+        assert logs[-1][0] == "error" and f"{name} = {value!r}" in logs[-1][1], logs[-1]
+        assert core.do_step(0.0, DT) is not None
+    assert core.get("drive_speed_kp_nm_s_rad") == kp == core.session.actuator.drive.speed_kp_nm_s_rad
+    assert core.get("max_effort_nm") == 50.0 == core.session.gate.max_effort_nm
+    for name in ("drive_speed_kp_nm_s_rad", "max_effort_nm", "motor_torque_limit_nm", "drive_speed_limit_rad_s"):
+        core.set(name, core.get(name))  # valid values clear the refusals
+    assert core.do_step(0.0, DT) is None
+
+
+def test_tunable_parameters_act_as_the_library_built_with_them(tmp_path):
+    cfg = config_for("jones2016", "velocity")
+    core, logs = make_core(tmp_path, cfg)
+    kp, ki = 2.0 * core.get("drive_speed_kp_nm_s_rad"), core.get("drive_speed_ki_nm_rad")
+    core.set("drive_speed_kp_nm_s_rad", kp)  # the other gains keep the values they were tuned to
+    core.set("motor_torque_limit_nm", 4.0)
+    cmd = commands("velocity")
+    got = core_run(core, cmd, loads())
+    drive = DriveParams(mode="velocity", speed_kp_nm_s_rad=kp, speed_ki_nm_rad=ki)
+    want_cfg = make_config(preset("s30"), "jones2016", DT, ActuatorParams(motor=MotorParams(torque_limit_nm=4.0),
+                                                                         drive=drive),
+                           interface="velocity", load_n=LOAD_N)
+    assert_rows_equal(got, session_loop(want_cfg, cmd, loads()))
+    assert logs == []
+
+
+def test_effort_limit_is_tunable(tmp_path):
+    cfg = config_for("jones2016", "bare")
+    core, _ = make_core(tmp_path, cfg)
+    core.set("max_effort_nm", 1.0)
+    got = core_run(core, commands("effort"), loads())
+    assert_rows_equal(got, session_loop(config_for("jones2016", "bare", max_effort_nm=1.0), commands("effort"), loads()))
+
+
+def test_model_failure_fails_the_step_with_its_reason(tmp_path):
+    core, logs = make_core(tmp_path, config_for("fu2018", "bare", max_effort_nm=1e300))
+    core.set("screw_torque_nm", 1e300)
+    core.set("load_force_n", 1e300)
+    reason = core.do_step(0.0, DT)
+    assert reason is not None and "model failure" in reason and "non-finite state" in reason
+    assert logs[-1] == ("error", reason)
+    assert core.do_step(DT, DT) is not None  # stays failed until reset (a new instance)
+
+
+def test_a_configuration_of_another_prsm_version_is_refused_naming_both(tmp_path):
+    cfg = dict(config_for("jones2016", "bare"), prsm_version="0.0.1")
+    with pytest.raises(ParamError, match=rf"built by prsm 0\.0\.1.* has prsm {__version__}"):
+        make_core(tmp_path, cfg)
+
+
+def test_state_round_trip_continues_bit_for_bit_in_a_new_instance(tmp_path):
+    cfg = config_for("fu2018", "velocity")
+    core, _ = make_core(tmp_path / "a", cfg)
+    cmd, load = commands("velocity"), loads()
+    core_run(core, cmd[:15], load[:15])
+    saved = json.dumps(core.get_state())
+    want = core_run(core, cmd[15:], load[15:], t0=15)
+    other, logs = make_core(tmp_path / "b", cfg)
+    other.set_state(json.loads(saved))
+    assert logs == []
+    assert_rows_equal(core_run(other, cmd[15:], load[15:], t0=15), want)
+
+
+def test_a_foreign_state_is_refused_and_fails_the_step(tmp_path):
+    core, logs = make_core(tmp_path, config_for("jones2016", "bare"))
+    core.set_state({"format": "something else"})
+    assert logs[-1][0] == "error" and "not a prsm FMU state" in logs[-1][1]
+    assert core.do_step(0.0, DT) is not None
+
+
+def test_cli_refuses_bad_options_in_one_line_exit_2(tmp_path):
+    cases = [(["--actuator", "{motor: {bogus: 1}}", "--command-interface", "velocity"], "motor.bogus"),
+             (["--dt", "0"], "dt_s"),
+             (["--max-effort", "-1"], "max_effort_nm")]
+    for extra, needle in cases:
+        r = subprocess.run([sys.executable, "-m", "prsm_ros.fmu.cli", "build", "--preset", "s30", *extra,
+                            "-o", str(tmp_path / "x.fmu")], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 2, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr, r.stderr
+    assert not (tmp_path / "x.fmu").exists()
+
+
+# -- built FMUs through fmpy ------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    """Build each FMU once per module: (fmi, model, case) → (path, config)."""
+    built: dict = {}
+    root = tmp_path_factory.mktemp("fmus")
+
+    def get(fmi: int, model: str, case: str):
+        key = (fmi, model, case)
+        if key not in built:
+            cfg = config_for(model, case, fmi=fmi)
+            built[key] = (build_fmu(cfg, root / f"{model}_{case}_fmi{fmi}.fmu"), cfg)
+        return built[key]
+    return get
+
+
+def fmu_run(drv: FmuDriver, interface: str, cmd, load, t0: int = 0, k: int = K) -> list[dict[str, float]]:
+    outs = [v.name for v in drv.description.modelVariables if v.causality == "output"]
+    out_refs, in_refs = drv.refs(outs), drv.refs([COMMAND[interface], "load_force_n"])
+    rows = []
+    for i, (u, f) in enumerate(zip(cmd.tolist(), load.tolist())):
+        drv.set(in_refs, [u, f])
+        assert drv.do_step((t0 + i) * k * DT, k * DT) == OK, drv.messages
+        rows.append(dict(zip(outs, drv.get(out_refs))))
+    return rows
+
+
+def check_fmu(fmus, fmi: int, model: str, case: str) -> None:
+    path, cfg = fmus(fmi, model, case)
+    assert validate_fmu(str(path)) == []
+    interface = "effort" if case == "bare" else "velocity"
+    cmd, load = commands(interface), loads()
+    with FmuDriver(path) as drv:
+        assert float(drv.description.defaultExperiment.stepSize) == DT
+        got = fmu_run(drv, interface, cmd, load)
+    assert_rows_equal(got, session_loop(cfg, cmd, load))
+    # the batch path of the library, same inputs held K steps each: equal to rounding
+    sim = Simulator(preset("s30"), model, DT, actuator=None if case == "bare" else session_from_config(cfg).actuator_params)
+    if case != "bare":
+        sim.state = sim.model.set_mode(sim.state, "velocity")
+    traj = sim.run(np.repeat(cmd, K), np.repeat(load, K))
+    for name in ("nut_position_m", "nut_velocity_m_s", "nut_force_n", "screw_angle_rad", "screw_speed_rad_s"):
+        col = traj[name][K - 1::K]
+        np.testing.assert_allclose([r[name] for r in got], col, rtol=1e-12, atol=1e-12 * np.abs(col).max())
+
+
+def test_fmi2_fu2018_bare_equals_the_library(fmus):
+    check_fmu(fmus, 2, "fu2018", "bare")
+
+
+def test_fmi3_elastic_velocity_actuator_equals_the_library(fmus):
+    check_fmu(fmus, 3, "elastic", "velocity")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fmi", [2, 3])
+@pytest.mark.parametrize("model", ["fu2018", "elastic"])
+@pytest.mark.parametrize("case", ["bare", "velocity"])
+def test_fmu_matrix_equals_the_library(fmus, fmi, model, case):
+    check_fmu(fmus, fmi, model, case)
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_fmu_state_get_set_serialise_continue_bit_for_bit(fmus, fmi):
+    path, cfg = fmus(fmi, "fu2018", "bare")
+    cmd, load = commands("effort"), loads()
+    with FmuDriver(path) as a, FmuDriver(path) as b:
+        fmu_run(a, "effort", cmd[:15], load[:15])
+        state = a.get_state()
+        data = a.serialize(state)
+        want = fmu_run(a, "effort", cmd[15:], load[15:], t0=15)
+        a.set_state(state)  # back in the same instance
+        assert_rows_equal(fmu_run(a, "effort", cmd[15:], load[15:], t0=15), want)
+        a.free_state(state)
+        b.set_state(b.deserialize(data))  # into another instance, from bytes
+        assert_rows_equal(fmu_run(b, "effort", cmd[15:], load[15:], t0=15), want)
+    assert_rows_equal(want, session_loop(cfg, cmd, load)[15:])
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_fmu_refuses_nan_and_bad_parameters_with_a_status_and_a_message(fmus, fmi):
+    path, cfg = fmus(fmi, "fu2018", "bare")
+    failed = FMI_ERROR if fmi == 3 else FMI_DISCARD  # pythonfmu 0.7: a failed doStep is fmi2Discard
+    with FmuDriver(path) as drv:
+        torque, load_ref, effort = drv.refs(["screw_torque_nm", "load_force_n", "max_effort_nm"])
+        drv.set([torque], [math.nan])
+        assert any("screw_torque_nm = nan" in m for _, m in drv.messages), drv.messages
+        assert drv.do_step(0.0, DT) == failed
+        drv.set([effort], [-2.0])
+        assert any("max_effort_nm = -2.0" in m and "max_effort_nm" in m for _, m in drv.messages)
+        assert drv.do_step(0.0, DT) == failed
+        assert drv.do_step(0.0, 1.5 * DT) == failed
+        drv.set([torque, load_ref, effort], [1.0, LOAD_N, 50.0])
+        assert drv.do_step(0.0, DT) == OK  # nothing refused reached the session
+        assert drv.get(drv.refs(["nut_position_m"])) == [session_loop(cfg, np.array([1.0]), np.array([LOAD_N]), k=1)[0]
+                                                        ["nut_position_m"]]
+        drv.reset()  # a new session: back at rest
+        assert drv.get(drv.refs(["nut_position_m", "screw_speed_rad_s"])) == [0.0, 0.0]
+        assert drv.do_step(0.0, DT) == OK
+
+
+def test_an_fmu_of_another_prsm_version_is_refused_at_instantiation(fmus, tmp_path):
+    path, _ = fmus(2, "fu2018", "bare")
+    other = tmp_path / "old.fmu"
+    with zipfile.ZipFile(path) as src, zipfile.ZipFile(other, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == f"resources/{CONFIG_NAME}":
+                data = json.dumps(dict(json.loads(data), prsm_version="0.0.1")).encode()
+            dst.writestr(item, data)
+    messages = []
+    md = read_model_description(str(other))
+    with pytest.raises(Exception, match="instantiate"):
+        instantiate_fmu(extract(str(other)), md, debug_logging=True,
+                        logger=lambda *a: messages.append(a[-1].decode()))
+    assert any(f"built by prsm 0.0.1" in m and f"has prsm {__version__}" in m for m in messages), messages
+
+
+def test_cli_builds_an_fmu_that_validates(tmp_path):
+    out = tmp_path / "cli.fmu"
+    r = subprocess.run([sys.executable, "-m", "prsm_ros.fmu.cli", "build", "--fmi", "3", "--preset", "s30",
+                        "--model", "jones2016", "--command-interface", "position", "--actuator", "{motor: {}}",
+                        "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert validate_fmu(str(out)) == []
+    with FmuDriver(out) as drv:
+        assert "nut_position_command_m" in drv.vr and "screw_torque_nm" not in drv.vr
+        config = json.loads(zipfile.ZipFile(out).read(f"resources/{CONFIG_NAME}"))
+        assert config["model"] == "jones2016" and config["session"]["interface"] == "position"
+        assert config["prsm_version"] == __version__
