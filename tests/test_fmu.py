@@ -26,6 +26,7 @@ from fmpy.validation import validate_fmu
 from prsm_sim import InputError, ParamError, Session, Simulator, __version__, preset
 from prsm_sim.actuator import ACTUATOR_QUANTITIES, ActuatorParams, DriveParams, MotorParams
 from prsm_ros.fmu.build import build_fmu
+from prsm_ros.fmu.cli import main as cli_main
 from prsm_ros.fmu.config import CONFIG_NAME, make_config, session_from_config
 from prsm_ros.fmu.core import SlaveCore
 from prsm_ros.fmu.driver import OK, FmuDriver
@@ -102,7 +103,7 @@ def assert_rows_equal(got: list[dict], want: list[dict]) -> None:
 # -- the slave logic, without building an FMU ----------------------------------------------------------
 def make_core(tmp_path, config: dict):
     res = tmp_path / "resources"
-    res.mkdir(exist_ok=True)
+    res.mkdir(parents=True, exist_ok=True)
     (res / CONFIG_NAME).write_text(json.dumps(config), encoding="utf-8")
     logs: list[tuple[str, str]] = []
     return SlaveCore(str(res), lambda msg, status: logs.append((status, msg))), logs
@@ -112,7 +113,7 @@ def core_run(core: SlaveCore, cmd, load, k: int = K, t0: int = 0) -> list[dict[s
     names = [v.name for v in core.variables if v.causality == "output"]
     rows = []
     for i, (u, f) in enumerate(zip(cmd.tolist(), load.tolist())):
-        core.set(core._command_name, u)
+        core.set(core.command_name, u)
         core.set("load_force_n", f)
         assert core.do_step((t0 + i) * k * DT, k * DT) is None
         rows.append({n: core.get(n) for n in names})
@@ -230,15 +231,14 @@ def test_a_foreign_state_is_refused_and_fails_the_step(tmp_path):
     assert core.do_step(0.0, DT) is not None
 
 
-def test_cli_refuses_bad_options_in_one_line_exit_2(tmp_path):
+def test_cli_refuses_bad_options_in_one_line_exit_2(tmp_path, capsys):
     cases = [(["--actuator", "{motor: {bogus: 1}}", "--command-interface", "velocity"], "motor.bogus"),
              (["--dt", "0"], "dt_s"),
              (["--max-effort", "-1"], "max_effort_nm")]
     for extra, needle in cases:
-        r = subprocess.run([sys.executable, "-m", "prsm_ros.fmu.cli", "build", "--preset", "s30", *extra,
-                            "-o", str(tmp_path / "x.fmu")], capture_output=True, text=True, timeout=120)
-        assert r.returncode == 2, r.stderr
-        assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr, r.stderr
+        assert cli_main(["build", "--preset", "s30", *extra, "-o", str(tmp_path / "x.fmu")]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and needle in err, err
     assert not (tmp_path / "x.fmu").exists()
 
 

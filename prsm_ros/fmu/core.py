@@ -138,10 +138,10 @@ class SlaveCore:
         s = self.session
         self.dt_s = s.dt_s
         self.interface = s.interface
-        self._command_name = INPUT_OF_INTERFACE[self.interface][0]
+        self.command_name = INPUT_OF_INTERFACE[self.interface][0]
         act = s.actuator
         # inputs: the active interface's command and the load, held over every step until set again
-        self.inputs = {self._command_name: s.gate.value, "load_force_n": s.load_n}
+        self.inputs = {self.command_name: s.gate.value, "load_force_n": s.load_n}
         self.tunables: dict[str, float] = {"max_effort_nm": s.gate.max_effort_nm}
         self._tunable_meta = {"max_effort_nm": ("gate", "max_effort_nm", "N.m",
                                                 "screw torque command limit (effort commands beyond it are saturated)")}
@@ -240,7 +240,7 @@ class SlaveCore:
                 return self._fail(f"communication step {step_size!r} s: must be a whole multiple of the model "
                                   f"step dt_s = {self.dt_s!r} s")
             self._h, self._k = step_size, k
-        step, cmd, load = self.session.step, self.inputs[self._command_name], self.inputs["load_force_n"]
+        step, cmd, load = self.session.step, self.inputs[self.command_name], self.inputs["load_force_n"]
         self._row = None
         try:
             for _ in range(self._k):
