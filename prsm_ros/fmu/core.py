@@ -29,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from prsm_sim import InputError, ModelError, ParamError, PrsmError, __version__
+from prsm_sim.actuator import ACTUATOR_QUANTITIES
 from prsm_ros.fmu.config import CONFIG_NAME, check_version, session_from_config
 
 STATE_FORMAT = "prsm-fmu-state/1"
@@ -91,6 +92,7 @@ _MEASURED_OUTPUTS = (  # (FMU name, unit, description, index into MEASURED_QUANT
     ("measured_nut_velocity_m_s", "m/s", "nut velocity as measured", 4),
     ("measured_nut_force_n", "N", "nut force as measured by the load cell", 5),
 )
+_ACTUATOR_NAMES = tuple(n for n, _ in ACTUATOR_QUANTITIES)
 # Tunable parameters with an actuator: FMU name → (group, field, unit, description); the drive's gains
 # start at the values it was tuned to (DriveParams.tuned), so setting one changes only that one.
 _DRIVE_TUNABLES = {
@@ -154,8 +156,13 @@ class SlaveCore:
                 for name, (g, f, unit, desc) in _MOTOR_TUNABLES.items():
                     self.tunables[name] = float(getattr(act.actuator.motor, f))
                     self._tunable_meta[name] = (g, f, unit, desc)
-        blocks = {b.name for b in s.layout.blocks}
-        self._has_peaks = "per_roller" in blocks and "per_tooth" in blocks
+        # where each internal-load block sits in the flat vector (the layout is fixed for the FMU's life)
+        at = s.layout.offsets()
+        self._blocks = {b.name: (slice(at[b.name], at[b.name] + b.size), b.shape) for b in s.layout.blocks}
+        self._has_peaks = "per_roller" in self._blocks and "per_tooth" in self._blocks
+        if self._has_peaks:
+            q = [n for n, _ in next(b for b in s.layout.blocks if b.name == "per_roller").quantities]
+            self._normal_forces = [q.index("screw_normal_force_n"), q.index("nut_normal_force_n")]
         self.variables = self._variables(act is not None)
         self._refused: dict[str, str] = {}  # variable → why its last value was not taken
         self._row: dict[str, float] | None = None
@@ -188,7 +195,11 @@ class SlaveCore:
         row = self._row
         if row is None:
             row = self._row = self._outputs()
-        return row[name]
+        try:
+            return row[name]
+        except KeyError:  # the outputs read from the internal loads, built only when one is asked for
+            row.update(self._internal_outputs())
+            return row[name]
 
     def set(self, name: str, value: float) -> None:
         """Take an input or a tunable parameter; a value refused is logged and fails the next doStep."""
@@ -254,31 +265,33 @@ class SlaveCore:
         return msg
 
     def _outputs(self) -> dict[str, float]:
-        """Every output of the last step (or at rest), computed once per step when first read."""
+        """The screw's outputs of the last step (or at rest), computed once per step when first read."""
         s = self.session
         out = s.last
-        row = {n: float(getattr(out, n)) for n, _, _ in _SCREW_OUTPUTS}
-        layout = s.layout
+        return {n: float(getattr(out, n)) for n, _, _ in _SCREW_OUTPUTS}
+
+    def _internal_outputs(self) -> dict[str, float]:
+        """The outputs read from the last step's internal loads (peaks, actuator, sensors, flags)."""
+        s = self.session
+        row: dict[str, float] = {}
+        internal, blocks = s.last.internal, self._blocks
+
+        def view(name: str) -> np.ndarray:
+            at, shape = blocks[name]
+            return internal[at].reshape(shape)
         if self._has_peaks:
-            internal = out.internal
-            roller = layout.view(internal, "per_roller")
-            q = [n for n, _ in next(b for b in layout.blocks if b.name == "per_roller").quantities]
-            row["peak_roller_load_n"] = float(np.max(np.abs(roller[:, [q.index("screw_normal_force_n"),
-                                                                      q.index("nut_normal_force_n")]])))
-            row["peak_tooth_load_n"] = float(np.max(np.abs(layout.view(internal, "per_tooth"))))
-        act = s.actuator
-        if act is not None:
-            from prsm_sim.actuator import ACTUATOR_QUANTITIES
-            a = layout.view(out.internal, "actuator")
-            aq = {n: float(a[i]) for i, (n, _) in enumerate(ACTUATOR_QUANTITIES)}
-            m = layout.view(out.internal, "measured")
+            row["peak_roller_load_n"] = float(np.abs(view("per_roller")[:, self._normal_forces]).max())
+            row["peak_tooth_load_n"] = float(np.abs(view("per_tooth")).max())
+        if s.actuator is not None:
+            a = dict(zip(_ACTUATOR_NAMES, view("actuator").tolist()))
+            m = view("measured").tolist()
             for n, _, _, i in _MEASURED_OUTPUTS:
-                row[n] = float(m[i])
-            row["motor_current_a"] = aq["motor_current_a"]
-            row["motor_torque_nm"] = aq["motor_torque_nm"]
-            row["stop_force_n"] = aq["stop_force_n"]
-            row["fault_active"] = 1.0 if aq["faults_active"] > 0 else 0.0
-            row["at_stop"] = 1.0 if aq["stop_penetration_m"] > 0 else 0.0
+                row[n] = m[i]
+            row["motor_current_a"] = a["motor_current_a"]
+            row["motor_torque_nm"] = a["motor_torque_nm"]
+            row["stop_force_n"] = a["stop_force_n"]
+            row["fault_active"] = 1.0 if a["faults_active"] > 0 else 0.0
+            row["at_stop"] = 1.0 if a["stop_penetration_m"] > 0 else 0.0
             row["brake_engaged"] = 1.0 if s.simulator.state.brake_engaged else 0.0
         return row
 
