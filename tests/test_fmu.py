@@ -13,17 +13,22 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
+import sysconfig
 import zipfile
+from pathlib import Path
 
+import fmpy
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.simulation import instantiate_fmu
 from fmpy.validation import validate_fmu
 
-from prsm_sim import InputError, ParamError, Session, Simulator, __version__, preset
+import prsm_sim
+from prsm_sim import ParamError, Session, Simulator, __version__, preset
 from prsm_sim.actuator import ACTUATOR_QUANTITIES, ActuatorParams, DriveParams, MotorParams
 from prsm_ros.fmu.build import build_fmu
 from prsm_ros.fmu.cli import main as cli_main
@@ -372,3 +377,29 @@ def test_cli_builds_an_fmu_that_validates(tmp_path):
         config = json.loads(zipfile.ZipFile(out).read(f"resources/{CONFIG_NAME}"))
         assert config["model"] == "jones2016" and config["session"]["interface"] == "position"
         assert config["prsm_version"] == __version__
+
+
+@pytest.mark.slow
+def test_fmi2_fmu_runs_in_a_host_without_python_given_libpython_home_and_path(fmus, tmp_path):
+    """A 60-line C importer (tests/fmu_c_host.c) with no Python of its own: the FMU needs libpython
+    preloaded (its binary takes the C API from the process), PYTHONHOME and a PYTHONPATH reaching prsm."""
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        pytest.skip("no C compiler to build the test importer")
+    host = tmp_path / "host"
+    subprocess.run([gcc, "-o", str(host), str(Path(__file__).with_name("fmu_c_host.c")),
+                    "-I", str(Path(fmpy.__file__).parent / "c-code"), "-ldl"], check=True, timeout=120)
+    path, cfg = fmus(2, "fu2018", "bare")
+    unzipped = Path(extract(str(path)))
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
+    env = {"PATH": "/usr/bin:/bin", "LD_PRELOAD": str(libpython), "PYTHONHOME": sys.base_prefix,
+           "PYTHONPATH": ":".join([str(Path(prsm_sim.__file__).parents[1])] + [p for p in sys.path if "site-packages" in p])}
+    r = subprocess.run([str(host), str(unzipped / "binaries" / "linux64" / "PrsmActuator.so"),
+                        (unzipped / "resources").as_uri(), md.guid, str(vr["screw_torque_nm"]), str(vr["nut_position_m"]),
+                        "100", "1.0"], capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    got = float(r.stdout.strip().splitlines()[-1].split()[-1])
+    want = session_loop(cfg, np.array([1.0]), np.array([LOAD_N]), k=100)[0]["nut_position_m"]
+    assert got == want
