@@ -186,6 +186,12 @@ class SlaveCore:
         return out
 
     # -- get / set ----------------------------------------------------------------------------
+    def accessors(self, variable: Variable):
+        """The (getter, setter) an FMI variable registers: setter None for an output."""
+        name = variable.name
+        getter = lambda: self.get(name)  # noqa: E731
+        return getter, None if variable.causality == "output" else (lambda value: self.set(name, value))
+
     def get(self, name: str) -> float:
         """The variable's present value (outputs: of the last step, or at rest before the first)."""
         if name in self.inputs:
@@ -323,6 +329,17 @@ class SlaveCore:
             return
         self._refused.pop("FMU state", None)
         self._row = None
+
+
+def attach(slave, statuses: dict, experiment) -> SlaveCore:
+    """The `SlaveCore` of a pythonfmu or pythonfmu3 slave, logging through it (`statuses` maps "ok",
+    "warning", "error" to its status enum), with the slave's description and default experiment
+    (`experiment`: its DefaultExperiment class) set from the FMU's configuration."""
+    core = SlaveCore(slave.resources, lambda msg, status: slave.log(msg, statuses[status]))
+    slave.author = "prsm"
+    slave.description = describe(core.config)
+    slave.default_experiment = experiment(start_time=0.0, step_size=core.dt_s)
+    return core
 
 
 def describe(config: dict) -> str:

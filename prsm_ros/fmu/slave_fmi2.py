@@ -13,28 +13,24 @@ from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
-from prsm_ros.fmu.core import UNITS, SlaveCore, describe
+from prsm_ros.fmu.core import UNITS, attach
 
 _STATUS = {"ok": Fmi2Status.ok, "warning": Fmi2Status.warning, "error": Fmi2Status.error}
 _CAUSALITY = {"input": Fmi2Causality.input, "output": Fmi2Causality.output, "parameter": Fmi2Causality.parameter}
+_VARIABILITY = {"input": Fmi2Variability.continuous, "output": Fmi2Variability.continuous,
+                "parameter": Fmi2Variability.tunable}
 
 
 class PrsmActuator(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.core = core = SlaveCore(self.resources, lambda msg, status: self.log(msg, _STATUS[status]))
-        self.author = "prsm"
-        self.description = describe(core.config)
-        self.default_experiment = DefaultExperiment(start_time=0.0, step_size=core.dt_s)
+        self.core = core = attach(self, _STATUS, DefaultExperiment)
         self._units = {}
         for v in core.variables:
-            name = v.name
-            getter = (lambda n=name: core.get(n))
-            setter = None if v.causality == "output" else (lambda value, n=name: core.set(n, value))
-            variability = Fmi2Variability.tunable if v.causality == "parameter" else Fmi2Variability.continuous
-            self.register_variable(Real(name, causality=_CAUSALITY[v.causality], variability=variability,
+            getter, setter = core.accessors(v)
+            self.register_variable(Real(v.name, causality=_CAUSALITY[v.causality], variability=_VARIABILITY[v.causality],
                                         description=v.description, getter=getter, setter=setter))
-            self._units[name] = v.unit
+            self._units[v.name] = v.unit
 
     def do_step(self, current_time, step_size):
         return self.core.do_step(current_time, step_size) is None

@@ -10,10 +10,12 @@ from pythonfmu3 import Fmi3Causality, Fmi3Slave, Fmi3Status, Fmi3StepResult, Fmi
 from pythonfmu3.default_experiment import DefaultExperiment
 from pythonfmu3.unit import Unit
 
-from prsm_ros.fmu.core import UNITS, SlaveCore, describe
+from prsm_ros.fmu.core import UNITS, attach
 
 _STATUS = {"ok": Fmi3Status.ok, "warning": Fmi3Status.warning, "error": Fmi3Status.error}
 _CAUSALITY = {"input": Fmi3Causality.input, "output": Fmi3Causality.output, "parameter": Fmi3Causality.parameter}
+_VARIABILITY = {"input": Fmi3Variability.continuous, "output": Fmi3Variability.continuous,
+                "parameter": Fmi3Variability.tunable}
 _OK = Fmi3StepResult()
 _ERROR = Fmi3StepResult(status=Fmi3Status.error)
 
@@ -21,22 +23,17 @@ _ERROR = Fmi3StepResult(status=Fmi3Status.error)
 class PrsmActuator(Fmi3Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.core = core = SlaveCore(self.resources, lambda msg, status: self.log(msg, _STATUS[status]))
-        self.author = "prsm"
-        self.description = describe(core.config)
-        self.default_experiment = DefaultExperiment(start_time=0.0, step_size=core.dt_s)
+        self.core = core = attach(self, _STATUS, DefaultExperiment)
         self.time = 0.0
         self.register_variable(Float64("time", causality=Fmi3Causality.independent,
                                        variability=Fmi3Variability.continuous, description="simulation time",
                                        unit="s"))
         used = {"s"}
         for v in core.variables:
-            name = v.name
-            getter = (lambda n=name: core.get(n))
-            setter = None if v.causality == "output" else (lambda value, n=name: core.set(n, value))
-            variability = Fmi3Variability.tunable if v.causality == "parameter" else Fmi3Variability.continuous
-            self.register_variable(Float64(name, causality=_CAUSALITY[v.causality], variability=variability,
-                                           description=v.description, unit=v.unit, getter=getter, setter=setter))
+            getter, setter = core.accessors(v)
+            self.register_variable(Float64(v.name, causality=_CAUSALITY[v.causality],
+                                           variability=_VARIABILITY[v.causality], description=v.description,
+                                           unit=v.unit, getter=getter, setter=setter))
             used.add(v.unit)
         self.register_units([Unit(u, **UNITS[u]) for u in sorted(used)])
 
