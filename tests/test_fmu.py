@@ -220,12 +220,13 @@ def test_state_round_trip_continues_bit_for_bit_in_a_new_instance(tmp_path):
     cfg = config_for("fu2018", "velocity")
     core, _ = make_core(tmp_path / "a", cfg)
     cmd, load = commands("velocity"), loads()
+    core.set("drive_speed_kp_nm_s_rad", 1.5 * core.get("drive_speed_kp_nm_s_rad"))  # tunables travel too
     core_run(core, cmd[:15], load[:15])
     saved = json.dumps(core.get_state())
     want = core_run(core, cmd[15:], load[15:], t0=15)
     other, logs = make_core(tmp_path / "b", cfg)
     other.set_state(json.loads(saved))
-    assert logs == []
+    assert logs == [] and other.tunables == core.tunables
     assert_rows_equal(core_run(other, cmd[15:], load[15:], t0=15), want)
 
 
