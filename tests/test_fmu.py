@@ -197,7 +197,8 @@ def test_effort_limit_is_tunable(tmp_path):
     core, _ = make_core(tmp_path, cfg)
     core.set("max_effort_nm", 1.0)
     got = core_run(core, commands("effort"), loads())
-    assert_rows_equal(got, session_loop(config_for("jones2016", "bare", max_effort_nm=1.0), commands("effort"), loads()))
+    want = session_loop(config_for("jones2016", "bare", max_effort_nm=1.0), commands("effort"), loads())
+    assert_rows_equal(got, want)
 
 
 def test_model_failure_fails_the_step_with_its_reason(tmp_path):
@@ -285,7 +286,8 @@ def check_fmu(fmus, fmi: int, model: str, case: str) -> None:
         got = fmu_run(drv, interface, cmd, load)
     assert_rows_equal(got, session_loop(cfg, cmd, load))
     # the batch path of the library, same inputs held K steps each: equal to rounding
-    sim = Simulator(preset("s30"), model, DT, actuator=None if case == "bare" else session_from_config(cfg).actuator_params)
+    actuator = None if case == "bare" else session_from_config(cfg).actuator_params
+    sim = Simulator(preset("s30"), model, DT, actuator=actuator)
     if case != "bare":
         sim.state = sim.model.set_mode(sim.state, "velocity")
     traj = sim.run(np.repeat(cmd, K), np.repeat(load, K))
@@ -396,10 +398,11 @@ def test_fmi2_fmu_runs_in_a_host_without_python_given_libpython_home_and_path(fm
     vr = {v.name: v.valueReference for v in md.modelVariables}
     libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
     env = {"PATH": "/usr/bin:/bin", "LD_PRELOAD": str(libpython), "PYTHONHOME": sys.base_prefix,
-           "PYTHONPATH": ":".join([str(Path(prsm_sim.__file__).parents[1])] + [p for p in sys.path if "site-packages" in p])}
+           "PYTHONPATH": ":".join([str(Path(prsm_sim.__file__).parents[1])]
+                                  + [p for p in sys.path if "site-packages" in p])}
     r = subprocess.run([str(host), str(unzipped / "binaries" / "linux64" / "PrsmActuator.so"),
-                        (unzipped / "resources").as_uri(), md.guid, str(vr["screw_torque_nm"]), str(vr["nut_position_m"]),
-                        "100", "1.0"], capture_output=True, text=True, timeout=300, env=env)
+                        (unzipped / "resources").as_uri(), md.guid, str(vr["screw_torque_nm"]),
+                        str(vr["nut_position_m"]), "100", "1.0"], capture_output=True, text=True, timeout=300, env=env)
     assert r.returncode == 0, r.stdout + r.stderr
     got = float(r.stdout.strip().splitlines()[-1].split()[-1])
     want = session_loop(cfg, np.array([1.0]), np.array([LOAD_N]), k=100)[0]["nut_position_m"]

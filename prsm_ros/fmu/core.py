@@ -322,7 +322,7 @@ class SlaveCore:
                     self._tune(name, value)
             self.session.set_state(state["session"])
             self.inputs = {k: float(v) for k, v in state["inputs"].items()}
-        except (PrsmError, KeyError, TypeError, ValueError) as e:
+        except (PrsmError, AttributeError, KeyError, TypeError, ValueError) as e:  # whatever the bytes held
             msg = f"FMU state refused: {e}"
             self._refused["FMU state"] = msg
             self.log(msg, "error")

@@ -28,8 +28,9 @@ class PrsmActuator(Fmi2Slave):
         self._units = {}
         for v in core.variables:
             getter, setter = core.accessors(v)
-            self.register_variable(Real(v.name, causality=_CAUSALITY[v.causality], variability=_VARIABILITY[v.causality],
-                                        description=v.description, getter=getter, setter=setter))
+            self.register_variable(Real(v.name, causality=_CAUSALITY[v.causality],
+                                        variability=_VARIABILITY[v.causality], description=v.description,
+                                        getter=getter, setter=setter))
             self._units[v.name] = v.unit
 
     def do_step(self, current_time, step_size):
@@ -52,7 +53,7 @@ class PrsmActuator(Fmi2Slave):
         for sv in root.find("ModelVariables"):
             real = sv.find("Real")
             real.set("unit", self._units[sv.get("name")])
-            if real.get("start") is not None:  # pythonfmu writes 16 digits; a double needs up to 17 to come back exact
+            if real.get("start") is not None:  # pythonfmu writes 16 digits; a double may need 17 to come back exact
                 real.set("start", repr(self.core.get(sv.get("name"))))
         outputs = root.find("ModelStructure/Outputs")
         unknowns = SubElement(root.find("ModelStructure"), "InitialUnknowns")
