@@ -29,7 +29,7 @@ from fmpy.validation import validate_fmu
 
 import prsm_sim
 from prsm_sim import ParamError, Session, Simulator, __version__, preset
-from prsm_sim.actuator import ACTUATOR_QUANTITIES, ActuatorParams, DriveParams, MotorParams
+from prsm_sim.actuator import ACTUATOR_QUANTITIES, ActuatorParams, DriveParams, Fault, MotorParams, StopParams
 from prsm_ros.fmu.build import build_fmu
 from prsm_ros.fmu.cli import main as cli_main
 from prsm_ros.fmu.config import CONFIG_NAME, make_config, session_from_config
@@ -407,3 +407,27 @@ def test_fmi2_fmu_runs_in_a_host_without_python_given_libpython_home_and_path(fm
     got = float(r.stdout.strip().splitlines()[-1].split()[-1])
     want = session_loop(cfg, np.array([1.0]), np.array([LOAD_N]), k=100)[0]["nut_position_m"]
     assert got == want
+
+
+def test_flags_and_actuator_outputs_follow_the_actuator(tmp_path):
+    """Stops at +0.5 mm and a friction surge over [10, 20) ms: the 0/1 flags say when (the actuator's
+    own quantities are the oracle), and ideal sensors measure the true values exactly."""
+    a = ActuatorParams(motor=MotorParams(), stops=StopParams(max_position_m=5e-4),
+                       faults=(Fault("friction_surge", start_s=0.01, duration_s=0.01, value=3.0),))
+    cfg = make_config(preset("s30"), "jones2016", DT, a, interface="velocity", fmi=2)
+    core, logs = make_core(tmp_path, cfg)
+    core.set("screw_speed_command_rad_s", 40.0)
+    seen = {"fault": [], "stop": []}
+    for k in range(60):
+        assert core.do_step(k * DT, DT) is None
+        t = core.session.time_s
+        seen["fault"].append((t, core.get("fault_active")))
+        seen["stop"].append((core.get("at_stop"), core.get("stop_force_n"), core.get("nut_position_m")))
+        assert core.get("measured_nut_position_m") == core.get("nut_position_m")
+        assert core.get("measured_screw_speed_rad_s") == core.get("screw_speed_rad_s")
+        assert core.get("brake_engaged") == 0.0
+    assert all(flag == (1.0 if 0.01 <= t - DT < 0.02 else 0.0) for t, flag in seen["fault"]), seen["fault"]
+    assert any(flag == 1.0 for flag, _, _ in seen["stop"]) and seen["stop"][0][0] == 0.0
+    assert all((flag == 1.0) == (x > 5e-4) for flag, _, x in seen["stop"])  # penetration: past the stop
+    assert all(force < 0.0 for flag, force, _ in seen["stop"] if flag == 1.0)  # the upper stop pushes back: −x
+    assert logs == []

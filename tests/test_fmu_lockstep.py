@@ -24,7 +24,8 @@ DT = 1e-3
 def test_node_in_lockstep_and_the_fmu_give_the_same_states(tmp_path, fmi):
     node_params = lockstep_params("fu2018", tmp_path)
     config = make_config(preset(node_params["preset"]), "fu2018", DT, None, interface="effort", load_n=LOAD_N,
-                         max_effort_nm=node_params["max_effort"], cmd_timeout_s=node_params["cmd_timeout"], fmi=fmi)
+                         max_effort_nm=node_params["max_effort"], fmi=fmi)
+    assert node_params["cmd_timeout"] == 0.0  # no watchdog in the node either (the FMU has none)
     path = build_fmu(config, tmp_path / "plant.fmu")
     h = STEPS_PER_COMMAND * DT
     names = ["screw_angle_rad", "nut_position_m", "screw_speed_rad_s", "nut_velocity_m_s", "nut_force_n"]

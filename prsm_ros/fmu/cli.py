@@ -17,7 +17,6 @@ import sys
 
 from prsm_sim import MODELS, PRESETS, PrsmError
 from prsm_sim.actuator import COMMAND_INTERFACES
-from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
 
 from prsm_ros.cli.param_files import resolve_params
 from prsm_ros.fmu.config import make_config
@@ -40,8 +39,7 @@ def cmd_build(args) -> None:
     params = resolve_params(args.preset, args.params)
     config = make_config(params, args.model, args.dt, _actuator(args, params), interface=args.command_interface,
                          nut_position_m=args.nut_position, load_n=args.load, max_effort_nm=args.max_effort,
-                         cmd_timeout_s=args.cmd_timeout, timeout_behaviour=args.timeout_behaviour, fmi=args.fmi,
-                         preset_name=None if args.params else (args.preset or params.name))
+                         fmi=args.fmi, preset_name=None if args.params else (args.preset or params.name))
     dest = args.output or f"prsm_{params.name}_{args.model}_{args.command_interface}_fmi{args.fmi}.fmu"
     path = build_fmu(config, dest)
     print(path)
@@ -67,8 +65,6 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--faults", default="", metavar="SPECS",
                    help="faults from the start: 'kind=jam,start_s=1,duration_s=0.5,value=30; …'")
     b.add_argument("--max-effort", type=float, default=50.0, help="screw torque command limit, N·m (tunable)")
-    b.add_argument("--cmd-timeout", type=float, default=0.0, help="command watchdog, simulation s (0: off)")
-    b.add_argument("--timeout-behaviour", choices=TIMEOUT_BEHAVIOURS, default="zero")
     b.add_argument("--load", type=float, default=0.0, help="initial nut load force, N (the load input's start)")
     b.add_argument("--nut-position", type=float, default=0.0, help="initial nut position, m")
     b.add_argument("-o", "--output", metavar="FILE.fmu", help="where to write the FMU")

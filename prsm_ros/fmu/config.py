@@ -18,17 +18,19 @@ CONFIG_FORMAT = "prsm-fmu-config/1"
 
 
 def make_config(params: Params, model: str, dt_s: float, actuator: ActuatorParams | None, *, interface: str,
-                nut_position_m: float = 0.0, load_n: float = 0.0, max_effort_nm: float = 50.0,
-                cmd_timeout_s: float = 0.0, timeout_behaviour: str = "zero", fmi: int = 2,
+                nut_position_m: float = 0.0, load_n: float = 0.0, max_effort_nm: float = 50.0, fmi: int = 2,
                 preset_name: str | None = None) -> dict[str, Any]:
-    """The configuration of one FMU, checked by building its session once (ParamError/InputError when refused)."""
+    """The configuration of one FMU, checked by building its session once (ParamError/InputError when refused).
+
+    No command watchdog: an FMU's inputs hold their value until set again (FMI), and every step
+    hands the held command to the session, so a timeout could never fire.
+    """
     config = {
         "format": CONFIG_FORMAT, "prsm_version": __version__, "fmi": int(fmi), "preset": preset_name,
         "params": params.to_dict(), "model": model, "dt_s": float(dt_s),
         "actuator": None if actuator is None else actuator_params_to_dict(actuator),
         "session": {"interface": interface, "nut_position_m": float(nut_position_m), "load_n": float(load_n),
-                    "max_effort_nm": float(max_effort_nm), "cmd_timeout_s": float(cmd_timeout_s),
-                    "timeout_behaviour": timeout_behaviour},
+                    "max_effort_nm": float(max_effort_nm)},
     }
     session_from_config(config)
     return config
@@ -50,5 +52,4 @@ def session_from_config(config: dict[str, Any]):
     act = None if config["actuator"] is None else actuator_params_from_dict(config["actuator"])
     s = config["session"]
     return Session(params, config["model"], config["dt_s"], act, nut_position_m=s["nut_position_m"],
-                   load_n=s["load_n"], interface=s["interface"], max_effort_nm=s["max_effort_nm"],
-                   cmd_timeout_s=s["cmd_timeout_s"], timeout_behaviour=s["timeout_behaviour"])
+                   load_n=s["load_n"], interface=s["interface"], max_effort_nm=s["max_effort_nm"])

@@ -77,7 +77,7 @@ _PEAK_OUTPUTS = (
 _ACTUATOR_OUTPUTS = (
     ("motor_current_a", "A", "motor current"),
     ("motor_torque_nm", "N.m", "motor torque, screw side"),
-    ("stop_force_n", "N", "end-stop contact force on the nut"),
+    ("stop_force_n", "N", "end-stop contact force on the nut along +x_nut (negative at the upper stop)"),
 )
 _FLAG_OUTPUTS = (
     ("fault_active", "1", "1 while an injected actuator fault is active, else 0"),
