@@ -1,10 +1,10 @@
 """Benchmark of the FMU: one step through fmpy beside the library's `Session.step`, in the same run.
 
 s30 with fu2018 (the bare screw, effort input), built as an FMI 2.0 (pythonfmu) and an FMI 3.0
-(pythonfmu3) FMU. Per model step: `Session.step` (the library), `doStep` alone (inputs held) and a
-full exchange (set the two inputs, doStep, get every output), each run interleaved with the
-library's loop on the same inputs, repeated; the ratios to the library step are medians with
-their spread. Aim: doStep within 3× of the library step; the full exchange adds fmpy's own
+(pythonfmu3) FMU. Per model step: `Session.step` (the library object the FMU wraps), `doStep`
+alone (inputs held) and a full exchange (set the two inputs, doStep, get every output), each run
+interleaved with the library's loop on the same inputs, repeated; the ratios to the library step
+are medians with their spread. `Simulator.step` (no command gate, no session checks) is a peer. Aim: doStep within 3× of the library step; the full exchange adds fmpy's own
 per-call cost (ctypes and the Python FMI wrapper on the importer's side), which sets its floor.
 Nothing here asserts a timing; `prsm-bench --only fmu` prints the figures.
 """
@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prsm_sim import preset
+from prsm_sim import Simulator, preset
 
 from prsm_ros.bench.common import area_main, figure
 
@@ -48,8 +48,15 @@ def measure(quick: bool = False) -> list[dict]:
                 outputs = drv.refs([v.name for v in drv.description.modelVariables if v.causality == "output"])
                 do_step, set_, get = drv.fmu.doStep, drv.set, drv.get
 
+                simulator = Simulator(preset("s30"), "fu2018", DT)
+
                 def library():
                     step = session.step
+                    for _ in range(n):
+                        step(TORQUE_NM, LOAD_N)
+
+                def bare_library():
+                    step = simulator.step
                     for _ in range(n):
                         step(TORQUE_NM, LOAD_N)
 
@@ -65,7 +72,7 @@ def measure(quick: bool = False) -> list[dict]:
                         do_step(k * DT, DT)
                         get(outputs)
 
-                lib_t, alone_t, lib2_t, full_t = [], [], [], []
+                lib_t, alone_t, lib2_t, full_t, sim_t = [], [], [], [], []
                 for _ in range(repeats):  # side by side: each FMU run beside a library run from the same state
                     for fn, times, lib_times in ((steps_alone, alone_t, lib_t), (exchange, full_t, lib2_t)):
                         session.reset()
@@ -76,14 +83,22 @@ def measure(quick: bool = False) -> list[dict]:
                         t0 = time.perf_counter()
                         fn()
                         times.append(time.perf_counter() - t0)
+                    simulator.reset()
+                    t0 = time.perf_counter()
+                    bare_library()
+                    sim_t.append(time.perf_counter() - t0)
             lib_us = statistics.median(lib_t) / n * 1e6
             r_alone, s_alone = _ratio_stats(alone_t, lib_t)
             r_full, s_full = _ratio_stats(full_t, lib2_t)
+            r_sim, s_sim = _ratio_stats(alone_t, sim_t)
             tag = f"FMI {fmi}.0 ({'pythonfmu' if fmi == 2 else 'pythonfmu3'})"
             figures += [
                 figure(f"fmu {tag} fu2018 (s30) doStep / Session.step", r_alone, "×", "≤ 3", r_alone <= 3,
                        s_alone, f"{statistics.median(alone_t) / n * 1e6:.1f} µs per doStep through fmpy vs "
                                 f"{lib_us:.1f} µs per Session.step, one model step each"),
+                figure(f"fmu {tag} fu2018 (s30) doStep / Simulator.step", r_sim, "×", "(peer)", None, s_sim,
+                       f"{statistics.median(sim_t) / n * 1e6:.1f} µs per Simulator.step (no command gate, no "
+                       f"session checks): the FMU's slave is a Session"),
                 figure(f"fmu {tag} fu2018 (s30) full exchange / Session.step", r_full, "×", "(fmpy floor)", None,
                        s_full, f"{statistics.median(full_t) / n * 1e6:.1f} µs per set 2 inputs + doStep + get "
                                f"{len(outputs)} outputs through fmpy; fmpy's per-call cost sets the floor"),
