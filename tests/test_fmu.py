@@ -379,7 +379,7 @@ def test_cli_builds_an_fmu_that_validates(tmp_path):
         assert "nut_position_command_m" in drv.vr and "screw_torque_nm" not in drv.vr
         config = json.loads(zipfile.ZipFile(out).read(f"resources/{CONFIG_NAME}"))
         assert config["model"] == "jones2016" and config["session"]["interface"] == "position"
-        assert config["prsm_version"] == __version__
+        assert config["prsm_version"] == __version__ == drv.description.version
 
 
 @pytest.mark.slow

@@ -337,6 +337,7 @@ def attach(slave, statuses: dict, experiment) -> SlaveCore:
     (`experiment`: its DefaultExperiment class) set from the FMU's configuration."""
     core = SlaveCore(slave.resources, lambda msg, status: slave.log(msg, statuses[status]))
     slave.author = "prsm"
+    slave.version = core.config["prsm_version"]  # the model description's version: the prsm that built it
     slave.description = describe(core.config)
     slave.default_experiment = experiment(start_time=0.0, step_size=core.dt_s)
     return core
