@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from prsm_sim.errors import InputError, ModelError, ParamError
 from prsm_sim.physics.kinematics import sliding_matrix
-from prsm_sim.params import Geometry
+
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Geometry
 
 
 @dataclass(frozen=True)

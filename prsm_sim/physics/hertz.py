@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.params import Geometry
+from prsm_sim.physics.contact import flank_surfaces, solve_contact
+
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Geometry
 
 _KAPPA_MAX = 1e4  # F(ρ) = 1 − O(1e-8): a line contact for every purpose here
 
@@ -235,8 +238,6 @@ def thread_contact(geo: Geometry, side: str, elastic_constant_per_pa: float, loa
     (`physics.contact.flank_surfaces`) at the exact tangency point, so the lead angles and the
     roller's arc profile R_p = r_R / sin β enter without a textbook formula.
     """
-    from prsm_sim.physics.contact import flank_surfaces, solve_contact
-
     c = solve_contact(geo, side, load_sign)
     body, roller, psi0 = flank_surfaces(geo, side, load_sign)
     n_body_out = c.normal_on_roller  # the force on the roller points out of the body's material
