@@ -489,12 +489,25 @@ class Params:
     Attributes
     ----------
     geometry : Geometry
+        Thread and carrier geometry.
     mass : MassProperties
+        Masses and inertias (resolved from geometry and density where left None).
     friction : Friction
+        Friction and lubrication of `jones2016`, `fu2018` and `elastic`.
     ideal : IdealLoss
+        Loss parameters of `ideal`.
     loads : Loads
+        Nominal operating point (presets, scenarios, the steady-state command).
     name : str
         Preset or user label, carried into recordings.
+    material : Material
+        Elastic constants of the steel.
+    elastic : ElasticParams
+        Axial compliance chain of `elastic` (clearance, preload, bearing, housing).
+    ratings : Ratings
+        Axial load ratings of the nut (the static one derived by ISO 76 where left None).
+    stiction : Stiction
+        Breakaway beyond the running friction (`elastic`).
 
     Raises
     ------

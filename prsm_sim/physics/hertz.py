@@ -37,7 +37,7 @@ def curvature_difference(kappa: float) -> float:
     """F(ρ) of an ellipse ratio κ ≥ 1 (docs/model.md §4.3, Harris ch. 6)."""
     if kappa <= 1.0:
         return 0.0
-    from scipy.special import ellipe, ellipk  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
+    from scipy.special import ellipe, ellipk  # here: `import prsm_sim` stays quick without scipy
     m = 1.0 - 1.0 / kappa**2
     e, k = ellipe(m), ellipk(m)
     return float(((kappa**2 + 1.0) * e - 2.0 * k) / ((kappa**2 - 1.0) * e))

@@ -23,8 +23,8 @@ import numpy as np
 from prsm_sim.errors import InputError
 
 
-# The fields the union `State` of earlier releases had for fu2018 and elastic, with their defaults: a
-# State reads and takes them by these names through its `part` for one release (they moved there).
+# Fields of the models' parts (`State.part`) that read as attributes of any State and are taken as keywords by
+# its constructor, with the value a state whose part lacks them reads: aliases kept for one release.
 LEGACY_PART_FIELDS: dict[str, object] = {
     "flank_sign": 1, "pin_force_n": 0.0, "gear_force_n": 0.0, "solver": (), "nut_axial_m": 0.0,
     "nut_speed_m_s": 0.0, "screw_accel_rad_s2": 0.0, "extra_clearance_m": 0.0,
