@@ -10,14 +10,13 @@ state and counts steps, so a node or a CLI can drive it without bookkeeping of i
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
 
 from prsm_sim.actuator import Actuator
 from prsm_sim.errors import InputError
-from prsm_sim.models.registry import MODELS, build_model
+from prsm_sim.models.registry import MODELS, build_model  # MODELS: importable from here too
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.stepping.model import check_step_inputs

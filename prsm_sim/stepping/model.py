@@ -37,6 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
+from prsm_sim.checks import is_finite_number
 from prsm_sim.errors import InputError, ParamError
 from prsm_sim.params import Params
 from prsm_sim.stepping.ledger import energy_fault
@@ -44,13 +45,10 @@ from prsm_sim.stepping.packed import PackedConstants, PackedOutputs, make_finish
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
-_NUMBER = (int, float, np.floating, np.integer)
-
-
 def check_step_inputs(command, load_n, command_name: str = "torque_nm") -> tuple[float, float]:
     """The two inputs of a step as floats; InputError (naming the input) for a non-number or non-finite one."""
     for name, v in ((command_name, command), ("load_n", load_n)):
-        if isinstance(v, bool) or not isinstance(v, _NUMBER) or not math.isfinite(v):
+        if not is_finite_number(v):
             raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
     return float(command), float(load_n)
 
