@@ -4,10 +4,12 @@
 """
 
 from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
-from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State, Trajectory
+from prsm_sim.models.registry import MODELS, build_model
 from prsm_sim.params import Friction, Geometry, IdealLoss, Loads, MassProperties, Params
 from prsm_sim.presets import PRESETS, preset
-from prsm_sim.simulator import MODELS, Simulator, build_model
+from prsm_sim.simulator import Simulator
+from prsm_sim.stepping.records import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.stepping.trajectory import Trajectory
 from prsm_sim.session import Session
 
 

@@ -13,27 +13,32 @@ from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from typing import Any
 
 from prsm_sim.errors import ParamError
+from prsm_sim.physics.load_sharing import iso76_static_rating_n
 
 
-def _check(group: str, name: str, value: Any, ok: bool, allowed: str) -> None:
+def check_field(group: str, name: str, value: Any, ok: bool, allowed: str) -> None:
+    """ParamError naming the field, its value and what is allowed, unless `ok`."""
     if not ok:
         raise ParamError(f"{group}.{name} = {value!r}: {allowed}")
 
 
-def _finite(v: Any) -> bool:
+def is_finite_number(v: Any) -> bool:
+    """A finite int or float (bool excluded)."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _positive(group: str, obj: Any, *names: str) -> None:
+def check_positive(group: str, obj: Any, *names: str) -> None:
+    """`check_field` for each named attribute of `obj`: a finite number > 0."""
     for n in names:
         v = getattr(obj, n)
-        _check(group, n, v, _finite(v) and v > 0, "must be a finite number > 0")
+        check_field(group, n, v, is_finite_number(v) and v > 0, "must be a finite number > 0")
 
 
-def _non_negative(group: str, obj: Any, *names: str) -> None:
+def check_non_negative(group: str, obj: Any, *names: str) -> None:
+    """`check_field` for each named attribute of `obj`: a finite number >= 0."""
     for n in names:
         v = getattr(obj, n)
-        _check(group, n, v, _finite(v) and v >= 0, "must be a finite number >= 0")
+        check_field(group, n, v, is_finite_number(v) and v >= 0, "must be a finite number >= 0")
 
 
 def _set(obj: Any, name: str, value: Any) -> None:
@@ -85,29 +90,29 @@ class Geometry:
 
     def __post_init__(self) -> None:
         g = "geometry"
-        _positive(g, self, "screw_radius_m", "roller_radius_m", "pitch_m")
+        check_positive(g, self, "screw_radius_m", "roller_radius_m", "pitch_m")
         # starts >= 3: the planetary fit r_S = (n − 2) r_R needs it (docs/model.md §1)
         for n, lo in (("starts", 3), ("n_rollers", 3), ("n_teeth", 1)):
             v = getattr(self, n)
-            _check(g, n, v, isinstance(v, int) and not isinstance(v, bool) and v >= lo,
+            check_field(g, n, v, isinstance(v, int) and not isinstance(v, bool) and v >= lo,
                    f"must be a whole number >= {lo}")
         fa = self.flank_angle_deg
-        _check(g, "flank_angle_deg", fa, _finite(fa) and 0 < fa < 90, "must lie in (0, 90) degrees")
+        check_field(g, "flank_angle_deg", fa, is_finite_number(fa) and 0 < fa < 90, "must lie in (0, 90) degrees")
         if self.nut_radius_m is None:
             _set(self, "nut_radius_m", self.screw_radius_m + 2 * self.roller_radius_m)
-        _positive(g, self, "nut_radius_m")
-        _check(g, "nut_radius_m", self.nut_radius_m, self.nut_radius_m > self.screw_radius_m + self.roller_radius_m,
+        check_positive(g, self, "nut_radius_m")
+        check_field(g, "nut_radius_m", self.nut_radius_m, self.nut_radius_m > self.screw_radius_m + self.roller_radius_m,
                f"must exceed screw + roller radius ({self.screw_radius_m + self.roller_radius_m:g} m)")
         if self.gear_ratio is None:
             _set(self, "gear_ratio", self.nut_radius_m / self.roller_radius_m)
-        _positive(g, self, "gear_ratio")
+        check_positive(g, self, "gear_ratio")
         if self.screw_length_m is None:
             _set(self, "screw_length_m", 4 * self.n_teeth * self.pitch_m)
         if self.pin_radius_m is None:
             _set(self, "pin_radius_m", self.roller_radius_m / 2)
-        _positive(g, self, "screw_length_m", "pin_radius_m")
+        check_positive(g, self, "screw_length_m", "pin_radius_m")
         n_max = math.floor(math.pi / math.asin(min(1.0, self.roller_radius_m / self.carrier_radius_m)))
-        _check(g, "n_rollers", self.n_rollers, self.n_rollers <= n_max,
+        check_field(g, "n_rollers", self.n_rollers, self.n_rollers <= n_max,
                f"at most {n_max} rollers of radius {self.roller_radius_m:g} m fit on the {self.carrier_radius_m:g} m pin circle")
 
     @property
@@ -169,8 +174,8 @@ class MassProperties:
     carrier_inertia_kgm2: float | None = None  # both carrier plates: annuli r_S..a+r_R/2, 2 mm thick
 
     def __post_init__(self) -> None:
-        _positive("mass", self, "moved_mass_kg", "density_kg_m3")
-        _non_negative("mass", self, *(n for n in ("screw_inertia_kgm2", "roller_mass_kg", "roller_inertia_kgm2",
+        check_positive("mass", self, "moved_mass_kg", "density_kg_m3")
+        check_non_negative("mass", self, *(n for n in ("screw_inertia_kgm2", "roller_mass_kg", "roller_inertia_kgm2",
                                                    "carrier_inertia_kgm2") if getattr(self, n) is not None))
 
     def resolved(self, geo: Geometry) -> MassProperties:
@@ -248,19 +253,19 @@ class Friction:
 
     def __post_init__(self) -> None:
         f = "friction"
-        _non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin", "mu_nut_roller_sliding",
+        check_non_negative(f, self, "viscous_n_s_m", "mu_screw_roller", "mu_nut_roller_rolling", "mu_pin", "mu_nut_roller_sliding",
                       "lubricant_viscosity_m2_s", "lubricant_density_kg_m3", "load_distribution_decay")
-        _positive(f, self, "coulomb_regularisation_m_s", "drag_width_m", "drag_gap_m")
+        check_positive(f, self, "coulomb_regularisation_m_s", "drag_width_m", "drag_gap_m")
         if self.drag_radius_m is not None:
-            _positive(f, self, "drag_radius_m")
-        _check(f, "contact_evaluation", self.contact_evaluation, self.contact_evaluation in CONTACT_EVALUATIONS,
+            check_positive(f, self, "drag_radius_m")
+        check_field(f, "contact_evaluation", self.contact_evaluation, self.contact_evaluation in CONTACT_EVALUATIONS,
                f"must be one of {', '.join(CONTACT_EVALUATIONS)}")
-        _check(f, "screw_roller_law", self.screw_roller_law, self.screw_roller_law in ("coulomb", "viscous"),
+        check_field(f, "screw_roller_law", self.screw_roller_law, self.screw_roller_law in ("coulomb", "viscous"),
                "must be one of coulomb, viscous")
-        _check(f, "load_distribution", self.load_distribution, self.load_distribution in ("uniform", "exponential"),
+        check_field(f, "load_distribution", self.load_distribution, self.load_distribution in ("uniform", "exponential"),
                "must be one of uniform, exponential")
-        _check(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
-        _check(f, "mu_nut_roller_sliding", self.mu_nut_roller_sliding, self.mu_nut_roller_sliding < 1, "must be < 1")
+        check_field(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
+        check_field(f, "mu_nut_roller_sliding", self.mu_nut_roller_sliding, self.mu_nut_roller_sliding < 1, "must be < 1")
 
 
 @dataclass(frozen=True)
@@ -289,11 +294,11 @@ class IdealLoss:
     def __post_init__(self) -> None:
         g = "ideal"
         ef, eb = self.efficiency_forward, self.efficiency_backward
-        _check(g, "efficiency_forward", ef, _finite(ef) and 0 < ef <= 1, "must lie in (0, 1]")
-        _check(g, "efficiency_backward", eb, _finite(eb) and -1 <= eb <= 1, "must lie in [-1, 1] (<= 0: self-locking)")
-        _check(g, "efficiency_backward", eb, eb <= ef, f"must not exceed efficiency_forward ({ef})")
-        _positive(g, self, "power_threshold_w")
-        _non_negative(g, self, "viscous_nm_s_rad")
+        check_field(g, "efficiency_forward", ef, is_finite_number(ef) and 0 < ef <= 1, "must lie in (0, 1]")
+        check_field(g, "efficiency_backward", eb, is_finite_number(eb) and -1 <= eb <= 1, "must lie in [-1, 1] (<= 0: self-locking)")
+        check_field(g, "efficiency_backward", eb, eb <= ef, f"must not exceed efficiency_forward ({ef})")
+        check_positive(g, self, "power_threshold_w")
+        check_non_negative(g, self, "viscous_nm_s_rad")
 
 
 @dataclass(frozen=True)
@@ -314,7 +319,7 @@ class Loads:
     def __post_init__(self) -> None:
         for n in ("nut_load_n", "screw_speed_rad_s"):
             v = getattr(self, n)
-            _check("loads", n, v, _finite(v), "must be a finite number")
+            check_field("loads", n, v, is_finite_number(v), "must be a finite number")
 
 
 @dataclass(frozen=True)
@@ -328,9 +333,9 @@ class Material:
     poisson_ratio: float = 0.3
 
     def __post_init__(self) -> None:
-        _positive("material", self, "youngs_modulus_pa")
+        check_positive("material", self, "youngs_modulus_pa")
         v = self.poisson_ratio
-        _check("material", "poisson_ratio", v, _finite(v) and 0 <= v < 0.5, "must lie in [0, 0.5)")
+        check_field("material", "poisson_ratio", v, is_finite_number(v) and 0 <= v < 0.5, "must lie in [0, 0.5)")
 
     @property
     def shear_modulus_pa(self) -> float:
@@ -343,7 +348,7 @@ PRELOAD_KINDS = ("none", "double_nut", "oversize_rollers")
 
 
 @dataclass(frozen=True)
-class Elastic:
+class ElasticParams:
     """Axial compliance chain of the `elastic` level and the `stiffness`/`modes` commands (docs/model.md §4.3).
 
     - `mounting`: where the load enters the nut relative to where the screw carries it away:
@@ -380,25 +385,25 @@ class Elastic:
         g = "elastic"
         for name, allowed in (("mounting", MOUNTINGS), ("tooth_model", TOOTH_MODELS), ("preload_kind", PRELOAD_KINDS)):
             v = getattr(self, name)
-            _check(g, name, v, v in allowed, f"must be one of {', '.join(allowed)}")
+            check_field(g, name, v, v in allowed, f"must be one of {', '.join(allowed)}")
         for n in ("root_diameter_m", "nut_outer_diameter_m", "tooth_effective_width_m"):
             if getattr(self, n) is not None:
-                _positive(g, self, n)
+                check_positive(g, self, n)
         if self.bearing_position_m is not None:
             v = self.bearing_position_m
-            _check(g, "bearing_position_m", v, _finite(v), "must be a finite number")
+            check_field(g, "bearing_position_m", v, is_finite_number(v), "must be a finite number")
         k = self.housing_stiffness_n_per_m
-        _check(g, "housing_stiffness_n_per_m", k, isinstance(k, (int, float)) and not isinstance(k, bool)
+        check_field(g, "housing_stiffness_n_per_m", k, isinstance(k, (int, float)) and not isinstance(k, bool)
                and not math.isnan(k) and k > 0, "must be a number > 0 (inf: rigid)")
-        _non_negative(g, self, "contact_damping_ratio", "axial_clearance_m", "preload_n")
-        _check(g, "contact_damping_ratio", self.contact_damping_ratio, self.contact_damping_ratio < 1,
+        check_non_negative(g, self, "contact_damping_ratio", "axial_clearance_m", "preload_n")
+        check_field(g, "contact_damping_ratio", self.contact_damping_ratio, self.contact_damping_ratio < 1,
                "must lie in [0, 1)")
-        _check(g, "preload_kind", self.preload_kind, (self.preload_kind == "none") == (self.preload_n == 0),
+        check_field(g, "preload_kind", self.preload_kind, (self.preload_kind == "none") == (self.preload_n == 0),
                "must be none exactly when preload_n = 0 (double_nut or oversize_rollers need preload_n > 0)")
-        _check(g, "axial_clearance_m", self.axial_clearance_m, self.preload_n == 0 or self.axial_clearance_m == 0,
+        check_field(g, "axial_clearance_m", self.axial_clearance_m, self.preload_n == 0 or self.axial_clearance_m == 0,
                "must be 0 for a preloaded nut (preload removes the play)")
 
-    def resolved(self, geo: Geometry) -> Elastic:
+    def resolved(self, geo: Geometry) -> ElasticParams:
         """Fill every None from the geometry (the Params constructor calls this)."""
         out = replace(
             self,
@@ -409,11 +414,14 @@ class Elastic:
             else self.nut_outer_diameter_m,
             tooth_effective_width_m=math.pi * geo.roller_radius_m if self.tooth_effective_width_m is None
             else self.tooth_effective_width_m)
-        _positive("elastic", out, "root_diameter_m")
-        _check("elastic", "nut_outer_diameter_m", out.nut_outer_diameter_m,
+        check_positive("elastic", out, "root_diameter_m")
+        check_field("elastic", "nut_outer_diameter_m", out.nut_outer_diameter_m,
                out.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
         return out
 
+
+
+Elastic = ElasticParams  # the group's name before `ElasticParams` (the model is `ElasticModel`); an alias for one release
 
 @dataclass(frozen=True)
 class Ratings:
@@ -429,8 +437,8 @@ class Ratings:
 
     def __post_init__(self) -> None:
         if self.static_load_rating_n is not None:
-            _positive("ratings", self, "static_load_rating_n")
-        _non_negative("ratings", self, "dynamic_load_rating_n")
+            check_positive("ratings", self, "static_load_rating_n")
+        check_non_negative("ratings", self, "dynamic_load_rating_n")
 
 
 STICTION_LAWS = ("stribeck",)
@@ -451,10 +459,10 @@ class Stiction:
     stribeck_speed_m_s: float = 1e-3
 
     def __post_init__(self) -> None:
-        _check("stiction", "law", self.law, self.law in STICTION_LAWS, f"must be one of {', '.join(STICTION_LAWS)}")
-        _positive("stiction", self, "stribeck_speed_m_s")
+        check_field("stiction", "law", self.law, self.law in STICTION_LAWS, f"must be one of {', '.join(STICTION_LAWS)}")
+        check_positive("stiction", self, "stribeck_speed_m_s")
         v = self.breakaway_ratio
-        _check("stiction", "breakaway_ratio", v, _finite(v) and v >= 1, "must be a finite number >= 1")
+        check_field("stiction", "breakaway_ratio", v, is_finite_number(v) and v >= 1, "must be a finite number >= 1")
 
 
 _GROUPS: dict[str, type] = {
@@ -464,7 +472,7 @@ _GROUPS: dict[str, type] = {
     "ideal": IdealLoss,
     "loads": Loads,
     "material": Material,
-    "elastic": Elastic,
+    "elastic": ElasticParams,
     "ratings": Ratings,
     "stiction": Stiction,
 }
@@ -481,12 +489,25 @@ class Params:
     Attributes
     ----------
     geometry : Geometry
+        Thread and carrier geometry.
     mass : MassProperties
+        Masses and inertias (resolved from geometry and density where left None).
     friction : Friction
+        Friction and lubrication of `jones2016`, `fu2018` and `elastic`.
     ideal : IdealLoss
+        Loss parameters of `ideal`.
     loads : Loads
+        Nominal operating point (presets, scenarios, the steady-state command).
     name : str
         Preset or user label, carried into recordings.
+    material : Material
+        Elastic constants of the steel.
+    elastic : ElasticParams
+        Axial compliance chain of `elastic` (clearance, preload, bearing, housing).
+    ratings : Ratings
+        Axial load ratings of the nut (the static one derived by ISO 76 where left None).
+    stiction : Stiction
+        Breakaway beyond the running friction (`elastic`).
 
     Raises
     ------
@@ -510,7 +531,7 @@ class Params:
     loads: Loads = field(default_factory=Loads)
     name: str = "custom"
     material: Material = field(default_factory=Material)
-    elastic: Elastic = field(default_factory=Elastic)
+    elastic: ElasticParams = field(default_factory=ElasticParams)
     ratings: Ratings = field(default_factory=Ratings)
     stiction: Stiction = field(default_factory=Stiction)
 
@@ -524,13 +545,12 @@ class Params:
             _set(self, "friction", replace(self.friction, drag_radius_m=self.geometry.nut_radius_m))
         _set(self, "elastic", self.elastic.resolved(self.geometry))
         if self.ratings.static_load_rating_n is None:
-            from prsm_sim.physics.load_sharing import iso76_static_rating_n
             _set(self, "ratings", replace(self.ratings, static_load_rating_n=iso76_static_rating_n(self)))
         c0 = self.ratings.static_load_rating_n
-        _check("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
+        check_field("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
                f"must not exceed the static load rating ratings.static_load_rating_n = {c0:.6g} N")
         nt = self.geometry.n_teeth
-        _check("elastic", "preload_kind", self.elastic.preload_kind, self.elastic.preload_kind != "double_nut"
+        check_field("elastic", "preload_kind", self.elastic.preload_kind, self.elastic.preload_kind != "double_nut"
                or (nt >= 2 and nt % 2 == 0), f"must not be double_nut for geometry.n_teeth = {nt} (two halves of "
                "N_T/2 rows: an even n_teeth)")
 

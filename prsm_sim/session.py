@@ -17,6 +17,7 @@ last finite state kept.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -24,11 +25,12 @@ from prsm_sim.actuator import Actuator, ActuatorParams, ActuatorState, Fault, Fa
 from prsm_sim.checks import is_finite_number
 from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate, GateCounters
 from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
-from prsm_sim.models.base import energy_fault
-from prsm_sim.outputs import InternalLayout, Outputs, PackedOutputs
+from prsm_sim.models.registry import build_model
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
-from prsm_sim.simulator import Simulator, build_model
+from prsm_sim.simulator import Simulator
+from prsm_sim.stepping.packed import PackedOutputs
+from prsm_sim.stepping.records import InternalLayout, Outputs
 
 
 STATE_FORMAT = "prsm_session/1"
@@ -344,26 +346,12 @@ class Session:
         sim, act = self.simulator, self.actuator
         s = sim.state
         screw = s.screw if isinstance(s, ActuatorState) else s
-        geo = sim.params.geometry
-        p = geo.lead_per_rad_m
+        out = self._screw().rest_outputs(screw, self.gate.command_nm, self.load_n)
+        if act is None:
+            return out
         internal = np.zeros(sim.layout.size)
-        if act is not None:
-            sim.layout.view(internal, "measured")[:] = s.measured
-        if self.model_name == "elastic":  # the nut has its own coordinate there
-            nut_x, nut_v = screw.nut_axial_m, screw.nut_speed_m_s
-        else:
-            nut_x, nut_v = p * screw.screw_angle_rad, p * screw.screw_speed_rad_s
-        return Outputs(time_s=screw.time_s, screw_angle_rad=screw.screw_angle_rad,
-                       screw_speed_rad_s=screw.screw_speed_rad_s, screw_torque_nm=self.gate.command_nm,
-                       carrier_angle_rad=screw.carrier_angle_rad, carrier_speed_rad_s=screw.carrier_speed_rad_s,
-                       roller_spin_rad_s=-geo.gear_ratio * screw.carrier_speed_rad_s,
-                       nut_position_m=nut_x, nut_velocity_m_s=nut_v, nut_force_n=self.load_n,
-                       load_force_n=self.load_n, slip_speed_m_s=0.0, power_in_w=0.0, power_out_w=0.0,
-                       power_dissipated_w=0.0, efficiency=math.nan, speed_ratio=math.nan,
-                       stored_energy_j=self._screw().total_stored_energy_j(screw),
-                       energy_flow_j=screw.energy_flow_j, energy_residual_j=screw.energy_residual_j,
-                       energy_fault=1.0 if energy_fault(screw.energy_flow_j, screw.energy_residual_j) else 0.0,
-                       internal=internal)
+        sim.layout.view(internal, "measured")[:] = s.measured
+        return replace(out, internal=internal)
 
     def _screw(self):
         """The screw model whose state `rest_outputs` describes (the actuator's is built here once)."""

@@ -1,7 +1,7 @@
 """`Simulator`: a model, its state and its counters behind one fixed-step interface.
 
     sim = Simulator(preset("jones2016"), "jones2016", dt_s=1e-3)
-    out = sim.step(torque_nm=0.1, load_n=100.0)      # → Outputs
+    out = sim.step(0.1, load_n=100.0)                 # → Outputs (the screw torque, N·m, held over the step)
     traj = sim.run(torque_array, load_array)          # → Trajectory (columns)
 
 The models themselves are pure (state in, state out); this wrapper only holds the current
@@ -10,60 +10,19 @@ state and counts steps, so a node or a CLI can drive it without bookkeeping of i
 
 from __future__ import annotations
 
-import math
+import warnings
 
 import numpy as np
 
-from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.base import Model, check_kernel
-from prsm_sim.models.elastic import Elastic
-from prsm_sim.models.fu2018 import Fu2018
-from prsm_sim.models.ideal import Ideal
-from prsm_sim.models.jones2016 import Jones2016
-from prsm_sim.outputs import PACKED_STATE_SIZE, InternalLayout, Outputs, State, Trajectory
+from prsm_sim.actuator import Actuator
+from prsm_sim.errors import InputError
+from prsm_sim.models.registry import MODELS, build_model  # MODELS: importable from here too
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
-
-MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018, "elastic": Elastic}
-
-
-def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled") -> Model:
-    """Build the named model for a parameter set and a fixed step.
-
-    Parameters
-    ----------
-    params : Params
-        A validated parameter set, e.g. ``preset("s30")``.
-    model : str
-        One of `MODELS`: ``"ideal"`` (rigid lead with efficiencies), ``"jones2016"`` (2-DOF
-        viscous, docs/model.md §4.1) or ``"fu2018"`` (spatial force system, docs/model.md §4.2).
-    dt_s : float
-        Fixed step, s, in (0, 0.1].
-    kernel : {"compiled", "reference"}, default "compiled"
-        For the models with a compiled step (``"fu2018"``, ``"elastic"``): numba code, or the
-        pure-Python reference it is tested against (same results to 1e-12). The others have one path.
-
-    Returns
-    -------
-    Model
-        The pure model: ``step(state, torque_nm, load_n) -> (State, Outputs)``.
-
-    Raises
-    ------
-    ParamError
-        Unknown model name (the message lists the known ones), a step out of range or an unknown kernel.
-    """
-    try:
-        cls = MODELS[model]
-    except (KeyError, TypeError):
-        raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
-    check_kernel(kernel)
-    cls.check_params(params)
-    return cls(params, dt_s, kernel=kernel) if cls.compiled_kernel else cls(params, dt_s)
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, (bool, np.bool_))
+from prsm_sim.stepping.model import check_step_inputs
+from prsm_sim.stepping.packed import PACKED_STATE_SIZE
+from prsm_sim.stepping.records import InternalLayout, Outputs, State
+from prsm_sim.stepping.trajectory import Trajectory
 
 
 class Simulator:
@@ -99,7 +58,7 @@ class Simulator:
     --------
     >>> from prsm_sim import Simulator, preset
     >>> sim = Simulator(preset("jones2016"), "jones2016", dt_s=1e-3)
-    >>> out = sim.step(torque_nm=0.0922, load_n=100.0)
+    >>> out = sim.step(0.0922, load_n=100.0)
     >>> traj = sim.run([0.0922] * 500, load_n=100.0)
     >>> len(traj), sim.nstep
     (500, 501)
@@ -110,8 +69,8 @@ class Simulator:
         if actuator is None:
             self.model = build_model(params, model, dt_s, kernel)
         else:  # the actuator around the screw (prsm_sim.actuator): `step`'s first input is then its command
-            from prsm_sim.actuator import Actuator
             self.model = Actuator(params, dt_s, model, actuator, kernel)
+        self.command_name = self.model.command_name  # what `step`'s first input is (torque_nm, or an actuator's command)
         self.params = params
         self.dt_s = self.model.dt_s
         self._initial_nut_position_m = float(nut_position_m)
@@ -122,7 +81,7 @@ class Simulator:
         return (f"Simulator(model={self.model.name!r}, params={self.params.name!r}, dt_s={self.dt_s:g}, "
                 f"time_s={self.time_s:.6g}, nstep={self.nstep})")
 
-    # The current state is a `State`, or for models with a packed step (Model.advance_packed) the
+    # The current state is a `State`, or for models with a packed step (Model.step_packed) the
     # packed record of the last step (or `Model.pack_state`'s tuple), turned into a `State` only
     # when someone reads it (`_state` caches the `State` of `_state_of`).
     @property
@@ -136,10 +95,10 @@ class Simulator:
     def state(self, value: State) -> None:
         self._state = value
         self._packed = self._state_of = self.model.pack_state(value) if self.model.packed else None
-        self._advance_packed = self.model.advance_packed if self.model.packed else None
+        self._step_packed = self.model.step_packed if self.model.packed else None
 
     def __getstate__(self) -> dict:  # pickled with its state as a `State` (the packed record holds closures)
-        d = {k: v for k, v in self.__dict__.items() if k not in ("_state", "_packed", "_state_of", "_advance_packed")}
+        d = {k: v for k, v in self.__dict__.items() if k not in ("_state", "_packed", "_state_of", "_step_packed")}
         d["state"] = self.state
         return d
 
@@ -213,15 +172,19 @@ class Simulator:
         if packed is not None:  # the packed record as it was (its stored energy is not recomputed)
             self._packed = self._state_of = packed
 
-    def step(self, torque_nm: float, load_n: float = 0.0) -> Outputs:
-        """Advance one step with the screw torque and the nut load held over it.
+    def step(self, command: float | None = None, load_n: float = 0.0, *, torque_nm: float | None = None) -> Outputs:
+        """Advance one step with the command and the nut load held over it.
 
         Parameters
         ----------
-        torque_nm : float
-            Screw torque, N·m, positive right-handed about +z (drives the nut toward +x_nut).
+        command : float
+            A bare model: the screw torque, N·m, positive right-handed about +z (drives the nut
+            toward +x_nut). With an actuator fitted: its command in the active interface's unit
+            (effort N·m, velocity screw rad/s, position nut m).
         load_n : float, default 0.0
             Nut load force, N, positive when it resists positive nut motion.
+        torque_nm : float, optional
+            The former name of `command`, accepted for one release (DeprecationWarning).
 
         Returns
         -------
@@ -231,30 +194,38 @@ class Simulator:
         Raises
         ------
         InputError
-            A non-finite or non-numeric input; the state is left unchanged.
+            A missing, non-finite or non-numeric input; the state is left unchanged.
         """
+        if torque_nm is not None:
+            command = self._deprecated_torque_nm(command, torque_nm)
         # (x + y) * 0 is 0 only for finite floats: one test for the common case, the full check otherwise
-        if not (type(torque_nm) is float and type(load_n) is float and (torque_nm + load_n) * 0.0 == 0.0):
-            for name, v in (("torque_nm", torque_nm), ("load_n", load_n)):
-                if not _is_number(v) or not math.isfinite(v):
-                    raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
-            torque_nm, load_n = float(torque_nm), float(load_n)
+        if not (type(command) is float and type(load_n) is float and (command + load_n) * 0.0 == 0.0):
+            command, load_n = check_step_inputs(command, load_n, self.command_name)
         x = self._packed
         if x is not None:  # the record is the outputs and the next packed state
-            self._packed = out = self._advance_packed(x, torque_nm, load_n)
+            self._packed = out = self._step_packed(x, command, load_n)
         else:
-            self._state, out = self.model.step(self._state, torque_nm, load_n)
+            self._state, out = self.model.step(self._state, command, load_n)
         self.nstep += 1
         return out
 
-    def run(self, torque_nm, load_n=0.0) -> Trajectory:
-        """Advance one step per element of `torque_nm` (the model's batch form where it has one).
+    def _deprecated_torque_nm(self, command, torque_nm):
+        if command is not None:
+            raise InputError(f"command = {command!r}, torque_nm = {torque_nm!r}: give one of them (torque_nm is "
+                             f"the former name of command)")
+        warnings.warn("Simulator.step(torque_nm=...) is deprecated: pass the command first, step(command, load_n)",
+                      DeprecationWarning, stacklevel=3)
+        return torque_nm
+
+    def run(self, command, load_n=0.0) -> Trajectory:
+        """Advance one step per element of `command` (the model's batch form where it has one).
 
         Parameters
         ----------
-        torque_nm : array_like, shape (steps,)
-            Screw torque held over each step, N·m. A scalar is refused: use `step` for one
-            step, or ``np.full(steps, torque)`` for a constant torque.
+        command : array_like, shape (steps,)
+            What `step` takes, one per step: the screw torque held over each step, N·m (with an
+            actuator: its command). A scalar is refused: use `step` for one step, or
+            ``np.full(steps, value)`` for a constant one.
         load_n : float or array_like, shape (steps,), default 0.0
             Nut load force, N (positive resists positive nut motion): one value for the whole
             run or one per step.
@@ -267,27 +238,10 @@ class Simulator:
         Raises
         ------
         InputError
-            A scalar or non-1-D torque, a load of another length, non-numeric or non-finite
+            A scalar or non-1-D command, a load of another length, non-numeric or non-finite
             values; the state is left unchanged.
         """
-        tau = self._column("torque_nm", torque_nm)
-        if tau.ndim != 1:
-            got = f"torque_nm = {torque_nm!r}" if tau.ndim == 0 else f"torque_nm has shape {tau.shape}"
-            raise InputError(f"{got}: run() takes a 1-D array with one torque per step (N·m); "
-                             f"use step() for one step, np.full(steps, torque) for a constant torque")
-        load = self._column("load_n", load_n)
-        if load.ndim > 1 or (load.ndim == 1 and load.shape != tau.shape):
-            raise InputError(f"load_n has shape {load.shape}: must be a number or a 1-D array of "
-                             f"{len(tau)} values, one per torque")
-        traj = self.model.run(self.state, tau, load)
+        traj = self.model.run(self.state, command, load_n)
         self.state = traj.final_state
         self.nstep += len(traj)
         return traj
-
-    @staticmethod
-    def _column(name: str, value) -> np.ndarray:
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} = {value!r}: must be a number or an array of numbers") from None
-        return arr

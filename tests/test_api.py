@@ -193,7 +193,7 @@ def test_every_deliberate_raise_in_the_core_is_a_prsm_error():
     assert not offenders, "raise a PrsmError subclass (prsm_sim.errors) instead:\n" + "\n".join(offenders)
 
 
-@pytest.mark.parametrize("module", ["prsm_sim.simulator", "prsm_sim.outputs", "prsm_sim.params"])
+@pytest.mark.parametrize("module", ["prsm_sim.simulator", "prsm_sim.stepping.trajectory", "prsm_sim.params"])
 def test_docstring_examples_run(module):
     """The Examples sections of the public docstrings are real code (doctest)."""
     import importlib

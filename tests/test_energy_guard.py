@@ -1,4 +1,4 @@
-"""The energy guard every model carries (models/base.py): port work against dissipation plus stored energy.
+"""The energy guard every model carries (prsm_sim/stepping/ledger.py): port work against dissipation plus stored energy.
 
 Oracle: the energy balance work_in = work_out + Δ(stored energy) + dissipated (docs/model.md §5
 item 5), which every model must close; a model that breaks it must be flagged, never hidden.
@@ -22,7 +22,7 @@ def _sine(n, dt, mean, amp, hz):
 
 @pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
 def test_guard_fields_agree_between_step_and_batch_and_close(model):
-    # the batch twin (columns_to_trajectory) and finish_step carry the same ledger; every model closes it
+    # the batch form (the ledger's column form) and the step carry the same ledger; every model closes it
     p = preset("s30")
     tau = _sine(300, 1e-3, 20_000 * p.geometry.lead_per_rad_m, 8.0, 5.0)
     a = Simulator(p, model, 1e-3)
@@ -45,9 +45,13 @@ def test_guard_fields_agree_between_step_and_batch_and_close(model):
 class _Leaky(Ideal):
     """An `ideal` model that books only half its loss: the residual grows with the loss (a broken model)."""
 
-    def finish_step(self, before, after, torque_nm, load_n, **kw):
-        kw["dissipated_j"] *= 0.5
-        return super().finish_step(before, after, torque_nm, load_n, **kw)
+    def _step_law(self):
+        solve = super()._step_law()
+
+        def leaky(w0, torque_nm, load_n):
+            w1, dtheta, dissipated = solve(w0, torque_nm, load_n)
+            return w1, dtheta, 0.5 * dissipated
+        return leaky
 
 
 def test_guard_trips_on_a_model_whose_books_do_not_close():

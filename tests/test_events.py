@@ -19,9 +19,13 @@ from prsm_ros.mcap.recorder import McapRecorder, run_metadata
 class _Leaky(Ideal):
     """Books a third of its loss only: the energy guard must trip (a broken model stands in for a real fault)."""
 
-    def finish_step(self, before, after, torque_nm, load_n, **kw):
-        kw["dissipated_j"] /= 3.0
-        return super().finish_step(before, after, torque_nm, load_n, **kw)
+    def _step_law(self):
+        solve = super()._step_law()
+
+        def leaky(w0, torque_nm, load_n):
+            w1, dtheta, dissipated = solve(w0, torque_nm, load_n)
+            return w1, dtheta, dissipated / 3.0
+        return leaky
 
 
 def test_event_message_is_one_json_object_and_refuses_unknown_severity():

@@ -1,9 +1,8 @@
-"""The packed per-step path (`Simulator.step` for models with `advance_packed`) against the
-reference path (`Model.step`, records built field by field; the packed records derive most fields
-when read): the same arithmetic up to the order of the sums, so every output, the internal vector
-and the state agree to 1e-12 (relative to the quantity's scale; the energy residual relative to the
-energy that flowed) over runs with reversals, stops, stick, flank switches, a self-locking load,
-backlash and preload."""
+"""The packed per-step path (`Simulator.step`: the model's `step_packed`, state kept as the packed record,
+outputs derived when read) against `Model.step` (the same step, its State unpacked and its Outputs built field
+by field): every output, the internal vector and the state agree to 1e-12 (relative to the quantity's scale;
+the energy residual relative to the energy that flowed) over runs with reversals, stops, stick, flank
+switches, a self-locking load, backlash and preload, and through state reads, assignments and pickling."""
 
 from __future__ import annotations
 

@@ -32,9 +32,11 @@ from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, 
 from prsm_sim.actuator.sensors import DROPOUT_STREAM, STREAM, first_order, normal, quantise, uniform
 from prsm_sim.actuator.stops import stop_force, stop_penetration, stop_stored_j
 from prsm_sim.errors import InputError
-from prsm_sim.models.base import Model, efficiency
+from prsm_sim.models.registry import build_model
+from prsm_sim.stepping.ledger import efficiency
+from prsm_sim.stepping.model import Model, check_step_inputs
 from prsm_sim.physics.inertia import mass_matrix
-from prsm_sim.outputs import InternalBlock, InternalLayout, Outputs, State
+from prsm_sim.stepping.records import InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
 
 ACTUATOR_QUANTITIES = (
@@ -129,6 +131,8 @@ class Actuator(Model):
     """The actuator around a screw model (any of ideal, jones2016, fu2018, elastic), one step contract."""
 
     name = "actuator"
+    packed = False  # its state is its own (`ActuatorState`): stepped by `_step_impl`
+    command_name = "command"
 
     def __init__(self, params: Params, dt_s: float, model: str = "jones2016",
                  actuator: ActuatorParams | None = None, kernel: str = "compiled") -> None:
@@ -178,7 +182,6 @@ class Actuator(Model):
         mod = self._models.get(key)
         if mod is None:
             p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
-            from prsm_sim.simulator import build_model  # late: the simulator builds actuators
             mod = self._models[key] = build_model(p, self.model_name, self.h_sub, self.kernel)
         return mod
 
@@ -297,14 +300,12 @@ class Actuator(Model):
     # -- the step ------------------------------------------------------------------------
     def step(self, state: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:
         """One step with `command` (active interface: N·m, screw rad/s or nut m) and the nut load."""
-        for name, v in (("command", command), ("load_n", load_n)):
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not math.isfinite(v):
-                raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
+        command, load_n = check_step_inputs(command, load_n, self.command_name)
         if not isinstance(state, ActuatorState):
             raise InputError(f"state: expected an ActuatorState (Actuator.initial_state), got {type(state).__name__}")
-        return self._advance(state, float(command), float(load_n))
+        return self._step_impl(state, command, load_n)
 
-    def _advance(self, st: ActuatorState, command: float, load_n: float):
+    def _step_impl(self, st: ActuatorState, command: float, load_n: float):
         a, m = self.actuator, self.actuator.motor
         h, p, J, N = self.h_sub, self.p, self.J, self.ratio
         faults = self.all_faults(st)

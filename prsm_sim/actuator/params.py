@@ -15,7 +15,10 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from prsm_sim.errors import ParamError
-from prsm_sim.params import _check, _finite, _non_negative, _positive
+from prsm_sim.params import check_field as _check
+from prsm_sim.params import check_non_negative as _non_negative
+from prsm_sim.params import check_positive as _positive
+from prsm_sim.params import is_finite_number as _finite
 
 COMMAND_INTERFACES = ("effort", "velocity", "position")
 FAULT_KINDS = ("friction_surge", "jam", "lubrication_loss", "sensor_stuck", "sensor_bias", "sensor_noise",

@@ -54,15 +54,20 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
-from prsm_sim.models.base import Model, _inputs, efficiency, load_kernels, output_columns
+from prsm_sim.models import kernels
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
-                                    _kernel_mem, slip_speed)
-from prsm_sim.outputs import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State, Trajectory
+                                    slip_speed)
+from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
+from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.stepping.model import Model
+from prsm_sim.stepping.records import InternalBlock, InternalLayout, State
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_columns
 
 ELASTIC_QUANTITIES = (
     ("deflection_m", "m"),  # δ = (L/2π) θ_S − x_N
@@ -73,7 +78,6 @@ ELASTIC_QUANTITIES = (
     ("nut_velocity_m_s", "m/s"),
 )
 PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
-_OUTPUT_NAMES = {n for n, _ in OUTPUT_FIELDS}
 OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
 FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
 # A sub-step whose held elastic force missed the change of V by more than IMPACT_TOL of the sub-step's input work
@@ -117,7 +121,7 @@ def power_law_root(d: float, a: float, b: float) -> float:
     (the smaller of the pure-Hertz root √(d/a) and the pure-linear root ∛(d/b), picked by comparing
     a³ with d b² so that only one root is taken) converges monotonically, with no fractional power
     inside the loop. The stiffness and energy then follow from s without powers either
-    (`AxialLaw.evaluate`). The compiled kernel (`models._kernels._power_root`) does the same arithmetic.
+    (`AxialLaw.evaluate`). The compiled kernel (`models.kernels._power_root`) does the same arithmetic.
 
     Stopping: Newton's error after a step of relative size r is at most about r² (the relative curvature
     term g''/(2g') s of this polynomial lies in [1/2, 1]), so a step below ROOT_STEP_TOL = 1e-9 leaves an
@@ -266,9 +270,26 @@ def _share_table(joint: ls.Joint, rating_n: float) -> tuple[np.ndarray, np.ndarr
     return loads, shares
 
 
-class Elastic(Model):
+class ElasticPart(NamedTuple):
+    """The memory of `elastic` in `State.part`: its `fu2018` core's (`fu2018.Fu2018Part`), the nut's own
+    axial state, the coupling's last acceleration and the clearance a fault added."""
+
+    flank_sign: int = 1
+    pin_force_n: float = 0.0
+    gear_force_n: float = 0.0
+    solver: tuple = ()
+    nut_axial_m: float = 0.0  # the nut's own axial position x_N (the other models tie it to θ_S)
+    nut_speed_m_s: float = 0.0
+    screw_accel_rad_s2: float = 0.0  # the last sub-step's, for the coupling's midpoint prediction
+    # axial clearance added to `elastic.axial_clearance_m` (m), set by whoever steps the model (the
+    # actuator's growing-backlash fault): an input carried in the state, 0 by default
+    extra_clearance_m: float = 0.0
+
+
+class ElasticModel(Model):
     name = "elastic"
     compiled_kernel = True
+    part_type = ElasticPart
 
     def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:
         """
@@ -280,9 +301,9 @@ class Elastic(Model):
             Fixed output step, s.
         kernel : {"compiled", "reference"}
             "compiled": the sub-step loop (core included) and the batch loop run as numba code
-            (`models._kernels`, the same arithmetic); "reference": the pure-Python methods, their specification.
+            (`models.kernels`, the same arithmetic); "reference": the pure-Python methods, their specification.
         """
-        self._kn = load_kernels(kernel)
+        self._kn = kernels.load(kernel)
         self.kernel = kernel
         super().__init__(params, dt_s)
         self.law = AxialLaw(params)
@@ -299,7 +320,6 @@ class Elastic(Model):
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
         self.core = Fu2018(core_params, self.dt_s / self.substeps, kernel=kernel)
-        from prsm_sim.models.jones2016 import mass_matrix
         self._m_core = mass_matrix(core_params)
         # breakaway (the `stiction` group): a hold band of screw torque wider than the running one
         st = params.stiction
@@ -325,21 +345,27 @@ class Elastic(Model):
         self._gather = self._gather_index()
         self._share_loads = self.law.shares[0].tolist()
         law = self.law
-        # the compiled kernel's constants (layout: models._kernels E_*)
-        self._kernel_e = np.array([
-            self.p, self.m, self.mu, self.zeta, self.substeps, self.core.dt_s, float(self.breakaway), *self.eta_static,
-            self.w_stick, self.czs, self.sin_beta, self.mu_c, *self.eta_running, self.d_mu,
-            self.p_over_sin_beta_per_vs, law.clearance, law.preload, law.side.a, law.side.b, law.ea, law.x_bearing,
-            law.c_housing, law.d0, law.v0, self._m_core[0, 0], self._m_core[0, 1], self._m_core[1, 1], IMPACT_TOL,
-            IMPACT_FLOOR, IMPACT_ITERATIONS], dtype=float)
+        m_core = self._m_core
+        self.constants = ElasticConstants(
+            p=self.p, m=self.m, mu=self.mu, zeta=self.zeta, substeps=float(self.substeps), hs=self.core.dt_s,
+            breakaway=float(self.breakaway), eta_sf=self.eta_static[0], eta_sb=self.eta_static[1], w_stick=self.w_stick,
+            czs=self.czs, sin_beta=self.sin_beta, mu_c=self.mu_c, eta_rf=self.eta_running[0],
+            eta_rb=self.eta_running[1], d_mu=self.d_mu, p_sb_vs=self.p_over_sin_beta_per_vs, clearance=law.clearance,
+            preload=law.preload, law_a=law.side.a, law_b=law.side.b, ea=law.ea, x_bearing=law.x_bearing,
+            c_housing=law.c_housing, d0=law.d0, v0=law.v0, m00=m_core[0, 0], m01=m_core[0, 1], m11=m_core[1, 1],
+            impact_tol=IMPACT_TOL, impact_floor=IMPACT_FLOOR, impact_iter=float(IMPACT_ITERATIONS))
+        self._kernel_e = np.array(self.constants, dtype=float)  # the compiled kernel's (`kernels.ElasticConstants`)
         if self._kn is not None:  # compiled or loaded from the disk cache now, not in a realtime loop's first step
             self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
                                      self.core._kernel_k, self.core._kernel_s)
-        self._packed_setup()
 
     def initial_state(self, nut_position_m: float = 0.0) -> State:
         s = super().initial_state(nut_position_m)
-        return replace(s, nut_axial_m=nut_position_m, nut_speed_m_s=0.0)
+        return replace(s, part=ElasticPart(nut_axial_m=float(nut_position_m)))
+
+    def nut_motion(self, state: State) -> tuple[float, float]:
+        """The nut's own position (m) and velocity (m/s) in `state`."""
+        return state.nut_axial_m, state.nut_speed_m_s
 
     def _core_step(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
         """One `fu2018` step of the core (length core.dt_s) under a held thread force.
@@ -427,88 +453,58 @@ class Elastic(Model):
         return torque_nm - math.copysign(min(abs(d), ex0), d)
 
     def _kernel_args(self, s: State) -> tuple:
-        """The state as the compiled kernel takes it (floats; the solver memory as `fu2018._kernel_mem`)."""
+        """The state as the compiled kernel takes it (floats; the solver memory as `kernels.kernel_memory`)."""
         # float() on every field: an int (a user's replace(state, nut_axial_m=0)) would make numba compile a
         # second specialisation on the spot
+        q = self.pack_state(s)[11]
         return (float(s.screw_angle_rad), float(s.screw_speed_rad_s), float(s.carrier_angle_rad),
-                float(s.carrier_speed_rad_s), float(s.nut_axial_m), float(s.nut_speed_m_s), float(s.flank_sign),
-                float(s.pin_force_n), float(s.gear_force_n), _kernel_mem(s.solver), float(s.screw_accel_rad_s2),
-                float(s.extra_clearance_m))
+                float(s.carrier_speed_rad_s), float(q.nut_axial_m), float(q.nut_speed_m_s), float(q.flank_sign),
+                float(q.pin_force_n), float(q.gear_force_n), kernel_memory(q.solver), float(q.screw_accel_rad_s2),
+                float(q.extra_clearance_m))
 
-    def run(self, state: State, torque_nm, load_n) -> Trajectory:
-        """Batch form of `step`: with the compiled kernel the whole loop, ledger included, runs compiled and the
-        internal-load block is built when first read; the reference path is `Model.run` over the packed step."""
+    def _run_impl(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
+        """The batch form: with the compiled kernel the whole loop runs compiled and the internal-load block is
+        built when first read; the reference path is the step repeated."""
         if self._kn is None:
-            return super().run(state, torque_nm, load_n)
-        tau, load = _inputs(torque_nm, load_n)
-        n = len(tau)
-        cols, comp = np.empty((n, 19)), np.empty((n, len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)))
-        ledger = np.array([state.work_in_j, state.work_out_j, state.dissipated_j, state.energy_flow_j,
-                           state.energy_residual_j])
+            return super()._run_impl(state, torque_nm, load_n)
+        n = len(torque_nm)
+        cols, comp = np.empty((n, 17)), np.empty((n, len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)))
+        args = self._kernel_args(state)
         th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc = self._kn.elastic_run(
-            *self._kernel_args(state), ledger, np.array(tau), np.array(load), self._kernel_e, self.core._kernel_k,
-            self.core._kernel_s, cols, comp)
-        h = self.dt_s
-        final = replace(state, time_s=state.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws,
-                        carrier_angle_rad=th_c, carrier_speed_rad_s=wc, flank_sign=int(sign), pin_force_n=pin_abs,
-                        gear_force_n=gear, solver=mem if mem[4] != 0.0 else (), nut_axial_m=x_n, nut_speed_m_s=v_n,
-                        screw_accel_rad_s2=acc, work_in_j=float(ledger[0]), work_out_j=float(ledger[1]),
-                        dissipated_j=float(ledger[2]), energy_flow_j=float(ledger[3]),
-                        energy_residual_j=float(ledger[4]))
-        columns = output_columns(self, tau, load, final.time_s, th_s=cols[:, 0], w_s=cols[:, 1], th_c=cols[:, 2],
-                                 w_c=cols[:, 3], nut_x=cols[:, 4], nut_v=cols[:, 5], nut_force=cols[:, 6],
-                                 slip=cols[:, 7], w_in=cols[:, 8], w_out=cols[:, 9], diss=cols[:, 10],
-                                 stored=cols[:, 11], flow=cols[:, 12], residual=cols[:, 13])
-        extra = state.extra_clearance_m
+            *args, torque_nm, load_n, self._kernel_e, self.core._kernel_k, self.core._kernel_s, cols, comp)
+        extra = args[-1]
+        final = State(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                      part=ElasticPart(int(sign), pin_abs, gear, memory_from_kernel(mem), x_n, v_n, acc, extra))
 
         def internal():
-            return np.array([self._internal(comp[i], *cols[i, 14:19], cols[i, 5], cols[i, 4], extra)
+            return np.array([self._internal(comp[i], *cols[i, 12:17], cols[i, 5], cols[i, 4], extra)
                              for i in range(n)], dtype=float).reshape(n, self.layout.size)
-        return Trajectory(columns=columns, internal=internal, layout=self.layout, final_state=final)
+        return trajectory_from_columns(
+            state, final, self.total_stored_energy_j(state), dt_s=self.dt_s, gear_ratio=self.geo.gear_ratio,
+            layout=self.layout, internal=internal, torque_nm=torque_nm, load_n=load_n, th_s=cols[:, 0],
+            w_s=cols[:, 1], th_c=cols[:, 2], w_c=cols[:, 3], dtheta=cols[:, 8], nut_x=cols[:, 4], nut_v=cols[:, 5],
+            nut_force=cols[:, 6], slip=cols[:, 7], work_out_j=cols[:, 9], dissipated_j=cols[:, 10],
+            stored_j=cols[:, 11])
 
-    def _advance(self, state: State, torque_nm: float, load_n: float):
-        s = state
-        extra = s.extra_clearance_m  # held over the step (a growing clearance changes between steps)
-        (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el0, k, v_el0, lost,
-         delta) = self._substeps(s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad,
-                                 s.nut_axial_m, s.nut_speed_m_s, s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver,
-                                 s.screw_accel_rad_s2, extra, torque_nm, load_n)
-        after = replace(s, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
-                        flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear, solver=mem,
-                        nut_axial_m=x_n, nut_speed_m_s=v_n, screw_accel_rad_s2=acc)
-        internal = self._internal(f1.compact, f_el0, k, v_el0, lost, delta, v_n, x_n, extra)
-        return self._finish(s, after, torque_nm, load_n, diss, w_out, slip_speed(f1), f_th, internal)
-
-    packed = True
-    # the core's lagged friction state and solver memory, the nut's axial state, the coupling's last
-    # acceleration and the clearance a fault added (`_substeps`' arguments beyond the rigid state)
-    extra_state_fields = ("flank_sign", "pin_force_n", "gear_force_n", "solver", "nut_axial_m", "nut_speed_m_s",
-                          "screw_accel_rad_s2", "extra_clearance_m")
-
-    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s, self.kernel))
-
-    def _packed_setup(self) -> None:
-        """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
-
-        The same `_substeps`; the stored energy from the chain's energy they end with (`_stored_j`, the
-        sum `total_stored_energy_j` forms, which would evaluate the chain law again), and the step's
-        end forces and chain figures as the record's aux, from which the slip speed and the internal
-        vector (`_internal`) are derived when read.
+    def _make_step(self):
+        """The step: `_substeps` and the ledger. The stored energy from the chain's energy the sub-steps end
+        with (`_stored_j`: `total_stored_energy_j` would evaluate the chain law again); the step's end forces
+        and chain figures are the record's aux, from which the slip speed and the internal vector
+        (`_internal`) are derived when read.
         """
-        model, stored, internal = self, self._stored_j, self._internal
-        finish = self.packed_finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
-                                      lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
+        substeps, stored, internal = self._substeps, self._stored_j, self._internal
+        finish = self.finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
+                               lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
 
-        def advance_packed(x, torque_nm: float, load_n: float):
+        def step(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem, x_n, v_n, acc, extra = x[11]
             (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el, k, v_el, lost,
-             delta) = model._substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra,
-                                      torque_nm, load_n)
+             delta) = substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm,
+                               load_n)
             return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, stored(ws, wc, v_n, v_el),
-                          (sign, pin_abs, gear, mem, x_n, v_n, acc, extra), (f1, f_el, k, v_el, lost, delta, v_n, x_n,
-                                                                              extra), f_th, (x_n, v_n, w_out))
-        self.advance_packed = advance_packed
+                          (sign, pin_abs, gear, mem, x_n, v_n, acc, extra),
+                          (f1, f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
+        return step
 
     def _substeps(self, ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n):
         """One output step of `substeps` sub-steps (module doc), on plain floats.
@@ -516,15 +512,15 @@ class Elastic(Model):
         Returns (ω_S, ω_C, θ_S, θ_C, x_N, v_N, flank sign, pin force, gear force, solver memory, screw
         acceleration, dissipated J, the load's work J, thread force on the nut N, the core's end forces, and
         the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end).
-        With the compiled kernel: `models._kernels.elastic_advance`, the same arithmetic.
+        With the compiled kernel: `models.kernels.elastic_advance`, the same arithmetic.
         """
         if self._kn is not None:
             (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
-             f_th, _, _) = self._kn.elastic_advance(
+             f_th, _) = self._kn.elastic_advance(
                 float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
-                float(gear), _kernel_mem(mem), float(acc), float(extra), float(torque_nm), float(load_n),
+                float(gear), kernel_memory(mem), float(acc), float(extra), float(torque_nm), float(load_n),
                 self._kernel_e, self.core._kernel_k, self.core._kernel_s)
-            return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, mem if mem[4] != 0.0 else (), acc, diss,
+            return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, memory_from_kernel(mem), acc, diss,
                     w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta)
         hs, m, core, law, p = self.core.dt_s, self.m, self.core, self.law, self.p
         diss = 0.0
@@ -651,30 +647,5 @@ class Elastic(Model):
         w = (force_n - loads[j - 1]) / (loads[j] - loads[j - 1])
         return (1 - w) * table[j - 1] + w * table[j]
 
-    def _finish(self, before: State, after: State, torque_nm: float, load_n: float, dissipated_j: float,
-                work_out_j: float, slip: float, thread_force: float, internal: np.ndarray):
-        """Ledger and outputs (the nut has its own position here, so `Model.finish_step` does not apply)."""
-        h = self.dt_s
-        w_in = torque_nm * (after.screw_angle_rad - before.screw_angle_rad)
-        state = replace(after, time_s=before.time_s + h, work_in_j=before.work_in_j + w_in,
-                        work_out_j=before.work_out_j + work_out_j, dissipated_j=before.dissipated_j + dissipated_j)
-        p_out, p_d = work_out_j / h, dissipated_j / h
-        extra = {}
-        if "energy_residual_j" in _OUTPUT_NAMES:  # the energy guard of models/base (where the tree has it)
-            from prsm_sim.models.base import energy_fault
-            e1 = self.total_stored_energy_j(state)
-            flow = before.energy_flow_j + abs(w_in)
-            residual = before.energy_residual_j + (w_in - work_out_j - dissipated_j
-                                                   - (e1 - self.total_stored_energy_j(before)))
-            state = replace(state, energy_flow_j=flow, energy_residual_j=residual)
-            extra = {"stored_energy_j": e1, "energy_flow_j": flow, "energy_residual_j": residual,
-                     "energy_fault": 1.0 if energy_fault(flow, residual) else 0.0}
-        w_s, w_c = state.screw_speed_rad_s, state.carrier_speed_rad_s
-        out = Outputs(time_s=state.time_s, screw_angle_rad=state.screw_angle_rad, screw_speed_rad_s=w_s,
-                      screw_torque_nm=torque_nm, carrier_angle_rad=state.carrier_angle_rad, carrier_speed_rad_s=w_c,
-                      roller_spin_rad_s=-self.geo.gear_ratio * w_c, nut_position_m=state.nut_axial_m,
-                      nut_velocity_m_s=state.nut_speed_m_s, nut_force_n=thread_force, load_force_n=load_n,
-                      slip_speed_m_s=slip, power_in_w=w_in / h, power_out_w=p_out, power_dissipated_w=p_d,
-                      efficiency=efficiency(p_out, p_d), speed_ratio=w_c / w_s if w_s != 0.0 else math.nan,
-                      internal=internal, **extra)
-        return state, out
+
+Elastic = ElasticModel  # the model's name before the parameter group took `Elastic`; an alias for one release

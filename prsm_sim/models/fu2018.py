@@ -43,12 +43,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from prsm_sim.physics.contact import ContactPoint, contact_for
 from prsm_sim.errors import ParamError
-from prsm_sim.models.base import Model, _inputs, columns_to_trajectory, load_kernels
-from prsm_sim.models.jones2016 import mass_matrix
-from prsm_sim.outputs import InternalBlock, InternalLayout, State, Trajectory
+from prsm_sim.models import kernels
+from prsm_sim.models.kernels import FlankConstants, Fu2018Constants, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
+from prsm_sim.physics.contact import ContactPoint, contact_for
+from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.stepping.model import Model
+from prsm_sim.stepping.records import InternalBlock, InternalLayout, State
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_columns
 
 PER_ROLLER_QUANTITIES = (
     ("screw_normal_force_n", "N"),
@@ -131,13 +134,23 @@ class _Side:
     H: np.ndarray  # nut–roller sliding: v_n = H u (zero in the standard design, g = r_N/r_R)
 
 
-def _side_tuple(side: _Side, a: float) -> tuple[float, ...]:
-    """One flank pair's geometry as floats for the scalar hot path (`Fu2018._solve` unpacks it):
-    G (row major), n_S, P_S (x, y), P_S − axis (x, y), n_N, P_N − axis (x, y), H (row major)."""
+def flank_constants(side: _Side, a: float) -> FlankConstants:
+    """One flank pair's geometry as floats for the scalar step (`FlankConstants`)."""
     ns, nn = side.screw.normal_on_roller, side.nut.normal_on_roller
     ps, pn = side.screw.point_m, side.nut.point_m
-    return tuple(float(v) for v in (*side.G.ravel(), *ns, ps[0], ps[1], ps[0] - a, ps[1], *nn, pn[0] - a, pn[1],
-                                    *side.H.ravel()))
+    return FlankConstants(*(float(v) for v in (*side.G.ravel(), *ns, ps[0], ps[1], ps[0] - a, ps[1], *nn, pn[0] - a,
+                                               pn[1], *side.H.ravel())))
+
+
+class Fu2018Part(NamedTuple):
+    """The memory of `fu2018` in `State.part`: what its friction laws take lagged by one step
+    (docs/model.md §4.2) and the integrator's memory, kept in the state so that a step stays a pure
+    function of (state, inputs)."""
+
+    flank_sign: int = 1  # the loaded flank pair (+1: load resisting positive nut motion)
+    pin_force_n: float = 0.0  # |F_pin,1| + |F_pin,2| of the last step, N
+    gear_force_n: float = 0.0  # the gear's tangential force of the last step, N
+    solver: tuple = ()  # the frozen Jacobian and its age (empty: none)
 
 
 class Forces(NamedTuple):
@@ -194,6 +207,7 @@ class Forces(NamedTuple):
 class Fu2018(Model):
     name = "fu2018"
     compiled_kernel = True
+    part_type = Fu2018Part
 
     @classmethod
     def check_params(cls, params: Params) -> None:
@@ -225,10 +239,10 @@ class Fu2018(Model):
         dt_s : float
             Fixed output step, s.
         kernel : {"compiled", "reference"}
-            "compiled": the step and the batch loop run as numba code (`models._kernels`, the same
+            "compiled": the step and the batch loop run as numba code (`models.kernels`, the same
             arithmetic); "reference": the pure-Python methods of this class, its specification.
         """
-        self._kn = load_kernels(kernel)
+        self._kn = kernels.load(kernel)
         self.kernel = kernel
         self.check_params(params)
         super().__init__(params, dt_s)
@@ -263,7 +277,7 @@ class Fu2018(Model):
                         - self._r_gear * m.carrier_inertia_kgm2 / (nr * self.a))
         self._zeta_share = self.zeta / nt
         self._gather = self._gather_index()
-        self._side_k = {sg: _side_tuple(side, self.a) for sg, side in self.sides.items()}
+        self._side_k = {sg: flank_constants(side, self.a) for sg, side in self.sides.items()}
         # the nut contact slides only off the standard design (g ≠ r_N/r_R: roller migration)
         nut_slides = max(float(np.abs(side.H).max()) for side in self.sides.values()) > 1e-12 * self.a
         mu_nut = fr.mu_nut_roller_sliding if nut_slides else 0.0
@@ -272,10 +286,6 @@ class Fu2018(Model):
         # pins/gears j = 1, 2 at the two ends of the threaded length (assumed span)
         self._span = geo.roller_length_m
         self._zbar = load_centroid_m(params)
-        self._k = (self._coulomb, fr.mu_screw_roller, mu_nut, self.eps_v**2, self.eps_w**2, self._c_nt,
-                   self._mu_pin_r, self.k_drag, self._mu_rr_r, nr, self.a, self._r_gear, self._mp, self._i_s, self._i_c,
-                   self._mr_p, self._mr_kmig, self._mr_a, self._j_spin, self._tan_gear, self._g, s_1g, self._span,
-                   self._zbar, nut_slides)
         M = mass_matrix(params)
         self.kinetic = (float(M[0, 0]), float(M[0, 1]), float(M[1, 1]))  # energy guard
         self._h_min = self.dt_s / 2**MAX_HALVINGS
@@ -286,19 +296,22 @@ class Fu2018(Model):
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
             InternalBlock("carrier", ("quantity",), (len(CARRIER_QUANTITIES),), CARRIER_QUANTITIES),
         ))
-        # the compiled kernel's constants (layout: models._kernels K_*): `_k`, the step's own, the lead
-        self._kernel_k = np.array([float(v) for v in self._k] + [
-            self.dt_s, self._h_min, self._h_zone, self._slip_tol, self.eps_v, *self.kinetic,
-            float(JACOBIAN_REFRESH_STEPS), SLIP_ZONE, STEP_BALANCE_TOL, STEP_BALANCE_FLOOR_J, self.p])
-        self._kernel_s = np.array([self._side_k[1], self._side_k[-1]])
+        self.constants = Fu2018Constants(
+            coulomb=float(self._coulomb), mu=fr.mu_screw_roller, mu_n=mu_nut, eps_v2=self.eps_v**2,
+            eps_w2=self.eps_w**2, c_nt=self._c_nt, mu_pin_r=self._mu_pin_r, k_drag=self.k_drag, mu_rr_r=self._mu_rr_r,
+            nr=float(nr), a=self.a, r_g=self._r_gear, mp=self._mp, i_s=self._i_s, i_c=self._i_c, mr_p=self._mr_p,
+            mr_kmig=self._mr_kmig, mr_a=self._mr_a, j_spin=self._j_spin, tan_gear=self._tan_gear, g=self._g,
+            s_1g=s_1g, span=self._span, zbar=self._zbar, nut_slides=float(nut_slides), h=self.dt_s,
+            h_min=self._h_min, h_zone=self._h_zone, slip_tol=self._slip_tol, eps_v=self.eps_v, kss=self.kinetic[0],
+            ksc=self.kinetic[1], kcc=self.kinetic[2], jacobian_refresh=float(JACOBIAN_REFRESH_STEPS),
+            slip_zone=SLIP_ZONE, balance_tol=STEP_BALANCE_TOL, balance_floor=STEP_BALANCE_FLOOR_J, p=self.p)
+        # the compiled kernel's constants (`kernels.Fu2018Constants`, `kernels.FlankConstants` per flank pair)
+        self._kernel_k = np.array(self.constants, dtype=float)
+        self._kernel_s = np.array([self._side_k[1], self._side_k[-1]], dtype=float)
         if self._kn is not None:
             # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
             # the model is built, rather than in the first step of a realtime loop
-            self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, _NO_MEM, 0.0, 0.0, self._kernel_k, self._kernel_s)
-        self._packed_setup()
-
-    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s, self.kernel))
+            self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, self._kernel_k, self._kernel_s)
 
     def _side(self, sign: int) -> _Side:
         ev = self.params.friction.contact_evaluation
@@ -348,11 +361,15 @@ class Fu2018(Model):
         balance (4) gives F_pr, the tilting balance the two pin reactions. Returns the
         accelerations only unless `forces`.
         """
-        # constants unpacked from two tuples: one bytecode each instead of ~30 attribute lookups
-        (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, rnx, rny,
-         h00, h01, h10, h11, h20, h21) = self._side_k[sign]
-        (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_g, mp, i_s, i_c, mr_p, mr_kmig,
-         mr_a, j_spin, tan_gear, g, s_1g, span, zbar, nut_slides) = self._k
+        c, sd = self.constants, self._side_k[sign]
+        g00, g01, g10, g11, g20, g21 = sd.g00, sd.g01, sd.g10, sd.g11, sd.g20, sd.g21
+        nsx, nsy, nsz, psx, psy, rsx, rsy = sd.nsx, sd.nsy, sd.nsz, sd.psx, sd.psy, sd.rsx, sd.rsy
+        nnx, nny, nnz, rnx, rny = sd.nnx, sd.nny, sd.nnz, sd.rnx, sd.rny
+        h00, h01, h10, h11, h20, h21 = sd.h00, sd.h01, sd.h10, sd.h11, sd.h20, sd.h21
+        coulomb, mu, mu_n, eps_v2, eps_w2, c_nt = c.coulomb, c.mu, c.mu_n, c.eps_v2, c.eps_w2, c.c_nt
+        mu_pin_r, k_drag, mu_rr_r, nr, a, r_g = c.mu_pin_r, c.k_drag, c.mu_rr_r, c.nr, c.a, c.r_g
+        mp, i_s, i_c, mr_p, mr_kmig, mr_a = c.mp, c.i_s, c.i_c, c.mr_p, c.mr_kmig, c.mr_a
+        j_spin, tan_gear, g, s_1g, span, zbar, nut_slides = c.j_spin, c.tan_gear, c.g, c.s_1g, c.span, c.zbar, c.nut_slides
         w_s, w_c = u
         vx = g00 * w_s + g01 * w_c
         vy = g10 * w_s + g11 * w_c
@@ -455,11 +472,13 @@ class Fu2018(Model):
         return f, r
 
     def _stick(self, tau, load, sign, pin_abs, gear_sign):
-        (coulomb, mu, mu_n, eps_v2, eps_w2, c_nt, mu_pin_r, k_drag, mu_rr_r, nr, a, r_g, mp, i_s, i_c, mr_p, mr_kmig,
-         mr_a, j_spin, tan_gear, g, s_1g, span, zbar, nut_slides) = self._k
+        c = self.constants
+        mu, mu_pin_r, mu_rr_r, nr, a, r_g, s_1g = c.mu, c.mu_pin_r, c.mu_rr_r, c.nr, c.a, c.r_g, c.s_1g
         for sg in (sign, -sign):
-            (g00, g01, g10, g11, g20, g21, nsx, nsy, nsz, psx, psy, rsx, rsy, nnx, nny, nnz, rnx, rny,
-             *_) = self._side_k[sg]
+            sd = self._side_k[sg]
+            g00, g01, g10, g11, g20, g21 = sd.g00, sd.g01, sd.g10, sd.g11, sd.g20, sd.g21
+            nsx, nsy, nsz, psx, psy, rsx, rsy = sd.nsx, sd.nsy, sd.nsz, sd.psx, sd.psy, sd.rsx, sd.rsy
+            nnx, nny, nnz, rnx, rny = sd.nnx, sd.nny, sd.nnz, sd.rnx, sd.rny
             n_n = load / (nr * nnz)
             spin_n = rnx * nny - rny * nnx
             k = r_g - rsx
@@ -643,89 +662,63 @@ class Fu2018(Model):
                 hs *= 2.0
         return ws, wc, dth_s, dth_c, diss, f_end, sign, pin_abs, gear, mem
 
-    def _advance(self, state: State, torque_nm: float, load_n: float):
-        s = state
-        ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = self._step(
-            s.screw_speed_rad_s, s.carrier_speed_rad_s, s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver,
-            torque_nm, load_n)
-        after = State(screw_angle_rad=s.screw_angle_rad + dth_s, screw_speed_rad_s=ws1,
-                      carrier_angle_rad=s.carrier_angle_rad + dth_c, carrier_speed_rad_s=wc1, flank_sign=sign,
-                      pin_force_n=pin_abs, gear_force_n=gear, solver=mem)
-        internal = self.expand_one(f1.compact)
-        return self.finish_step(s, after, torque_nm, load_n, dissipated_j=diss, slip_speed_m_s=slip_speed(f1),
-                                internal=internal, nut_force_n=f1.axial)
-
     def _kernel_step(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
         """`_step` by the compiled kernel, the end forces as the kernel's plain tuple (Forces' field order)."""
         ws, wc, dth_s, dth_c, diss, f, sg, pin_abs, gear, m = self._kn.step(
-            float(ws), float(wc), float(sign), float(pin_abs), float(gear), _kernel_mem(mem), float(tau),
+            float(ws), float(wc), float(sign), float(pin_abs), float(gear), kernel_memory(mem), float(tau),
             float(load), self._kernel_k, self._kernel_s)
-        return ws, wc, dth_s, dth_c, diss, f, int(sg), pin_abs, gear, m if m[4] != 0.0 else ()
+        return ws, wc, dth_s, dth_c, diss, f, int(sg), pin_abs, gear, memory_from_kernel(m)
 
-    packed = True
-    # the lagged friction state and the integrator memory (`_step`'s sign, pin_abs, gear, mem)
-    extra_state_fields = ("flank_sign", "pin_force_n", "gear_force_n", "solver")
-
-    def _packed_setup(self) -> None:
-        """`advance_packed`: `_advance` on the packed state (Model.advance_packed).
-
-        The same `_step`; the record keeps the end forces as its aux, from which the slip speed and the
-        internal vector (`expand_one`) are derived when read, and their axial thread force as the nut
-        force (what `_advance` hands `finish_step`). With the compiled kernel the aux is the kernel's
-        plain tuple: a `Forces` is built only when read (0.45 µs a step otherwise, issue 15).
+    def _make_step(self):
+        """The step: `_step` and the ledger. The record keeps the end forces as its aux, from which the slip
+        speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
+        the nut force. With the compiled kernel the aux is the kernel's plain tuple: a `Forces` is built only
+        when read (it would cost a tenth of the step otherwise).
         """
         stored, expand_one = self.stored_energy_j, self.expand_one
         step = self._kernel_step if self._kn is not None else self._step
-        finish = self.packed_finisher(lambda w_s, w_c, f1: slip_speed(Forces(*f1)),
-                                      lambda w_s, w_c, f1: expand_one(Forces(*f1).compact))
+        finish = self.finisher(lambda w_s, w_c, f1: slip_speed(Forces(*f1)),
+                               lambda w_s, w_c, f1: expand_one(Forces(*f1).compact))
 
-        def advance_packed(x, torque_nm: float, load_n: float):
+        def step_packed(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem = x[11]
             ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = step(
                 x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n)
             return finish(x, x[1] + dth_s, ws1, x[3] + dth_c, wc1, torque_nm, load_n, diss, stored(ws1, wc1),
                           (sign, pin_abs, gear, mem), f1, f1[_AXIAL])
-        self.advance_packed = advance_packed
+        return step_packed
 
-    def run(self, state: State, torque_nm, load_n) -> Trajectory:
-        """Batch form of `step`: the same arithmetic on local scalars, per-tooth expansion once at the end."""
-        tau_a, load_a = _inputs(torque_nm, load_n)
-        h, p = self.dt_s, self.p
-        s = state
+    def _run_impl(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
+        """The batch form of the step: the same arithmetic on local scalars (compiled: one kernel call), the
+        per-tooth expansion built when first read."""
+        s, n = state, len(torque_nm)
         ws, wc, th_s, th_c = s.screw_speed_rad_s, s.carrier_speed_rad_s, s.screw_angle_rad, s.carrier_angle_rad
-        sign, pin_abs, gear, mem = s.flank_sign, s.pin_force_n, s.gear_force_n, s.solver
-        w_in = w_out = diss = 0.0
+        sign, pin_abs, gear, mem = self.pack_state(s)[11]
+        cols = np.empty((n, 8))
+        compact = np.empty((n, self._compact_size))
         if self._kn is not None:
-            n = len(tau_a)
-            cols = np.empty((n, 8))
-            compact = np.empty((n, self._compact_size))
-            ws, wc, th_s, th_c, w_in, w_out, diss, sg, pin_abs, gear, m = self._kn.fu2018_run(
+            ws, wc, th_s, th_c, sign, pin_abs, gear, mem = self._kn.fu2018_run(
                 float(ws), float(wc), float(th_s), float(th_c), float(sign), float(pin_abs), float(gear),
-                _kernel_mem(mem), np.array(tau_a), np.array(load_a), self._kernel_k, self._kernel_s, cols, compact)
-            final = State(time_s=s.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c,
-                          carrier_speed_rad_s=wc, work_in_j=s.work_in_j + w_in, work_out_j=s.work_out_j + w_out,
-                          dissipated_j=s.dissipated_j + diss, flank_sign=int(sg), pin_force_n=pin_abs,
-                          gear_force_n=gear, solver=m if m[4] != 0.0 else ())
-            return columns_to_trajectory(self, tau_a, load_a, cols, lambda: self.expand(compact), final, state)
-        rows, comp = [], []
-        step = self._step
-        for tau, load in zip(tau_a.tolist(), load_a.tolist()):
-            ws, wc, dth, dthc, d, f1, sign, pin_abs, gear, mem = step(ws, wc, sign, pin_abs, gear, mem, tau, load)
-            th_s += dth
-            th_c += dthc
-            w_in += tau * dth
-            w_out += load * p * dth
-            diss += d
-            rows.append((ws, wc, th_s, th_c, dth, d, slip_speed(f1), f1.axial))
-            comp.append(f1.compact)
-        n = len(rows)
-        final = State(time_s=s.time_s + h * n, screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c,
-                      carrier_speed_rad_s=wc, work_in_j=s.work_in_j + w_in, work_out_j=s.work_out_j + w_out,
-                      dissipated_j=s.dissipated_j + diss, flank_sign=sign, pin_force_n=pin_abs, gear_force_n=gear,
-                      solver=mem)
-        cols = np.array(rows, dtype=float).reshape(n, 8)
-        compact = np.array(comp, dtype=float).reshape(n, self._compact_size)
-        return columns_to_trajectory(self, tau_a, load_a, cols, lambda: self.expand(compact), final, state)
+                kernel_memory(mem), torque_nm, load_n, self._kernel_k, self._kernel_s, cols, compact)
+            sign, mem = int(sign), memory_from_kernel(mem)
+        else:
+            step = self._step
+            for i, (tau, load) in enumerate(zip(torque_nm.tolist(), load_n.tolist())):
+                ws, wc, dth, dthc, d, f1, sign, pin_abs, gear, mem = step(ws, wc, sign, pin_abs, gear, mem, tau, load)
+                th_s += dth
+                th_c += dthc
+                cols[i] = (ws, wc, th_s, th_c, dth, d, slip_speed(f1), f1.axial)
+                compact[i] = f1.compact
+        final = State(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
+                      part=Fu2018Part(sign, pin_abs, gear, mem))
+        p = self.p
+        w_s, w_c, dtheta = cols[:, 0], cols[:, 1], cols[:, 4]
+        return trajectory_from_columns(
+            state, final, self.total_stored_energy_j(state), dt_s=self.dt_s, gear_ratio=self.geo.gear_ratio,
+            layout=self.layout, internal=lambda: self.expand(compact), torque_nm=torque_nm, load_n=load_n,
+            th_s=cols[:, 2], w_s=w_s, th_c=cols[:, 3], w_c=w_c, dtheta=dtheta, nut_x=p * cols[:, 2], nut_v=p * w_s,
+            nut_force=cols[:, 7], slip=cols[:, 6], work_out_j=load_n * p * dtheta, dissipated_j=cols[:, 5],
+            stored_j=self.stored_energy_j(w_s, w_c))
 
     _compact_size = len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)
 
@@ -747,7 +740,7 @@ class Fu2018(Model):
         return np.concatenate([per_roller, per_tooth, carrier])
 
     def expand(self, compact: np.ndarray) -> np.ndarray:
-        """Compact rows (steps × 17) → the full labelled internal vectors (steps × layout.size).
+        """Compact rows (steps × 26) → the full labelled internal vectors (steps × layout.size).
 
         Per roller: identical rollers repeat the row. Per tooth: ζ_T,k / N_T times the roller's
         normal forces (docs/model.md §4.2) — the only part that grows with the tooth count.
@@ -774,14 +767,6 @@ def slip_speed(f: Forces) -> float:
 
 
 JACOBIAN_REFRESH_STEPS = 2  # 10 lost stability in the stiff carrier mode at μ = 0.1 under 20 kN
-
-
-_NO_MEM = (0.0,) * 6
-
-
-def _kernel_mem(mem: tuple) -> tuple:
-    """The solver memory as the compiled kernel holds it: 6 floats, sign 0 for none."""
-    return tuple(map(float, mem)) if len(mem) == 6 else _NO_MEM  # floats: one compiled specialisation
 
 
 def _dot(x, y) -> float:

@@ -22,11 +22,10 @@ import math
 
 import numpy as np
 
+from prsm_sim.params import Params
 from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.physics.kinematics import ideal_carrier_ratio
-from prsm_sim.models.base import Model
-from prsm_sim.outputs import State
-from prsm_sim.params import Params
+from prsm_sim.stepping.model import Model
 
 
 def reflected_inertia(params: Params) -> float:
@@ -49,27 +48,23 @@ class Ideal(Model):
         self.k_backward = 1.0 - il.efficiency_backward
         self.self_locking = il.efficiency_backward <= 0.0
         self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
-        self._solve = self._step_law()
-        p, s = self.geo.lead_per_rad_m, self.slip_per_nut_speed
-        finish = self.packed_finisher(lambda w_s, w_c, aux: abs(w_s) * p * s, lambda w_s, w_c, aux: _EMPTY)
-        solve, k, half_j = self._solve, self.k_carrier, 0.5 * self.J
 
-        def advance_packed(x, torque_nm: float, load_n: float):
-            """`_advance` on the packed state (Model.advance_packed); the same step law."""
+    def _make_step(self):
+        """The step: the step law (`_step_law`) and the ledger."""
+        p, s = self.geo.lead_per_rad_m, self.slip_per_nut_speed
+        finish = self.finisher(lambda w_s, w_c, aux: abs(w_s) * p * s, lambda w_s, w_c, aux: _EMPTY)
+        solve, k, half_j = self._step_law(), self.k_carrier, 0.5 * self.J
+
+        def step(x, torque_nm: float, load_n: float):
             w1, dtheta, dissipated = solve(x[2], torque_nm, load_n)
             # stored energy ½ J ω_S² (`stored_energy_j` with kinetic = (J, 0, 0); ×½ is exact)
             return finish(x, x[1] + dtheta, w1, x[3] + k * dtheta, k * w1, torque_nm, load_n, dissipated,
                           half_j * w1 * w1)
-        self.advance_packed = advance_packed
-
-    packed = True
-
-    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s))
+        return step
 
     def _step_law(self):
         """The step law, ``solve(ω_S at the start, τ, F) -> (ω_S at the end, Δθ_S, dissipated work)``,
-        as a closure over the constants (both paths step with it).
+        as a closure over the constants.
 
         Mesh loss for motion in direction d = ±1 with the load torque τ_L = F L/2π: |τ_L| (1/η_f − 1)
         rolling forward (d τ_L ≥ 0), |τ_L| (1 − η_b) backward, faded by tanh(|τ_L ω|/P_th) except
@@ -101,15 +96,6 @@ class Ideal(Model):
             friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
             return w1, dtheta, friction_nm * dtheta
         return solve
-
-    def _advance(self, state: State, torque_nm: float, load_n: float):
-        w1, dtheta, dissipated = self._solve(state.screw_speed_rad_s, torque_nm, load_n)
-        after = State(screw_angle_rad=state.screw_angle_rad + dtheta, screw_speed_rad_s=w1,
-                      carrier_angle_rad=state.carrier_angle_rad + self.k_carrier * dtheta,
-                      carrier_speed_rad_s=self.k_carrier * w1)
-        slip = abs(w1) * self.geo.lead_per_rad_m * self.slip_per_nut_speed
-        return self.finish_step(state, after, torque_nm, load_n, dissipated_j=dissipated, slip_speed_m_s=slip,
-                                internal=_EMPTY)
 
 
 _EMPTY = np.zeros(0)

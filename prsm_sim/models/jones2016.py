@@ -19,12 +19,13 @@ import math
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.physics.contact import ContactPoint, contact_for
-from prsm_sim.physics.inertia import mass_matrix
-from prsm_sim.models.base import Model, _inputs, columns_to_trajectory
-from prsm_sim.outputs import InternalBlock, InternalLayout, State, Trajectory
 from prsm_sim.models.linear_step import discretise
 from prsm_sim.params import Params
+from prsm_sim.physics.contact import ContactPoint, contact_for
+from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.stepping.model import Model
+from prsm_sim.stepping.records import InternalBlock, InternalLayout, State
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_columns
 
 PER_ROLLER_QUANTITIES = (
     ("screw_slip_radial_m_s", "m/s"),
@@ -59,31 +60,13 @@ class Jones2016(Model):
             InternalBlock("per_roller", ("roller", "quantity"), (geo.n_rollers, len(PER_ROLLER_QUANTITIES)),
                           PER_ROLLER_QUANTITIES),
         ))
-        self._packed_setup()
 
-    def _advance(self, state: State, torque_nm: float, load_n: float):
-        x = np.array([state.screw_angle_rad, state.carrier_angle_rad, state.screw_speed_rad_s,
-                      state.carrier_speed_rad_s])
-        u = np.array([torque_nm, load_n])
-        xn = self.lin.Phi @ x + self.lin.Gam @ u
-        z = np.concatenate([x[2:], u])
-        after = State(screw_angle_rad=xn[0], carrier_angle_rad=xn[1], screw_speed_rad_s=xn[2],
-                      carrier_speed_rad_s=xn[3])
-        v_s = self.G @ xn[2:]
-        return self.finish_step(state, after, torque_nm, load_n, dissipated_j=float(z @ self.lin.W @ z),
-                                slip_speed_m_s=float(np.linalg.norm(v_s)), internal=self._internal(v_s))
-
-    packed = True
-
-    def _packed_setup(self) -> None:
-        """`advance_packed`: `_advance` on the packed state, unrolled over Python floats (Model.advance_packed).
-
-        The same ZOH step x⁺ = Φ x + Γ u and dissipated work zᵀ W z (docs/model.md §4.1); only the
-        order of the sums differs from the matrix products, so results agree to rounding (the net
-        torque τ − F L/2π as the one input saves a few flops but moves the efficiency near zero
-        output power by 2e-11, beyond the 1e-12 the paths agree to). The angles do not feed back (discretise makes Φ's
-        angle columns exactly (I, 0)), so only Φ's speed columns enter; W is symmetric, so each
-        off-diagonal pair is summed once (×2 is exact).
+    def _make_step(self):
+        """The step: the ZOH step x⁺ = Φ x + Γ u and its dissipated work zᵀ W z, z = (q̇, u)
+        (docs/model.md §4.1), unrolled over Python floats (a 4×4 matrix product in numpy costs more than
+        the step). The angles do not feed back (discretise makes Φ's angle columns exactly (I, 0)), so
+        only Φ's speed columns enter; W is symmetric, so each off-diagonal pair is summed once (×2 is
+        exact). The batch form (`_run_impl`) runs the same recursion by recursive filters per mode.
         """
         lin, G = self.lin, self.G
         (_, _, p02, p03), (_, _, p12, p13), (_, _, p22, p23), (_, _, p32, p33) = lin.Phi.tolist()
@@ -110,9 +93,9 @@ class Jones2016(Model):
             block[:] = (v0, v1, v2, k * v0, k * v1, k * v2)
             return block.ravel()
 
-        finish = self.packed_finisher(slip_speed, internal)
+        finish = self.finisher(slip_speed, internal)
 
-        def advance_packed(x, u0: float, u1: float):
+        def step(x, u0: float, u1: float):
             w0, w1 = x[2], x[4]
             n2 = p22 * w0 + p23 * w1 + g20 * u0 + g21 * u1
             n3 = p32 * w0 + p33 * w1 + g30 * u0 + g31 * u1
@@ -121,10 +104,7 @@ class Jones2016(Model):
             return finish(x, x[1] + p02 * w0 + p03 * w1 + g00 * u0 + g01 * u1, n2,
                           x[3] + p12 * w0 + p13 * w1 + g10 * u0 + g11 * u1, n3, u0, u1, diss,
                           e_ss * n2 * n2 + e_sc * n2 * n3 + e_cc * n3 * n3)
-        self.advance_packed = advance_packed
-
-    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
-        return (type(self), (self.params, self.dt_s))
+        return step
 
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
         """Per roller: sliding velocity and the friction force the screw exerts on it (all N_T teeth).
@@ -135,11 +115,11 @@ class Jones2016(Model):
         rows = np.concatenate([v_s, f]).T
         return np.tile(rows, (1, self.geo.n_rollers)) if rows.ndim == 2 else np.tile(rows, self.geo.n_rollers)
 
-    def run(self, state: State, torque_nm, load_n) -> Trajectory:
-        """Batch form of `step`: the same ZOH recursion, evaluated by recursive filters per mode."""
-        tau, f = _inputs(torque_nm, load_n)
-        n = len(tau)
-        lin = self.lin
+    def _run_impl(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
+        """The batch form of the step: the same ZOH recursion, evaluated by recursive filters per mode."""
+        from scipy.signal import lfilter  # scipy where it is used: `import prsm_sim` stays quick without it
+
+        tau, f, n, lin = torque_nm, load_n, len(torque_nm), self.lin
         u = np.vstack([tau, f])  # 2 × n
         q0 = np.array([state.screw_angle_rad, state.carrier_angle_rad])
         w0 = np.array([state.screw_speed_rad_s, state.carrier_speed_rad_s])
@@ -147,7 +127,6 @@ class Jones2016(Model):
         Vi = np.linalg.inv(V)
         drive = Vi @ (lin.Gam[2:] @ u)  # modal input, 2 × n
         z0 = Vi @ w0
-        from scipy.signal import lfilter  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
         modes = np.empty((2, n))
         for i in range(2):
             # z[k+1] = λ z[k] + drive[k]; filter output is z[1..n]
@@ -158,19 +137,17 @@ class Jones2016(Model):
         q = q0[:, None] + np.cumsum(dq, axis=1)
         zz = np.vstack([w_prev, u])
         diss = np.einsum("ik,ij,jk->k", zz, lin.W, zz)
-        p = self.geo.lead_per_rad_m
-        dtheta = dq[0]
+        p, h = self.geo.lead_per_rad_m, self.dt_s
         v_s = self.G @ w  # 3 × n
-        internal = self._internal(v_s)
-        final = State(time_s=state.time_s + self.dt_s * n, screw_angle_rad=q[0, -1] if n else q0[0],
-                      screw_speed_rad_s=w[0, -1] if n else w0[0], carrier_angle_rad=q[1, -1] if n else q0[1],
-                      carrier_speed_rad_s=w[1, -1] if n else w0[1],
-                      work_in_j=state.work_in_j + float(tau @ dtheta),
-                      work_out_j=state.work_out_j + float(f @ dtheta) * p,
-                      dissipated_j=state.dissipated_j + diss.sum())
-        cols = np.column_stack([w[0], w[1], q[0], q[1], dtheta, diss, np.linalg.norm(v_s, axis=0),
-                                np.full(n, np.nan)])
-        return columns_to_trajectory(self, tau, f, cols, internal, final, state)
+        final = State(screw_angle_rad=q[0, -1] if n else q0[0], screw_speed_rad_s=w[0, -1] if n else w0[0],
+                      carrier_angle_rad=q[1, -1] if n else q0[1], carrier_speed_rad_s=w[1, -1] if n else w0[1])
+        return trajectory_from_columns(
+            state, final, self.total_stored_energy_j(state), dt_s=h, gear_ratio=self.geo.gear_ratio,
+            layout=self.layout, internal=self._internal(v_s), torque_nm=tau, load_n=f, th_s=q[0], w_s=w[0], th_c=q[1],
+            w_c=w[1], dtheta=dq[0], nut_x=p * q[0], nut_v=p * w[0],
+            nut_force=f + self.params.mass.moved_mass_kg * p * np.diff(w[0], prepend=w0[0]) / h,
+            slip=np.linalg.norm(v_s, axis=0), work_out_j=f * p * dq[0], dissipated_j=diss,
+            stored_j=self.stored_energy_j(w[0], w[1]))
 
 
 def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torque_nm: float | None = None,

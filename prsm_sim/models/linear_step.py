@@ -31,7 +31,7 @@ class LinearStep:
 
 def discretise(M: np.ndarray, C: np.ndarray, B: np.ndarray, dt_s: float) -> LinearStep:
     """ZOH step of q̈ = M⁻¹(−C q̇ + B u): exact for piecewise-constant u."""
-    from scipy.linalg import expm, solve  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
+    from scipy.linalg import expm, solve  # here: `import prsm_sim` stays quick without scipy
     n = M.shape[0]
     m = B.shape[1]
     Ai = -solve(M, C)

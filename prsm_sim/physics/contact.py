@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from prsm_sim.errors import InputError, ModelError, ParamError
 from prsm_sim.physics.kinematics import sliding_matrix
-from prsm_sim.params import Geometry
+
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Geometry
 
 
 @dataclass(frozen=True)
@@ -121,7 +124,7 @@ def solve_contact(geo: Geometry, side: str, load_sign: int = 1) -> ContactPoint:
         return np.r_[(body - roll) * scale, (n_body - n_roll)[:2]]
 
     x0 = np.array([r_body0, 0.0, r_r, psi0, -p_roll * psi0 - s_arc * r_r / tb])
-    from scipy.optimize import fsolve  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
+    from scipy.optimize import fsolve  # here: `import prsm_sim` stays quick without scipy
     x, _, ier, msg = fsolve(residual, x0, full_output=True, xtol=1e-13)
     if ier != 1 or np.max(np.abs(residual(x))) > 1e-9:
         raise ModelError(f"geometry: the {side}–roller tangency contact was not found for these radii, pitch "

@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.params import Geometry
+from prsm_sim.physics.contact import flank_surfaces, solve_contact
+
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Geometry
 
 _KAPPA_MAX = 1e4  # F(ρ) = 1 − O(1e-8): a line contact for every purpose here
 
@@ -34,7 +37,7 @@ def curvature_difference(kappa: float) -> float:
     """F(ρ) of an ellipse ratio κ ≥ 1 (docs/model.md §4.3, Harris ch. 6)."""
     if kappa <= 1.0:
         return 0.0
-    from scipy.special import ellipe, ellipk  # scipy where it is used: `import prsm_sim` stays quick for a process that never needs it (issue 15)
+    from scipy.special import ellipe, ellipk  # here: `import prsm_sim` stays quick without scipy
     m = 1.0 - 1.0 / kappa**2
     e, k = ellipe(m), ellipk(m)
     return float(((kappa**2 + 1.0) * e - 2.0 * k) / ((kappa**2 - 1.0) * e))
@@ -235,8 +238,6 @@ def thread_contact(geo: Geometry, side: str, elastic_constant_per_pa: float, loa
     (`physics.contact.flank_surfaces`) at the exact tangency point, so the lead angles and the
     roller's arc profile R_p = r_R / sin β enter without a textbook formula.
     """
-    from prsm_sim.physics.contact import flank_surfaces, solve_contact
-
     c = solve_contact(geo, side, load_sign)
     body, roller, psi0 = flank_surfaces(geo, side, load_sign)
     n_body_out = c.normal_on_roller  # the force on the roller points out of the body's material

@@ -6,10 +6,12 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from prsm_sim.params import Params
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Params
 
 
 def mass_matrix(params: Params) -> np.ndarray:

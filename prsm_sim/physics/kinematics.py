@@ -7,10 +7,14 @@ about +z: screw ω_S, carrier ω_C, roller spin relative to the carrier ω_r.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.params import Geometry
+
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Geometry
 
 
 def ideal_carrier_ratio(geo: Geometry) -> float:

@@ -25,11 +25,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from prsm_sim.errors import ModelError
-from prsm_sim.params import Geometry, Params
+from prsm_sim.physics.hertz import elastic_constant, thread_contact
+from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.physics.kinematics import ideal_carrier_ratio
+
+if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
+    from prsm_sim.params import Geometry, Params
 
 ISO76_PEAK_PRESSURE_PA = 4.2e9  # ISO 76 static-rating contact pressure for point contacts
 
@@ -186,7 +192,6 @@ def tooth_compliance_m_per_n(params: Params) -> float:
 
 @lru_cache(maxsize=64)
 def _thread_contacts(geo: Geometry, e_pa: float, nu: float):
-    from prsm_sim.physics.hertz import elastic_constant, thread_contact
     ce = elastic_constant(e_pa, nu)
     return thread_contact(geo, "screw", ce), thread_contact(geo, "nut", ce)
 
@@ -377,12 +382,10 @@ def axial_masses_kg(params: Params) -> tuple[float, float]:
     """(M_S, m): the rotating side reflected to the nut axis and the axially moving side (docs/model.md §4.3).
 
     M_S = J (2π/L)² with J the screw inertia plus the carrier and roller motion carried at the
-    ideal carrier ratio (`jones2016.mass_matrix`, its moved-mass part removed) [assumed: the rollers
+    ideal carrier ratio (`physics.inertia.mass_matrix`, its moved-mass part removed) [assumed: the rollers
     roll without slip in the mode]; the rollers ride the screw's thread axially (as in the `elastic`
     model, where the compliance sits between them and the nut); m = the moved mass.
     """
-    from prsm_sim.models.jones2016 import mass_matrix
-    from prsm_sim.physics.kinematics import ideal_carrier_ratio
     g, m = params.geometry, params.mass
     mm = mass_matrix(params)
     r = ideal_carrier_ratio(g)

@@ -1,14 +1,21 @@
-"""Compiled twins (numba) of the `fu2018` and `elastic` steps: the same arithmetic in the same order.
+"""The one door to the compiled kernels: numba twins of the `fu2018` and `elastic` steps, their
+constants' layouts and the solver memory as they hold it.
 
-Imported only when a model is built with ``kernel="compiled"`` (`load`), so `import prsm_sim`
-does not pull numba in. Every function here mirrors a method of the reference path, named in its
-docstring; the reference path stays the specification and tests/test_kernels.py holds the two
-together (1e-12). Constants travel in two float arrays built by the models (`Fu2018._kernel_k`,
-`Elastic._kernel_e`), not as globals: a global would be frozen into the on-disk cache.
+`load` imports numba and compiles the functions marked `_compiled` here (on first use, so that
+`import prsm_sim` does not pull numba in; compiled code is cached on disk, a fresh install compiles
+once). Every such function mirrors a method of the reference path, named in its docstring; the
+reference path stays the specification and tests/test_kernels.py holds the two together (1e-12).
+
+Constants travel as float arrays whose layout is a NamedTuple per model (`Fu2018Constants`,
+`ElasticConstants`, and `FlankConstants` for the geometry of one flank pair): the model builds the
+array from the NamedTuple, the kernels read ``K[FU.mu]`` with ``FU`` the NamedTuple of indices, so
+both sides derive from one list of names. They live in this file because numba freezes globals into
+its on-disk cache, which it keys on this file only. Not globals of the values: a value frozen into
+the cache would outlive a parameter change.
 
 Conventions: the `Forces` of an evaluation is a tuple of 29 floats in `Forces` field order; the
 solver memory is 6 floats (j00, j01, j10, j11, sign, age) with sign 0 meaning empty (the reference
-path's ``()``); flank signs are ±1.0.
+path's ``()``, `kernel_memory`); flank signs are ±1.0.
 
 Few, large functions with one signature each keep the first compile (a fresh clone, no cache)
 short: numba compiles per function and signature.
@@ -17,54 +24,201 @@ short: numba compiles per function and signature.
 from __future__ import annotations
 
 import math
+import sys
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
-# layout of the fu2018 constant array (`Fu2018._kernel_k`)
-K_COULOMB, K_MU, K_MU_N, K_EPS_V2, K_EPS_W2, K_C_NT, K_MU_PIN_R, K_K_DRAG, K_MU_RR_R, K_NR, K_A, K_R_G = range(12)
-(K_MP, K_I_S, K_I_C, K_MR_P, K_MR_KMIG, K_MR_A, K_J_SPIN, K_TAN_GEAR, K_G, K_S_1G, K_SPAN, K_ZBAR,
- K_NUT_SLIDES) = range(12, 25)
-(K_H, K_H_MIN, K_H_ZONE, K_SLIP_TOL, K_EPS_V, K_KSS, K_KSC, K_KCC, K_JAC_REFRESH, K_SLIP_ZONE, K_BAL_TOL,
- K_BAL_FLOOR, K_P) = range(25, 38)
-K_SIZE = 38
+from prsm_sim.errors import ParamError
 
-# layout of the elastic constant array (`Elastic._kernel_e`)
-(E_P, E_M, E_MU, E_ZETA, E_SUBSTEPS, E_HS, E_BREAKAWAY, E_ETA_SF, E_ETA_SB, E_W_STICK, E_CZS, E_SIN_BETA, E_MU_C,
- E_ETA_RF, E_ETA_RB, E_D_MU, E_P_SB_VS, E_CLEARANCE, E_PRELOAD, E_LAW_A, E_LAW_B, E_EA, E_X_BEARING, E_C_HOUSING,
- E_D0, E_V0, E_M00, E_M01, E_M11, E_IMPACT_TOL, E_IMPACT_FLOOR, E_IMPACT_ITER) = range(32)
-E_SIZE = 32
+KERNELS = ("compiled", "reference")
 
-_NAN29 = (math.nan,) * 29
+
+class Fu2018Constants(NamedTuple):
+    """The `fu2018` step's constants (`Fu2018.constants`); the reference path reads them by name too."""
+
+    coulomb: float  # 1.0: regularised Coulomb screw–roller friction; 0.0: viscous
+    mu: float  # μ_SR
+    mu_n: float  # μ of the nut contact's sliding (0 when it rolls, the standard design)
+    eps_v2: float  # ε², m²/s²: the Coulomb regularisation speed squared
+    eps_w2: float  # the same as a carrier speed at the roller radius, squared
+    c_nt: float  # viscous coefficient × N_T
+    mu_pin_r: float  # μ_pin r_pin
+    k_drag: float  # Couette drag coefficient of both ring gear–carrier gaps, N·m·s
+    mu_rr_r: float  # μ_NR r_R (rolling resistance)
+    nr: float  # N_R
+    a: float  # carrier radius, m
+    r_g: float  # the roller gear's pitch radius a/(g − 1), m
+    mp: float  # moved mass × L/2π
+    i_s: float  # screw inertia
+    i_c: float  # carrier inertia
+    mr_p: float  # roller mass × L/2π
+    mr_kmig: float  # roller mass × the migration lead P (n − g)/2π
+    mr_a: float  # roller mass × a
+    j_spin: float  # the carrier-mode inertia of the spin equation
+    tan_gear: float  # tan of the gear pressure angle
+    g: float  # gear ratio
+    s_1g: float  # sign of (1 − g)
+    span: float  # pin/gear span along the roller, m
+    zbar: float  # axial position of the thread load's resultant, m
+    nut_slides: float  # 1.0 off the standard design (g ≠ r_N/r_R)
+    h: float  # the step, s
+    h_min: float  # the smallest error-controlled sub-step
+    h_zone: float  # the smallest sub-step for slow slip alone
+    slip_tol: float  # step-doubling tolerance on the slip, m/s
+    eps_v: float  # ε, m/s
+    kss: float  # mass matrix (ω_S, ω_C): the stored energy
+    ksc: float
+    kcc: float
+    jacobian_refresh: float  # steps a frozen Jacobian is kept
+    slip_zone: float  # slow slip: within this many ε of zero
+    balance_tol: float  # a step's own energy balance: relative tolerance
+    balance_floor: float  # ... and absolute, J
+    p: float  # lead per radian, m
+
+
+class FlankConstants(NamedTuple):
+    """The contact geometry of one flank pair (`fu2018`), for the scalar step: G (row major), n_S,
+    P_S (x, y), P_S − axis (x, y), n_N, P_N − axis (x, y), H (row major)."""
+
+    g00: float
+    g01: float
+    g10: float
+    g11: float
+    g20: float
+    g21: float
+    nsx: float
+    nsy: float
+    nsz: float
+    psx: float
+    psy: float
+    rsx: float
+    rsy: float
+    nnx: float
+    nny: float
+    nnz: float
+    rnx: float
+    rny: float
+    h00: float
+    h01: float
+    h10: float
+    h11: float
+    h20: float
+    h21: float
+
+
+class ElasticConstants(NamedTuple):
+    """The `elastic` sub-step loop's constants (`ElasticModel.constants`)."""
+
+    p: float  # lead per radian, m
+    m: float  # moved mass, kg
+    mu: float  # reduced mass of the two sides, kg
+    zeta: float  # contact damping ratio
+    substeps: float  # sub-steps per step
+    hs: float  # the sub-step, s
+    breakaway: float  # 1.0: Stribeck breakaway on
+    eta_sf: float  # static sliding efficiencies (forward, backward)
+    eta_sb: float
+    w_stick: float  # stick window, rad/s
+    czs: float  # c_zS
+    sin_beta: float  # sin β
+    mu_c: float  # running μ
+    eta_rf: float  # running sliding efficiencies (forward, backward)
+    eta_rb: float
+    d_mu: float  # μ_s − μ_c
+    p_sb_vs: float  # ω_S → v/v_s
+    clearance: float  # axial clearance, m
+    preload: float  # preload, N
+    law_a: float  # δ = a F^(2/3) + b F
+    law_b: float
+    ea: float  # E A of the screw section, N
+    x_bearing: float  # fixed bearing position, m
+    c_housing: float  # housing compliance, m/N
+    d0: float  # preload approach, m
+    v0: float  # preload energy, J
+    m00: float  # the core's mass matrix
+    m01: float
+    m11: float
+    impact_tol: float
+    impact_floor: float
+    impact_iter: float
+
+
+FU = Fu2018Constants(*range(len(Fu2018Constants._fields)))  # the kernels' indices into a constants array
+FL = FlankConstants(*range(len(FlankConstants._fields)))
+EL = ElasticConstants(*range(len(ElasticConstants._fields)))
+NO_MEMORY = (0.0,) * 6  # the solver memory when there is none
+_NAN29 = (math.nan,) * 29  # a `Forces` tuple that holds nothing
+
+
+def kernel_memory(mem: tuple) -> tuple:
+    """The solver memory as the compiled kernel holds it: 6 floats, sign 0 for none."""
+    return tuple(map(float, mem)) if len(mem) == 6 else NO_MEMORY  # floats: one compiled specialisation
+
+
+def memory_from_kernel(mem: tuple) -> tuple:
+    """The kernel's solver memory as the reference path holds it (``()`` for none)."""
+    return mem if mem[4] != 0.0 else ()
+
+
+def check_kernel(kernel) -> None:
+    """ParamError (one line: field, value, allowed values) unless `kernel` is one of KERNELS."""
+    if kernel not in KERNELS:
+        raise ParamError(f"kernel = {kernel!r}: allowed values are {', '.join(map(repr, KERNELS))}")
+
+
+_COMPILED: list[str] = []  # the functions `load` compiles, in definition order
+
+
+def _compiled(fn):
+    """Mark a function for numba (compiled by `load`, which replaces it in this module by its dispatcher)."""
+    _COMPILED.append(fn.__name__)
+    return fn
+
+
+def load(kernel: str):
+    """This module with its functions compiled (numba) for ``kernel="compiled"``, None for ``"reference"``
+    (the pure-Python path, the specification the compiled one is tested against)."""
+    check_kernel(kernel)
+    if kernel == "reference":
+        return None
+    g = globals()
+    if _COMPILED and not hasattr(g[_COMPILED[0]], "py_func"):
+        from numba import njit  # here, on first use: `import prsm_sim` stays light
+
+        for name in _COMPILED:
+            g[name] = njit(cache=True)(g[name])
+    return sys.modules[__name__]
 
 
 # -- fu2018 -------------------------------------------------------------------------------------
-@njit(cache=True)
+@_compiled
 def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, st1, st2, st3, K, S):
     """`Fu2018._solve`: equations 1–7 eliminated to a 2×2 system; 29 floats (`Forces` order). Without
     `forces` only the accelerations are meaningful (the rest is NaN)."""
     row = S[0] if sign > 0.0 else S[1]
-    g00, g01, g10, g11, g20, g21 = row[0], row[1], row[2], row[3], row[4], row[5]
-    nsx, nsy, nsz, psx, psy, rsx, rsy = row[6], row[7], row[8], row[9], row[10], row[11], row[12]
-    nnx, nny, nnz, rnx, rny = row[13], row[14], row[15], row[16], row[17]
-    h00, h01, h10, h11, h20, h21 = row[18], row[19], row[20], row[21], row[22], row[23]
-    mu, mu_n, eps_v2, eps_w2, c_nt = K[K_MU], K[K_MU_N], K[K_EPS_V2], K[K_EPS_W2], K[K_C_NT]
-    mu_pin_r, k_drag, mu_rr_r, nr, a, r_g = K[K_MU_PIN_R], K[K_K_DRAG], K[K_MU_RR_R], K[K_NR], K[K_A], K[K_R_G]
-    mp, i_s, i_c, mr_p, mr_kmig, mr_a = K[K_MP], K[K_I_S], K[K_I_C], K[K_MR_P], K[K_MR_KMIG], K[K_MR_A]
-    j_spin, tan_gear, g, s_1g, span, zbar = K[K_J_SPIN], K[K_TAN_GEAR], K[K_G], K[K_S_1G], K[K_SPAN], K[K_ZBAR]
+    g00, g01, g10, g11, g20, g21 = row[FL.g00], row[FL.g01], row[FL.g10], row[FL.g11], row[FL.g20], row[FL.g21]
+    nsx, nsy, nsz = row[FL.nsx], row[FL.nsy], row[FL.nsz]
+    psx, psy, rsx, rsy = row[FL.psx], row[FL.psy], row[FL.rsx], row[FL.rsy]
+    nnx, nny, nnz, rnx, rny = row[FL.nnx], row[FL.nny], row[FL.nnz], row[FL.rnx], row[FL.rny]
+    h00, h01, h10, h11, h20, h21 = row[FL.h00], row[FL.h01], row[FL.h10], row[FL.h11], row[FL.h20], row[FL.h21]
+    mu, mu_n, eps_v2, eps_w2, c_nt = K[FU.mu], K[FU.mu_n], K[FU.eps_v2], K[FU.eps_w2], K[FU.c_nt]
+    mu_pin_r, k_drag, mu_rr_r, nr, a, r_g = K[FU.mu_pin_r], K[FU.k_drag], K[FU.mu_rr_r], K[FU.nr], K[FU.a], K[FU.r_g]
+    mp, i_s, i_c, mr_p, mr_kmig, mr_a = K[FU.mp], K[FU.i_s], K[FU.i_c], K[FU.mr_p], K[FU.mr_kmig], K[FU.mr_a]
+    j_spin, tan_gear, g, s_1g, span, zbar = K[FU.j_spin], K[FU.tan_gear], K[FU.g], K[FU.s_1g], K[FU.span], K[FU.zbar]
     vx = g00 * w_s + g01 * w_c
     vy = g10 * w_s + g11 * w_c
     vz = g20 * w_s + g21 * w_c
     f0x = f0y = f0z = 0.0
     if stick_on:
         esx, esy, esz = nsx + st0, nsy + st1, nsz + st2
-    elif K[K_COULOMB] != 0.0:
+    elif K[FU.coulomb] != 0.0:
         k = mu / math.sqrt(vx * vx + vy * vy + vz * vz + eps_v2)
         esx, esy, esz = nsx - k * vx, nsy - k * vy, nsz - k * vz
     else:
         esx, esy, esz = nsx, nsy, nsz
         f0x, f0y, f0z = -c_nt * vx, -c_nt * vy, -c_nt * vz
-    if K[K_NUT_SLIDES] != 0.0:
+    if K[FU.nut_slides] != 0.0:
         wx = h00 * w_s + h01 * w_c
         wy = h10 * w_s + h11 * w_c
         wz = h20 * w_s + h21 * w_c
@@ -124,7 +278,7 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
             m_drag, nr * n_n * enz, sign)
 
 
-@njit(cache=True)
+@_compiled
 def solve_forces(w_s, w_c, tau, load, sign, pin_abs, gear_sign, K, S):
     """`Fu2018.solve_forces` while sliding: the other flank pair if a normal force comes out in tension."""
     f = solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, K, S)
@@ -135,23 +289,24 @@ def solve_forces(w_s, w_c, tau, load, sign, pin_abs, gear_sign, K, S):
     return f
 
 
-@njit(cache=True)
+@_compiled
 def _pin_sum(f):
     """`Forces.pin_force_sum_n`."""
     return math.sqrt(f[22] * f[22] + f[23] * f[23]) + math.sqrt(f[24] * f[24] + f[25] * f[25])
 
 
-@njit(cache=True)
+@_compiled
 def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
     """`Fu2018._stick`: (found, forces, r)."""
-    mu, mu_pin_r, mu_rr_r, nr, a, r_g, s_1g = K[K_MU], K[K_MU_PIN_R], K[K_MU_RR_R], K[K_NR], K[K_A], K[K_R_G], \
-        K[K_S_1G]
+    mu, mu_pin_r, mu_rr_r, nr, a, r_g, s_1g = K[FU.mu], K[FU.mu_pin_r], K[FU.mu_rr_r], K[FU.nr], K[FU.a], K[FU.r_g], \
+        K[FU.s_1g]
     cands = np.empty(5)
     for sg in (sign, -sign):
         row = S[0] if sg > 0.0 else S[1]
-        g00, g01, g10, g11, g20, g21 = row[0], row[1], row[2], row[3], row[4], row[5]
-        nsx, nsy, nsz, psx, psy, rsx, rsy = row[6], row[7], row[8], row[9], row[10], row[11], row[12]
-        nnx, nny, nnz, rnx, rny = row[13], row[14], row[15], row[16], row[17]
+        g00, g01, g10, g11, g20, g21 = row[FL.g00], row[FL.g01], row[FL.g10], row[FL.g11], row[FL.g20], row[FL.g21]
+        nsx, nsy, nsz = row[FL.nsx], row[FL.nsy], row[FL.nsz]
+        psx, psy, rsx, rsy = row[FL.psx], row[FL.psy], row[FL.rsx], row[FL.rsy]
+        nnx, nny, nnz, rnx, rny = row[FL.nnx], row[FL.nny], row[FL.nnz], row[FL.rnx], row[FL.rny]
         n_n = load / (nr * nnz)
         spin_n = rnx * nny - rny * nnx
         k = r_g - rsx
@@ -206,7 +361,7 @@ def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
     return False, _NAN29, math.inf
 
 
-@njit(cache=True)
+@_compiled
 def stick_forces(tau, load, sign, pin_abs, gear_sign, K, S):
     """`Fu2018.stick_forces`: (found, forces, r)."""
     ok, f, r = _stick(tau, load, sign, pin_abs, gear_sign, K, S)
@@ -217,7 +372,7 @@ def stick_forces(tau, load, sign, pin_abs, gear_sign, K, S):
     return ok, f, r
 
 
-@njit(cache=True)
+@_compiled
 def rosenbrock(ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load, h, K, S):
     """`Fu2018._rosenbrock`: (ω_S, ω_C, end forces, start forces, memory)."""
     gsign = 1.0 if gear_force >= 0.0 else -1.0
@@ -228,7 +383,7 @@ def rosenbrock(ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load, h, K, S)
         f0 = solve_forces(ws, wc, tau, load, f0[28], pin_abs, gsign, K, S)
     sign = f0[28]
     fs, fc = f0[0], f0[1]
-    if mem[4] != 0.0 and mem[4] == sign and mem[5] < K[K_JAC_REFRESH]:
+    if mem[4] != 0.0 and mem[4] == sign and mem[5] < K[FU.jacobian_refresh]:
         j00, j01, j10, j11 = mem[0], mem[1], mem[2], mem[3]
         age = mem[5] + 1
     else:
@@ -254,30 +409,28 @@ def rosenbrock(ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load, h, K, S)
     return ws1, wc1, f1, f0, (j00, j01, j10, j11, sign, age)
 
 
-@njit(cache=True)
+@_compiled
 def _stored(ws, wc, K):
-    return 0.5 * (K[K_KSS] * ws * ws + 2.0 * K[K_KSC] * ws * wc + K[K_KCC] * wc * wc)
+    return 0.5 * (K[FU.kss] * ws * ws + 2.0 * K[FU.ksc] * ws * wc + K[FU.kcc] * wc * wc)
 
 
-@njit(cache=True)
+@_compiled
 def _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K):
     """`Fu2018._books_open`."""
     dth = 0.5 * h * (ws + ws1)
-    w_in, w_out = tau * dth, load * K[K_P] * dth
+    w_in, w_out = tau * dth, load * K[FU.p] * dth
     d_e = _stored(ws1, wc1, K) - _stored(ws, wc, K)
     diss = 0.5 * h * (f0[2] + f1[2])
-    return abs(w_in - w_out - d_e - diss) > (K[K_BAL_TOL] * (abs(w_in) + abs(w_out) + abs(d_e) + abs(diss))
-                                             + K[K_BAL_FLOOR])
+    return abs(w_in - w_out - d_e - diss) > (K[FU.balance_tol] * (abs(w_in) + abs(w_out) + abs(d_e) + abs(diss))
+                                             + K[FU.balance_floor])
 
 
-_NO_MEM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
-
-@njit(cache=True)
+@_compiled
 def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
     """`Fu2018._step`: (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces, sign, pin force, gear force, memory)."""
-    h = K[K_H]
-    zone2 = (K[K_SLIP_ZONE] * K[K_EPS_V]) ** 2
+    h = K[FU.h]
+    zone2 = (K[FU.slip_zone] * K[FU.eps_v]) ** 2
     if ws != 0.0 or wc != 0.0:
         ws1, wc1, f1, f0, m1 = rosenbrock(ws, wc, sign, pin_abs, gear, mem, tau, load, h, K, S)
         if not (ws * ws1 < 0.0 or wc * wc1 < 0.0 or f1[28] != f0[28] or f0[28] != sign
@@ -293,8 +446,8 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
     f_end = _NAN29
     wsa = wca = wsb = wcb = 0.0
     fa1 = fa0 = fb1 = fb0 = _NAN29
-    ma = mb = _NO_MEM
-    h_min, h_zone, slip_tol, eps_v = K[K_H_MIN], K[K_H_ZONE], K[K_SLIP_TOL], K[K_EPS_V]
+    ma = mb = NO_MEMORY
+    h_min, h_zone, slip_tol, eps_v = K[FU.h_min], K[FU.h_zone], K[FU.slip_tol], K[FU.eps_v]
     while left > 1e-9 * h:
         if ws == 0.0 and wc == 0.0:
             ok, st, r = stick_forces(tau, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
@@ -302,7 +455,7 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
                 f_end, sign, gear, pin_abs = st, st[28], st[12], _pin_sum(st)
                 break
         hs = min(hs, left)
-        ws1, wc1, f1, f0, m1 = rosenbrock(ws, wc, sign, pin_abs, gear, mem if hs == h else _NO_MEM, tau, load,
+        ws1, wc1, f1, f0, m1 = rosenbrock(ws, wc, sign, pin_abs, gear, mem if hs == h else NO_MEMORY, tau, load,
                                           hs, K, S)
         # sub-steps to take: the full one, or its two halves (a, b)
         two = False
@@ -312,8 +465,8 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
                            or (hs > h_zone
                                and (f0[8] * f0[8] + f0[9] * f0[9] + f0[10] * f0[10] < zone2
                                     or f1[8] * f1[8] + f1[9] * f1[9] + f1[10] * f1[10] < zone2))):
-            wsa, wca, fa1, fa0, ma = rosenbrock(ws, wc, sign, pin_abs, gear, _NO_MEM, tau, load, 0.5 * hs, K, S)
-            wsb, wcb, fb1, fb0, mb = rosenbrock(wsa, wca, fa1[28], _pin_sum(fa1), fa1[12], _NO_MEM, tau, load,
+            wsa, wca, fa1, fa0, ma = rosenbrock(ws, wc, sign, pin_abs, gear, NO_MEMORY, tau, load, 0.5 * hs, K, S)
+            wsb, wcb, fb1, fb0, mb = rosenbrock(wsa, wca, fa1[28], _pin_sum(fa1), fa1[12], NO_MEMORY, tau, load,
                                                 0.5 * hs, K, S)
             err = math.sqrt((fb1[8] - f1[8]) ** 2 + (fb1[9] - f1[9]) ** 2 + (fb1[10] - f1[10]) ** 2)
             if err > slip_tol + 1e-6 * math.sqrt(fb1[8] ** 2 + fb1[9] ** 2 + fb1[10] ** 2):
@@ -340,7 +493,7 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
                                        v2 <= (2.0 * eps_v * (1.0 + r / math.sqrt(1.0 - r * r))) ** 2):
                     diss += _stored(ws, wc, K)
                     ws = wc = 0.0
-                    f_end, sign, gear, pin_abs, mem = st, st[28], st[12], _pin_sum(st), _NO_MEM
+                    f_end, sign, gear, pin_abs, mem = st, st[28], st[12], _pin_sum(st), NO_MEMORY
                     grow = False
                     break
         if grow and hs < h:
@@ -348,31 +501,26 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
     return ws, wc, dth_s, dth_c, diss, f_end, sign, pin_abs, gear, mem
 
 
-@njit(cache=True)
+@_compiled
 def fu2018_run(ws, wc, th_s, th_c, sign, pin_abs, gear, mem, tau_a, load_a, K, S, rows, comp):
-    """`Fu2018.run`'s loop: fills rows (n × 8: ω_S, ω_C, θ_S, θ_C, Δθ_S, dissipated, slip, nut force) and
-    comp (n × 26, `Forces.compact`); returns the final (ω_S, ω_C, θ_S, θ_C, W_in, W_out, dissipated, sign,
-    pin force, gear force, memory)."""
-    p = K[K_P]
-    w_in = w_out = diss = 0.0
+    """`Fu2018._run_impl`'s loop: fills rows (n × 8: ω_S, ω_C, θ_S, θ_C, Δθ_S, dissipated, slip, nut force) and
+    comp (n × 26, `Forces.compact`); returns the final (ω_S, ω_C, θ_S, θ_C, sign, pin force, gear force,
+    memory). The ledger is the caller's (its column form, from these rows)."""
     for i in range(tau_a.shape[0]):
-        tau, load = tau_a[i], load_a[i]
-        ws, wc, dth, dthc, d, f1, sign, pin_abs, gear, mem = step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S)
+        ws, wc, dth, dthc, d, f1, sign, pin_abs, gear, mem = step(ws, wc, sign, pin_abs, gear, mem, tau_a[i],
+                                                                  load_a[i], K, S)
         th_s += dth
         th_c += dthc
-        w_in += tau * dth
-        w_out += load * p * dth
-        diss += d
         rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3], rows[i, 4], rows[i, 5] = ws, wc, th_s, th_c, dth, d
         rows[i, 6] = math.sqrt(f1[8] ** 2 + f1[9] ** 2 + f1[10] ** 2)
         rows[i, 7] = f1[27]
         for j in range(26):
             comp[i, j] = f1[3 + j]
-    return ws, wc, th_s, th_c, w_in, w_out, diss, sign, pin_abs, gear, mem
+    return ws, wc, th_s, th_c, sign, pin_abs, gear, mem
 
 
 # -- elastic --------------------------------------------------------------------------------------
-@njit(cache=True)
+@_compiled
 def _power_root(d, a, b):
     """`elastic.power_law_root`: s = F^(1/3) with a s² + b s³ = d (its stopping rule: a relative step
     ≤ 1e-9, `elastic.ROOT_STEP_TOL`, leaves an error below rounding)."""
@@ -390,25 +538,25 @@ def _power_root(d, a, b):
     return s
 
 
-@njit(cache=True)
+@_compiled
 def _stiffness_at_root(s, a, b):
     return 1.0 / ((2.0 / 3.0) * a / max(s, 1e-100) + b)
 
 
-@njit(cache=True)
+@_compiled
 def _complementary_at_root(s, a, b):
     f = s * s * s
     return 0.6 * a * (s * s * s * s * s) + 0.5 * b * f * f
 
 
-@njit(cache=True)
+@_compiled
 def law_evaluate(delta, x_n, extra, E):
     """`AxialLaw.evaluate`: (F, K, V, lost motion)."""
-    ell = x_n - E[E_X_BEARING]
-    c_ext = max(abs(ell), 1e-6) / E[E_EA] + E[E_C_HOUSING]
-    a, b = E[E_LAW_A], E[E_LAW_B]
-    if E[E_PRELOAD] > 0:
-        d0 = E[E_D0]
+    ell = x_n - E[EL.x_bearing]
+    c_ext = max(abs(ell), 1e-6) / E[EL.ea] + E[EL.c_housing]
+    a, b = E[EL.law_a], E[EL.law_b]
+    if E[EL.preload] > 0:
+        d0 = E[EL.d0]
         x = delta / 2.0
         for _ in range(60):
             ra, rb = _power_root(d0 + x, a, b), _power_root(d0 - x, a, b)
@@ -430,8 +578,8 @@ def law_evaluate(delta, x_n, extra, E):
         k = k_pair / (1.0 + k_pair * c_ext)
         va = qa * (d0 + x) - _complementary_at_root(ra, a, b)
         vb = (qb * (d0 - x) - _complementary_at_root(rb, a, b)) if qb > 0 else 0.0
-        return f, k, va + vb - 2 * E[E_V0] + 0.5 * f * f * c_ext, 0.0
-    half = 0.5 * (E[E_CLEARANCE] + extra)
+        return f, k, va + vb - 2 * E[EL.v0] + 0.5 * f * f * c_ext, 0.0
+    half = 0.5 * (E[EL.clearance] + extra)
     mag = abs(delta) - half
     if mag <= 0.0:
         return 0.0, 0.0, 0.0, delta
@@ -444,43 +592,43 @@ def law_evaluate(delta, x_n, extra, E):
     return sgn * f, k, v, sgn * half
 
 
-@njit(cache=True)
+@_compiled
 def _nut_side_force(force_n, x_n, E):
-    s = 1.0 if x_n - E[E_X_BEARING] >= 0 else -1.0
-    return 0.5 * force_n * force_n * (s / E[E_EA])
+    s = 1.0 if x_n - E[EL.x_bearing] >= 0 else -1.0
+    return 0.5 * force_n * force_n * (s / E[EL.ea])
 
 
-@njit(cache=True)
+@_compiled
 def _el_force(th_s, w_s, x_n, v_n, extra, E):
-    """`Elastic._force`: (F + c δ̇, F, K, V, lost, δ, c)."""
-    p = E[E_P]
+    """`ElasticModel._force`: (F + c δ̇, F, K, V, lost, δ, c)."""
+    p = E[EL.p]
     delta = p * th_s - x_n
     f, k, v, lost = law_evaluate(delta, x_n, extra, E)
-    c = 2.0 * E[E_ZETA] * math.sqrt(k * E[E_MU]) if k > 0 else 0.0
+    c = 2.0 * E[EL.zeta] * math.sqrt(k * E[EL.mu]) if k > 0 else 0.0
     rate = p * w_s - v_n
     return f + c * rate, f, k, v, lost, delta, c
 
 
-@njit(cache=True)
+@_compiled
 def _sliding_eff(czs, sb, mu):
     return 1.0 / (1.0 + mu / (sb * (czs - mu * sb))), 1.0 - mu / (sb * (czs + mu * sb))
 
 
-@njit(cache=True)
+@_compiled
 def _excess(direction, thread_force_n, g, E):
-    """`Elastic._excess`."""
-    mu = E[E_MU_C] + E[E_D_MU] * g
-    eta_f, eta_b = _sliding_eff(E[E_CZS], E[E_SIN_BETA], mu)
-    t = abs(E[E_P] * thread_force_n)
-    return t * (1.0 / eta_f - 1.0 / E[E_ETA_RF]) if direction * thread_force_n >= 0.0 else t * (E[E_ETA_RB] - eta_b)
+    """`ElasticModel._excess`."""
+    mu = E[EL.mu_c] + E[EL.d_mu] * g
+    eta_f, eta_b = _sliding_eff(E[EL.czs], E[EL.sin_beta], mu)
+    t = abs(E[EL.p] * thread_force_n)
+    return t * (1.0 / eta_f - 1.0 / E[EL.eta_rf]) if direction * thread_force_n >= 0.0 else t * (E[EL.eta_rb] - eta_b)
 
 
-@njit(cache=True)
+@_compiled
 def _stribeck_torque(ws, thread_force_n, E):
-    """`Elastic._stribeck_torque`."""
-    if E[E_BREAKAWAY] == 0.0 or ws == 0.0:
+    """`ElasticModel._stribeck_torque`."""
+    if E[EL.breakaway] == 0.0 or ws == 0.0:
         return 0.0
-    r = ws * E[E_P_SB_VS]
+    r = ws * E[EL.p_sb_vs]
     g = math.exp(-r * r)
     if g < 1e-12:
         return 0.0
@@ -488,21 +636,21 @@ def _stribeck_torque(ws, thread_force_n, E):
     return ex if ws > 0.0 else -ex
 
 
-@njit(cache=True)
+@_compiled
 def _rest_torque(torque_nm, thread_force_n, E):
-    """`Elastic._rest_torque`."""
-    d = torque_nm - E[E_P] * thread_force_n
-    if E[E_BREAKAWAY] == 0.0 or d == 0.0:
+    """`ElasticModel._rest_torque`."""
+    d = torque_nm - E[EL.p] * thread_force_n
+    if E[EL.breakaway] == 0.0 or d == 0.0:
         return torque_nm
     ex0 = _excess(d, thread_force_n, 1.0, E)
     return torque_nm - math.copysign(min(abs(d), ex0), d)
 
 
-@njit(cache=True)
+@_compiled
 def _holds(torque_nm, thread_force_n, E):
-    """`Elastic._holds`."""
-    eta_f, eta_b = E[E_ETA_SF], E[E_ETA_SB]
-    t = E[E_P] * thread_force_n
+    """`ElasticModel._holds`."""
+    eta_f, eta_b = E[EL.eta_sf], E[EL.eta_sb]
+    t = E[EL.p] * thread_force_n
     if t >= 0:
         lo, hi = t * eta_b, t / eta_f
     else:
@@ -510,25 +658,24 @@ def _holds(torque_nm, thread_force_n, E):
     return lo <= torque_nm <= hi
 
 
-@njit(cache=True)
+@_compiled
 def _core_kinetic(ws, wc, E):
-    return 0.5 * (E[E_M00] * ws * ws + 2 * E[E_M01] * ws * wc + E[E_M11] * wc * wc)
+    return 0.5 * (E[EL.m00] * ws * ws + 2 * E[EL.m01] * ws * wc + E[EL.m11] * wc * wc)
 
 
-@njit(cache=True)
+@_compiled
 def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, K, S):
-    """`Elastic._advance`'s sub-step loop: (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin force, gear force,
-    memory, acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread force,
-    stored energy at the start and at the end (`Elastic.total_stored_energy_j`))."""
-    hs, m, p = E[E_HS], E[E_M], E[E_P]
-    breakaway = E[E_BREAKAWAY] != 0.0
-    n_iter = int(E[E_IMPACT_ITER])
+    """`ElasticModel._substeps`: (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin force, gear force, memory,
+    acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread force, stored energy
+    at the end (`ElasticModel.total_stored_energy_j`))."""
+    hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
+    breakaway = E[EL.breakaway] != 0.0
+    n_iter = int(E[EL.impact_iter])
     diss = 0.0
     f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
-    e_start = _core_kinetic(ws, wc, E) + 0.5 * m * v_n ** 2.0 + v_el0
     w_out = 0.0
     f1 = _NAN29
-    for _ in range(int(E[E_SUBSTEPS])):
+    for _ in range(int(E[EL.substeps])):
         a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) / m
         x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
         _, f_el, k_mid, _, _, _, c = _el_force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
@@ -542,7 +689,7 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
         b_delta1 = b_c1 = b_f_mid = 0.0
         b_stuck = False
         b_f1 = _NAN29
-        b_mem1 = _NO_MEM
+        b_mem1 = NO_MEMORY
         for attempt in range(n_iter + 1):
             f_mid = f_el + c * rate
             stuck = breakaway and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
@@ -569,13 +716,13 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
                 b_v1, b_dx, b_d_delta, b_f_el1, b_k1, b_v_el1, b_lost1 = v1, dx, d_delta, f_el1, k1, v_el1, lost1
                 b_delta1, b_c1, b_f_mid = delta1, c1, f_mid
             if (attempt == n_iter or abs(d_delta) < 1e-15
-                    or abs(err) <= E[E_IMPACT_TOL] * abs(torque_nm * dth_s)
-                    + E[E_IMPACT_FLOOR] * (abs(v_el1) + abs(v_el0))):
+                    or abs(err) <= E[EL.impact_tol] * abs(torque_nm * dth_s)
+                    + E[EL.impact_floor] * (abs(v_el1) + abs(v_el0))):
                 break
             f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
             rate = d_delta / hs
             kk = max(k_mid, k1)
-            c = 2.0 * E[E_ZETA] * math.sqrt(kk * E[E_MU]) if kk > 0 else 0.0
+            c = 2.0 * E[EL.zeta] * math.sqrt(kk * E[EL.mu]) if kk > 0 else 0.0
         f_el, c, rate, stuck, f1, ws1, wc1 = b_f_el, b_c, b_rate, b_stuck, b_f1, b_ws1, b_wc1
         dth_s, dth_c, d_core, sign1, pin1, gear1, mem1 = b_dth_s, b_dth_c, b_d_core, b_sign1, b_pin1, b_gear1, b_mem1
         v1, dx, d_delta, f_el1, k1, v_el1, lost1 = b_v1, b_dx, b_d_delta, b_f_el1, b_k1, b_v_el1, b_lost1
@@ -585,9 +732,9 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
         acc = (ws1 - ws) / hs
         th_s += dth_s
         th_c += dth_c
-        if breakaway and not stuck and abs(ws1) < E[E_W_STICK]:
+        if breakaway and not stuck and abs(ws1) < E[EL.w_stick]:
             holds = _holds(torque_nm, f_mid, E)
-            if not holds:  # `Elastic._core_holds`
+            if not holds:  # `ElasticModel._core_holds`
                 ok, _st, r = stick_forces(_rest_torque(torque_nm, f_mid, E), f_mid, sign, pin_abs,
                                           1.0 if gear >= 0.0 else -1.0, K, S)
                 holds = ok and r <= 1.0
@@ -604,34 +751,25 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
     # V at the end state is the last sub-step's (recomputed at the end state where the screw stuck)
     e_end = _core_kinetic(ws, wc, E) + 0.5 * m * v_n ** 2.0 + v_el0
     return (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost,
-            delta, f_th, e_start, e_end)
+            delta, f_th, e_end)
 
 
-@njit(cache=True)
-def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, ledger, tau_a, load_a, E, K, S,
-                cols, comp):
-    """`Model.run` over `Elastic._advance` and `Elastic._finish`: the loop and the ledger. Fills cols (n × 19:
-    θ_S, ω_S, θ_C, ω_C, x_N, v_N, thread force, slip, W_in, W_out, dissipated, stored, flow, residual,
-    then the chain's F, K, V, lost, δ) and comp (n × 26); `ledger` (W_in, W_out, dissipated, flow, residual)
-    is updated in place. Returns the final (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin, gear, memory, acc)."""
+@_compiled
+def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a, load_a, E, K, S, cols,
+                comp):
+    """`ElasticModel._run_impl`'s loop over `elastic_advance`. Fills cols (n × 17: θ_S, ω_S, θ_C, ω_C, x_N, v_N,
+    thread force, slip, Δθ_S, the load's work, dissipated, stored energy, then the chain's F, K, V, lost, δ) and
+    comp (n × 26). Returns the final (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin, gear, memory, acc). The ledger
+    is the caller's (its column form, from these columns)."""
     for i in range(tau_a.shape[0]):
-        tau, load = tau_a[i], load_a[i]
         th0 = th_s
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
-         f_th, e0, e1) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau, load,
-                                         E, K, S)
-        w_in = tau * (th_s - th0)
-        ledger[0] += w_in
-        ledger[1] += w_out
-        ledger[2] += diss
-        ledger[3] = ledger[3] + abs(w_in)
-        ledger[4] = ledger[4] + (w_in - w_out - diss - (e1 - e0))
+         f_th, e1) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a[i],
+                                     load_a[i], E, K, S)
         cols[i, 0], cols[i, 1], cols[i, 2], cols[i, 3], cols[i, 4], cols[i, 5] = th_s, ws, th_c, wc, x_n, v_n
         cols[i, 6], cols[i, 7] = f_th, math.sqrt(f1[8] ** 2 + f1[9] ** 2 + f1[10] ** 2)
-        cols[i, 8], cols[i, 9], cols[i, 10], cols[i, 11], cols[i, 12], cols[i, 13] = w_in, w_out, diss, e1, \
-            ledger[3], ledger[4]
-        cols[i, 14], cols[i, 15], cols[i, 16], cols[i, 17], cols[i, 18] = f_el, k, v_el, lost, delta
+        cols[i, 8], cols[i, 9], cols[i, 10], cols[i, 11] = th_s - th0, w_out, diss, e1
+        cols[i, 12], cols[i, 13], cols[i, 14], cols[i, 15], cols[i, 16] = f_el, k, v_el, lost, delta
         for j in range(26):
             comp[i, j] = f1[3 + j]
     return th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc
-

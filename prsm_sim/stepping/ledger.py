@@ -1,0 +1,104 @@
+"""The energy ledger, its guard and the mechanism's efficiency: each rule written once.
+
+Every step's port work (screw torque × screw angle, load × nut travel), its dissipation and the
+change of the stored energy must balance (docs/model.md §4, "The energy ledger"). `step_balance`
+is that balance for one step; it takes floats (the per-step path, `stepping.packed.make_finisher`)
+or arrays of per-step values (the batch path, `ledger_columns`, which accumulates it with cumulative
+sums), and the compiled kernels may compile the same function.
+
+Energy guard (every model): the cumulative residual and the energy that has flowed (∫|P_in| dt)
+travel in the state; `energy_fault` flags a run whose books do not close (|residual| >
+ENERGY_GUARD_REL of the flow once the flow exceeds ENERGY_GUARD_MIN_FLOW_J). A few flops per step;
+stepping goes on (the caller decides what a fault means).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+ENERGY_GUARD_REL = 1e-3  # residual allowed, as a fraction of the energy that has flowed
+ENERGY_GUARD_MIN_FLOW_J = 1.0  # below this flow the ratio is not judged (start-up, standstill)
+
+
+def step_balance(torque_nm, dtheta_rad, work_out_j, dissipated_j, stored_before_j, stored_after_j):
+    """One step's input work and the miss of its energy balance (floats, or arrays of steps).
+
+    W_in = τ Δθ_S is exact for a torque held over the step; the miss is
+    W_in − W_out − (E₁ − E₀) − W_diss, zero for books that close.
+    """
+    work_in_j = torque_nm * dtheta_rad
+    return work_in_j, work_in_j - work_out_j - (stored_after_j - stored_before_j) - dissipated_j
+
+
+def energy_fault(flow_j, residual_j):
+    """The guard's verdict (scalar or array): |residual| > ENERGY_GUARD_REL · flow once flow > 1 J."""
+    return (flow_j > ENERGY_GUARD_MIN_FLOW_J) & (abs(residual_j) > ENERGY_GUARD_REL * flow_j)
+
+
+def energy_guard_summary(columns) -> dict:
+    """The energy guard over a run (a Trajectory or its columns): final residual, flow, their ratio,
+    whether and when the guard tripped (`energy_fault` first 1.0), and the limit it judges by."""
+    res, flow, fault = columns["energy_residual_j"], columns["energy_flow_j"], columns["energy_fault"]
+    hit = np.flatnonzero(fault > 0.0)
+    return {"fault": bool(hit.size), "first_fault_time_s": float(columns["time_s"][hit[0]]) if hit.size else None,
+            "residual_j": float(res[-1]), "flow_j": float(flow[-1]),
+            "relative_residual": float(res[-1] / flow[-1]) if flow[-1] > 0 else None,
+            "limit": ENERGY_GUARD_REL}
+
+
+def ledger_columns(flow0_j: float, residual0_j: float, stored0_j: float, torque_nm, dtheta_rad, work_out_j,
+                   dissipated_j, stored_j):
+    """The ledger of a batch run from its per-step arrays: (W_in per step, flow, residual), the last two
+    cumulative from the state the run started in (its flow, residual and stored energy)."""
+    stored_before = np.concatenate(([stored0_j], stored_j[:-1]))
+    work_in_j, miss = step_balance(torque_nm, dtheta_rad, work_out_j, dissipated_j, stored_before, stored_j)
+    return work_in_j, accumulate(flow0_j, np.abs(work_in_j)), accumulate(residual0_j, miss)
+
+
+def accumulate(start: float, increments: np.ndarray) -> np.ndarray:
+    """start + increments[0], then + increments[1], …: the running totals, summed in the per-step path's order."""
+    return np.cumsum(np.concatenate(([start], increments)))[1:]
+
+
+def _forward(power_out_w, power_dissipated_w):
+    return power_out_w / (power_out_w + power_dissipated_w)
+
+
+def _backward(power_out_w, power_dissipated_w):
+    return 1.0 - power_dissipated_w / -power_out_w
+
+
+def efficiency(power_out_w: float, power_dissipated_w: float) -> float:
+    """Efficiency of the mechanism itself, from the power through it (inertia excluded).
+
+    Forward (the screw delivers power to the load, P_out > 0): P_out / (P_out + P_diss).
+    Backward (the load drives the screw, P_out < 0): (|P_out| − P_diss) / |P_out|, which is ≤ 0
+    for a screw that must be driven even when back-driven (self-locking). NaN when no power
+    reaches the load. At constant speed these equal the port ratios P_out/P_in and P_in/P_out;
+    unlike the port ratios they never exceed 1 while the rotor's kinetic energy changes.
+    `efficiency_columns` is the same rule over arrays.
+    """
+    if power_out_w > 0.0:
+        return _forward(power_out_w, power_dissipated_w)
+    if power_out_w < 0.0:
+        return _backward(power_out_w, power_dissipated_w)
+    return math.nan
+
+
+def efficiency_columns(power_out_w: np.ndarray, power_dissipated_w: np.ndarray) -> np.ndarray:
+    """`efficiency` of every step of a run (arrays)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(power_out_w > 0, _forward(power_out_w, power_dissipated_w),
+                        np.where(power_out_w < 0, _backward(power_out_w, power_dissipated_w), np.nan))
+
+
+def speed_ratio(screw_speed_rad_s: float, carrier_speed_rad_s: float) -> float:
+    """ζ_PS = ω_C / ω_S, NaN at ω_S = 0 (`speed_ratio_columns` over arrays)."""
+    return carrier_speed_rad_s / screw_speed_rad_s if screw_speed_rad_s != 0.0 else math.nan
+
+
+def speed_ratio_columns(screw_speed_rad_s: np.ndarray, carrier_speed_rad_s: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(screw_speed_rad_s != 0, carrier_speed_rad_s / screw_speed_rad_s, np.nan)

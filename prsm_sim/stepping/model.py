@@ -1,0 +1,217 @@
+"""The model contract: one public `step` and `run` every model shares, one private hook per model.
+
+A model is built from parameters and a fixed step `dt_s`. ``step(state, command, load_n)`` checks
+the inputs, advances one step with them held over it and returns the next state and the step's
+outputs; it never mutates anything (the current state and the step counter live in `Simulator`).
+``run(state, command, load_n)`` does the same over input arrays and returns a columnar `Trajectory`.
+The public methods do what every model needs done once (input checks, the ledger, the records);
+the model supplies only its physics through a private hook (SciPy's ``OdeSolver.step`` /
+``_step_impl`` habit).
+
+To write a model:
+
+1. Subclass `Model`; set `name`, and in the constructor (after ``super().__init__``) `layout`
+   (the internal-load vector's labels) and `kinetic` (the mass matrix in (ω_S, ω_C) the stored
+   energy is computed with; a model with springs overrides `stored_energy_j` and
+   `total_stored_energy_j`). Refuse parameters it cannot honour in `check_params` (one line,
+   ParamError).
+2. Memory of its own beyond angles, speeds and the ledger goes in `State.part`: a NamedTuple class
+   as `part_type` (its defaults are the state at rest). Nothing else carries memory.
+3. Implement `_make_step()`: it returns the step function
+   ``step(x, command, load_n) -> PackedOutputs`` on the packed state x (`pack_state`), usually a
+   closure over the model's constants. It computes the physics only and ends in the function
+   `finisher` returns (the ledger, the guard, the nut's outputs); `Simulator` calls it directly.
+4. Optionally override `_run_impl` with a faster batch form ending in
+   `stepping.trajectory.trajectory_from_columns` (the ledger's column form), and add it to the
+   registry (`models.registry.MODELS`). tests/test_step_paths.py and tests/test_kernels.py hold the
+   forms of a model together (1e-12).
+
+A model that wraps others and has a state of its own (the actuator) overrides `_step_impl` instead.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from functools import cached_property
+
+import numpy as np
+
+from prsm_sim.checks import is_finite_number
+from prsm_sim.errors import InputError, ParamError
+from prsm_sim.params import Params
+from prsm_sim.stepping.ledger import energy_fault
+from prsm_sim.stepping.packed import PackedConstants, PackedOutputs, make_finisher
+from prsm_sim.stepping.records import InternalLayout, Outputs, State
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
+
+def check_step_inputs(command, load_n, command_name: str = "torque_nm") -> tuple[float, float]:
+    """The two inputs of a step as floats; InputError (naming the input) for a non-number or non-finite one."""
+    for name, v in ((command_name, command), ("load_n", load_n)):
+        if not is_finite_number(v):
+            raise InputError(f"{name} = {v!r}: inputs must be finite numbers")
+    return float(command), float(load_n)
+
+
+def input_columns(command, load_n, command_name: str = "torque_nm") -> tuple[np.ndarray, np.ndarray]:
+    """The inputs of a batch run as two float arrays of one value per step, or InputError (one line).
+
+    `command`: a 1-D array, one value per step (a scalar is refused: `step` takes one step);
+    `load_n`: one value for the whole run or a 1-D array of the same length; all finite numbers.
+    """
+    arrays = []
+    for name, value in ((command_name, command), ("load_n", load_n)):
+        try:
+            arrays.append(np.asarray(value, dtype=float))
+        except (TypeError, ValueError):
+            raise InputError(f"{name} = {value!r}: must be a number or an array of numbers") from None
+    u, f = arrays
+    if u.ndim != 1:
+        got = f"{command_name} = {command!r}" if u.ndim == 0 else f"{command_name} has shape {u.shape}"
+        what, unit = ("torque", " (N·m)") if command_name == "torque_nm" else ("command", "")
+        raise InputError(f"{got}: run() takes a 1-D array with one {what} per step{unit}; use step() for one "
+                         f"step, np.full(steps, {what}) for a constant {what}")
+    if f.ndim > 1 or (f.ndim == 1 and f.shape != u.shape):
+        raise InputError(f"load_n has shape {f.shape}: must be a number or a 1-D array of {len(u)} values, "
+                         f"one per {'torque' if command_name == 'torque_nm' else 'command'}")
+    f = np.broadcast_to(f, u.shape)
+    for name, arr in ((command_name, u), ("load_n", f)):
+        if not np.all(np.isfinite(arr)):
+            k = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise InputError(f"{name}[{k}] = {arr[k]!r}: inputs must be finite numbers")
+    return np.ascontiguousarray(u), np.ascontiguousarray(f)
+
+
+class Model:
+    """Base class of every model: the public `step` and `run`, the packed state, the stored energy."""
+
+    name = "base"
+    compiled_kernel = False  # True: the constructor takes kernel="compiled"|"reference" (`models.kernels`)
+    # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
+    # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
+    kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    part_type = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
+    packed = True  # the model steps on the packed state (`step_packed`); the actuator does not
+    command_name = "torque_nm"  # what the first input of a step is (a bare model: the screw torque, N·m)
+
+    @classmethod
+    def check_params(cls, params: Params) -> None:
+        """Refuse (ParamError, one line) a parameter combination this model cannot honour."""
+
+    def __init__(self, params: Params, dt_s: float) -> None:
+        if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and 0 < dt_s <= 0.1):
+            raise ParamError(f"dt_s = {dt_s!r}: the step must be a finite number in (0, 0.1] s")
+        self.params = params
+        self.geo = params.geometry
+        self.dt_s = float(dt_s)
+        self.layout = InternalLayout(blocks=())
+
+    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+        kernel = (self.kernel,) if self.compiled_kernel else ()
+        return (type(self), (self.params, self.dt_s, *kernel))
+
+    @property
+    def extra_state_fields(self) -> tuple[str, ...]:
+        """Names of the model's own state fields (`part_type`'s)."""
+        return self.part_type._fields if self.part_type is not None else ()
+
+    def initial_state(self, nut_position_m: float = 0.0) -> State:
+        """At rest, nut at `nut_position_m` (x_nut = (L/2π) θ_S fixes the screw angle)."""
+        return State(screw_angle_rad=nut_position_m / self.geo.lead_per_rad_m,
+                     part=self.part_type() if self.part_type is not None else ())
+
+    # -- one step -------------------------------------------------------------------------
+    def step(self, state: State, command: float, load_n: float) -> tuple[State, Outputs]:
+        """Advance one fixed step with the command (a bare model: the screw torque, N·m) and the nut
+        load (N) held over it; returns the next state and the step's outputs. InputError for a
+        non-finite or non-numeric input."""
+        command, load_n = check_step_inputs(command, load_n, self.command_name)
+        return self._step_impl(state, command, load_n)
+
+    def _step_impl(self, state: State, command: float, load_n: float) -> tuple[State, Outputs]:
+        rec = self.step_packed(self.pack_state(state), command, load_n)
+        return self.unpack_state(rec), rec.to_outputs()
+
+    @cached_property
+    def step_packed(self):
+        """The model's step function on the packed state: ``step_packed(x, command, load_n) -> PackedOutputs``
+        (`_make_step`; the record's first PACKED_STATE_SIZE items are the next packed state)."""
+        return self._make_step()
+
+    def _make_step(self):
+        raise NotImplementedError
+
+    def finisher(self, slip_speed, internal):
+        """The ledger's per-step form for this model (`stepping.packed.make_finisher`), with the model's
+        own slip speed and internal vector as functions of (ω_S, ω_C at the step's end, the step's aux)."""
+        return make_finisher(self.dt_s, self.geo.lead_per_rad_m, self.params.mass.moved_mass_kg, self.geo.gear_ratio,
+                             slip_speed, internal)
+
+    # -- the packed state -------------------------------------------------------------------
+    def pack_state(self, s: State) -> tuple:
+        """(time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, energy flow, energy residual, stored energy, part)."""
+        part = s.part
+        if self.part_type is not None and not isinstance(part, self.part_type):
+            part = self.part_type(*part) if part else self.part_type()
+            s = replace(s, part=part)
+        return (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad, s.carrier_speed_rad_s,
+                s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j, s.energy_residual_j,
+                self.total_stored_energy_j(s), part)
+
+    def unpack_state(self, x: tuple) -> State:
+        part = x[11]
+        if self.part_type is not None and not isinstance(part, self.part_type):
+            part = self.part_type._make(part)
+        return State(x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], part)
+
+    # -- energy ------------------------------------------------------------------------------
+    def stored_energy_j(self, screw_speed_rad_s, carrier_speed_rad_s):
+        """Energy the model stores at these speeds, J (scalars or arrays): kinetic here; a model
+        with potential energy overrides this (and must then be given the state it needs)."""
+        kss, ksc, kcc = self.kinetic
+        ws, wc = screw_speed_rad_s, carrier_speed_rad_s
+        return 0.5 * (kss * ws * ws + 2.0 * ksc * ws * wc + kcc * wc * wc)
+
+    def total_stored_energy_j(self, state: State) -> float:
+        """Energy the model stores in `state`, J (`stored_energy_j` at its speeds; `elastic` adds the
+        nut and the chain, which need more of the state)."""
+        return self.stored_energy_j(state.screw_speed_rad_s, state.carrier_speed_rad_s)
+
+    def rest_outputs(self, state: State, command: float = 0.0, load_n: float = 0.0) -> Outputs:
+        """Outputs describing `state` as it stands, no step taken (after a reset, at rest): the command
+        and load as given, the nut force the load (nothing accelerates before a step), no power,
+        zero internal loads."""
+        x = self.pack_state(state)
+        zeros = np.zeros(self.layout.size)
+        k = PackedConstants(self.dt_s, self.geo.gear_ratio, lambda w_s, w_c, aux: 0.0, lambda w_s, w_c, aux: zeros)
+        nut_x, nut_v = self.nut_motion(state)
+        fault = 1.0 if energy_fault(state.energy_flow_j, state.energy_residual_j) else 0.0
+        return PackedOutputs(x + (float(command), float(load_n), 0.0, 0.0, 0.0, float(load_n), nut_x, nut_v, fault, k,
+                                  None)).to_outputs()
+
+    def nut_motion(self, state: State) -> tuple[float, float]:
+        """The nut's position (m) and velocity (m/s) in `state`: x_nut = (L/2π) θ_S and its rate."""
+        p = self.geo.lead_per_rad_m
+        return p * state.screw_angle_rad, p * state.screw_speed_rad_s
+
+    # -- a run -------------------------------------------------------------------------------
+    def run(self, state: State, command, load_n) -> Trajectory:
+        """Advance len(command) steps; input k is held over step k, output k is at its end.
+        InputError for inputs that are not one finite number per step (the load may be one number)."""
+        u, f = input_columns(command, load_n, self.command_name)
+        return self._run_impl(state, u, f)
+
+    def _run_impl(self, state: State, command: np.ndarray, load_n: np.ndarray) -> Trajectory:
+        """The step repeated; a model with a faster batch form overrides this."""
+        if not self.packed:
+            rows = []
+            for u, f in zip(command.tolist(), load_n.tolist()):
+                state, out = self._step_impl(state, u, f)
+                rows.append(out)
+            return trajectory_from_rows(rows, self.layout, state)
+        step, x, records = self.step_packed, self.pack_state(state), []
+        for u, f in zip(command.tolist(), load_n.tolist()):
+            x = step(x, u, f)
+            records.append(x)
+        return trajectory_from_rows(records, self.layout, self.unpack_state(x))
+

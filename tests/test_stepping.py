@@ -1,0 +1,158 @@
+"""The stepping layer (prsm_sim/stepping): one ledger in three forms, the State's model part, the named
+kernel constants, the step's input names and the import rules that keep the layer at the bottom.
+
+Oracles: the energy balance W_in − W_out − ΔE − W_diss (docs/model.md §4, "The energy ledger") computed by
+hand; the parameters a model was built from; the module sources themselves (import graph).
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from prsm_sim import InputError, Simulator, State, preset
+from prsm_sim.models import kernels
+from prsm_sim.models.elastic import ElasticPart
+from prsm_sim.models.fu2018 import Fu2018Part
+from prsm_sim.stepping.ledger import efficiency, efficiency_columns, energy_fault, ledger_columns, step_balance
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_ledger_scalar_and_column_forms_are_one_rule():
+    rng = np.random.default_rng(3)
+    n = 50
+    tau, dth, w_out, diss = rng.normal(size=n), rng.normal(size=n), rng.normal(size=n), rng.random(n)
+    stored = rng.random(n)
+    w_in, flow, residual = ledger_columns(2.0, 0.5, 0.25, tau, dth, w_out, diss, stored)
+    f, r, e0 = 2.0, 0.5, 0.25
+    for k in range(n):
+        wi, miss = step_balance(tau[k], dth[k], w_out[k], diss[k], e0, stored[k])
+        assert wi == tau[k] * dth[k]
+        # the balance by hand: input work less output work, the change of stored energy and the dissipation
+        assert miss == pytest.approx(tau[k] * dth[k] - w_out[k] - (stored[k] - e0) - diss[k], rel=1e-15, abs=1e-15)
+        f, r, e0 = f + abs(wi), r + miss, stored[k]
+        assert (flow[k], residual[k], w_in[k]) == (f, r, wi)  # the same order of sums: the same bits
+    assert bool(energy_fault(2.0, 0.003)) and not energy_fault(2.0, 0.001) and not energy_fault(0.5, 0.4)
+    np.testing.assert_array_equal(energy_fault(np.array([2.0, 2.0]), np.array([0.003, 0.001])), [True, False])
+    p_out, p_d = np.array([2.0, -2.0, -1.0, 0.0]), np.array([1.0, 1.0, 3.0, 1.0])
+    cols = efficiency_columns(p_out, p_d)
+    np.testing.assert_array_equal(cols[:3], [efficiency(a, b) for a, b in zip(p_out[:3], p_d[:3])])
+    assert cols[:3].tolist() == [2.0 / 3.0, 0.5, -2.0] and math.isnan(cols[3]) and math.isnan(efficiency(0.0, 1.0))
+
+
+def test_state_holds_the_models_own_part_and_reads_its_fields_by_name():
+    p = preset("s30")
+    fu = Simulator(p, "fu2018").state
+    el = Simulator(p, "elastic").state
+    ideal = Simulator(p, "ideal").state
+    assert type(fu.part) is Fu2018Part and type(el.part) is ElasticPart and ideal.part == ()
+    assert fu.flank_sign == 1 and el.nut_speed_m_s == 0.0 and ideal.flank_sign == 1  # a part's default
+    wider = replace(el, extra_clearance_m=2e-5)
+    assert wider.part.extra_clearance_m == 2e-5 and wider.extra_clearance_m == 2e-5 and el.extra_clearance_m == 0.0
+    assert replace(ideal, extra_clearance_m=0.0) == ideal
+    with pytest.raises(InputError, match="extra_clearance_m = 2e-05: this model's state has no extra_clearance_m"):
+        replace(ideal, extra_clearance_m=2e-5)
+    with pytest.raises(InputError, match="unknown field 'bogus'"):
+        State(bogus=1.0)
+    with pytest.raises(AttributeError):
+        ideal.bogus  # noqa: B018
+
+
+def test_kernel_constants_are_named_and_the_kernels_read_them_by_name():
+    p = preset("s30")
+    fu = Simulator(p, "fu2018").model
+    el = Simulator(p, "elastic").model
+    # the array the kernel reads is the NamedTuple, field for field
+    for model, array, cls in ((fu, fu._kernel_k, kernels.Fu2018Constants), (el, el._kernel_e, kernels.ElasticConstants)):
+        assert type(model.constants) is cls and array.tolist() == [float(v) for v in model.constants]
+    assert fu.constants.p == p.geometry.lead_per_rad_m and fu.constants.h == 1e-3
+    assert fu.constants.nr == p.geometry.n_rollers and fu.constants.mu == p.friction.mu_screw_roller
+    assert el.constants.m == p.mass.moved_mass_kg and el.constants.zeta == p.elastic.contact_damping_ratio
+    src = (ROOT / "prsm_sim/models/kernels.py").read_text(encoding="utf-8")
+    for short, cls in (("FU", kernels.Fu2018Constants), ("EL", kernels.ElasticConstants),
+                       ("FL", kernels.FlankConstants)):
+        used = set(re.findall(rf"\b{short}\.([a-z0-9_]+)", src))
+        assert used and used <= set(cls._fields), used - set(cls._fields)
+    assert not re.search(r"\b[KE]\[\d+\]", src)  # no constant read by a bare position
+
+
+def test_step_names_its_first_input_and_keeps_torque_nm_for_one_release():
+    p = preset("s30")
+    a, b = Simulator(p, "ideal"), Simulator(p, "ideal")
+    with pytest.warns(DeprecationWarning, match="step\\(command, load_n\\)"):
+        old = b.step(torque_nm=0.05, load_n=10.0)
+    assert a.step(0.05, 10.0) == old
+    with pytest.raises(InputError, match="give one of them"):
+        a.step(0.05, 10.0, torque_nm=0.05)
+    with pytest.raises(InputError, match="torque_nm = nan"):
+        a.step(math.nan)
+    from prsm_sim.actuator import ActuatorParams
+    act = Simulator(p, "ideal", actuator=ActuatorParams())
+    assert act.command_name == "command"
+    with pytest.raises(InputError, match="command = nan"):
+        act.step(math.nan)
+    with pytest.raises(InputError, match="command = 0.1: run\\(\\) takes a 1-D array with one command per step"):
+        act.run(0.1)
+
+
+def _imports(path: Path, modules) -> set[str]:
+    """Every prsm_sim module a file imports, at module level or inside functions (TYPE_CHECKING blocks excepted);
+    ``from package import module`` counts as importing the module."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+            for n in ast.walk(node)}
+    out = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("prsm_sim"):
+            subs = {f"{node.module}.{a.name}" for a in node.names} & modules
+            out |= subs if len(subs) == len(node.names) else subs | {node.module}
+        elif isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("prsm_sim")}
+    return out
+
+
+def _module(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    return ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+
+
+def test_stepping_imports_nothing_above_it_and_prsm_sim_has_no_import_cycle():
+    files = {_module(f): f for f in (ROOT / "prsm_sim").rglob("*.py")}
+    graph = {m: {i for i in _imports(f, files.keys()) if i in files and i != m} for m, f in files.items()}
+    allowed = ("prsm_sim.stepping", "prsm_sim.errors", "prsm_sim.checks", "prsm_sim.params")
+    for m in (m for m in graph if m.startswith("prsm_sim.stepping")):
+        above = {i for i in graph[m] if not i.startswith(allowed)}
+        assert not above, f"{m} imports above the stepping layer: {above}"
+    for m in (m for m in graph if m.startswith("prsm_sim.models.") and not m.endswith(("registry", "base"))):
+        assert not {i for i in graph[m] if i in ("prsm_sim.models.registry", "prsm_sim.simulator")}, m
+    # no cycle: a depth-first search over the graph of modules (a package counts through its __init__)
+    state: dict[str, int] = {}
+
+    def visit(m, trail):
+        state[m] = 1
+        for n in graph[m]:
+            assert state.get(n) != 1, "import cycle: " + " → ".join(trail + [m, n])
+            if n not in state:
+                visit(n, trail + [m])
+        state[m] = 2
+    for m in graph:
+        if m not in state:
+            visit(m, [])
+
+
+def test_no_private_name_is_imported_across_prsm_sim_modules():
+    offenders = []
+    for f in (ROOT / "prsm_sim").rglob("*.py"):
+        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                offenders += [f"{f.relative_to(ROOT)}: {a.name}" for a in node.names if a.name.startswith("_")]
+    assert not offenders
