@@ -121,7 +121,7 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("position_command", "~/position_command", "std_msgs/msg/Float64", qos(1), "in"),
     TopicDef("inject_fault", "~/inject_fault", "std_msgs/msg/String", qos(10), "in"),
     TopicDef("nut_position_reference", "~/nut_position_reference", "std_msgs/msg/Float64", qos(10), "in"),
-    # keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no state (issue 15)
+    # keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no state
     TopicDef("joint_states", "joint_states", "sensor_msgs/msg/JointState", qos(100), "out"),
     TopicDef("ground_truth", "~/ground_truth/joint_states", "sensor_msgs/msg/JointState", qos(10), "out"),
     TopicDef("wrench", "~/nut/wrench", "geometry_msgs/msg/WrenchStamped", qos(10), "out"),

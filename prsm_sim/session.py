@@ -63,7 +63,7 @@ class Session:
     load_n : float, default 0.0
         Nut load, N, held until `step(load_n=...)` or `load_n` changes it.
     initial_load_n : float, optional
-        The load `reset` returns to; None: `load_n`.
+        The load `reset` returns to; None: a reset keeps the load in force.
     kernel : {"compiled", "reference"}
         As for `Simulator`.
     interface : {"effort", "velocity", "position"}
@@ -98,7 +98,7 @@ class Session:
         self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
         self.nut_position_m = float(nut_position_m)
         self.load_n = float(load_n)
-        self.initial_load_n = self.load_n if initial_load_n is None else float(initial_load_n)
+        self.initial_load_n = None if initial_load_n is None else float(initial_load_n)
         self._paused = False
         self.fault: str | None = None
         self._last: Outputs | None = None
@@ -310,8 +310,8 @@ class Session:
 
     def reset(self, nut_position_m: float | None = None) -> None:
         """Back to time zero at rest (at `nut_position_m`, kept for later resets); clears the fault,
-        the command, the gate's counters and the events, and returns the load to `initial_load_n`.
-        The interface and the pause state stay."""
+        the command, the gate's counters and the events, and returns the load to `initial_load_n`
+        (when given). The interface and the pause state stay."""
         if nut_position_m is not None:
             if not is_finite_number(nut_position_m):
                 raise InputError(f"nut_position_m = {nut_position_m!r}: must be a finite number (m)")
@@ -321,7 +321,8 @@ class Session:
         self.gate.reset(self.nut_position_m)
         if self.actuator is not None:
             self.simulator.state = self.actuator.set_mode(self.simulator.state, mode)
-        self.load_n = self.initial_load_n
+        if self.initial_load_n is not None:
+            self.load_n = self.initial_load_n
         self.fault = None
         self._last = None
         self._events = []

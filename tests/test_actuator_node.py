@@ -140,3 +140,45 @@ def test_prsm_demo_tracks_in_velocity_and_position_modes(tmp_path):
         assert f"{mode} commands" in res.stdout
         rms_mm = float(re.search(r"RMS error\s+([-\d.]+) mm", res.stdout).group(1))
         assert 0 < rms_mm < 0.1, res.stdout
+
+
+def test_reset_while_paused_with_an_actuator_publishes_the_rest_state(tmp_path):
+    """`~/reset` while paused publishes the reset state at once; with an actuator that state's sensors
+    are read from the actuator's state (the node used to fail here). Oracle: an offline
+    `prsm_sim.Session` with the same parameters, reset, measured as the node measures it."""
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    from std_srvs.srv import SetBool, Trigger
+
+    from prsm_sim import Session
+
+    params = {"model": "jones2016", "preset": "s30", "time_mode": "lockstep", "lockstep_steps": STEPS,
+              "load_force": LOAD_N, "command_interface": "velocity", "actuator": ACTUATOR,
+              "initial_nut_position": 0.003, "record": False}
+    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
+        js = cli.subscribe("/joint_states", JointState)
+        gt = cli.subscribe("/prsm_actuator/ground_truth/joint_states", JointState)
+        cli.publisher("/prsm_actuator/velocity_command", Float64)
+        cli.wait_for_node(proc)
+        cli.publish("/prsm_actuator/velocity_command", Float64(data=20.0))
+        cli.spin_until(lambda: len(js) >= STEPS, 10.0, "the first steps")
+        assert cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True)).success
+        n = len(js)
+        res = cli.call("/prsm_actuator/reset", Trigger)
+        assert res.success, res.message
+        cli.spin_until(lambda: len(js) > n and len(gt) > n, 10.0, "the reset state while paused")
+        rest_js, rest_gt = js[-1], gt[-1]
+        assert proc.stop() == 0, proc.stderr
+
+    a = actuator_params_from_dict({"motor": {}, "sensors": {"encoder_counts_per_rev": 4096},
+                                   "drive": {"mode": "velocity"}})
+    s = Session(preset("s30"), "jones2016", 1e-3, a, nut_position_m=0.003, load_n=LOAD_N, interface="velocity")
+    s.step(20.0)
+    s.reset()
+    rest = s.rest_outputs()
+    meas = s.actuator.measured(rest)
+    assert (rest_js.header.stamp.sec, rest_js.header.stamp.nanosec) == (0, 0)
+    assert list(rest_gt.position) == [rest.screw_angle_rad, rest.nut_position_m] and rest.nut_position_m > 0.0
+    assert list(rest_js.position) == [meas.screw_angle_rad, meas.nut_position_m]
+    assert list(rest_js.velocity) == [0.0, 0.0] and list(rest_js.effort) == [0.0, meas.nut_force_n]
+    assert list(rest_gt.effort) == [0.0, LOAD_N]  # at rest the nut carries the load

@@ -168,3 +168,14 @@ def test_simulator_state_round_trips_through_json_bit_for_bit(model):
         assert np.array(x.scalar_values()).tobytes() == np.array(y.scalar_values()).tobytes()
         assert x.internal.tobytes() == y.internal.tobytes()
     assert b.nstep == a.nstep == 60
+
+
+def test_reset_keeps_the_load_unless_an_initial_load_is_given():
+    s = Session(preset("s30"), "ideal", 1e-3, load_n=10.0)
+    s.step(load_n=20.0)
+    s.reset()
+    assert s.load_n == 20.0
+    s = Session(preset("s30"), "ideal", 1e-3, load_n=10.0, initial_load_n=5.0)
+    s.step(load_n=20.0)
+    s.reset(nut_position_m=0.01)
+    assert s.load_n == 5.0 and s.time_s == 0.0 and s.rest_outputs().nut_position_m == pytest.approx(0.01)

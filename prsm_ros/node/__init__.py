@@ -1,1 +1,1 @@
-"""The ROS 2 node: rclpy plumbing (`ros_node`) over pure-Python parameters, command gate and stepping."""
+"""The ROS 2 node: rclpy transport (`ros_node`) over pure-Python parts (parameters, pacing, diagnostics, commands) and `prsm_sim.Session`."""

@@ -1,4 +1,4 @@
-"""The node's per-step messages as CDR bytes from templates serialised by rclpy (issue 15).
+"""The node's per-step messages as CDR bytes from templates serialised by rclpy.
 
 At 1 kHz the node spent more on building rclpy message objects and serialising them than on the
 step itself (every field assignment of an rclpy message is a checked Python setter). These

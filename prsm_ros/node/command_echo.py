@@ -1,4 +1,4 @@
-"""The command echo and the loop latency, pure Python (no ROS), so it is tested without DDS (issue 15).
+"""The command echo and the loop latency, pure Python (no ROS), so it is tested without DDS.
 
 A controller that wants its own loop latency needs to know which state first reflects each
 command. The node notes every accepted command's stamp (`offer`): the DDS `source_timestamp` of a

@@ -1,4 +1,4 @@
-"""Command subscriptions the step thread reads itself, with no executor wake-up per message (issue 15).
+"""Command subscriptions the step thread reads itself, with no executor wake-up per message.
 
 At 1 kHz the rclpy executor was the node's largest cost: every command woke it, and each wake-up
 rebuilt the wait set, the task and the callback-group bookkeeping in Python (py-spy: about half a

@@ -1,4 +1,4 @@
-"""One controller owns the actuator, pure Python (no ROS), so it is tested without DDS (issue 15).
+"""One controller owns the actuator, pure Python (no ROS), so it is tested without DDS.
 
 The first participant to send a *valid* command owns the actuator across all its command topics;
 commands from any other participant are refused and counted per participant until the owner

@@ -1,4 +1,4 @@
-"""Where the node records, never over an existing file, pure Python (issue 15: several actuators).
+"""Where the node records, never over an existing file, pure Python (several actuators).
 
 Two actuators started in the same second in one directory used to get the same default name
 (`prsm_<UTC second>.mcap`) and the second silently truncated the first's bag. Now the default

@@ -1,15 +1,16 @@
-"""`prsm-node`: the simulated PRSM actuator on the ROS 2 graph (issue 4; DESIGN.md "ROS interface").
+"""`prsm-node`: the simulated PRSM actuator on the ROS 2 graph.
 
     prsm-node --ros-args --params-file my_params.yaml -p time_mode:=lockstep
     prsm-node --params-template > my_params.yaml       # every parameter, its unit and range
     prsm-node --help
 
-The node is plumbing (STYLE.md §8): it declares parameters (`node_params`), turns command
-messages into gated torques (`command_gate`), steps the simulator (`stepping.SimStepper`) on its
-clock, and hands each step's outputs to the publishers (`messages.MessageMapper`), the MCAP
-recorder and the Rerun sink.
+The node is transport: it declares its parameters (`declare`, from `parameters`), hands every
+command message to the runtime session (`prsm_sim.Session`: command gate, watchdog, actuator,
+faults), steps it on its clock, and turns each step's outputs into messages (`messages`,
+`cdr`) for the publishers, the MCAP recorder and the Rerun sink (`sinks`), and the session's
+status into /diagnostics and ~/events (`diagnostics`).
 
-Time modes. `realtime`: a dedicated thread steps on absolute deadlines (`stepping.DeadlinePacer`);
+Time modes. `realtime`: a dedicated thread steps on absolute deadlines (`pacing.DeadlinePacer`);
 `fast`: the same thread without sleeping; in both, that thread takes the commands waiting on
 the command topics itself before each step (`command_poll`: no executor wake-up per command, the
 main cost at 1 kHz otherwise). `lockstep`: every message received on a command topic
@@ -19,7 +20,7 @@ sequence always gives the same states. `/clock` is published on every step; join
 wrench at `joint_states_rate` (and after every lockstep batch), internal loads at
 `internal_loads_rate`. Nothing is published before the first step.
 
-What nobody reads costs little (issue 15, node CPU at 1 kHz): in realtime and fast mode a per-step
+What nobody reads costs little (node CPU at 1 kHz): in realtime and fast mode a per-step
 topic whose publisher had no matched reader at the last count (every `READER_COUNT_EVERY` steps) asks
 for its reader count before each message instead of publishing it (2-3 µs against about 8 µs for a
 publish to nobody, paced at 1 kHz on the 2-core VM) and, while it has none, goes only to the bag.
@@ -49,7 +50,7 @@ import rclpy
 import rclpy.executors
 import rclpy.signals
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock as RosClock
 from rclpy.clock_type import ClockType
 from rclpy.exceptions import InvalidHandle, ParameterException
@@ -66,15 +67,19 @@ from prsm_sim import ModelError, PrsmError, Session
 from prsm_ros.cdr_read import float64_data
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
+from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage
+from prsm_ros.node.diagnostics import (FAULT_LOG_LENGTH, Report, energy_fault_event, fault_event_details,
+                                       fault_event_line, fault_event_report, simulation_report)
 from prsm_ros.node.ownership import CommandOwnership, participant_of
-from prsm_ros.node.record_path import RecordPathError, claim_record_path
 from prsm_ros.node.scheduling import raise_process_threads
+from prsm_ros.node.sinks import open_sinks
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns
-from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value, node_parameters,
-                          params_template, physics_parameters, physics_type, physics_unit, runtime_change)
+from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, params_template, runtime_change
 from prsm_ros.node.joint_commands import offer_joint_command
 from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
 
+# diagnostics.OK, WARN, ERROR as DiagnosticStatus levels
+DIAGNOSTIC_LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings about bad commands
 # fast mode, and realtime mode while it catches up on late steps: a thread that never sleeps keeps
 # the GIL and the lock from the executor (services, parameters) — it re-takes the lock before a waiting
@@ -117,7 +122,7 @@ class PrsmNode(Node):
             raise
 
     def _setup(self) -> None:
-        self.config = self._declare_parameters()
+        self.config = declare_parameters(self)
         cfg = self.config
         self._lock = threading.Lock()
         self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
@@ -159,7 +164,7 @@ class PrsmNode(Node):
         if polled:
             for k in COMMAND_TOPICS:
                 self.poller.add(k, self.sub[k], self._on_command)
-        self._check_unknown_overrides()
+        check_unknown_overrides(self, self.config)
         self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
         # realtime and fast: a per-step topic with no matched reader is not handed to DDS (module doc)
         self._unread: frozenset[str] = frozenset()
@@ -171,15 +176,9 @@ class PrsmNode(Node):
         self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
         if cfg.time_mode == "realtime":
             self._prepare_realtime()
-        self.recorder = self._open_recorder()
-        try:
-            self.rerun = self._open_rerun()
-        except ConfigError:
-            if self.recorder is not None:  # no run happened: leave no empty bag behind
-                self.recorder.close()
-                self.recorder.path.unlink(missing_ok=True)
-                self.recorder = None
-            raise
+        channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile)
+                    for k, name in self._topic_names.items()}
+        self.recorder, self.rerun = open_sinks(cfg, self.get_fully_qualified_name(), channels, self.session.layout)
 
         self.create_service(SetBool, "~/pause", self._srv_pause)
         self.create_service(Trigger, "~/step", self._srv_step)
@@ -224,50 +223,6 @@ class PrsmNode(Node):
         sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
 
     # -- parameters ------------------------------------------------------------------------
-    def _declare_parameters(self) -> NodeConfig:
-        values: dict[str, Any] = {}
-        for p in node_parameters():
-            values[p.name] = self._declare(p.name, p.default, _descriptor(p), p)
-            if p.name == "preset":
-                base = check_preset(values["preset"])
-        for key, default in physics_parameters(base).items():
-            unit = physics_unit(key)
-            desc = ParameterDescriptor(
-                description=f"physical parameter {key[len(PHYSICS_PREFIX):]}"
-                            + (f" [{unit}]" if unit else "") + f"; default from preset {base.name}",
-                additional_constraints=f"{physics_type(base, key).__name__}; validated by prsm_sim.Params",
-                dynamic_typing=True)
-            values[key] = self._declare(key, default, desc)
-        return NodeConfig.from_values(values)
-
-    def _declare(self, name: str, default: Any, desc: ParameterDescriptor, spec: NodeParam | None = None) -> Any:
-        """Declare one parameter; rclpy's type or range refusal is re-worded by our own check when we can."""
-        try:
-            return self.declare_parameter(name, default, desc).value
-        except ParameterException as e:
-            overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps them here; no getter
-            given = overrides.get(name)
-            if spec is not None and given is not None:
-                value = check_value(spec, given.value)  # raises ConfigError in the words of node_params
-                if isinstance(given.value, str) and isinstance(value, float):
-                    # a float spelled as YAML 1.1 reads it ("1e-5" is a string there): declare the number
-                    del overrides[name]
-                    return self.declare_parameter(name, value, desc).value
-            raise ConfigError(f"parameter {name}: {e}") from None
-
-    def _check_unknown_overrides(self) -> None:
-        """A physics.* key in the parameter file that we did not declare is a typo: refuse it."""
-        overrides = getattr(self, "_parameter_overrides", {})
-        unknown = sorted(k for k in overrides if not self.has_parameter(k))
-        for k in unknown:
-            if k.startswith(PHYSICS_PREFIX):
-                group = k[len(PHYSICS_PREFIX):].split(".")[0]
-                allowed = [n for n in physics_parameters(self.config.params) if n.startswith(f"{PHYSICS_PREFIX}{group}.")]
-                raise ConfigError(f"unknown parameter {k}; allowed: "
-                                  + (", ".join(allowed) if allowed else
-                                     "physics.<group>.<name> with group geometry, mass, friction, ideal or loads"))
-            self.get_logger().warning(f"parameter {k} is not a parameter of this node; ignored")
-
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         ours = {p.name: p.value for p in parameters if p.name in self.config.values or p.name.startswith(PHYSICS_PREFIX)}
         if not ours:
@@ -306,40 +261,7 @@ class PrsmNode(Node):
     def _topic(self, key: str) -> str:
         return self.config.topics.get(key, TOPICS[key].name)
 
-    # -- recording -------------------------------------------------------------------------
-    def _open_recorder(self):
-        cfg = self.config
-        if not cfg.record:
-            return None
-        from prsm_ros.mcap.recorder import McapRecorder, run_metadata
-        node_params = {k: v for k, v in cfg.values.items()}
-        node_params.update(physics_parameters(cfg.params))
-        meta = run_metadata(cfg.params, preset=cfg.preset, model=cfg.model, dt_s=cfg.dt_s,
-                            node_parameters=node_params)
-        try:
-            path = claim_record_path(cfg.record_path, self.get_fully_qualified_name())
-        except RecordPathError as e:
-            raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {e}") from None
-        rec = McapRecorder(path, metadata=meta)
-        if rec.error:
-            rec.close()
-            raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {rec.error}")
-        for k, name in self._topic_names.items():
-            ent = self.pub.get(k) or self.sub[k]
-            rec.add_channel(name, TOPICS[k].msg_class, ent.qos_profile)
-        return rec
-
-    def _open_rerun(self):
-        cfg = self.config
-        from prsm_ros.viz.sink import rerun_forced_off
-        if cfg.rerun == "off" or rerun_forced_off():
-            return None
-        from prsm_ros.viz.sink import RerunSink
-        try:
-            return RerunSink(cfg.rerun, cfg.rerun_target, cfg.params, self.session.layout, cfg.model)
-        except (ValueError, RuntimeError) as e:
-            raise ConfigError(str(e)) from None
-
+    # -- publishing and recording -----------------------------------------------------------
     def _publish(self, pub, key: str, msg, stamp_ns: int | None = None) -> None:
         """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
         if type(msg) is not bytes:
@@ -473,15 +395,12 @@ class PrsmNode(Node):
         return done
 
     def _report_energy_fault(self, out) -> None:
-        """The model's energy books stopped closing (models.base energy guard): one event, an error log;
+        """The model's energy books stopped closing (the core's energy guard): one event, an error log;
         /diagnostics says ERROR while it lasts. Stepping goes on: the user decides."""
         self._energy_fault_reported = True
-        text = (f"energy balance violated at t = {out.time_s:.6f} s: residual {out.energy_residual_j:.6g} J "
-                f"of {out.energy_flow_j:.6g} J that flowed (limit 1e-3); results of model {self.config.model} "
-                "are not trustworthy from here")
-        self._publish(self.pub["events"], "events", event_message(
-            out.time_s, "energy_guard", "error", "energy_balance", text,
-            {"residual_j": out.energy_residual_j, "flow_j": out.energy_flow_j, "model": self.config.model}))
+        text, details = energy_fault_event(out.time_s, out.energy_flow_j, out.energy_residual_j, self.config.model)
+        self._publish(self.pub["events"], "events", event_message(out.time_s, "energy_guard", "error",
+                                                                   "energy_balance", text, details))
         self.get_logger().error(text)
 
     def _count_readers(self) -> None:
@@ -647,100 +566,64 @@ class PrsmNode(Node):
     def _publish_fault_events(self, events) -> None:
         """Each fault start or clear: logged, on ~/events and on /diagnostics at once (the bag has both)."""
         for e in events:
-            text = f"t = {e.time_s:.6f} s: {e.describe()}"
-            self.get_logger().warning(text) if e.what == "start" else self.get_logger().info(text)
-            self._fault_log = (self._fault_log + [text])[-10:]
-            level = DiagnosticStatus.WARN if e.what == "start" else DiagnosticStatus.OK
-            status = DiagnosticStatus(level=level, name=f"{self.get_name()}: actuator fault", message=e.describe(),
-                                      hardware_id=f"prsm_sim/{self.config.model}",
-                                      values=[KeyValue(key="event", value=e.what), KeyValue(key="kind", value=e.fault.kind),
-                                              KeyValue(key="time_s", value=f"{e.time_s:.6f}"),
-                                              KeyValue(key="fault", value=e.fault.describe())])
-            msg = DiagnosticArray(status=[status])
-            msg.header.stamp = stamp(self.session.time_s)
-            self._publish(self.pub["diagnostics"], "diagnostics", msg)
+            line = fault_event_line(e)
+            self.get_logger().warning(line) if e.what == "start" else self.get_logger().info(line)
+            self._fault_log = (self._fault_log + [line])[-FAULT_LOG_LENGTH:]
+            self._publish(self.pub["diagnostics"], "diagnostics",
+                          self._diagnostic_array(f"{self.get_name()}: actuator fault", fault_event_report(e)))
             self._publish(self.pub["events"], "events", event_message(
                 e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
-                {"kind": e.fault.kind, "start_s": e.fault.start_s,  # duration null: until cleared (JSON has no inf)
-                 "duration_s": e.fault.duration_s if math.isfinite(e.fault.duration_s) else None,
-                 "value": e.fault.value, "sensor": e.fault.sensor, "roller": e.fault.roller}))
+                fault_event_details(e)))
 
     # -- diagnostics -----------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         with self._lock:
-            status = self._diagnostic_status()
-            msg = DiagnosticArray(status=[status])
-            msg.header.stamp = stamp(self.session.time_s)
-            self._publish(self.pub["diagnostics"], "diagnostics", msg)
+            report = simulation_report(self.session.status(), *self._transport_report(), self._fault_log)
+            # the fully qualified name: two actuators in two namespaces report under two names
+            self._publish(self.pub["diagnostics"], "diagnostics",
+                          self._diagnostic_array(f"{self.get_fully_qualified_name()}: simulation", report))
 
-    def _diagnostic_status(self) -> DiagnosticStatus:
-        cfg, st, gate = self.config, self.session, self.session.gate
-        now_wall, sim_now = time.perf_counter(), st.time_s
+    def _diagnostic_array(self, name: str, report: Report) -> DiagnosticArray:
+        status = DiagnosticStatus(level=DIAGNOSTIC_LEVELS[report.level], name=name, message=report.message,
+                                  hardware_id=f"prsm_sim/{self.config.model}",
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = stamp(self.session.time_s)
+        return msg
+
+    def _transport_report(self) -> tuple[dict, list[str]]:
+        """The node's own figures since the last report (pacing, publishing, recording, Rerun) and its problems."""
+        cfg = self.config
+        now_wall, sim_now = time.perf_counter(), self.session.time_s
         wall0, sim0, over0 = self._diag_last
-        rtf = (sim_now - sim0) / (now_wall - wall0) if now_wall > wall0 else math.nan
         ps = self.pacer.snapshot()
         self._diag_last = (now_wall, sim_now, ps.overruns)
-        c = gate.counters
-        age = gate.command_age_s(sim_now)
         values: dict[str, Any] = {
             "time_mode": cfg.time_mode, "model": cfg.model, "preset": cfg.preset,
-            "sim_time_s": f"{sim_now:.6f}", "steps": st.nstep, "paused": st.paused,
-            "achieved_real_time_factor": f"{rtf:.4f}",
+            "achieved_real_time_factor": f"{(sim_now - sim0) / (now_wall - wall0) if now_wall > wall0 else math.nan:.4f}",
             "target_real_time_factor": cfg.real_time_factor if cfg.time_mode == "realtime" else "n/a",
             "step_overruns": ps.overruns, "skipped_periods": ps.skipped_periods, **self.scheduling,
-            "max_step_wall_time_us": f"{self._step_wall_max_s * 1e6:.1f}",
-            "command_age_s": "none yet" if math.isinf(age) else f"{age:.6f}",
-            "command_nm": gate.command_nm, "timed_out": gate.timed_out, "load_force_n": st.load_n,
-            "commands_received": c.received, "commands_accepted": c.accepted,
-            "rejected_non_finite": c.rejected_non_finite, "rejected_malformed": c.rejected_malformed,
-            "saturated": c.saturated, "timeouts": c.timeouts, "publish_failures": self.publish_failures,
+            "max_step_wall_time_us": f"{self._step_wall_max_s * 1e6:.1f}", "publish_failures": self.publish_failures,
             # rclpy does not report what a reliable writer discards for a slow reader: readers count
             # gaps in the state stamps; the node can say how many there are
             "joint_states_readers": self.pub["joint_states"].get_subscription_count(),
-            "fault": st.fault or "", "command_interface": gate.interface, "command": gate.value,
             **self.ownership.diagnostics(), **self.echo.report(),
         }
         self._step_wall_max_s = 0.0
         problems = []
-        act = st.actuator
-        if act is not None:
-            a = st.simulator.state
-            active = [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]
-            values.update(brake_engaged=a.brake_engaged, brake_level=f"{a.brake_level:.3f}",
-                          motor_current_a=f"{a.current_a:.6g}", torque_limited=a.limited,
-                          faults_active="; ".join(active), fault_events="; ".join(self._fault_log))
-            if active:
-                problems.append(f"fault(s) active: {'; '.join(active)}")
-        if self.recorder is not None:
-            values.update(record_path=str(self.recorder.path), record_written=self.recorder.messages_written,
-                          record_dropped=self.recorder.messages_dropped, record_error=self.recorder.error or "")
-            if self.recorder.error:
-                problems.append(self.recorder.error)
-        if self.rerun is not None:
-            values.update({f"rerun_{k}": v for k, v in self.rerun.stats().items() if v is not None})
-            if self.rerun.error:
-                problems.append(self.rerun.error)
-        if gate.timed_out:
-            problems.append(f"no command for {age:.3f} s (cmd_timeout {cfg.cmd_timeout:g} s): "
-                            + ("zero torque" if cfg.timeout_behaviour == "zero" else "holding the last command"))
+        for sink, prefix in ((self.recorder, "record"), (self.rerun, "rerun")):
+            if sink is None:
+                continue
+            if prefix == "record":
+                values.update(record_path=str(sink.path), record_written=sink.messages_written,
+                              record_dropped=sink.messages_dropped, record_error=sink.error or "")
+            else:
+                values.update({f"rerun_{k}": v for k, v in sink.stats().items() if v is not None})
+            if sink.error:
+                problems.append(str(sink.error))
         if ps.overruns > over0:
             problems.append(f"{ps.overruns - over0} step overruns since the last report")
-        last = st.last
-        if last is not None:
-            values.update(energy_residual_j=f"{last.energy_residual_j:.6g}", energy_flow_j=f"{last.energy_flow_j:.6g}")
-        if st.fault is not None:
-            level, text = DiagnosticStatus.ERROR, st.fault
-        elif last is not None and last.energy_fault:
-            level, text = DiagnosticStatus.ERROR, (f"energy balance violated: residual {last.energy_residual_j:.6g} J of "
-                                                   f"{last.energy_flow_j:.6g} J that flowed (limit 1e-3)")
-        elif problems:
-            level, text = DiagnosticStatus.WARN, "; ".join(problems)
-        else:
-            level, text = DiagnosticStatus.OK, "paused" if st.paused else "running"
-        # the fully qualified name: two actuators in two namespaces report under two names
-        return DiagnosticStatus(level=level, name=f"{self.get_fully_qualified_name()}: simulation", message=text,
-                                hardware_id=f"prsm_sim/{cfg.model}",
-                                values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        return values, problems
 
     # -- shutdown --------------------------------------------------------------------------
     def close(self) -> None:
@@ -774,30 +657,6 @@ def _float64(raw: bytes) -> float:
         return deserialize_message(raw, Float64).data
 
 
-def _descriptor(p: NodeParam) -> ParameterDescriptor:
-    unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
-    d = ParameterDescriptor(description=p.description + unit, additional_constraints=p.allowed, read_only=p.read_only)
-    if isinstance(p.default, float):
-        d.dynamic_typing = True  # accept integers for doubles; node_params checks the type
-        if p.lo is not None and p.hi is not None:
-            d.floating_point_range = [FloatingPointRange(from_value=float(p.lo), to_value=float(p.hi))]
-    elif isinstance(p.default, int) and not isinstance(p.default, bool) and p.lo is not None and p.hi is not None:
-        d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=1)]
-    return d
-
-
-def _usage() -> str:
-    lines = ["prsm-node: the simulated PRSM actuator (planetary roller screw) on the ROS 2 graph.", "", "usage: prsm-node [--help] [--params-template [PRESET]] [--ros-args ...]",
-             "", "parameters (-p name:=value, or a ros__parameters YAML via --params-file):"]
-    for p in node_parameters():
-        unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
-        lines.append(f"  {p.name} = {p.default!r}{unit}: {p.description}; {p.allowed}"
-                     + (" (read-only)" if p.read_only else ""))
-    lines.append("  physics.<group>.<name>: any prsm_sim parameter, default from the preset "
-                 "(see prsm-node --params-template)")
-    return "\n".join(lines)
-
-
 def _exit_now(code: int, message: str) -> None:
     """Report a refused start-up and leave without tearing down the rcl node.
 
@@ -817,7 +676,7 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv if argv is None else argv)
     user = args[1:args.index("--ros-args")] if "--ros-args" in args else args[1:]
     if "-h" in user or "--help" in user:
-        print(_usage())
+        print(usage())
         return 0
     if "--params-template" in user:
         i = user.index("--params-template")

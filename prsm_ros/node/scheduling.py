@@ -1,4 +1,4 @@
-"""Scheduling for every thread the realtime loop depends on, where the OS allows (issue 15).
+"""Scheduling for every thread the realtime loop depends on, where the OS allows.
 
 The step thread raises itself (`stepping.request_realtime_priority`); the threads created after the
 node's set-up inherit the executor thread's policy. The middleware's own threads (Fast DDS's
