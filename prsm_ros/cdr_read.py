@@ -4,7 +4,7 @@ A 1 kHz controller in Python spends more on building an rclpy message object per
 field goes through a checked setter) than on its own law, and a reader that falls behind acts on
 stale states. So the controllers of this project (`prsm_ros.cli.demo_controller`,
 `prsm_ros.bench.rt_controller`) subscribe with `raw=True` and read only what they use from the bytes.
-The writing side is `prsm_ros.node.cdr` (templates serialised by rclpy); this is the reading side,
+The writing side is `prsm_ros.cdr_write` (templates serialised by rclpy); this is the reading side,
 for little-endian plain CDR (what Fast DDS writes on x86 and ARM), used by the node too for its
 `std_msgs/Float64` commands (`float64_data`). The tests check every reader against rclpy's own
 serialiser.
@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import struct
 
+from prsm_sim.errors import InputError
+
 _HEADER = 4  # encapsulation header: representation id (2 bytes) and options (2 bytes)
 _LITTLE_ENDIAN_CDR = 1  # second byte of the representation id: CDR_LE
 
@@ -29,7 +31,7 @@ def _align(o: int, n: int) -> int:
 
 def _check(b: bytes) -> None:
     if b[1] != _LITTLE_ENDIAN_CDR:
-        raise ValueError(f"encapsulation {b[:2].hex()}: only little-endian plain CDR (0001) is read")
+        raise InputError(f"encapsulation {b[:2].hex()}: only little-endian plain CDR (0001) is read")
 
 
 def _string_at(b: bytes, o: int) -> tuple[str, int]:

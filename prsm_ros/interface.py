@@ -55,7 +55,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from prsm_sim import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs
+from prsm_sim import OUTPUT_FIELDS, InputError, InternalBlock, InternalLayout, Outputs
 
 NODE_NAME = "prsm_actuator"
 SCREW_JOINT = "screw_joint"
@@ -142,7 +142,7 @@ def event_document(time_s: float, source: str, severity: str, code: str, message
                    details: Mapping[str, Any] | None = None) -> str:
     """The JSON text of one `~/events` entry (see the module doc); ValueError for an unknown severity."""
     if severity not in EVENT_SEVERITIES:
-        raise ValueError(f"severity = {severity!r}: must be one of {', '.join(EVENT_SEVERITIES)}")
+        raise InputError(f"severity = {severity!r}: must be one of {', '.join(EVENT_SEVERITIES)}")
     doc = {"time_s": float(time_s), "source": source, "severity": severity, "code": code, "message": message,
            "details": dict(details or {})}
     return json.dumps(doc, allow_nan=False, default=float)
@@ -196,13 +196,13 @@ def parse_labels(json_str: str) -> dict[str, Any]:
     try:
         doc = json.loads(json_str)
     except (TypeError, json.JSONDecodeError) as e:
-        raise ValueError(f"internal_loads labels: not valid JSON ({e})") from None
+        raise InputError(f"internal_loads labels: not valid JSON ({e})") from None
     if not isinstance(doc, dict) or doc.get("format") != LABELS_FORMAT:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-        raise ValueError(f"internal_loads labels: format {got!r}, expected {LABELS_FORMAT!r}")
+        raise InputError(f"internal_loads labels: format {got!r}, expected {LABELS_FORMAT!r}")
     for key in ("model", "elements", "segments", "layout"):
         if key not in doc:
-            raise ValueError(f"internal_loads labels: missing key {key!r}")
+            raise InputError(f"internal_loads labels: missing key {key!r}")
     doc["layout_obj"] = InternalLayout(blocks=tuple(
         InternalBlock(b["name"], tuple(b["dims"]), tuple(b["shape"]),
                       tuple((q["name"], q["unit"]) for q in b["quantities"]))
@@ -220,7 +220,7 @@ def unpack_internal(msg, labels: dict[str, Any]) -> dict[str, np.ndarray]:
     rows = data.shape[:-1]
     n = sum(s["size"] for s in labels["segments"])
     if data.shape[-1] != n:
-        raise ValueError(f"internal_loads: {data.shape[-1]} elements, the labels describe {n}")
+        raise InputError(f"internal_loads: {data.shape[-1]} elements, the labels describe {n}")
     out: dict[str, np.ndarray] = {}
     for seg in labels["segments"]:
         part = data[..., seg["offset"]: seg["offset"] + seg["size"]]

@@ -22,6 +22,8 @@ from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Float64, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, String
 
 from prsm_sim import InternalLayout
+
+from prsm_ros.cdr_write import StepEncoder
 from prsm_ros.interface import (
     LABELS_FORMAT, NODE_NAME, NUT_FRAME, NUT_JOINT, SCALAR_SEGMENT, SCREW_JOINT, STEP_TOPICS, TOPIC_DEFS,
     MessageBuilder, QosSpec, event_document, labels_document, parse_labels, time_ns, unpack_internal)
@@ -101,8 +103,7 @@ class MessageMapper(MessageBuilder):
     def clock(time_s: float) -> Clock:
         return Clock(clock=stamp(time_s))
 
-    def encoder(self):
-        """The same per-step messages as CDR bytes, without message objects (`prsm_ros.node.cdr`)."""
-        from prsm_ros.node.cdr import StepEncoder
+    def encoder(self) -> StepEncoder:
+        """The same per-step messages as CDR bytes, without message objects (`prsm_ros.cdr_write`)."""
         return StepEncoder(self.layout, tuple(self._names), NUT_FRAME,
                            [(d.label, d.size) for d in self._multiarray_layout.dim])

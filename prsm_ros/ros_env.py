@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from prsm_sim.errors import ParamError
+
 
 def isolated_env(domain_id: int | None = None, *, respect_user: bool = True, **extra: str) -> dict[str, str]:
     """os.environ plus ROS_DOMAIN_ID (given, the user's, or 100 + pid % 100) and localhost discovery."""
@@ -21,7 +23,7 @@ def isolated_env(domain_id: int | None = None, *, respect_user: bool = True, **e
         domain_id = 100 + os.getpid() % 100
     if domain_id is not None:
         if not 0 <= domain_id <= 232:
-            raise ValueError(f"ROS domain id {domain_id}: must be in 0..232")
+            raise ParamError(f"ROS domain id {domain_id}: must be in 0..232")
         env["ROS_DOMAIN_ID"] = str(domain_id)
     if not (respect_user and env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip()):
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

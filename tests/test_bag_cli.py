@@ -20,7 +20,7 @@ import pytest
 
 from prsm_sim import Simulator, preset
 from prsm_sim.scenarios import default_spec, run_scenario
-from prsm_ros.bag.cli import main
+from prsm_ros.cli.bag import main
 from prsm_ros.bag.reader import open_bag
 from prsm_ros.cli.make_bags import pd_tracking
 from prsm_ros.mcap.offline import write_trajectory_mcap
@@ -228,13 +228,13 @@ def test_bad_files_and_arguments_get_one_clear_line_and_exit_1(tracking, tmp_pat
     ]
     for args, expected in cases:
         rc, _, err = _cli(capsys, *args)
-        assert rc == 1, args
+        assert rc == 2, args
         lines = err.strip().splitlines()
         assert len(lines) == 1 and expected in lines[0], (args, err)
     # the installed entry point, in a real process: no traceback
     res = subprocess.run([str(Path(sys.executable).parent / "prsm-bag"), "report", str(tmp_path / "text.mcap"),
                           "-o", str(tmp_path / "r")], capture_output=True, text=True, env=ENV, timeout=60)
-    assert res.returncode == 1 and "Traceback" not in res.stderr and "not an MCAP file" in res.stderr
+    assert res.returncode == 2 and "Traceback" not in res.stderr and "not an MCAP file" in res.stderr
 
 
 def test_truncated_bag_is_reported_with_a_note(tracking, tmp_path, capsys):
@@ -261,7 +261,7 @@ def test_to_rrd_subcommand_writes_a_recording(tracking, tmp_path, capsys):
     np.testing.assert_array_equal(t, np.round(traj["time_s"] * 1e9).astype(np.int64))
     np.testing.assert_array_equal(np.ravel(vals), traj["nut_position_m"])
     rc, _, err = _cli(capsys, "to-rrd", tmp_path / "t.rrd", "-o", tmp_path / "u.rrd")
-    assert rc == 1 and "not an MCAP file" in err
+    assert rc == 2 and "not an MCAP file" in err
 
 
 _SUBSCRIBER = """
@@ -297,7 +297,7 @@ def test_play_republishes_the_bag_over_dds_with_clock(tracking):
                            text=True, env=ENV)
     try:
         assert sub.stdout.readline().strip() == "ready"
-        res = subprocess.run([sys.executable, "-m", "prsm_ros.bag.cli", "play", str(path), "--rate", "2",
+        res = subprocess.run([sys.executable, "-m", "prsm_ros.cli.bag", "play", str(path), "--rate", "2",
                               "--end", "0.2", "--delay", "0.5", "--wait-for-subscribers", "-t", "/joint_states",
                               "-t", "/prsm_actuator/internal_loads/labels"],
                              capture_output=True, text=True, env=ENV, timeout=60)

@@ -30,7 +30,7 @@ from prsm_sim import Simulator, preset  # noqa: E402
 from prsm_sim.control import PositionController, run_position_loop, reference  # noqa: E402
 from prsm_sim.models.ideal import reflected_inertia  # noqa: E402
 
-from prsm_ros.bag.cli import main as bag_main  # noqa: E402
+from prsm_ros.cli.bag import main as bag_main  # noqa: E402
 from prsm_ros.bag.fleet import report_many, expand  # noqa: E402
 from prsm_ros.mcap.offline import write_trajectory_mcap  # noqa: E402
 
@@ -128,6 +128,6 @@ def test_bag_tools_stay_free_of_ray():
     extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
     assert not any("ray" in d for d in extras.get("bag", []))
     assert any(d.startswith("ray") for d in extras["sweep"]) and "sweep" in extras["all"][0]
-    code = ("import sys, prsm_ros.bag.cli, prsm_ros.bag.fleet, prsm_ros.bag.compare, prsm_ros.bag.parquet; "
+    code = ("import sys, prsm_ros.cli.bag, prsm_ros.bag.fleet, prsm_ros.bag.compare, prsm_ros.bag.parquet; "
             "assert not any(m == 'ray' or m.startswith('ray.') for m in sys.modules), 'ray imported'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -11,7 +11,7 @@ import pytest
 
 from prsm_sim import Params, preset
 from prsm_sim.models.ideal import Ideal
-from prsm_ros.bag.cli import main
+from prsm_ros.cli.bag import main
 from prsm_ros.messages import TOPICS, MessageMapper, STEP_TOPICS, event_message, time_ns
 from prsm_ros.mcap.recorder import McapRecorder, run_metadata
 

@@ -54,7 +54,7 @@ def test_node_config_refuses_it_at_start_and_at_runtime():
 
 def test_every_python_float_spelling_is_a_number(tmp_path, capsys):
     # YAML 1.1 reads 1e-5 as a string; --set, parameter files and node parameters must take it
-    from prsm_ros.cli.param_files import load_params_file
+    from prsm_ros.param_files import load_params_file
     from prsm_ros.cli.sim import main
     from prsm_ros.node.parameters import NodeConfig
     assert main(["params", "--preset", "s30", "--set", "friction.coulomb_regularisation_m_s=1e-5"]) == 0

@@ -23,7 +23,7 @@ import pytest
 
 from prsm_ros.bag.reader import open_bag
 from prsm_ros.bag.report import report
-from prsm_ros.cli.json_out import dumps
+from prsm_ros.json_out import dumps
 
 RERUN_BIN = pytest.importorskip("rerun_cli")
 RERUN_BIN = Path(RERUN_BIN.__file__).parent / "rerun"
@@ -100,12 +100,12 @@ def test_sim_mcap_and_bag_tools_run_without_ros(tmp_path):
     sim, info, export, rep, to_rrd, play = _run(
         ["prsm_ros.cli.sim", "run", "--preset", "s30", "--model", "jones2016", "--scenario", "step",
          "--duration", "0.05", "--dt", "0.001", "--mcap", bag, "--csv", sim_csv, "--json", "--no-progress"],
-        ["prsm_ros.bag.cli", "info", bag, "--json"],
-        ["prsm_ros.bag.cli", "export", bag, "-t", "/prsm_actuator/internal_loads", "-o", loads],
-        ["prsm_ros.bag.cli", "report", bag, "--json", "--no-plots", "-o", rdir],
-        ["prsm_ros.bag.cli", "to-rrd", bag, "-o", rrd],
-        ["prsm_ros.bag.cli", "play", bag],  # the one bag command that needs ROS: it says so and exits 1
-        codes=(0, 0, 0, 0, 0, 1))
+        ["prsm_ros.cli.bag", "info", bag, "--json"],
+        ["prsm_ros.cli.bag", "export", bag, "-t", "/prsm_actuator/internal_loads", "-o", loads],
+        ["prsm_ros.cli.bag", "report", bag, "--json", "--no-plots", "-o", rdir],
+        ["prsm_ros.cli.bag", "to-rrd", bag, "-o", rrd],
+        ["prsm_ros.cli.bag", "play", bag],  # the one bag command that needs ROS: it says so and exits 2
+        codes=(0, 0, 0, 0, 0, 2))
     summary = json.loads(sim["stdout"])
     steps = summary["steps"]
     assert steps == 50 and summary["mcap"] == str(bag)

@@ -159,7 +159,7 @@ def test_step_encoder_bytes_decode_to_the_mapper_messages(model):
     from std_msgs.msg import Float64MultiArray
 
     from prsm_ros.messages import MessageMapper, stamp, time_ns
-    from prsm_ros.node.cdr import StepEncoder
+    from prsm_ros.cdr_write import StepEncoder
     from prsm_sim import Simulator, preset
     sim = Simulator(preset("s30"), model, 1e-3)
     mapper = MessageMapper(sim.layout, model)

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from prsm_ros.cli.param_files import load_params_file, params_from_yaml, params_to_yaml
+from prsm_ros.param_files import load_params_file, params_from_yaml, params_to_yaml
 from prsm_sim import Geometry, ParamError, Params, preset
 
 

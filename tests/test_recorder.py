@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from prsm_sim import Simulator, preset
+from prsm_sim import InputError, Simulator, preset
 from prsm_ros.mcap import schema as mcap_schema
 from prsm_ros.bag.reader import open_bag, scan_records
 from prsm_ros.messages import TOPICS, MessageMapper, STEP_TOPICS, time_ns
@@ -195,11 +195,11 @@ def test_recorder_refuses_caller_mistakes_at_once(tmp_path):
         rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
         with pytest.raises(KeyError, match="not added"):
             rec.write("/b", Float64(), 0)
-        with pytest.raises(TypeError, match="std_msgs/msg/Float64"):
+        with pytest.raises(InputError, match="std_msgs/msg/Float64"):
             rec.write("/a", JointState(), 0)
         with pytest.raises(KeyError, match="not added"):  # a batch is checked as single writes are
             rec.write_many([("/a", Float64(), 0), ("/b", Float64(), 0)])
-        with pytest.raises(TypeError, match="std_msgs/msg/Float64"):
+        with pytest.raises(InputError, match="std_msgs/msg/Float64"):
             rec.write_many([("/a", JointState(), 0)])
         with pytest.raises(ValueError, match="cannot add it again"):
             rec.add_channel("/a", JointState, TOPICS["joint_states"].qos)
@@ -449,7 +449,7 @@ def test_sigkill_leaves_a_file_readable_up_to_its_last_complete_chunk(tmp_path):
     assert [m.msg.position[0] for m in bag.messages(["/joint_states"])] == [k * 0.5 for k in range(n)]
 
     # 3) prsm-bag handles it with a note, not a traceback
-    res = subprocess.run([sys.executable, "-m", "prsm_ros.bag.cli", "info", str(path)], capture_output=True,
+    res = subprocess.run([sys.executable, "-m", "prsm_ros.cli.bag", "info", str(path)], capture_output=True,
                          text=True, timeout=60, env=CHILD_ENV)
     assert res.returncode == 0 and "UNFINISHED" in res.stdout and "Traceback" not in res.stderr
     assert f"{n} message" in res.stdout or str(bag.topics["/value"].count) in res.stdout

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from prsm_ros.bag.cli import main as bag_main
+from prsm_ros.cli.bag import main as bag_main
 from prsm_ros.bag.reader import open_bag
 
 BIN = Path(sys.executable).parent

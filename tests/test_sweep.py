@@ -31,7 +31,7 @@ pa_parquet = pytest.importorskip("pyarrow.parquet")
 pd = pytest.importorskip("pandas")
 
 from prsm_ros.sweep import study  # noqa: E402
-from prsm_ros.sweep.cli import main as sweep_main  # noqa: E402
+from prsm_ros.cli.sweep import main as sweep_main  # noqa: E402
 
 # the smallest study of issue 16, exactly as written there
 SMALLEST = """\
@@ -157,7 +157,7 @@ metrics: [efficiency]
 runs_per_task: 4
 """)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "prsm_ros.sweep.cli", "run", str(f), "-o", str(out), "--workers", "1",
+    proc = subprocess.Popen([sys.executable, "-m", "prsm_ros.cli.sweep", "run", str(f), "-o", str(out), "--workers", "1",
                              "--no-progress"], env={**os.environ, **SUBPROCESS_ENV}, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -298,7 +298,7 @@ def test_study_through_address_on_a_separate_ray_head(tmp_path):
                 assert time.monotonic() < deadline, "the Ray head did not come up within 120 s"
                 time.sleep(0.2)
         f = _write(tmp_path / "study.yaml", SMALLEST.replace("duration_s: 0.3", "duration_s: 0.1"))
-        r = subprocess.run([sys.executable, "-m", "prsm_ros.sweep.cli", "run", str(f), "-o", str(tmp_path / "out"),
+        r = subprocess.run([sys.executable, "-m", "prsm_ros.cli.sweep", "run", str(f), "-o", str(tmp_path / "out"),
                             "--address", address, "--no-progress", "--json"], env=env, capture_output=True, text=True,
                            timeout=300)
         assert r.returncode == 0, r.stderr[-2000:]

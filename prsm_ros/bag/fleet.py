@@ -125,8 +125,8 @@ def report_many(paths: list[Path], options: dict, *, address: str | None = None,
 
 def write_rows(rows: list[dict], path: Path) -> Path:
     """One Parquet table of every bag's row (columns: the union of the rows' keys; pyarrow needed)."""
-    from prsm_ros.bag.parquet import _pyarrow, write_table
-    pa, _ = _pyarrow()
+    from prsm_ros.bag.parquet import require_pyarrow, write_table
+    pa, _ = require_pyarrow()
     names: list[str] = []
     for r in rows:
         names += [k for k in r if k not in names]

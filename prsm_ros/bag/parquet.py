@@ -12,7 +12,8 @@ from pathlib import Path
 from prsm_ros.bag.reader import BagError
 
 
-def _pyarrow():
+def require_pyarrow():
+    """pyarrow and pyarrow.parquet, or a BagError saying how to install them."""
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -26,7 +27,7 @@ def write_parquet(path: Path, columns: list[str], rows) -> None:
 
     Missing trailing cells (a message shorter than the widest one) become nulls, as in the CSV.
     """
-    pa, pq = _pyarrow()
+    pa, pq = require_pyarrow()
     rows = [list(r) + [None] * (len(columns) - len(r)) for r in rows]
     arrays = []
     for j, _ in enumerate(columns):
@@ -41,7 +42,7 @@ def write_parquet(path: Path, columns: list[str], rows) -> None:
 
 def write_table(path: Path, table) -> None:
     """Write a pyarrow Table atomically (a reader never sees half a file)."""
-    _, pq = _pyarrow()
+    _, pq = require_pyarrow()
     tmp = Path(path).with_name(Path(path).name + ".tmp")
     pq.write_table(table, tmp)
     os.replace(tmp, path)

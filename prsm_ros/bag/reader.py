@@ -355,12 +355,15 @@ class Bag:
     def _decode(self, schema, channel, message):
         dec = self._decoders.get(channel.id, False)
         if dec is False:
-            from mcap_ros2._vendor.rosidl_adapter.parser import InvalidSpecification, InvalidValue
             from mcap_ros2.decoder import DecoderFactory
             try:
                 dec = DecoderFactory().decoder_for(channel.message_encoding, schema)
             # a schema mcap_ros2 cannot parse or does not implement (wstring): the raw bytes are still available
-            except (InvalidSpecification, InvalidValue, ValueError, NotImplementedError, *damaged_data_errors()):
+            except (ValueError, NotImplementedError, *damaged_data_errors()):
+                dec = None
+            except Exception as e:  # its schema parser's own errors, whose classes only a private module exports
+                if not type(e).__module__.startswith("mcap_ros2."):
+                    raise
                 dec = None
             self._decoders[channel.id] = dec
         if dec is None:

@@ -17,9 +17,15 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from prsm_ros.cli.json_out import dumps
+from prsm_sim import PrsmError
+
+from prsm_ros.json_out import dumps
 
 Measure = Callable[..., list]
+
+
+class BenchError(PrsmError, RuntimeError):
+    """A benchmark run failed (a process exited early, messages were lost, no summary came back)."""
 
 
 def figure(name, value, unit, target, ok, spread=None, notes=""):

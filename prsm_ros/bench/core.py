@@ -23,7 +23,8 @@ from prsm_ros.bench.common import area_main, figure
 DT = 1e-3
 
 
-def _timed(fn, repeats: int):
+def timed(fn, repeats: int):
+    """fn() run `repeats` times: median wall time (s), spread (max − min) / median, the last result."""
     times, result = [], None
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -33,7 +34,7 @@ def _timed(fn, repeats: int):
     return med, (max(times) - min(times)) / med if med > 0 else 0.0, result
 
 
-def _error(x: np.ndarray, ref: np.ndarray) -> float:
+def relative_error(x: np.ndarray, ref: np.ndarray) -> float:
     """Max deviation relative to the reference's range."""
     scale = float(np.max(np.abs(ref))) or 1.0
     return float(np.max(np.abs(x - ref))) / scale
@@ -77,12 +78,12 @@ def jones2016_figures(quick: bool = False) -> list[dict]:
         x = solve_ivp(rhs, (k * DT, (k + 1) * DT), x, method="Radau", rtol=1e-10, atol=1e-14).y[:, -1]
         ref[:, k] = x
     m = 501 if quick else n
-    ours_s, ours_spread, tr = _timed(ours, repeats)
-    base_s, base_spread, sol = _timed(baseline, max(1, repeats // 2))
+    ours_s, ours_spread, tr = timed(ours, repeats)
+    base_s, base_spread, sol = timed(baseline, max(1, repeats // 2))
     p_lead = p.geometry.lead_per_rad_m
-    err_ours = max(_error(tr["nut_position_m"][:m], p_lead * ref[0, :m]),
-                   _error(tr["carrier_speed_rad_s"][:m], ref[3, :m]))
-    err_base = max(_error(p_lead * sol.y[0, :m], p_lead * ref[0, :m]), _error(sol.y[3, :m], ref[3, :m]))
+    err_ours = max(relative_error(tr["nut_position_m"][:m], p_lead * ref[0, :m]),
+                   relative_error(tr["carrier_speed_rad_s"][:m], ref[3, :m]))
+    err_base = max(relative_error(p_lead * sol.y[0, :m], p_lead * ref[0, :m]), relative_error(sol.y[3, :m], ref[3, :m]))
     rt_ours, rt_base = sim_s / ours_s, sim_s / base_s
     return [
         figure("jones2016 simulated s per wall s (1 ms step)", rt_ours, "×", "≥ 1000", rt_ours >= 1000 and err_ours <= 1e-3,
@@ -116,11 +117,11 @@ def fu2018_figures(quick: bool = False) -> list[dict]:
 
     fine = 20  # reference: the same equations at a 20× finer step, sampled at the output step
     ref = Simulator(p, "fu2018", DT / fine).run(np.repeat(torque, fine), load)
-    wall, spread, tr = _timed(ours, repeats)
-    wall_ref, spread_ref, tr_ref = _timed(reference, max(1, repeats // 2))
-    same = max(_error(tr[k], tr_ref[k]) for k in ("nut_position_m", "carrier_speed_rad_s", "nut_force_n"))
-    err = max(_error(tr["nut_position_m"], ref["nut_position_m"][fine - 1::fine]),
-              _error(tr["carrier_speed_rad_s"], ref["carrier_speed_rad_s"][fine - 1::fine]))
+    wall, spread, tr = timed(ours, repeats)
+    wall_ref, spread_ref, tr_ref = timed(reference, max(1, repeats // 2))
+    same = max(relative_error(tr[k], tr_ref[k]) for k in ("nut_position_m", "carrier_speed_rad_s", "nut_force_n"))
+    err = max(relative_error(tr["nut_position_m"], ref["nut_position_m"][fine - 1::fine]),
+              relative_error(tr["carrier_speed_rad_s"], ref["carrier_speed_rad_s"][fine - 1::fine]))
     rt = sim_s / wall
     cost, batch = {}, {}
     head = torque[:1000]
@@ -136,8 +137,8 @@ def fu2018_figures(quick: bool = False) -> list[dict]:
             s_t.reset()
             return s_t.run(head, load).internal  # materialise every step's per-tooth loads
 
-        cost[teeth] = _timed(step_teeth, repeats)[0] / len(head)
-        batch[teeth] = _timed(batch_teeth, repeats)[0] / len(head)
+        cost[teeth] = timed(step_teeth, repeats)[0] / len(head)
+        batch[teeth] = timed(batch_teeth, repeats)[0] / len(head)
     ratio = cost[100] / cost[10]
     rev = _fu2018_reversal_case(quick, repeats)
     rt_ref = sim_s / wall_ref
@@ -180,8 +181,8 @@ def _fu2018_reversal_case(quick: bool, repeats: int) -> list[dict]:
 
     fine = 100
     ref = Simulator(p, "fu2018", DT / fine).run(np.repeat(torque, fine), load)["screw_speed_rad_s"][fine - 1::fine]
-    wall_b, spread_b, tr = _timed(batch, repeats)
-    wall_s, spread_s, _ = _timed(steps, repeats)
+    wall_b, spread_b, tr = timed(batch, repeats)
+    wall_s, spread_s, _ = timed(steps, repeats)
     w = tr["screw_speed_rad_s"]
     err = float(np.max(np.abs(w - ref)))
     peak = float(np.max(np.abs(ref))) or 1.0
@@ -211,7 +212,7 @@ def step_path_figures(quick: bool = False) -> list[dict]:
             for t in torque.tolist():
                 sim.step(t, 100.0)
 
-        wall, spread, _ = _timed(steps, 3)
+        wall, spread, _ = timed(steps, 3)
         rt = n * DT / wall
         out.append(figure(f"{model} per-step path (Simulator.step) simulated s per wall s", rt, "×", "(info)", True,
                           spread, f"{wall / n * 1e6:.1f} µs per step incl. outputs"))

@@ -19,7 +19,7 @@ import numpy as np
 
 from prsm_sim import Simulator, preset
 from prsm_ros.bench.common import area_main, figure
-from prsm_ros.bench.core import DT, _error, _timed
+from prsm_ros.bench.core import DT, relative_error, timed
 
 
 def measure(quick: bool = False) -> list[dict]:
@@ -55,14 +55,14 @@ def measure(quick: bool = False) -> list[dict]:
 
     fine = 10
     ref = Simulator(p, "elastic", DT / fine).run(np.repeat(torque, fine), np.repeat(load, fine))
-    wall_b, spread_b, tr = _timed(batch, repeats)
-    wall_s, spread_s, _ = _timed(steps, repeats)
-    wall_rb, spread_rb, tr_ref = _timed(batch_ref, 1)
-    wall_rs, spread_rs, _ = _timed(steps_ref, 1)
-    same = max(_error(tr[k][:n_ref], tr_ref[k]) for k in ("nut_position_m", "carrier_speed_rad_s", "nut_force_n"))
+    wall_b, spread_b, tr = timed(batch, repeats)
+    wall_s, spread_s, _ = timed(steps, repeats)
+    wall_rb, spread_rb, tr_ref = timed(batch_ref, 1)
+    wall_rs, spread_rs, _ = timed(steps_ref, 1)
+    same = max(relative_error(tr[k][:n_ref], tr_ref[k]) for k in ("nut_position_m", "carrier_speed_rad_s", "nut_force_n"))
     rt_rb, rt_rs = n_ref * DT / wall_rb, n_ref * DT / wall_rs
-    err = max(_error(tr["nut_position_m"], ref["nut_position_m"][fine - 1::fine]),
-              _error(tr["carrier_speed_rad_s"], ref["carrier_speed_rad_s"][fine - 1::fine]))
+    err = max(relative_error(tr["nut_position_m"], ref["nut_position_m"][fine - 1::fine]),
+              relative_error(tr["carrier_speed_rad_s"], ref["carrier_speed_rad_s"][fine - 1::fine]))
     rt_b, rt_s = sim_s / wall_b, sim_s / wall_s
     note = (f"{sim.model.substeps} sub-steps per 1 ms (axial mode ~580 Hz); compiled kernel (fu2018 core "
             f"included); goal ≥ 300; error vs 10× finer step: {err:.1e}")

@@ -42,7 +42,7 @@ import numpy as np
 from prsm_sim import MODELS, Simulator, preset
 from prsm_sim.models.ideal import reflected_inertia
 
-from prsm_ros.bench.common import area_main, figure
+from prsm_ros.bench.common import BenchError, area_main, figure
 from prsm_ros.ros_env import isolated_env, start_module
 
 DT = 1e-3
@@ -115,10 +115,10 @@ def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, m
     try:
         summary = json.loads(lines[-1])
     except (IndexError, json.JSONDecodeError):
-        raise RuntimeError("controller printed no summary: " + " | ".join(lines[-5:]) + " | node: "
+        raise BenchError("controller printed no summary: " + " | ".join(lines[-5:]) + " | node: "
                            + log_text[-500:]) from None
     if "error" in summary:
-        raise RuntimeError(f"controller: {summary['error']}; node log: {log_text[-500:]}")
+        raise BenchError(f"controller: {summary['error']}; node log: {log_text[-500:]}")
     (c0, w0), (c1, w1) = cpu["measuring"], cpu["measured"]
     summary["node_cpu_pct"] = 100 * (c1 - c0) / (w1 - w0)
     summary["bags"] = bags

@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prsm_ros.bench.common import area_main, figure, paced_loop
+from prsm_ros.bench.common import BenchError, area_main, figure, paced_loop
 
 THROUGHPUT_TARGET = 50_000.0  # messages/s (issue 5)
 
@@ -73,7 +73,7 @@ def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, floa
             wall = time.perf_counter() - t0
             n_msgs = rec.messages_written
             if rec.messages_dropped or rec.error:
-                raise RuntimeError(f"benchmark run lost messages: dropped {rec.messages_dropped}, error {rec.error}")
+                raise BenchError(f"benchmark run lost messages: dropped {rec.messages_dropped}, error {rec.error}")
             if r > 0:
                 rates.append(n_msgs / wall)
                 sizes.append(path.stat().st_size / wall / 1e6)

@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prsm_ros.bench.common import area_main, figure
+from prsm_ros.bench.common import BenchError, area_main, figure
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
 TARGET_GROWTH_MB = 20.0
@@ -27,7 +27,7 @@ def rss_mb(pid: int) -> float:
         for line in f:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
-    raise RuntimeError(f"no VmRSS for pid {pid}")
+    raise BenchError(f"no VmRSS for pid {pid}")
 
 
 def soak(sim_seconds: float, *, model: str = "jones2016", timeout_s: float = 3600.0) -> dict:
@@ -67,7 +67,7 @@ def soak(sim_seconds: float, *, model: str = "jones2016", timeout_s: float = 360
             while time.monotonic() - t0 < timeout_s:
                 if node_proc.poll() is not None:
                     err = (Path(tmp) / "node.err").read_text()[-500:]
-                    raise RuntimeError(f"prsm-node exited early ({node_proc.returncode}): {err}")
+                    raise BenchError(f"prsm-node exited early ({node_proc.returncode}): {err}")
                 pub.publish(Float64(data=0.05))
                 executor.spin_once(timeout_sec=0.5)
                 samples.append((time.monotonic() - t0, latest["sim_time_s"], rss_mb(node_proc.pid)))

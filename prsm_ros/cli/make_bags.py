@@ -32,16 +32,20 @@ from pathlib import Path
 
 import numpy as np
 
-from prsm_sim import MODELS, Simulator, preset
+from prsm_sim import MODELS, ParamError, PrsmError, Simulator, preset
 from prsm_sim.models.base import trajectory_from_rows
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.scenarios import default_spec, run_scenario
 
-from prsm_ros.cli.json_out import dumps
+from prsm_ros.json_out import dumps
 from prsm_ros.mcap.offline import write_trajectory_mcap
 
 DT_S = 1e-3
 COMMAND = "python -m prsm_ros.cli.make_bags"
+
+
+class RunFailed(PrsmError, RuntimeError):
+    """A run that makes a bag (node and controller over DDS) failed; the message has its output."""
 
 
 def default_model() -> str:
@@ -85,7 +89,7 @@ def node_tracking_run(path: Path, model: str) -> Path:
            "--load", "2000", "--duration", "2", "--record", str(path)]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     if res.returncode != 0:
-        raise RuntimeError(f"the node + controller run failed ({' '.join(cmd[1:])}):\n{res.stderr.strip()}\n"
+        raise RunFailed(f"the node + controller run failed ({' '.join(cmd[1:])}):\n{res.stderr.strip()}\n"
                            "make the bag offline instead with --offline-tracking")
     return path
 
@@ -95,7 +99,7 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
     """Write the example bags (all, or those named in `only`) into `out_dir`; returns their paths."""
     unknown = set(only) - set(BAGS)
     if unknown:
-        raise ValueError(f"unknown example bag(s) {', '.join(sorted(unknown))}; known: {', '.join(BAGS)}")
+        raise ParamError(f"unknown example bag(s) {', '.join(sorted(unknown))}; known: {', '.join(BAGS)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
 
@@ -152,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         paths = make(Path(args.out), args.model, progress=not args.no_progress, offline_tracking=args.offline_tracking)
-    except RuntimeError as e:
+    except RunFailed as e:
         print(f"make_bags: error: {e}", file=sys.stderr)
         return 1
     from prsm_ros.bag.reader import open_bag

@@ -29,8 +29,8 @@ from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.jones2016 import steady_state
 from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, summarise
 
-from prsm_ros.cli.json_out import dumps
-from prsm_ros.cli.param_files import params_to_yaml, resolve_params
+from prsm_ros.json_out import dumps
+from prsm_ros.param_files import params_to_yaml, resolve_params
 
 PROGRESS_MIN_STEPS = 20_000
 

@@ -24,6 +24,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from prsm_sim.errors import ParamError
+
 from prsm_ros.mcap import schema as mcap_schema
 
 # The typestore used when neither ROS_DISTRO nor an installed rclpy names one: the current LTS.
@@ -53,7 +55,7 @@ def typestore_distro(ros_distro: str | None = None) -> str:
     name = (ros_distro or os.environ.get("ROS_DISTRO") or mcap_schema.distro_of_rclpy() or DEFAULT_DISTRO).lower()
     known = [s.value.removeprefix("ros2_") for s in Stores if s.value.startswith("ros2_")]
     if name != "rolling" and name not in known:
-        raise ValueError(f"ROS distribution {name!r}: rosbags has message definitions for {', '.join(known)} "
+        raise ParamError(f"ROS distribution {name!r}: rosbags has message definitions for {', '.join(known)} "
                          "(and rolling)")
     return name
 

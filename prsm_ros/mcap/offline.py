@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from prsm_sim.errors import InputError
+
 from prsm_ros.mcap.recorder import McapFile, run_metadata
 
 
@@ -41,12 +43,12 @@ def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: s
     t = np.asarray(traj["time_s"], dtype=float)
     if dt_s is None:
         if n == 0:
-            raise ValueError("an empty trajectory needs dt_s to describe the run")
+            raise InputError("an empty trajectory needs dt_s to describe the run")
         dt_s = float(t[1] - t[0]) if n > 1 else float(t[0])
     if reference_m is not None:
         reference_m = np.asarray(reference_m, dtype=float)
         if reference_m.shape != (n,):
-            raise ValueError(f"reference_m has shape {reference_m.shape}; expected ({n},), one value per step")
+            raise InputError(f"reference_m has shape {reference_m.shape}; expected ({n},), one value per step")
     codec = TypestoreCodec(ros_distro)
     mapper = MessageBuilder(traj.layout, model_name, codec.classes, codec.float_array)
     metadata = run_metadata(params, preset=preset_name, model=model_name, dt_s=dt_s)

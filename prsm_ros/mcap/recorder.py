@@ -25,6 +25,8 @@ import time
 from collections import deque
 from pathlib import Path
 
+from prsm_sim.errors import InputError, ParamError
+
 from prsm_ros.mcap import schema as mcap_schema
 
 DEFAULT_CHUNK_SIZE = 1 << 20  # bytes before compression; a flush usually closes the chunk first
@@ -113,7 +115,7 @@ class McapFile:
         name = codec.type_name(msg_class)
         if known is not None:
             if known[1] is not msg_class:
-                raise ValueError(f"topic {topic!r} was added as {codec.type_name(known[1])}; "
+                raise InputError(f"topic {topic!r} was added as {codec.type_name(known[1])}; "
                                  f"cannot add it again as {name}")
             return known[0]
         sid = self._schema_ids.get(name)
@@ -185,7 +187,7 @@ class McapRecorder:
                  queue_size: int = 100_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
                  flush_interval_s: float = FLUSH_INTERVAL_S) -> None:
         if not isinstance(queue_size, int) or queue_size < 1:
-            raise ValueError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
+            raise ParamError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
         self.path = Path(path)
         self.error: str | None = None
         # `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
@@ -235,7 +237,7 @@ class McapRecorder:
         """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing)."""
         known = self._classes.get(topic)
         if known is not None and known is not msg_class:
-            raise ValueError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
+            raise InputError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
                              f"cannot add it again as {mcap_schema.type_name(msg_class)}")
         mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the thread
         self._classes[topic] = msg_class
@@ -256,7 +258,7 @@ class McapRecorder:
         if cls is None:
             raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._classes) or 'none'}")
         if type(msg) is not cls and type(msg) is not bytes:  # bytes: serialised once by the caller for DDS and MCAP
-            raise TypeError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
+            raise InputError(f"topic {topic!r} records {mcap_schema.type_name(cls)}, got {type(msg).__name__}")
         with self._lock:
             if not self._writing:
                 self._lost += 1

@@ -34,6 +34,8 @@ from collections.abc import Callable
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 
+from prsm_sim.errors import InputError
+
 # a handler takes (topic key, CDR bytes, rclpy message info dict), as a two-argument raw callback would
 Handler = Callable[[str, bytes, dict], None]
 
@@ -68,7 +70,7 @@ class CommandPoller:
 
     def add(self, key: str, subscription, handler: Handler) -> None:
         if not subscription.raw:
-            raise ValueError(f"subscription {subscription.topic_name}: polled subscriptions are raw (CDR bytes)")
+            raise InputError(f"subscription {subscription.topic_name}: polled subscriptions are raw (CDR bytes)")
         self._subs.append((key, subscription, handler))
         self._until_sweep = 0  # the next poll sweeps
 

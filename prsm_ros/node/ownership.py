@@ -18,6 +18,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from prsm_sim.errors import ParamError
+
 PREFIX_BYTES = 12  # RTPS GUID prefix: the participant; the last 4 bytes name the writer
 
 
@@ -60,7 +62,7 @@ class CommandOwnership:
 
     def configure(self, timeout_s: float, enabled: bool = True) -> None:
         if not (timeout_s >= 0.0):
-            raise ValueError(f"ownership timeout = {timeout_s!r}: must be a number >= 0 (s; 0: never lapses)")
+            raise ParamError(f"ownership timeout = {timeout_s!r}: must be a number >= 0 (s; 0: never lapses)")
         self.timeout_s = float(timeout_s)
         self.enabled = bool(enabled)
 

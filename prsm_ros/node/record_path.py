@@ -1,8 +1,7 @@
 """Where the node records, never over an existing file, pure Python (several actuators).
 
-Two actuators started in the same second in one directory used to get the same default name
-(`prsm_<UTC second>.mcap`) and the second silently truncated the first's bag. Now the default
-name carries the node's namespace and name, and every path is claimed with an exclusive create
+Two actuators started in the same second in one directory must not get the same file: the
+default name carries the node's namespace and name, and every path is claimed with an exclusive create
 (`O_CREAT | O_EXCL`), which the OS makes atomic between processes: a default name that is taken
 gets a `_2`, `_3`, ... suffix; a path the user gave that exists is refused, never overwritten.
 """
@@ -14,10 +13,12 @@ import re
 from datetime import datetime, timezone
 from pathlib import Path
 
+from prsm_sim import PrsmError
+
 MAX_SUFFIX = 1000
 
 
-class RecordPathError(ValueError):
+class RecordPathError(PrsmError, ValueError):
     """The requested bag path exists (or cannot be created); the message says which and why."""
 
 

@@ -7,7 +7,7 @@
 The node is transport: it declares its parameters (`declare`, from `parameters`), hands every
 command message to the runtime session (`prsm_sim.Session`: command gate, watchdog, actuator,
 faults), steps it on its clock, and turns each step's outputs into messages (`messages`,
-`cdr`) for the publishers, the MCAP recorder and the Rerun sink (`sinks`), and the session's
+`cdr_write`) for the publishers, the MCAP recorder and the Rerun sink (`sinks`), and the session's
 status into /diagnostics and ~/events (`diagnostics`).
 
 Time modes. `realtime`: a dedicated thread steps on absolute deadlines (`pacing.DeadlinePacer`);

@@ -269,7 +269,7 @@ def study_hash(norm: dict) -> str:
 
 def base_params(norm: dict) -> Params:
     """The study's base parameter set (preset, or params file with its own optional `preset:`)."""
-    from prsm_ros.cli.param_files import params_from_yaml  # one reader of params files
+    from prsm_ros.param_files import params_from_yaml  # one reader of params files
     try:
         if norm["params"] is not None:
             return params_from_yaml(yaml.safe_dump(norm["params"]), "params")

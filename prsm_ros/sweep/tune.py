@@ -144,5 +144,5 @@ def run_tune(norm: dict, ts: dict, *, address: str | None = None, workers: int |
 
 
 def save(result: dict, path: Path) -> None:
-    from prsm_ros.cli.json_out import dumps
+    from prsm_ros.json_out import dumps
     path.write_text(dumps(result) + "\n", encoding="utf-8")

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from prsm_sim import InternalLayout, ParamError, Params, preset
+from prsm_sim import InputError, InternalLayout, ParamError, Params, preset
 
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, parse_labels, unpack_internal
 from prsm_ros.viz.sink import APPLICATION_ID, RecordingWriter, rerun_forced_off
@@ -49,7 +49,7 @@ def _params_from(meta: dict[str, str], explicit: Params | None) -> tuple[Params,
         try:
             return Params.from_dict(yaml.safe_load(text)), "bag run metadata"
         except (ParamError, yaml.YAMLError) as e:
-            raise ValueError(f"bag run metadata {RUN_METADATA}.parameters_yaml is not a valid parameter set: "
+            raise InputError(f"bag run metadata {RUN_METADATA}.parameters_yaml is not a valid parameter set: "
                              f"{e}") from None
     if meta.get("preset"):
         try:
@@ -157,14 +157,14 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
     from prsm_ros.bag.reader import open_bag, resolve_topics
 
     if rerun_forced_off():  # the SDK would silently write nothing
-        raise ValueError("the environment variable RERUN=off turns the Rerun SDK off, so no .rrd can be written; "
+        raise InputError("the environment variable RERUN=off turns the Rerun SDK off, so no .rrd can be written; "
                          "unset it for this command")
     out = Path(rrd_path)
     if not out.parent.is_dir():
-        raise ValueError(f"output directory {str(out.parent)!r} does not exist")
+        raise InputError(f"output directory {str(out.parent)!r} does not exist")
     bag = open_bag(bag_path)
     if out.resolve() == bag.path.resolve():
-        raise ValueError(f"output {str(out)!r} would overwrite the bag")
+        raise InputError(f"output {str(out)!r} would overwrite the bag")
     warnings = [bag.note] if bag.note else []
     roles = resolve_topics(bag)
     meta = bag.run_metadata
@@ -186,7 +186,7 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
         layout, model = InternalLayout(blocks=()), meta.get("model")
         scalar_names = ["time_s"] + [c for cols in _JOINT_COLUMNS.values() for c in cols]
     else:
-        raise ValueError(f"{bag.path.name}: nothing to convert — no …/internal_loads with labels and no joint "
+        raise InputError(f"{bag.path.name}: nothing to convert — no …/internal_loads with labels and no joint "
                          f"states topic (topics: {', '.join(sorted(bag.topics)) or 'none'})")
     run_params, geometry = _params_from(meta, params)
     input_topics = {roles[r] for r in ("reference", "screw_torque") if roles[r]}

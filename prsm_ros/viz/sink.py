@@ -38,13 +38,17 @@ from typing import Any
 
 import numpy as np
 
-from prsm_sim import OUTPUT_FIELDS, InternalLayout, Outputs, Params, State
+from prsm_sim import OUTPUT_FIELDS, InternalLayout, Outputs, ParamError, Params, PrsmError, State
 from prsm_sim.models.base import trajectory_from_rows
 
 MODES = ("off", "save", "spawn", "connect")
 APPLICATION_ID = "prsm"
 DEFAULT_PORT = 9876
 _OFF_VALUES = ("off", "0", "false", "no")
+
+
+class RerunError(PrsmError, RuntimeError):
+    """The Rerun output could not be started (e.g. no viewer to spawn)."""
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, then again for the flush
 
 
@@ -66,12 +70,12 @@ def grpc_url(target: str) -> str:
         return f"rerun+http://127.0.0.1:{DEFAULT_PORT}/proxy"
     if "://" in t:
         if not t.startswith(("rerun://", "rerun+http://", "rerun+https://")) or not t.rstrip("/").endswith("/proxy"):
-            raise ValueError(f"rerun_target {target!r}: a viewer URL must be rerun+http://HOST:PORT/proxy "
+            raise ParamError(f"rerun_target {target!r}: a viewer URL must be rerun+http://HOST:PORT/proxy "
                              "(or rerun:// / rerun+https://)")
         return t
     host, _, port = t.rpartition(":")
     if not port.isdigit() or not 0 < int(port) < 65536:
-        raise ValueError(f"rerun_target {target!r}: expected rerun+http://HOST:PORT/proxy, HOST:PORT or a port 1-65535")
+        raise ParamError(f"rerun_target {target!r}: expected rerun+http://HOST:PORT/proxy, HOST:PORT or a port 1-65535")
     return f"rerun+http://{host or '127.0.0.1'}:{int(port)}/proxy"
 
 
@@ -80,18 +84,18 @@ def _spawn_port(target: str) -> int:
     if not t:
         return DEFAULT_PORT
     if not t.isdigit() or not 0 < int(t) < 65536:
-        raise ValueError(f"rerun_target {target!r}: in spawn mode the target is the viewer's port (1-65535) or empty")
+        raise ParamError(f"rerun_target {target!r}: in spawn mode the target is the viewer's port (1-65535) or empty")
     return int(t)
 
 
 def _save_path(target: str) -> Path:
     path = Path(target).expanduser() if target.strip() else default_rrd_path()
     if path.is_dir():
-        raise ValueError(f"rerun_target {target!r} is a directory; give a file name ending in .rrd")
+        raise ParamError(f"rerun_target {target!r} is a directory; give a file name ending in .rrd")
     if not path.parent.is_dir():
-        raise ValueError(f"rerun_target {target!r}: directory {str(path.parent)!r} does not exist")
+        raise ParamError(f"rerun_target {target!r}: directory {str(path.parent)!r} does not exist")
     if not os.access(path.parent, os.W_OK):
-        raise ValueError(f"rerun_target {target!r}: directory {str(path.parent)!r} is not writable")
+        raise ParamError(f"rerun_target {target!r}: directory {str(path.parent)!r} is not writable")
     return path
 
 
@@ -130,7 +134,7 @@ class RecordingWriter:
                  scene_rate_hz: float = 30.0) -> None:
         from prsm_ros.viz import scene as rerun_scene, series as rerun_series
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
-            raise ValueError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
+            raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
         self.rec = rec
         self.params = params
         self.layout = layout
@@ -190,11 +194,11 @@ class RerunSink:
                  scene_rate_hz: float = 30.0, flush_period_s: float = 0.25, queue_size: int = 100_000,
                  recording_name: str | None = None) -> None:
         if mode not in MODES:
-            raise ValueError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
+            raise ParamError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
         if not (isinstance(flush_period_s, (int, float)) and 0 < flush_period_s <= 10):
-            raise ValueError(f"flush_period_s = {flush_period_s!r}: must be in (0, 10] s")
+            raise ParamError(f"flush_period_s = {flush_period_s!r}: must be in (0, 10] s")
         if not (isinstance(queue_size, int) and queue_size > 0):
-            raise ValueError(f"queue_size = {queue_size!r}: must be a whole number > 0")
+            raise ParamError(f"queue_size = {queue_size!r}: must be a whole number > 0")
         self.requested_mode = mode
         self.mode = "off" if rerun_forced_off() else mode
         self.target = target
@@ -257,7 +261,7 @@ class RerunSink:
             try:
                 rec.spawn(port=port, hide_welcome_screen=True)
             except Exception as e:  # no viewer binary, no display: say so, the caller decides
-                raise RuntimeError(f"rerun = spawn: could not start a viewer on port {port} ({e}); "
+                raise RerunError(f"rerun = spawn: could not start a viewer on port {port} ({e}); "
                                    "use rerun = save or connect instead") from None
             self.url = f"rerun+http://127.0.0.1:{port}/proxy"
         rec.send_recording_name(recording_name or f"{params.name} · {model_name}")

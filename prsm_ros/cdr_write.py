@@ -1,4 +1,4 @@
-"""The node's per-step messages as CDR bytes from templates serialised by rclpy.
+"""The per-step messages as CDR bytes from templates serialised by rclpy (what the node publishes each step).
 
 At 1 kHz the node spent more on building rclpy message objects and serialising them than on the
 step itself (every field assignment of an rclpy message is a checked Python setter). These
@@ -31,7 +31,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from prsm_sim import OUTPUT_FIELDS, InternalLayout, Outputs
+from prsm_sim import OUTPUT_FIELDS, InputError, InternalLayout, Outputs
 
 # Two probe values per struct code, packed bytes all non-zero and unlike each other, so that a slot
 # is the one place where each probe's bytes appear in its own serialisation.
@@ -63,7 +63,7 @@ def _find_slot(probed: tuple[bytes, bytes], kind: str) -> tuple[int, str]:
                 hits.append((at, order))
             at = probed[0].find(a, at + 1)
     if len(hits) != 1:
-        raise ValueError(f"expected one {kind!r} slot in the serialised probes, found {hits}")
+        raise InputError(f"expected one {kind!r} slot in the serialised probes, found {hits}")
     return hits[0]
 
 
@@ -85,10 +85,10 @@ class _Template:
                 probe[i] = value
                 probed.append(serialize_message(build(probe)))
             if len(probed[0]) != len(self.bytes) or len(probed[1]) != len(self.bytes):
-                raise ValueError("a numeric slot changed the serialised length; it cannot be a template slot")
+                raise InputError("a numeric slot changed the serialised length; it cannot be a template slot")
             found.append(_find_slot(tuple(probed), kind))
         if len({order for _, order in found}) > 1:
-            raise ValueError("slots of one message serialised in different byte orders")
+            raise InputError("slots of one message serialised in different byte orders")
         self.order = found[0][1] if found else "<"
         runs: list[list] = []  # [offset, codes, first index, end index]
         for i, ((at, _), kind) in enumerate(zip(found, kinds)):
@@ -107,7 +107,7 @@ class _Template:
         runs with slicing cost about as much again as the packing (measured with timeit).
         """
         if tuple(n for _, _, n in self._runs) != sizes:
-            raise ValueError(f"slot runs of {[n for _, _, n in self._runs]} values, expected {list(sizes)}")
+            raise InputError(f"slot runs of {[n for _, _, n in self._runs]} values, expected {list(sizes)}")
         return [(pack, at) for pack, at, _ in self._runs]
 
     def fill(self, *values) -> bytes:
@@ -161,7 +161,7 @@ class StepEncoder:
             probed.append(serialize_message(msg))
         at, order = _find_slot(tuple(probed), "d")
         if at != len(base) - 8 or base[head_len:] != bytes(8 * self._n_values):
-            raise ValueError("Float64MultiArray data are not the serialisation's last bytes")
+            raise InputError("Float64MultiArray data are not the serialisation's last bytes")
         self._il_head = base[:head_len]
         # the scalars packed by one Struct, the internal loads as the array's bytes in the same order;
         # the layout's size is read once (a property summing numpy products: 7 µs per call)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from prsm_sim.errors import PrsmError
 
-from prsm_ros.cli.json_out import dumps
+from prsm_ros.json_out import dumps
 
 PROG = "prsm-sweep"
 

@@ -10,7 +10,7 @@
 
 BAG is an .mcap file (ours or any ROS 2 recorder's) or a rosbag2 directory holding one. Times
 given with --start/--end are seconds from the bag's first message. Progress goes to stderr; a
-bad file or argument gives one line on stderr and exit status 1 (2 for usage errors).
+bad file, bag or argument gives one line on stderr and exit status 2.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ import sys
 
 from prsm_ros.bag.reader import BagError, open_bag
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
-from prsm_ros.cli.json_out import dumps
+from prsm_ros.json_out import dumps
 
-EXIT_ERROR = 1
+EXIT_ERROR = 2  # a user error: a bad argument, file or bag (the one exit status of every prsm tool)
 EXIT_REGRESSION = 3  # compare --fail-on-regression found one
 
 

@@ -1,0 +1,57 @@
+"""Parameter files: YAML in and out, with errors that name the file and what was wrong.
+
+A file holds the nested groups of `prsm_sim.Params.to_dict()`; an optional top-level
+`preset: NAME` supplies every value the file leaves out, so a file can be a short diff.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from prsm_sim import ParamError, Params, preset
+
+
+def params_to_yaml(params: Params) -> str:
+    """Every parameter, resolved, as YAML (loads back to an equal Params)."""
+    return yaml.safe_dump(params.to_dict(), sort_keys=False)
+
+
+def params_from_yaml(text: str, source: str = "<string>") -> Params:
+    """Parse and validate; ParamError names `source` and the offending field or line."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ParamError(f"{source}:{where} not valid YAML ({getattr(e, 'problem', None) or e})") from None
+    if not isinstance(data, dict):
+        raise ParamError(f"{source}: expected a mapping of parameter groups, got {type(data).__name__}")
+    data = dict(data)
+    base_name = data.pop("preset", None)
+    try:
+        base = preset(base_name) if base_name is not None else None
+        return Params.from_dict(data, base=base)
+    except ParamError as e:
+        raise ParamError(f"{source}: {e}") from None
+
+
+def load_params_file(path: str | Path) -> Params:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ParamError(f"{p}: cannot read parameter file ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise ParamError(f"{p}: not a text (UTF-8) file") from None
+    return params_from_yaml(text, str(p))
+
+
+def resolve_params(preset_name: str | None, params_file: str | None, overrides: dict[str, Any] | None = None) -> Params:
+    """The parameter set a command asked for: --params FILE, else --preset NAME (default jones2016)."""
+    if preset_name and params_file:
+        raise ParamError("give --preset or --params, not both")
+    params = load_params_file(params_file) if params_file else preset(preset_name or "jones2016")
+    return params.with_overrides(overrides) if overrides else params

@@ -1,0 +1,262 @@
+"""The layer rules of docs/architecture.md, checked on the source: every import counts, also the
+function-local (lazy) ones and those under `if TYPE_CHECKING`.
+
+- No import cycle between modules, nor between units (a subpackage such as `prsm_ros.bag`, or a
+  top-level module such as `prsm_sim.params`).
+- No upward import: a unit imports only units of a lower layer (`LAYERS`) or itself.
+- `prsm_sim` never imports `prsm_ros`, rclpy, a ROS message package, mcap or rerun.
+- No private name (leading underscore) imported from another module, nor from a third party's
+  private package (`pkg._vendor`); a package's private submodule (`pkg._impl`) may be imported
+  by the modules of that package.
+
+Oracle: the import statements themselves (Python's `ast`), read without importing anything.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("prsm_sim", "prsm_ros")
+
+# Lowest layer first. A unit is a subpackage (`prsm_ros.bag`) or a top-level module
+# (`prsm_sim.params`); a unit may import units of its own or a lower layer only.
+# The package roots (`prsm_sim`, `prsm_ros`: their __init__) sit above their units.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    # prsm_sim: the pure core
+    ("prsm_sim.errors", "prsm_sim.checks"),
+    ("prsm_sim.params", "prsm_sim.outputs", "prsm_sim.plain", "prsm_sim.stepping"),  # parameters, records
+    ("prsm_sim.presets", "prsm_sim.life"),
+    ("prsm_sim.physics",),  # closed-form physics: kinematics, contact, load sharing, inertia
+    ("prsm_sim.models",),  # the models and their stepping contract
+    ("prsm_sim.registry",),  # the model registry (MODELS, build_model), above the models
+    ("prsm_sim.actuator",),  # drive, motor, sensors, brake, faults around a model
+    ("prsm_sim.simulator", "prsm_sim.control"),
+    ("prsm_sim.command_gate", "prsm_sim.scenarios"),
+    ("prsm_sim.session",),  # the runtime session: a simulator with its gate, faults, pause, state
+    ("prsm_sim",),
+    # prsm_ros: all I/O
+    ("prsm_ros.interface", "prsm_ros.cdr_read", "prsm_ros.ros_env", "prsm_ros.json_out",
+     "prsm_ros.param_files"),  # the ROS interface as plain data, CDR reading, JSON, parameter files
+    ("prsm_ros.cdr_write",),  # per-step messages as CDR bytes (rclpy)
+    ("prsm_ros.messages",),  # the interface bound to rclpy
+    ("prsm_ros.mcap",),  # MCAP schema, codec, recorder, offline runs
+    ("prsm_ros.sweep",),  # studies, and the Ray runner the bag fleet uses too
+    ("prsm_ros.bag",),  # reading, exporting, reporting, comparing bags
+    ("prsm_ros.viz",),  # Rerun views, live and from bags
+    ("prsm_ros.node",),  # the rclpy node
+    ("prsm_ros.fmu",),  # the actuator as an FMU
+    ("prsm_ros.cli",),  # the command-line tools
+    ("prsm_ros.bench",),  # benchmarks
+    ("prsm_ros",),
+)
+RANK = {unit: i for i, layer in enumerate(LAYERS) for unit in layer}
+FORBIDDEN_IN_CORE = ("prsm_ros", "rclpy", "mcap", "mcap_ros2", "rerun", "rosbag2_py", "std_msgs", "sensor_msgs",
+                     "geometry_msgs", "builtin_interfaces", "diagnostic_msgs", "rosgraph_msgs", "rcl_interfaces")
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            mods[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return mods
+
+
+MODULES = _modules()
+
+
+def _is_package(mod: str) -> bool:
+    return MODULES[mod].name == "__init__.py"
+
+
+def _imports(mod: str, source: str | None = None) -> list[tuple[str, str | None, int]]:
+    """(module imported, name imported from it or None, line) for every import statement in `mod`
+    (anywhere: at the top, in a function, under a condition)."""
+    out = []
+    text = MODULES[mod].read_text(encoding="utf-8") if source is None else source
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Import):
+            out += [(a.name, None, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: resolved against the importing module's package
+                pkg = mod.split(".") if _is_package(mod) else mod.split(".")[:-1]
+                pkg = pkg[:len(pkg) - (node.level - 1)]
+                base = ".".join(pkg + ([base] if base else []))
+            out += [(base, a.name, node.lineno) for a in node.names]
+    return out
+
+
+def _own_target(name: str, attr: str | None) -> str | None:
+    """The project module an import reaches (a submodule when `from pkg import submodule`), or None."""
+    if attr is not None and f"{name}.{attr}" in MODULES:
+        return f"{name}.{attr}"
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _unit(mod: str) -> str:
+    """The subpackage a module belongs to, or the module itself when it sits at a package's top."""
+    parts = mod.split(".")
+    if len(parts) == 1:
+        return mod
+    if len(parts) == 2 and not _is_package(mod):
+        return mod
+    return ".".join(parts[:2])
+
+
+def _edges() -> dict[str, set[str]]:
+    edges: dict[str, set[str]] = defaultdict(set)
+    for mod in MODULES:
+        for name, attr, _ in _imports(mod):
+            target = _own_target(name, attr)
+            if target is not None and target != mod:
+                edges[mod].add(target)
+    return edges
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one node (Tarjan), each with one cycle through it."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    found = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(edges.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(set(edges) | {w for ws in edges.values() for w in ws}):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def _describe(comp: list[str], edges: dict[str, set[str]]) -> str:
+    """One cycle inside a component, as a → b → … → a, with where each import is."""
+    inside = set(comp)
+    path, seen = [comp[0]], {comp[0]}
+    while True:
+        nxt = sorted(w for w in edges[path[-1]] if w in inside)
+        back = [w for w in nxt if w in seen]
+        if back:
+            path.append(back[0])
+            path = path[path.index(back[0]):]
+            break
+        path.append(nxt[0])
+        seen.add(nxt[0])
+    return " → ".join(path) + f"  (component: {', '.join(comp)})"
+
+
+def _where(src: str, dst: str, unit_level: bool = False) -> list[str]:
+    """file:line of the imports from `src` (a module or unit) that reach `dst`."""
+    out = []
+    for mod in MODULES:
+        if (_unit(mod) if unit_level else mod) != src:
+            continue
+        for name, attr, line in _imports(mod):
+            target = _own_target(name, attr)
+            if target is not None and (_unit(target) if unit_level else target) == dst:
+                out.append(f"{MODULES[mod].relative_to(ROOT)}:{line}")
+    return sorted(set(out))
+
+
+def test_no_import_cycle_between_modules():
+    edges = _edges()
+    cycles = _cycles(edges)
+    report = [_describe(c, edges) + "\n      " + "; ".join(
+        f"{a} → {b} at {', '.join(_where(a, b))}" for a in c for b in sorted(edges[a] & set(c)))
+        for c in cycles]
+    assert not cycles, "import cycles between modules:\n  " + "\n  ".join(report)
+
+
+def test_no_import_cycle_between_subpackages():
+    edges = _edges()
+    units: dict[str, set[str]] = defaultdict(set)
+    for a, bs in edges.items():
+        for b in bs:
+            if _unit(a) != _unit(b):
+                units[_unit(a)].add(_unit(b))
+    cycles = _cycles(units)
+    report = [_describe(c, units) + "\n      " + "; ".join(
+        f"{a} → {b} at {', '.join(_where(a, b, unit_level=True))}" for a in c for b in sorted(units[a] & set(c)))
+        for c in cycles]
+    assert not cycles, "import cycles between subpackages:\n  " + "\n  ".join(report)
+
+
+def test_every_unit_has_a_layer():
+    missing = sorted({_unit(m) for m in MODULES} - set(RANK))
+    assert not missing, f"add these to LAYERS in tests/test_layers.py and to docs/architecture.md: {missing}"
+
+
+def test_no_upward_import():
+    upward = []
+    for mod in MODULES:
+        src = _unit(mod)
+        for name, attr, line in _imports(mod):
+            target = _own_target(name, attr)
+            if target is None or _unit(target) == src or src not in RANK or _unit(target) not in RANK:
+                continue
+            dst = _unit(target)
+            if RANK[dst] > RANK[src]:
+                upward.append(f"{MODULES[mod].relative_to(ROOT)}:{line}: {src} imports {dst} (a higher layer)")
+    assert not upward, "upward imports:\n  " + "\n  ".join(upward)
+
+
+def test_the_core_imports_no_io_package():
+    bad = []
+    for mod in MODULES:
+        if not mod.startswith("prsm_sim"):
+            continue
+        for name, _, line in _imports(mod):
+            if name.split(".")[0] in FORBIDDEN_IN_CORE:
+                bad.append(f"{MODULES[mod].relative_to(ROOT)}:{line}: imports {name}")
+    assert not bad, "prsm_sim imports I/O packages:\n  " + "\n  ".join(bad)
+
+
+def test_no_private_name_imported_across_modules():
+    bad = []
+    for mod in MODULES:
+        package = mod if _is_package(mod) else mod.rpartition(".")[0]
+        for name, attr, line in _imports(mod):
+            where = f"{MODULES[mod].relative_to(ROOT)}:{line}"
+            private_parts = [p for p in name.split(".")[1:] if p.startswith("_") and not p.startswith("__")]
+            own = name.split(".")[0] in PACKAGES
+            if private_parts and not (own and name.rpartition(".")[0] == package):
+                bad.append(f"{where}: imports from the private module {name}")
+            if attr is None or not attr.startswith("_") or attr.startswith("__"):
+                continue
+            if own and f"{name}.{attr}" in MODULES and name == package:
+                continue  # a package's private submodule, used inside that package
+            bad.append(f"{where}: imports the private name {attr} from {name}")
+    assert not bad, "private names imported across modules:\n  " + "\n  ".join(bad)
+
+
+def test_the_checks_see_lazy_imports():
+    """A function-local import is an import like any other."""
+    lazy = "def f():\n    if True:\n        from prsm_sim.session import Session\n        import prsm_ros.bag\n"
+    found = [(_own_target(n, a), line) for n, a, line in _imports("prsm_sim.errors", lazy)]
+    assert found == [("prsm_sim.session", 3), ("prsm_ros.bag", 4)]
