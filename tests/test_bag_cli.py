@@ -203,7 +203,7 @@ def test_prsm_bag_works_on_a_third_party_bag(third_party, tmp_path, capsys):
     assert float(rows[3]["time_s"]) == pytest.approx(1_700_000_000.03, abs=1e-6)
 
 
-def test_bad_files_and_arguments_get_one_clear_line_and_exit_1(tracking, tmp_path, capsys):
+def test_bad_files_and_arguments_get_one_clear_line_and_exit_2(tracking, tmp_path, capsys):
     path, _, _ = tracking
     (tmp_path / "text.mcap").write_text("not a bag\n")
     (tmp_path / "empty.mcap").write_bytes(b"")

@@ -1,5 +1,6 @@
-"""The layer rules of docs/architecture.md, checked on the source: every import counts, also the
-function-local (lazy) ones and those under `if TYPE_CHECKING`.
+"""The layer rules of docs/architecture.md, checked on the source: every import that runs counts,
+also the function-local (lazy) ones; a name imported under `if TYPE_CHECKING` for annotations
+loads nothing and is not counted.
 
 - No import cycle between modules, nor between units (a subpackage such as `prsm_ros.bag`, or a
   top-level module such as `prsm_sim.params`).
@@ -27,11 +28,11 @@ PACKAGES = ("prsm_sim", "prsm_ros")
 LAYERS: tuple[tuple[str, ...], ...] = (
     # prsm_sim: the pure core
     ("prsm_sim.errors", "prsm_sim.checks"),
-    ("prsm_sim.params", "prsm_sim.outputs", "prsm_sim.plain", "prsm_sim.stepping"),  # parameters, records
-    ("prsm_sim.presets", "prsm_sim.life"),
-    ("prsm_sim.physics",),  # closed-form physics: kinematics, contact, load sharing, inertia
-    ("prsm_sim.models",),  # the models and their stepping contract
-    ("prsm_sim.registry",),  # the model registry (MODELS, build_model), above the models
+    ("prsm_sim.physics", "prsm_sim.plain"),  # closed-form physics on parameter groups; records as plain data
+    ("prsm_sim.params",),  # parameter groups, validated where built (with the physics they derive ratings from)
+    ("prsm_sim.presets", "prsm_sim.life", "prsm_sim.stepping"),  # named sets; life; the records and model contract
+    ("prsm_sim.outputs",),  # the records' former home, kept as an alias
+    ("prsm_sim.models",),  # the models, their compiled kernels and the registry above them
     ("prsm_sim.actuator",),  # drive, motor, sensors, brake, faults around a model
     ("prsm_sim.simulator", "prsm_sim.control"),
     ("prsm_sim.command_gate", "prsm_sim.scenarios"),
@@ -73,12 +74,25 @@ def _is_package(mod: str) -> bool:
     return MODULES[mod].name == "__init__.py"
 
 
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    """ids of the import nodes under `if TYPE_CHECKING:` (names for annotations: nothing is loaded)."""
+    inside = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and isinstance(node.test, (ast.Name, ast.Attribute)) \
+                and (getattr(node.test, "id", None) or getattr(node.test, "attr", None)) == "TYPE_CHECKING":
+            inside |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
+    return inside
+
+
 def _imports(mod: str, source: str | None = None) -> list[tuple[str, str | None, int]]:
     """(module imported, name imported from it or None, line) for every import statement in `mod`
-    (anywhere: at the top, in a function, under a condition)."""
+    that runs: at the top, in a function, under a condition; not those under `if TYPE_CHECKING`."""
     out = []
-    text = MODULES[mod].read_text(encoding="utf-8") if source is None else source
-    for node in ast.walk(ast.parse(text)):
+    tree = ast.parse(MODULES[mod].read_text(encoding="utf-8") if source is None else source)
+    annotation_only = _type_checking_only(tree)
+    for node in ast.walk(tree):
+        if id(node) in annotation_only:
+            continue
         if isinstance(node, ast.Import):
             out += [(a.name, None, node.lineno) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -256,7 +270,17 @@ def test_no_private_name_imported_across_modules():
 
 
 def test_the_checks_see_lazy_imports():
-    """A function-local import is an import like any other."""
-    lazy = "def f():\n    if True:\n        from prsm_sim.session import Session\n        import prsm_ros.bag\n"
+    """A function-local import is an import like any other; one for annotations only is not."""
+    lazy = ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from prsm_sim.params import Params\n"
+            "def f():\n    if True:\n        from prsm_sim.session import Session\n        import prsm_ros.bag\n")
     found = [(_own_target(n, a), line) for n, a, line in _imports("prsm_sim.errors", lazy)]
-    assert found == [("prsm_sim.session", 3), ("prsm_ros.bag", 4)]
+    assert found == [(None, 1), ("prsm_sim.session", 6), ("prsm_ros.bag", 7)]
+
+
+def test_the_architecture_doc_shows_the_layer_table():
+    """docs/architecture.md lists the units layer by layer as `LAYERS` orders them."""
+    import re
+    rows = [line for line in (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8").splitlines()
+            if re.match(r"\| (core|I/O) \d+ \|", line)]
+    doc = [tuple(re.findall(r"`([a-z_.]+)`", row.split("|")[2])) for row in rows]
+    assert doc == list(LAYERS)

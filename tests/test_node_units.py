@@ -250,3 +250,28 @@ def test_config_defaults_and_runtime_change_rules():
         runtime_change(cfg, {"physics.geometry.n_rollers": 8})
     with pytest.raises(ConfigError, match=r"parameter lockstep_steps = 0: must be a whole number in \[1"):
         runtime_change(cfg, {"lockstep_steps": 0})
+
+
+def test_simulation_report_levels_from_the_session_status():
+    """The /diagnostics rules without DDS: ERROR for a stopped session or an open energy ledger,
+    WARN for an active actuator fault or a watchdog timeout, else OK with the run state."""
+    from prsm_sim.actuator import ActuatorParams, Fault, MotorParams
+    from prsm_ros.node.diagnostics import ERROR, OK, WARN, energy_fault_event, simulation_report
+
+    s = Session(preset("s30"), "ideal", 1e-3, ActuatorParams(motor=MotorParams()), cmd_timeout_s=0.002)
+    r = simulation_report(s.status(), {"time_mode": "lockstep"}, [], [])
+    assert (r.level, r.message) == (OK, "running") and r.values["commands_received"] == 0
+    assert r.values["time_mode"] == "lockstep" and r.values["command_age_s"] == "none yet"
+    s.step(1.0)
+    s.inject(Fault("jam", start_s=s.time_s, value=0.5))
+    s.step()
+    r = simulation_report(s.status(), {}, ["recorder: disk full"], ["t = 0.001 s: fault start: jam"])
+    assert r.level == WARN and r.message.startswith("fault(s) active: ") and "recorder: disk full" in r.message
+    assert r.values["fault_events"] == "t = 0.001 s: fault start: jam"
+    for _ in range(3):
+        s.step()
+    assert "no command for" in simulation_report(s.status(), {}, [], []).message  # the watchdog
+    s.fail("publishing step 5 failed")
+    assert simulation_report(s.status(), {}, [], [])[:2] == (ERROR, "publishing step 5 failed")
+    text, details = energy_fault_event(0.5, 10.0, 0.02, "ideal")
+    assert "residual 0.02 J of 10 J that flowed (limit 0.001)" in text and details["flow_j"] == 10.0
