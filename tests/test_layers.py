@@ -198,27 +198,26 @@ def _where(src: str, dst: str, unit_level: bool = False) -> list[str]:
     return sorted(set(out))
 
 
+def _cycle_report(edges: dict[str, set[str]], unit_level: bool) -> list[str]:
+    """Each cycle of `edges`, with every import inside its component and where it is."""
+    return [_describe(c, edges) + "\n      " + "; ".join(
+        f"{a} → {b} at {', '.join(_where(a, b, unit_level))}" for a in c for b in sorted(edges[a] & set(c)))
+        for c in _cycles(edges)]
+
+
 def test_no_import_cycle_between_modules():
-    edges = _edges()
-    cycles = _cycles(edges)
-    report = [_describe(c, edges) + "\n      " + "; ".join(
-        f"{a} → {b} at {', '.join(_where(a, b))}" for a in c for b in sorted(edges[a] & set(c)))
-        for c in cycles]
-    assert not cycles, "import cycles between modules:\n  " + "\n  ".join(report)
+    report = _cycle_report(_edges(), unit_level=False)
+    assert not report, "import cycles between modules:\n  " + "\n  ".join(report)
 
 
 def test_no_import_cycle_between_subpackages():
-    edges = _edges()
     units: dict[str, set[str]] = defaultdict(set)
-    for a, bs in edges.items():
+    for a, bs in _edges().items():
         for b in bs:
             if _unit(a) != _unit(b):
                 units[_unit(a)].add(_unit(b))
-    cycles = _cycles(units)
-    report = [_describe(c, units) + "\n      " + "; ".join(
-        f"{a} → {b} at {', '.join(_where(a, b, unit_level=True))}" for a in c for b in sorted(units[a] & set(c)))
-        for c in cycles]
-    assert not cycles, "import cycles between subpackages:\n  " + "\n  ".join(report)
+    report = _cycle_report(units, unit_level=True)
+    assert not report, "import cycles between subpackages:\n  " + "\n  ".join(report)
 
 
 def test_every_unit_has_a_layer():
