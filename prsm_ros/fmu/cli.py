@@ -18,7 +18,7 @@ import sys
 from prsm_sim import MODELS, PRESETS, PrsmError
 from prsm_sim.actuator import COMMAND_INTERFACES
 
-from prsm_ros.cli.param_files import resolve_params
+from prsm_ros.param_files import resolve_params
 from prsm_ros.fmu.config import make_config
 
 
