@@ -138,6 +138,47 @@ class PrsmNode(Node):
         self._batch: list | None = None  # a step's messages for the bag, handed over at once (`_advance`)
         self._set_decimation()
 
+        self._create_topics()
+        check_unknown_overrides(self, cfg)
+        self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
+        if cfg.time_mode == "realtime":
+            self._prepare_realtime()
+        channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile)
+                    for k, name in self._topic_names.items()}
+        self.recorder, self.rerun = open_sinks(cfg, self.get_fully_qualified_name(), channels, self.session.layout)
+
+        for srv_type, name, callback in ((SetBool, "~/pause", self._srv_pause), (Trigger, "~/step", self._srv_step),
+                                         (Trigger, "~/reset", self._srv_reset),
+                                         (Trigger, "~/release_control", self._srv_release_control),
+                                         (SetBool, "~/brake", self._srv_brake),
+                                         (Trigger, "~/clear_faults", self._srv_clear_faults)):
+            self.create_service(srv_type, name, callback)
+        self._fault_log: list[str] = []  # the last fault starts and clears, for /diagnostics
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._steady = RosClock(clock_type=ClockType.STEADY_TIME)  # diagnostics follow wall time, never /clock
+        self._diag_timer = self.create_timer(1.0 / cfg.diagnostics_rate, self._publish_diagnostics, clock=self._steady)
+        self._diag_last = (time.perf_counter(), 0.0, 0)  # wall s, sim s, overruns at the last report
+        self._warned_at: dict[str, float] = {}
+        self.publish_failures = 0
+        self._energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
+        self._step_wall_max_s = 0.0
+        self._publish(self.pub["labels"], "labels", self.mapper.labels())
+
+        self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
+        if cfg.time_mode != "lockstep":
+            self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
+            self._thread.start()
+        self.get_logger().info(
+            f"{cfg.model} model, preset {cfg.preset}, {cfg.update_rate} Hz, {cfg.time_mode}"
+            + (f" ×{cfg.real_time_factor:g}" if cfg.time_mode == "realtime" else "")
+            + (f", recording to {self.recorder.path}" if self.recorder else "")
+            + (", paused" if cfg.start_paused else ""))
+
+    def _create_topics(self) -> None:
+        """Publishers, command subscriptions (polled by the step thread in realtime and fast mode), topic names."""
+        cfg = self.config
+
         def qos_opts() -> QoSOverridingOptions:  # qos_overrides.<topic>.<publisher|subscription>.<policy>
             return QoSOverridingOptions(policy_kinds=OVERRIDABLE_QOS)
         try:
@@ -164,7 +205,6 @@ class PrsmNode(Node):
         if polled:
             for k in COMMAND_TOPICS:
                 self.poller.add(k, self.sub[k], self._on_command)
-        check_unknown_overrides(self, self.config)
         self._topic_names = {k: p.topic_name for k, p in self.pub.items()}
         # realtime and fast: a per-step topic with no matched reader is not handed to DDS (module doc)
         self._unread: frozenset[str] = frozenset()
@@ -172,41 +212,6 @@ class PrsmNode(Node):
             k for k in ("joint_states", "ground_truth", "wrench", "internal_loads", "command_echo", "clock")
             if k in self.pub and self.pub[k].qos_profile.durability == DurabilityPolicy.VOLATILE)
         self._topic_names.update({k: s.topic_name for k, s in self.sub.items()})
-
-        self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
-        if cfg.time_mode == "realtime":
-            self._prepare_realtime()
-        channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile)
-                    for k, name in self._topic_names.items()}
-        self.recorder, self.rerun = open_sinks(cfg, self.get_fully_qualified_name(), channels, self.session.layout)
-
-        self.create_service(SetBool, "~/pause", self._srv_pause)
-        self.create_service(Trigger, "~/step", self._srv_step)
-        self.create_service(Trigger, "~/reset", self._srv_reset)
-        self.create_service(Trigger, "~/release_control", self._srv_release_control)
-        self.create_service(SetBool, "~/brake", self._srv_brake)
-        self.create_service(Trigger, "~/clear_faults", self._srv_clear_faults)
-        self._fault_log: list[str] = []  # the last fault starts and clears, for /diagnostics
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-
-        self._steady = RosClock(clock_type=ClockType.STEADY_TIME)  # diagnostics follow wall time, never /clock
-        self._diag_timer = self.create_timer(1.0 / cfg.diagnostics_rate, self._publish_diagnostics, clock=self._steady)
-        self._diag_last = (time.perf_counter(), 0.0, 0)  # wall s, sim s, overruns at the last report
-        self._warned_at: dict[str, float] = {}
-        self.publish_failures = 0
-        self._energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
-        self._step_wall_max_s = 0.0
-        self._publish(self.pub["labels"], "labels", self.mapper.labels())
-
-        self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
-        if cfg.time_mode != "lockstep":
-            self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
-            self._thread.start()
-        self.get_logger().info(
-            f"{cfg.model} model, preset {cfg.preset}, {cfg.update_rate} Hz, {cfg.time_mode}"
-            + (f" ×{cfg.real_time_factor:g}" if cfg.time_mode == "realtime" else "")
-            + (f", recording to {self.recorder.path}" if self.recorder else "")
-            + (", paused" if cfg.start_paused else ""))
 
     def _prepare_realtime(self) -> None:
         """Realtime mode: keep the step thread from waiting for the GIL (measured in bench_node).
@@ -314,22 +319,24 @@ class PrsmNode(Node):
         if reason is not None:
             self._warn_throttled("ownership", f"{self._topic_names[key]}: {reason}")
             return
-        header_ns = None
-        try:
-            if key == "joint_commands":
-                msg = deserialize_message(raw, JointState)
-                reason = offer_joint_command(self.session, msg.name, {"position": msg.position,
-                                                                      "velocity": msg.velocity, "effort": msg.effort})
-                header_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            else:
-                reason = self.session.offer(COMMAND_TOPICS[key], _float64(raw))
-        except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
-            reason = self.session.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
-                                                f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})")
+        reason, header_ns = self._offer(key, raw)
         if reason is None:
             self.ownership.accepted(who)
             self.echo.offer(stamp_of(header_ns, info.get("source_timestamp")), self._topic_names[key])
         self._after_command(key, reason)
+
+    def _offer(self, key: str, raw: bytes) -> tuple[str | None, int | None]:
+        """A command's CDR bytes to the session: (the reason it was refused or None, a JointState's header stamp ns)."""
+        try:
+            if key != "joint_commands":
+                return self.session.offer(COMMAND_TOPICS[key], _float64(raw)), None
+            msg = deserialize_message(raw, JointState)
+            arrays = {"position": msg.position, "velocity": msg.velocity, "effort": msg.effort}
+            return (offer_joint_command(self.session, msg.name, arrays),
+                    msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
+            return self.session.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
+                                                 f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})"), None
 
     def _on_inject_fault(self, msg) -> None:
         """A fault spec 'kind=…,start_s=…,duration_s=…,value=…' (start_s in simulation time; omitted: now)."""
@@ -462,12 +469,7 @@ class PrsmNode(Node):
         while not self._stop.is_set():
             if self.session.paused or self.session.fault is not None:
                 was_running = False
-                try:
-                    with self._lock:  # commands still count, own and reach the bag while nothing steps
-                        self.poller.sweep()
-                except Exception as e:  # a bug: logged, never the end of the step thread
-                    self._warn_throttled("poll", f"taking commands failed: {type(e).__name__}: {e}")
-                self._resumed.wait(0.05)
+                self._idle()
                 continue
             if not was_running:
                 self.pacer.restart()
@@ -492,6 +494,15 @@ class PrsmNode(Node):
                     return
                 self.session.fail(f"step loop error: {type(e).__name__}: {e}")
                 self.get_logger().error(self.session.fault)
+
+    def _idle(self) -> None:
+        """Paused or faulted: commands still count, own and reach the bag while nothing steps."""
+        try:
+            with self._lock:
+                self.poller.sweep()
+        except Exception as e:  # a bug: logged, never the end of the step thread
+            self._warn_throttled("poll", f"taking commands failed: {type(e).__name__}: {e}")
+        self._resumed.wait(0.05)
 
     def _wait_for_recorder(self) -> None:
         """`fast` mode has no deadline to keep: when the bag writer falls behind (a busy machine),
