@@ -711,7 +711,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         try:
             node = PrsmNode()
-        except ConfigError as e:
+        except PrsmError as e:  # a parameter refused (ConfigError), or a model the parameters cannot build
             _exit_now(2, f"prsm-node: error: {e}")
         except Exception as e:  # e.g. an RCLError for a QoS override the middleware refuses
             if os.environ.get("PRSM_DEBUG"):
