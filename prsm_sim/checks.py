@@ -15,4 +15,3 @@ def is_number(v: object) -> bool:
 def is_finite_number(v: object) -> bool:
     """A real number (`is_number`) that is finite."""
     return is_number(v) and math.isfinite(v)
-
