@@ -156,3 +156,18 @@ def test_no_private_name_is_imported_across_prsm_sim_modules():
             if isinstance(node, ast.ImportFrom):
                 offenders += [f"{f.relative_to(ROOT)}: {a.name}" for a in node.names if a.name.startswith("_")]
     assert not offenders
+
+
+@pytest.mark.parametrize("model", ["ideal", "fu2018"])
+def test_simulators_with_and_without_an_actuator_pickle_and_step_on_alike(model):
+    import pickle
+
+    from prsm_sim.actuator import ActuatorParams
+    p = preset("s30")
+    for sim in (Simulator(p, model), Simulator(p, model, actuator=ActuatorParams())):
+        sim.step(0.05, 100.0)
+        twin = pickle.loads(pickle.dumps(sim))
+        assert type(twin.model) is type(sim.model) and twin.model.name == sim.model.name
+        assert getattr(twin.model, "model_name", None) == getattr(sim.model, "model_name", None)
+        a, b = twin.step(0.05, 100.0), sim.step(0.05, 100.0)
+        assert a.scalars() == b.scalars() and np.array_equal(a.internal, b.internal)

@@ -31,6 +31,7 @@ A model that wraps others and has a state of its own (the actuator) overrides `_
 
 from __future__ import annotations
 
+import copyreg
 import math
 from dataclasses import replace
 from functools import cached_property
@@ -106,7 +107,11 @@ class Model:
         self.dt_s = float(dt_s)
         self.layout = InternalLayout(blocks=())
 
-    def __reduce__(self):  # a model is immutable: rebuilt from its parameters (its step functions are closures)
+    def __reduce__(self):
+        """A model is immutable: rebuilt from its parameters (its step function is a closure, its kernels a
+        module); a model with a state of its own (the actuator) pickles its attributes as they are."""
+        if not self.packed:
+            return copyreg.__newobj__, (type(self),), self.__dict__
         kernel = (self.kernel,) if self.compiled_kernel else ()
         return (type(self), (self.params, self.dt_s, *kernel))
 
