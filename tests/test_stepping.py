@@ -20,7 +20,7 @@ from prsm_sim import InputError, Simulator, State, preset
 from prsm_sim.models import kernels
 from prsm_sim.models.elastic import ElasticPart
 from prsm_sim.models.fu2018 import Fu2018Part
-from prsm_sim.stepping.ledger import efficiency, efficiency_columns, energy_fault, ledger_columns, step_balance
+from prsm_sim.stepping.ledger import efficiency, efficiency_columns, energy_fault, ledger_columns, ledger_step
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -30,15 +30,17 @@ def test_ledger_scalar_and_column_forms_are_one_rule():
     n = 50
     tau, dth, w_out, diss = rng.normal(size=n), rng.normal(size=n), rng.normal(size=n), rng.random(n)
     stored = rng.random(n)
-    w_in, flow, residual = ledger_columns(2.0, 0.5, 0.25, tau, dth, w_out, diss, stored)
+    w_in, flow, residual, fault = ledger_columns(2.0, 0.5, 0.25, tau, dth, w_out, diss, stored)
     f, r, e0 = 2.0, 0.5, 0.25
     for k in range(n):
-        wi, miss = step_balance(tau[k], dth[k], w_out[k], diss[k], e0, stored[k])
-        assert wi == tau[k] * dth[k]
+        wi, f_next, r_next, verdict = ledger_step(f, r, tau[k], dth[k], w_out[k], diss[k], e0, stored[k])
+        assert wi == tau[k] * dth[k] and f_next == f + abs(wi)
         # the balance by hand: input work less output work, the change of stored energy and the dissipation
-        assert miss == pytest.approx(tau[k] * dth[k] - w_out[k] - (stored[k] - e0) - diss[k], rel=1e-15, abs=1e-15)
-        f, r, e0 = f + abs(wi), r + miss, stored[k]
-        assert (flow[k], residual[k], w_in[k]) == (f, r, wi)  # the same order of sums: the same bits
+        miss = tau[k] * dth[k] - w_out[k] - (stored[k] - e0) - diss[k]
+        assert r_next - r == pytest.approx(miss, rel=1e-12, abs=1e-12)
+        assert verdict == (f_next > 1.0 and abs(r_next) > 1e-3 * f_next)
+        f, r, e0 = f_next, r_next, stored[k]
+        assert (flow[k], residual[k], w_in[k], fault[k]) == (f, r, wi, verdict)  # the same sums: the same bits
     assert bool(energy_fault(2.0, 0.003)) and not energy_fault(2.0, 0.001) and not energy_fault(0.5, 0.4)
     np.testing.assert_array_equal(energy_fault(np.array([2.0, 2.0]), np.array([0.003, 0.001])), [True, False])
     p_out, p_d = np.array([2.0, -2.0, -1.0, 0.0]), np.array([1.0, 1.0, 3.0, 1.0])

@@ -2,7 +2,7 @@
 
 - `stepping.records`: `State` (common coordinates, the ledger and the model's own `part`),
   `Outputs`, `OUTPUT_FIELDS` and the internal-load layout (`InternalLayout`, `InternalBlock`);
-- `stepping.ledger`: the energy ledger (`step_balance`), its guard (`energy_fault`) and `efficiency`,
+- `stepping.ledger`: the energy ledger and its guard (`ledger_step`, `energy_fault`) and `efficiency`,
   in scalar and column form;
 - `stepping.packed`: the packed per-step record (`PackedOutputs`) and the ledger's per-step form
   that makes it (`make_finisher`);

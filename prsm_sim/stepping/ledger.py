@@ -1,10 +1,10 @@
 """The energy ledger, its guard and the mechanism's efficiency: each rule written once.
 
 Every step's port work (screw torque × screw angle, load × nut travel), its dissipation and the
-change of the stored energy must balance (docs/model.md §4, "The energy ledger"). `step_balance`
-is that balance for one step; it takes floats (the per-step path, `stepping.packed.make_finisher`)
-or arrays of per-step values (the batch path, `ledger_columns`, which accumulates it with cumulative
-sums), and the compiled kernels may compile the same function.
+change of the stored energy must balance (docs/model.md §4, "The energy ledger"). `ledger_step`
+is that balance and the guard's verdict for one step; it takes floats (the per-step path,
+`stepping.packed.make_finisher`) or arrays of per-step values (the batch path, `ledger_columns`,
+which accumulates it with cumulative sums in the per-step path's order).
 
 Energy guard (every model): the cumulative residual and the energy that has flowed (∫|P_in| dt)
 travel in the state; `energy_fault` flags a run whose books do not close (|residual| >
@@ -22,19 +22,26 @@ ENERGY_GUARD_REL = 1e-3  # residual allowed, as a fraction of the energy that ha
 ENERGY_GUARD_MIN_FLOW_J = 1.0  # below this flow the ratio is not judged (start-up, standstill)
 
 
-def step_balance(torque_nm, dtheta_rad, work_out_j, dissipated_j, stored_before_j, stored_after_j):
-    """One step's input work and the miss of its energy balance (floats, or arrays of steps).
+def ledger_step(flow0_j, residual0_j, torque_nm, dtheta_rad, work_out_j, dissipated_j, stored0_j, stored1_j):
+    """One step of the energy ledger and the guard's verdict: (W_in, flow, residual, fault).
 
-    W_in = τ Δθ_S is exact for a torque held over the step; the miss is
-    W_in − W_out − (E₁ − E₀) − W_diss, zero for books that close.
+    W_in = τ Δθ_S is exact for a torque held over the step; the flow grows by |W_in| and the residual by
+    the step's miss W_in − W_out − (E₁ − E₀) − W_diss (zero for books that close); the verdict is
+    |residual| > ENERGY_GUARD_REL · flow once the flow exceeds ENERGY_GUARD_MIN_FLOW_J. Floats (the
+    per-step path), or arrays of steps element by element (`ledger_columns`: from zero books, the
+    increments).
     """
     work_in_j = torque_nm * dtheta_rad
-    return work_in_j, work_in_j - work_out_j - (stored_after_j - stored_before_j) - dissipated_j
+    flow_j = flow0_j + abs(work_in_j)
+    residual_j = residual0_j + (work_in_j - work_out_j - (stored1_j - stored0_j) - dissipated_j)
+    fault = (flow_j > ENERGY_GUARD_MIN_FLOW_J) & (abs(residual_j) > ENERGY_GUARD_REL * flow_j)
+    return work_in_j, flow_j, residual_j, fault
 
 
 def energy_fault(flow_j, residual_j):
-    """The guard's verdict (scalar or array): |residual| > ENERGY_GUARD_REL · flow once flow > 1 J."""
-    return (flow_j > ENERGY_GUARD_MIN_FLOW_J) & (abs(residual_j) > ENERGY_GUARD_REL * flow_j)
+    """The guard's verdict on books as they stand (scalars or arrays): `ledger_step`'s after a step that
+    moves nothing."""
+    return ledger_step(flow_j, residual_j, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)[3]
 
 
 def energy_guard_summary(columns) -> dict:
@@ -50,11 +57,13 @@ def energy_guard_summary(columns) -> dict:
 
 def ledger_columns(flow0_j: float, residual0_j: float, stored0_j: float, torque_nm, dtheta_rad, work_out_j,
                    dissipated_j, stored_j):
-    """The ledger of a batch run from its per-step arrays: (W_in per step, flow, residual), the last two
-    cumulative from the state the run started in (its flow, residual and stored energy)."""
+    """The ledger of a batch run from its per-step arrays: (W_in per step, flow, residual, fault), the flow and
+    residual cumulative from the state the run started in (its flow, residual and stored energy)."""
     stored_before = np.concatenate(([stored0_j], stored_j[:-1]))
-    work_in_j, miss = step_balance(torque_nm, dtheta_rad, work_out_j, dissipated_j, stored_before, stored_j)
-    return work_in_j, accumulate(flow0_j, np.abs(work_in_j)), accumulate(residual0_j, miss)
+    work_in_j, d_flow, miss, _ = ledger_step(0.0, 0.0, torque_nm, dtheta_rad, work_out_j, dissipated_j, stored_before,
+                                             stored_j)
+    flow_j, residual_j = accumulate(flow0_j, d_flow), accumulate(residual0_j, miss)
+    return work_in_j, flow_j, residual_j, energy_fault(flow_j, residual_j)
 
 
 def accumulate(start: float, increments: np.ndarray) -> np.ndarray:

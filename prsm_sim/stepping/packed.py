@@ -17,7 +17,7 @@ from operator import itemgetter
 
 import numpy as np
 
-from prsm_sim.stepping.ledger import efficiency, energy_fault, speed_ratio, step_balance
+from prsm_sim.stepping.ledger import efficiency, ledger_step, speed_ratio
 from prsm_sim.stepping.records import OUTPUT_FIELDS, Outputs
 
 PACKED_STATE_SIZE = 12
@@ -54,7 +54,7 @@ def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear
     nut_force=None, nut=None) -> PackedOutputs``
     from the packed state before the step and the model's results at its end (stored: the stored
     energy there; part: the model's own next state). It advances time, the work accumulators and
-    the energy guard (`step_balance`, `energy_fault`), and fills the nut's force, position and
+    the energy guard (`ledger_step`), and fills the nut's force, position and
     velocity: by default (L/2π) θ_S and its rate, and the load plus the moved mass's acceleration;
     a model that knows better passes `nut_force`, and a nut with an axial state of its own
     (`elastic`) passes `nut` = (x_N, v_N, the load's work over the step). The record derives the
@@ -64,6 +64,7 @@ def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear
     h, p = dt_s, lead_per_rad_m
     mp = moved_mass_kg * p
     k = PackedConstants(h, gear_ratio, slip_speed, internal)
+    ledger = ledger_step  # a local name: one look-up less per step
 
     def finish(x, th_s, w_s, th_c, w_c, command, load_n, dissipated_j, stored_j, part=(), aux=None,
                nut_force=None, nut=None):
@@ -75,13 +76,11 @@ def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear
             nut_x, nut_v, w_out = nut
         if nut_force is None:
             nut_force = load_n + mp * (w_s - x[2]) / h
-        w_in, miss = step_balance(command, dtheta, w_out, dissipated_j, x[10], stored_j)
-        flow = x[8] + abs(w_in)
-        residual = x[9] + miss
+        w_in, flow, residual, fault = ledger(x[8], x[9], command, dtheta, w_out, dissipated_j, x[10], stored_j)
         return PackedOutputs((
             x[0] + h, th_s, w_s, th_c, w_c, x[5] + w_in, x[6] + w_out, x[7] + dissipated_j, flow, residual,
             stored_j, part, command, load_n, dissipated_j, w_in, w_out, nut_force, nut_x, nut_v,
-            1.0 if energy_fault(flow, residual) else 0.0, k, aux))
+            1.0 if fault else 0.0, k, aux))
     return finish
 
 

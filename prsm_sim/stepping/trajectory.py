@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.stepping.ledger import accumulate, efficiency_columns, energy_fault, ledger_columns, speed_ratio_columns
+from prsm_sim.stepping.ledger import accumulate, efficiency_columns, ledger_columns, speed_ratio_columns
 from prsm_sim.stepping.records import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
 
 
@@ -205,8 +205,8 @@ def trajectory_from_columns(initial: State, final: State, stored0_j: float, *, d
     are derived here; the works are J over each step.
     """
     h, n = dt_s, len(torque_nm)
-    w_in, flow, residual = ledger_columns(initial.energy_flow_j, initial.energy_residual_j, stored0_j, torque_nm,
-                                          dtheta, work_out_j, dissipated_j, stored_j)
+    w_in, flow, residual, fault = ledger_columns(initial.energy_flow_j, initial.energy_residual_j, stored0_j,
+                                                 torque_nm, dtheta, work_out_j, dissipated_j, stored_j)
     if n:
         final = replace(final, time_s=initial.time_s + h * n,
                         work_in_j=float(accumulate(initial.work_in_j, w_in)[-1]),
@@ -222,7 +222,7 @@ def trajectory_from_columns(initial: State, final: State, stored0_j: float, *, d
         "load_force_n": np.array(load_n, dtype=float), "slip_speed_m_s": slip, "power_in_w": w_in / h,
         "power_out_w": p_out, "power_dissipated_w": p_d, "efficiency": efficiency_columns(p_out, p_d),
         "speed_ratio": speed_ratio_columns(w_s, w_c), "stored_energy_j": stored_j, "energy_flow_j": flow,
-        "energy_residual_j": residual, "energy_fault": energy_fault(flow, residual).astype(float),
+        "energy_residual_j": residual, "energy_fault": fault.astype(float),
     }
     columns = {name: np.ascontiguousarray(columns[name], dtype=float) for name, _ in OUTPUT_FIELDS}
     return Trajectory(columns=columns, internal=internal, layout=layout, final_state=final)
