@@ -198,7 +198,7 @@ class Simulator:
         """
         if torque_nm is not None:
             command = self._deprecated_torque_nm(command, torque_nm)
-        # (x + y) * 0 is 0 only for finite floats: one test for the common case, the full check otherwise
+        # `check_step_inputs`' test for the common case, here to save the call on the node's path
         if not (type(command) is float and type(load_n) is float and (command + load_n) * 0.0 == 0.0):
             command, load_n = check_step_inputs(command, load_n, self.command_name)
         x = self._packed
