@@ -20,8 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.models.base import trajectory_from_rows
-from prsm_sim.outputs import Trajectory
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
 # The demo's defaults (prsm-demo and `python -m prsm_ros.cli.demo_controller`)
 DEFAULT_GAINS = {"bandwidth_hz": 8.0, "damping": 1.0, "integral_ratio": 10.0}

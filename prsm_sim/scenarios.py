@@ -15,12 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.base import efficiency, energy_guard_summary, trajectory_from_rows
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.models.jones2016 import steady_state
-from prsm_sim.outputs import Trajectory
 from prsm_sim.params import Params
 from prsm_sim.simulator import Simulator
+from prsm_sim.stepping.ledger import efficiency, energy_guard_summary
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
 SCENARIOS = ("step", "ramp", "sine", "heavy", "light", "sine-motion")
 HEAVY_LOAD_N = 20_000.0  # Fu 2018 heavy-load case, docs/model.md §4.2 ("e.g. 20 kN")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, preset
-from prsm_sim.models.base import ENERGY_GUARD_REL, energy_guard_summary
+from prsm_sim.stepping.ledger import ENERGY_GUARD_REL, energy_guard_summary
 from prsm_sim.models.ideal import Ideal
 from prsm_sim.models.jones2016 import mass_matrix
 from prsm_sim.scenarios import default_spec, run_scenario

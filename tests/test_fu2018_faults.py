@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from prsm_sim import ParamError, Simulator, preset
-from prsm_sim.models.base import energy_guard_summary
+from prsm_sim.stepping.ledger import energy_guard_summary
 from prsm_sim.models.fu2018 import PER_ROLLER_QUANTITIES, Fu2018
 from prsm_sim.scenarios import default_spec, run_scenario
 

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from prsm_sim import ParamError, Simulator, build_model, preset
-from prsm_sim.outputs import OUTPUT_FIELDS
+from prsm_sim import OUTPUT_FIELDS
 
 TOL = 1e-12
 F_HEAVY = 20_000.0

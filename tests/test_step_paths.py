@@ -15,7 +15,8 @@ import pytest
 
 from prsm_sim import OUTPUT_FIELDS, Outputs, Simulator, preset
 from prsm_sim.errors import InputError
-from prsm_sim.outputs import PackedOutputs, State
+from prsm_sim import State
+from prsm_sim.stepping.packed import PackedOutputs
 
 CASES = [("ideal", "s30"), ("jones2016", "s30"), ("jones2016", "jones2016")]
 STATE_FIELDS = ("time_s", "screw_angle_rad", "screw_speed_rad_s", "carrier_angle_rad", "carrier_speed_rad_s",

@@ -173,3 +173,18 @@ def test_simulators_with_and_without_an_actuator_pickle_and_step_on_alike(model)
         assert getattr(twin.model, "model_name", None) == getattr(sim.model, "model_name", None)
         a, b = twin.step(0.05, 100.0), sim.step(0.05, 100.0)
         assert a.scalars() == b.scalars() and np.array_equal(a.internal, b.internal)
+
+
+def test_old_import_paths_are_aliases_of_the_new_homes():
+    import prsm_sim.models.base as base
+    import prsm_sim.outputs as outputs
+    from prsm_sim import params, stepping
+    from prsm_sim.models import elastic, kernels, registry
+    from prsm_sim.stepping import ledger, packed, trajectory
+    assert base.Model is stepping.Model and base.energy_fault is ledger.energy_fault
+    assert base.efficiency is ledger.efficiency and base.trajectory_from_rows is trajectory.trajectory_from_rows
+    assert base.check_kernel is kernels.check_kernel and base.load_kernels is kernels.load
+    assert outputs.State is State and outputs.PackedOutputs is packed.PackedOutputs
+    assert outputs.Trajectory is trajectory.Trajectory
+    assert params.Elastic is params.ElasticParams and elastic.Elastic is elastic.ElasticModel
+    assert registry.MODELS["elastic"] is elastic.ElasticModel

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from prsm_sim import MODELS, ParamError, PrsmError, Simulator, preset
-from prsm_sim.models.base import trajectory_from_rows
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.scenarios import default_spec, run_scenario
+from prsm_sim.stepping.trajectory import trajectory_from_rows
 
 from prsm_ros.json_out import dumps
 from prsm_ros.mcap.offline import write_trajectory_mcap

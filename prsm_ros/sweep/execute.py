@@ -12,12 +12,11 @@ import time
 
 import numpy as np
 
-from prsm_sim import Simulator
+from prsm_sim import Simulator, Trajectory
 from prsm_sim.control import PositionController, run_position_loop
 from prsm_sim.life import life_from_samples
 from prsm_sim.models.ideal import reflected_inertia
-from prsm_sim.models.jones2016 import mass_matrix
-from prsm_sim.outputs import Trajectory
+from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.scenarios import default_spec, run_scenario, summarise
 
 from prsm_ros.sweep.study import POSITION, StudyError, base_params, controller_defaults

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from prsm_sim import OUTPUT_FIELDS, InternalLayout, Outputs, ParamError, Params, PrsmError, State
-from prsm_sim.models.base import trajectory_from_rows
+from prsm_sim.stepping.trajectory import trajectory_from_rows
 
 MODES = ("off", "save", "spawn", "connect")
 APPLICATION_ID = "prsm"
