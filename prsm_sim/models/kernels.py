@@ -183,11 +183,11 @@ def load(kernel: str):
     if kernel == "reference":
         return None
     g = globals()
-    if _COMPILED and not hasattr(g[_COMPILED[0]], "py_func"):
+    if not hasattr(g[_COMPILED[-1]], "py_func"):
         from numba import njit  # here, on first use: `import prsm_sim` stays light
 
-        for name in _COMPILED:
-            g[name] = njit(cache=True)(g[name])
+        # every dispatcher made before any is published (one dict update): a caller never sees a mix
+        g.update({name: njit(cache=True)(getattr(g[name], "py_func", g[name])) for name in _COMPILED})
     return sys.modules[__name__]
 
 
