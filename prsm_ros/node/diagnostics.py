@@ -12,7 +12,7 @@ import math
 from typing import Any, NamedTuple
 
 from prsm_sim.actuator import FaultEvent
-from prsm_sim.models.base import ENERGY_GUARD_REL
+from prsm_sim.stepping.ledger import ENERGY_GUARD_REL
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels
 FAULT_LOG_LENGTH = 10  # fault starts and clears kept for the simulation report
