@@ -45,9 +45,12 @@ def state_is_finite(out: Outputs) -> bool:
     jones2016) or from the step's solved end forces, of which the nut force checked here is one
     (fu2018, elastic); building them every step just to check them would cost more than the step.
     """
-    return all(math.isfinite(v) for v in (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_angle_rad,
-                                          out.carrier_speed_rad_s, out.nut_force_n)) \
-        and (type(out) is PackedOutputs or bool(np.all(np.isfinite(out.internal))))
+    # x * 0 is ±0 for a finite float and NaN otherwise, so the sum is 0 exactly when all are finite
+    # (a sum of the values themselves could overflow); one test instead of five calls, every step
+    if type(out) is PackedOutputs:
+        return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out.nut_force_n * 0.0 == 0.0
+    return (out.screw_angle_rad * 0.0 + out.screw_speed_rad_s * 0.0 + out.carrier_angle_rad * 0.0
+            + out.carrier_speed_rad_s * 0.0 + out.nut_force_n * 0.0 == 0.0) and bool(np.isfinite(out.internal).all())
 
 
 class Session:
@@ -184,32 +187,35 @@ class Session:
             raise ModelError(self.fault)
         if load_n is not None and not is_finite_number(load_n):
             raise InputError(f"load_n = {load_n!r}: must be a finite number (N)")
+        sim, gate = self.simulator, self.gate
+        t0 = sim.time_s  # read off the packed record: no `State` is built on this path
         if command is not None:
             if not is_finite_number(command):
                 raise InputError(f"command = {command!r}: must be a finite number "
-                                 f"({INTERFACE_UNIT[self.gate.interface]})")
-            self.gate.offer(self.gate.interface, command, self.simulator.time_s)
+                                 f"({INTERFACE_UNIT[gate.interface]})")
+            gate.offer(gate.interface, command, t0)
         if load_n is not None:
             self.load_n = float(load_n)
-        sim, gate = self.simulator, self.gate
-        command = gate.command(sim.time_s)
+        command = gate.command(t0)
         act = self.actuator
-        if act is not None and gate.timed_out and act.actuator.brake.engage_on_watchdog \
-                and act.actuator.brake.fitted and not sim.state.brake_engaged:
-            sim.state = act.command_brake(sim.state, True)
-        before = sim.state
+        before = None
+        if act is not None:  # an actuator's state is its own (`ActuatorState`), never packed: reading it is free
+            before = sim.state
+            if gate.timed_out and act.actuator.brake.engage_on_watchdog and act.actuator.brake.fitted \
+                    and not before.brake_engaged:
+                sim.state = before = act.command_brake(before, True)
         try:
             out = sim.step(command, self.load_n)
         except Exception as e:  # any model failure stops stepping until reset
-            self.fault = f"model {self.model_name} failed at t = {before.time_s:.6f} s: {type(e).__name__}: {e}"
+            self.fault = f"model {self.model_name} failed at t = {t0:.6f} s: {type(e).__name__}: {e}"
             raise ModelError(self.fault) from e
         if not state_is_finite(out):
-            sim.restore(before, sim.nstep - 1)  # keep the last finite state; reset clears the fault
+            sim.undo()  # keep the last finite state; reset clears the fault
             self.fault = (f"model {self.model_name} produced a non-finite state at t = {out.time_s:.6f} s "
                           f"(command {command:g} {gate.interface}, load {self.load_n:g} N); "
                           "stepping stopped until reset")
             raise ModelError(self.fault)
-        if act is not None:
+        if before is not None:
             self._events += act.events(before, sim.state)
         self._last = out
         return out

@@ -96,9 +96,11 @@ class Simulator:
         self._state = value
         self._packed = self._state_of = self.model.pack_state(value) if self.model.packed else None
         self._step_packed = self.model.step_packed if self.model.packed else None
+        self._before = None  # the state (packed record or State) before the last step, for `undo`
 
     def __getstate__(self) -> dict:  # pickled with its state as a `State` (the packed record holds closures)
-        d = {k: v for k, v in self.__dict__.items() if k not in ("_state", "_packed", "_state_of", "_step_packed")}
+        d = {k: v for k, v in self.__dict__.items()
+             if k not in ("_state", "_packed", "_state_of", "_step_packed", "_before")}
         d["state"] = self.state
         return d
 
@@ -204,10 +206,30 @@ class Simulator:
         x = self._packed
         if x is not None:  # the record is the outputs and the next packed state
             self._packed = out = self._step_packed(x, command, load_n)
+            self._before = x
         else:
+            self._before = self._state
             self._state, out = self.model.step(self._state, command, load_n)
         self.nstep += 1
         return out
+
+    def undo(self) -> None:
+        """Back to the state before the last `step` (once; a session keeps its last finite state so).
+
+        Raises
+        ------
+        InputError
+            No step to undo: none since construction, a reset, a state change or the last `undo`.
+        """
+        before = self._before
+        if before is None:
+            raise InputError("undo: no step to undo since the state was last set")
+        if self._packed is not None:
+            self._packed = before
+        else:
+            self._state = before
+        self._before = None
+        self.nstep -= 1
 
     def _deprecated_torque_nm(self, command, torque_nm):
         if command is not None:

@@ -179,3 +179,68 @@ def test_reset_keeps_the_load_unless_an_initial_load_is_given():
     s.step(load_n=20.0)
     s.reset(nut_position_m=0.01)
     assert s.load_n == 5.0 and s.time_s == 0.0 and s.rest_outputs().nut_position_m == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("model, kernel, actuator", [("fu2018", "compiled", False), ("fu2018", "reference", False),
+                                                     ("jones2016", "compiled", True)])
+def test_simulator_undo_returns_to_the_state_before_the_last_step(model, kernel, actuator):
+    """Oracle: a twin simulator that never took the undone step; the run after the undo matches it bit for bit."""
+    p, a = preset("s30"), ActuatorParams(motor=MotorParams()) if actuator else None
+    sim, twin = Simulator(p, model, 1e-3, actuator=a, kernel=kernel), Simulator(p, model, 1e-3, actuator=a, kernel=kernel)
+    with pytest.raises(InputError, match="^undo: no step to undo"):
+        sim.undo()
+    for _ in range(3):
+        sim.step(0.5, 100.0), twin.step(0.5, 100.0)
+    sim.step(-3.0, 900.0)
+    sim.undo()
+    assert sim.nstep == 3 and sim.time_s == twin.time_s and sim.state == twin.state
+    with pytest.raises(InputError, match="^undo: no step to undo"):  # once
+        sim.undo()
+    a_out, b_out = sim.step(0.5, 100.0), twin.step(0.5, 100.0)
+    np.testing.assert_array_equal(list(a_out.scalars().values()), list(b_out.scalars().values()))
+    sim.reset()
+    with pytest.raises(InputError, match="^undo: no step to undo"):  # a new state is no step
+        sim.undo()
+
+
+@pytest.mark.parametrize("model", ["fu2018", "elastic"])
+@pytest.mark.parametrize("field", ["screw_angle_rad", "screw_speed_rad_s", "carrier_angle_rad", "carrier_speed_rad_s",
+                                   "nut_force_n"])
+def test_state_is_finite_checks_each_state_scalar(model, field):
+    """Oracle: math.isfinite on each field. The packed record (the node's per-step path) and a plain
+    `Outputs` agree; values near the float limit are finite (no overflow in the test)."""
+    from dataclasses import replace
+
+    from prsm_sim.session import state_is_finite
+    from prsm_sim.stepping.packed import PackedOutputs
+    packed = Simulator(preset("s30"), model, 1e-3).step(0.5, 100.0)
+    assert type(packed) is PackedOutputs and state_is_finite(packed) and state_is_finite(packed.to_outputs())
+    index = {"screw_angle_rad": 1, "screw_speed_rad_s": 2, "carrier_angle_rad": 3, "carrier_speed_rad_s": 4}
+    for value, finite in ((math.inf, False), (-math.inf, False), (math.nan, False), (1.7e308, True)):
+        plain = replace(packed.to_outputs(), **{field: value})
+        assert state_is_finite(plain) is finite
+        if field in index:  # the record's state part, as the next step would read it
+            rec = PackedOutputs(packed[:index[field]] + (value,) + packed[index[field] + 1:])
+        else:
+            rec = PackedOutputs(packed[:17] + (value,) + packed[18:])
+        assert getattr(rec, field) == value or math.isnan(value)
+        assert state_is_finite(rec) is finite
+    internal = packed.to_outputs().internal.copy()
+    internal[-1] = math.nan
+    assert not state_is_finite(replace(packed.to_outputs(), internal=internal))  # a plain record's loads count too
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+def test_stepping_builds_no_state_from_the_packed_record(model):
+    """The per-step path reads time and finiteness off the packed record: `State` is built only
+    when someone reads `simulator.state` (counted on the model's unpack_state)."""
+    s = Session(preset("s30"), model, 1e-3, load_n=100.0)
+    unpack = s.simulator.model.unpack_state
+    calls = []
+    s.simulator.model.unpack_state = lambda x: calls.append(1) or unpack(x)
+    s.offer("effort", 0.5)
+    for _ in range(5):
+        s.step()
+    s.step(0.25, 50.0)
+    assert not calls and s.nstep == 6
+    assert s.simulator.state.time_s == s.time_s and len(calls) == 1
