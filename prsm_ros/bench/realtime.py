@@ -12,8 +12,8 @@
   states delivered to the reliable reader, the long-run rate error as the reader sees it, and
   the node process's CPU (all its threads) over the measured window; then the node's CPU with
   each other model (unloaded, shorter runs), since the CPU target holds for every model.
-- Step cost: one `Simulator.step` per model, the path the node calls each tick, in the same
-  Python loop form as MuJoCo's `mj_step` on the rigid screw–nut (`mujoco` from the `bench`
+- Step cost: one `Simulator.step` per model, and the same through `Session.step` (gate, load,
+  finiteness check: the path the node calls each tick), in the same Python loop form as MuJoCo's `mj_step` on the rigid screw–nut (`mujoco` from the `bench`
   extra): one slide joint for the nut, the rotating inertia reflected as armature, which is
   exact for a rigid lead (a hinge and a slide tied by an equality constraint is a stiff
   spring, ~20,000× too soft at a 1 ms step). Batch `Simulator.run` in simulated s per wall s.
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prsm_sim import MODELS, Simulator, preset
+from prsm_sim import MODELS, Session, Simulator, preset
 from prsm_sim.models.ideal import reflected_inertia
 
 from prsm_ros.bench.common import BenchError, area_main, figure
@@ -242,7 +242,7 @@ def _median_spread(times: list[float]) -> tuple[float, float]:
 
 
 def step_cost_figures(quick: bool) -> list[dict]:
-    """Per-step cost of every model's `Simulator.step` and of MuJoCo's `mj_step`, interleaved rounds."""
+    """Per-step cost of every model's `Simulator.step`, its `Session.step` and MuJoCo's `mj_step`, interleaved rounds."""
     n = 2000 if quick else 20000
     rounds = 3 if quick else 7
     params = preset(PRESET)
@@ -259,6 +259,15 @@ def step_cost_figures(quick: bool) -> list[dict]:
                 out = step(t, load)
             return out.nut_position_m
         paths[name] = run_sim
+        session = Session(params, name, DT, load_n=load)
+
+        def run_session(session=session):
+            session.reset()
+            step = session.step
+            for t in torque:
+                out = step(t)  # the gate takes the command at the step's time, the load is held
+            return out.nut_position_m
+        paths[name, "session"] = run_session
     mj_note = ""
     try:
         import mujoco
@@ -308,6 +317,10 @@ def step_cost_figures(quick: bool) -> list[dict]:
         figs.append(figure(f"{name} per-step path (Simulator.step)", cost * 1e6, "µs", target, ok, spread,
                            (f"{cost / mj:.2f}× MuJoCo's step; " if math.isfinite(mj) else "")
                            + f"{PRESET}; thread CPU time; input checks, state and the Outputs record included"))
+        s_cost, s_spread = per[name, "session"]
+        figs.append(figure(f"{name} per-step path through Session.step (the node's)", s_cost * 1e6, "µs", "(info)", None,
+                           s_spread, f"{s_cost / cost:.2f}× Simulator.step; the command through the gate, the load "
+                           "held, the state checked finite; same run"))
     figs.extend(batch_figures(quick))
     return figs
 
