@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 
 from prsm_sim import ParamError, Params, preset
+from prsm_sim.actuator import ActuatorParams, actuator_params_from_dict
 
 
 def params_to_yaml(params: Params) -> str:
@@ -19,8 +20,8 @@ def params_to_yaml(params: Params) -> str:
     return yaml.safe_dump(params.to_dict(), sort_keys=False)
 
 
-def params_from_yaml(text: str, source: str = "<string>") -> Params:
-    """Parse and validate; ParamError names `source` and the offending field or line."""
+def _yaml_mapping(text: str, source: str, what: str) -> dict:
+    """The YAML text's top-level mapping; ParamError names `source`, the line and what was wrong."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
@@ -28,8 +29,23 @@ def params_from_yaml(text: str, source: str = "<string>") -> Params:
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         raise ParamError(f"{source}:{where} not valid YAML ({getattr(e, 'problem', None) or e})") from None
     if not isinstance(data, dict):
-        raise ParamError(f"{source}: expected a mapping of parameter groups, got {type(data).__name__}")
-    data = dict(data)
+        raise ParamError(f"{source}: expected a mapping of {what}, got {type(data).__name__}")
+    return dict(data)
+
+
+def _read_text(path: str | Path, what: str) -> str:
+    p = Path(path)
+    try:
+        return p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ParamError(f"{p}: cannot read {what} ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise ParamError(f"{p}: not a text (UTF-8) file") from None
+
+
+def params_from_yaml(text: str, source: str = "<string>") -> Params:
+    """Parse and validate; ParamError names `source` and the offending field or line."""
+    data = _yaml_mapping(text, source, "parameter groups")
     base_name = data.pop("preset", None)
     try:
         base = preset(base_name) if base_name is not None else None
@@ -39,14 +55,18 @@ def params_from_yaml(text: str, source: str = "<string>") -> Params:
 
 
 def load_params_file(path: str | Path) -> Params:
-    p = Path(path)
+    return params_from_yaml(_read_text(path, "parameter file"), str(Path(path)))
+
+
+def load_actuator_file(path: str | Path) -> ActuatorParams:
+    """The actuator around the screw from a YAML file: the groups of the node's `actuator`
+    parameter (motor, drive, sensors, stops, brake, faults); ParamError names the file and the field."""
+    source = str(Path(path))
+    data = _yaml_mapping(_read_text(path, "actuator file"), source, "actuator groups")
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ParamError(f"{p}: cannot read parameter file ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise ParamError(f"{p}: not a text (UTF-8) file") from None
-    return params_from_yaml(text, str(p))
+        return actuator_params_from_dict(data)
+    except ParamError as e:
+        raise ParamError(f"{source}: {e}") from None
 
 
 def resolve_params(preset_name: str | None, params_file: str | None, overrides: dict[str, Any] | None = None) -> Params:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from prsm_sim.params import Params
 from prsm_sim.simulator import Simulator
 from prsm_sim.stepping.ledger import efficiency, energy_guard_summary
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
+
+if TYPE_CHECKING:  # a session drives the scenarios from above (prsm_sim.session imports nothing here)
+    from prsm_sim.session import Session
 
 SCENARIOS = ("step", "ramp", "sine", "heavy", "light", "sine-motion")
 HEAVY_LOAD_N = 20_000.0  # Fu 2018 heavy-load case, docs/model.md §4.2 ("e.g. 20 kN")
@@ -77,46 +81,84 @@ def speed_reference(spec: ScenarioSpec, t_s: float) -> float:
 
 def run_scenario(sim: Simulator, spec: ScenarioSpec, duration_s: float, progress=None) -> Trajectory:
     """Run `spec` for `duration_s`; `progress(steps_done)` is called now and then on long runs."""
-    if not (math.isfinite(duration_s) and duration_s > 0):
-        raise InputError(f"duration_s = {duration_s!r}: must be a finite number > 0")
-    n = int(round(duration_s / sim.dt_s))
-    if n < 1:
-        raise InputError(f"duration_s = {duration_s} is shorter than one step ({sim.dt_s} s)")
-    chunk = 5000
+    n = _steps(duration_s, sim.dt_s)
     if spec.torque_nm is not None:
         tau = torque_profile(spec, n, sim.dt_s)
         parts = []
-        for k in range(0, n, chunk):
-            parts.append(sim.run(tau[k:k + chunk], spec.load_n))
+        for k in range(0, n, CHUNK_STEPS):
+            parts.append(sim.run(tau[k:k + CHUNK_STEPS], spec.load_n))
             if progress:
-                progress(min(n, k + chunk))
+                progress(min(n, k + CHUNK_STEPS))
         return concatenate(parts)
-    return _closed_loop(sim, spec, n, progress)
+    rows = _closed_loop(sim, spec, n, progress, lambda u: sim.step(u, spec.load_n),
+                        lambda: sim.state.screw_speed_rad_s)
+    return trajectory_from_rows(rows, sim.layout, sim.state)
 
 
-def _closed_loop(sim: Simulator, spec: ScenarioSpec, n: int, progress) -> Trajectory:
-    """PI speed loop with load feed-forward, sampled every step (1 kHz at the default step).
+def run_session_scenario(session: Session, spec: ScenarioSpec, duration_s: float, progress=None) -> Trajectory:
+    """Run `spec` through a `prsm_sim.Session` for `duration_s`, as a controller drives the node.
+
+    One `Session.step(command, load)` per step: the screw torque (the effort interface) goes
+    through the session's gate at the step's time (saturated at its limit, counted), and with an
+    actuator its drive, sensors, stops, brake and faults act as they do live. The speed-controlled
+    scenarios close their loop on what a controller reads: the measured screw speed (the
+    actuator's sensors; the state itself on the bare model). `progress` as for `run_scenario`.
+    """
+    if session.interface != "effort":
+        raise InputError(f"command interface = {session.interface!r}: the scenarios command the screw torque "
+                         "(effort)")
+    n = _steps(duration_s, session.dt_s)
+    load = spec.load_n
+    if spec.torque_nm is not None:
+        rows = []
+        for k, u in enumerate(torque_profile(spec, n, session.dt_s).tolist(), 1):
+            rows.append(session.step(u, load))
+            if progress and (k % CHUNK_STEPS == 0 or k == n):
+                progress(k)
+    else:
+        act = session.actuator
+        measured = act.measured if act is not None else (lambda out: out)
+        rows = _closed_loop(session, spec, n, progress, lambda u: session.step(u, load),
+                            lambda: measured(session.last).screw_speed_rad_s)
+    return trajectory_from_rows(rows, session.layout, session.simulator.state)
+
+
+CHUNK_STEPS = 5000  # steps between progress calls (and per batch run)
+
+
+def _steps(duration_s: float, dt_s: float) -> int:
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise InputError(f"duration_s = {duration_s!r}: must be a finite number > 0")
+    n = int(round(duration_s / dt_s))
+    if n < 1:
+        raise InputError(f"duration_s = {duration_s} is shorter than one step ({dt_s} s)")
+    return n
+
+
+def _closed_loop(driver, spec: ScenarioSpec, n: int, progress, step, speed) -> list:
+    """PI speed loop with load feed-forward, sampled every step (1 kHz at the default step): the
+    rows of `step(torque)` on `driver` (a `Simulator` or a `Session`), `speed()` the screw speed it reads.
 
     Gains place the loop at min(100 rad/s, 1/(20 dt)) on the reflected screw inertia, well
     inside the sampling limit, so the controller does not colour the mechanism's response.
     """
-    params = sim.params
+    params, dt = driver.params, driver.dt_s
     j = reflected_inertia(params)
-    bw = min(100.0, 1.0 / (20.0 * sim.dt_s))
+    bw = min(100.0, 1.0 / (20.0 * dt))
     kp, ki = 2.0 * j * bw, j * bw * bw
     ff = spec.load_n * params.geometry.lead_per_rad_m
     integ = 0.0
     rows = []
     for k in range(n):
-        t = sim.time_s
-        err = speed_reference(spec, t) - sim.state.screw_speed_rad_s
-        integ += err * sim.dt_s
-        rows.append(sim.step(ff + kp * err + ki * integ, spec.load_n))
-        if progress and (k + 1) % 5000 == 0:
+        t = driver.time_s
+        err = speed_reference(spec, t) - speed()
+        integ += err * dt
+        rows.append(step(ff + kp * err + ki * integ))
+        if progress and (k + 1) % CHUNK_STEPS == 0:
             progress(k + 1)
     if progress:
         progress(n)
-    return trajectory_from_rows(rows, sim.layout, sim.state)
+    return rows
 
 
 def concatenate(parts: list[Trajectory]) -> Trajectory:
@@ -138,6 +180,8 @@ def summarise(traj: Trajectory, tail_fraction: float = 0.1) -> dict:
     eff = efficiency(float(np.mean(c["power_out_w"][tail])), float(np.mean(c["power_dissipated_w"][tail])))
     w_s, w_c = c["screw_speed_rad_s"][tail], c["carrier_speed_rad_s"][tail]
     moving = np.abs(w_s) > 1e-9
+    # the screw's books; an actuator's state holds its screw's (and its own ledger beside them)
+    screw = getattr(traj.final_state, "screw", traj.final_state)
     out = {
         "steps": n,
         "duration_s": float(c["time_s"][-1] - c["time_s"][0] + (c["time_s"][1] - c["time_s"][0] if n > 1 else 0.0)),
@@ -147,8 +191,7 @@ def summarise(traj: Trajectory, tail_fraction: float = 0.1) -> dict:
         "tail_mean_slip_speed_m_s": float(np.mean(c["slip_speed_m_s"][tail])),
         "peak_nut_force_n": float(np.max(np.abs(c["nut_force_n"]))),
         "peak_screw_speed_rad_s": float(np.max(np.abs(c["screw_speed_rad_s"]))),
-        "energy": {"work_in_j": traj.final_state.work_in_j, "work_out_j": traj.final_state.work_out_j,
-                   "dissipated_j": traj.final_state.dissipated_j},
+        "energy": {"work_in_j": screw.work_in_j, "work_out_j": screw.work_out_j, "dissipated_j": screw.dissipated_j},
         "energy_guard": energy_guard_summary(c),
     }
     names = {b.name for b in traj.layout.blocks}

@@ -5,6 +5,7 @@
     prsm-sim contact --preset jones2016
     prsm-sim steady-state --preset jones2016 --model jones2016 --json
     prsm-sim run --preset s30 --model fu2018 --scenario heavy --duration 1 --json [--csv F] [--mcap F]
+    prsm-sim run --preset s30 --model jones2016 --actuator actuator.yaml --json   # through prsm_sim.Session
     prsm-sim stiffness --preset s30 [--max-load 40000 --points 9 | --load 20000 ...] --json
     prsm-sim modes --preset s30 --model elastic [--load 20000] --json
 
@@ -23,14 +24,14 @@ import numpy as np
 import yaml
 
 from prsm_sim.errors import PrsmError
-from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Simulator
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.jones2016 import steady_state
-from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, summarise
+from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_session_scenario, summarise
 
 from prsm_ros.json_out import dumps
-from prsm_ros.param_files import params_to_yaml, resolve_params
+from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
 
 PROGRESS_MIN_STEPS = 20_000
 
@@ -158,7 +159,9 @@ def cmd_run(args) -> None:
     for name, v in (("duration_s", args.duration), ("dt_s", args.dt)):
         if not (math.isfinite(v) and v > 0):
             raise CliError(f"{name} = {v!r}: must be a finite number > 0")
-    sim = Simulator(p, args.model, args.dt)
+    actuator = _actuator(args)
+    # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults in the session
+    sim = Simulator(p, args.model, args.dt) if actuator is None else Session(p, args.model, args.dt, actuator)
     n = int(round(args.duration / args.dt))
     bar = None
     if n >= PROGRESS_MIN_STEPS and not args.no_progress:
@@ -171,7 +174,7 @@ def cmd_run(args) -> None:
             bar.update(k - done[0])
             done[0] = k
 
-    traj = run_scenario(sim, spec, args.duration, progress)
+    traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
     if bar is not None:
         bar.close()
     summary = {"preset": p.name, "model": args.model, "scenario": args.scenario, "dt_s": args.dt,
@@ -202,6 +205,20 @@ def cmd_run(args) -> None:
           f"(residual {summary['energy_guard']['residual_j']:.6g} J of {summary['energy_guard']['flow_j']:.6g} J); "
           "do not trust these results"] if summary["energy_guard"]["fault"] else []))
     _emit(args, summary, text)
+
+
+def _actuator(args):
+    """The `--actuator` file's actuator, or None; refused where the run could not use it as given."""
+    if not args.actuator:
+        return None
+    a = load_actuator_file(args.actuator)
+    if a.drive.mode != "effort":
+        raise CliError(f"{args.actuator}: drive.mode = {a.drive.mode!r}: the scenarios command the screw torque "
+                       "(effort)")
+    if args.mcap:
+        raise CliError("--mcap with --actuator: the offline MCAP writer records the bare model's topics only "
+                       "(no measured joint_states, ground truth or fault events); record the actuator with prsm-node")
+    return a
 
 
 def _load_points(args, p: Params) -> list[float]:
@@ -322,6 +339,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--frequency", type=float, default=1.0, help="sine frequency, Hz")
     run.add_argument("--csv", metavar="FILE", help="write every step's outputs and internal loads")
     run.add_argument("--mcap", metavar="FILE", help="write the run as a ROS 2 MCAP bag (needs the mcap extra)")
+    run.add_argument("--actuator", metavar="FILE.yaml",
+                     help="run the actuator around the screw (motor, drive, sensors, stops, brake, faults: the node's "
+                          "`actuator` parameter as a YAML file), stepped through prsm_sim.Session as the node steps it")
     run.add_argument("--no-progress", action="store_true", help="no progress bar on long runs")
     run.set_defaults(func=cmd_run)
     st = sub.add_parser("stiffness", parents=[common], help="axial load → deflection, stiffness, thread load shares")
