@@ -127,7 +127,10 @@ def _module(path: Path) -> str:
     return ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
 
 
-def test_stepping_imports_nothing_above_it_and_prsm_sim_has_no_import_cycle():
+def test_stepping_imports_only_the_records_below_it_and_models_not_their_registry():
+    """Finer than the layer table (tests/test_layers.py, which also holds the no-cycle and the
+    private-name rules): the stepping layer reads errors, checks and parameters only, and a model
+    never imports the registry above it (both sit in one unit there)."""
     files = {_module(f): f for f in (ROOT / "prsm_sim").rglob("*.py")}
     graph = {m: {i for i in _imports(f, files.keys()) if i in files and i != m} for m, f in files.items()}
     allowed = ("prsm_sim.stepping", "prsm_sim.errors", "prsm_sim.checks", "prsm_sim.params")
@@ -135,29 +138,7 @@ def test_stepping_imports_nothing_above_it_and_prsm_sim_has_no_import_cycle():
         above = {i for i in graph[m] if not i.startswith(allowed)}
         assert not above, f"{m} imports above the stepping layer: {above}"
     for m in (m for m in graph if m.startswith("prsm_sim.models.") and not m.endswith(("registry", "base"))):
-        assert not {i for i in graph[m] if i in ("prsm_sim.models.registry", "prsm_sim.simulator")}, m
-    # no cycle: a depth-first search over the graph of modules (a package counts through its __init__)
-    state: dict[str, int] = {}
-
-    def visit(m, trail):
-        state[m] = 1
-        for n in graph[m]:
-            assert state.get(n) != 1, "import cycle: " + " → ".join(trail + [m, n])
-            if n not in state:
-                visit(n, trail + [m])
-        state[m] = 2
-    for m in graph:
-        if m not in state:
-            visit(m, [])
-
-
-def test_no_private_name_is_imported_across_prsm_sim_modules():
-    offenders = []
-    for f in (ROOT / "prsm_sim").rglob("*.py"):
-        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom):
-                offenders += [f"{f.relative_to(ROOT)}: {a.name}" for a in node.names if a.name.startswith("_")]
-    assert not offenders
+        assert "prsm_sim.models.registry" not in graph[m], m
 
 
 @pytest.mark.parametrize("model", ["ideal", "fu2018"])
