@@ -366,3 +366,43 @@ def test_study_validation_names_the_field():
                      ({"colour": 1}, "unknown study key 'colour'")):
         with pytest.raises(study.StudyError, match=msg):
             study.normalise({"preset": "s30", **bad})
+
+
+def test_a_study_with_an_actuator_steps_it_through_a_session():
+    """Oracle: a hand-written `Session.step` loop (the node's path) with the study's actuator, torque and
+    load; the run's metrics equal its outputs bit for bit. A study without an actuator keeps its identity
+    (no `actuator` key in the normalised study, so its hash is as before)."""
+    from prsm_sim import Session, preset
+    from prsm_sim.actuator import actuator_params_from_dict
+    from prsm_sim.scenarios import summarise
+    from prsm_sim.stepping.trajectory import trajectory_from_rows
+
+    from prsm_ros.sweep import execute
+    actuator = {"motor": {}, "sensors": {"latency_steps": 1},
+                "faults": [{"kind": "friction_surge", "start_s": 0.02, "duration_s": 0.03, "value": 3.0}]}
+    plain = {"preset": "s30", "model": "jones2016", "scenario": "step", "duration_s": 0.08,
+             "set": {"scenario.torque_nm": 0.5, "scenario.load_n": 200.0},
+             "metrics": ["efficiency", "nut_position_m@final", "screw_speed_rad_s@max"]}
+    assert "actuator" not in study.normalise(plain)
+    norm = study.normalise({**plain, "actuator": actuator})
+    row, _ = execute.run_one(norm, study.run_specs(norm)[0])
+    assert row["status"] == "ok", row["error"]
+    s = Session(preset("s30"), "jones2016", 1e-3, actuator_params_from_dict(actuator))
+    rows = [s.step(0.5, 200.0) for _ in range(80)]
+    assert len(s.take_events()) == 2  # the fault started and cleared inside the run
+    assert row["nut_position_m@final"] == rows[-1].nut_position_m
+    assert row["screw_speed_rad_s@max"] == max(r.screw_speed_rad_s for r in rows)
+    assert row["efficiency"] == summarise(trajectory_from_rows(rows, s.layout, s.simulator.state))["tail_efficiency"]
+    bare, _ = execute.run_one(study.normalise(plain), study.run_specs(study.normalise(plain))[0])
+    assert bare["nut_position_m@final"] != row["nut_position_m@final"]
+
+
+@pytest.mark.parametrize("extra, msg", [
+    ({"actuator": {"gearbox": {}}}, "actuator: unknown actuator group 'gearbox'"),
+    ({"actuator": {"drive": {"mode": "velocity"}}}, "actuator.drive.mode = 'velocity'"),
+    ({"actuator": {}, "scenario": "position"}, "the position scenario drives the bare model only"),
+    ({"actuator": {}, "metrics": ["energy_residual_j"]}, "energy_residual_j is the bare screw's balance"),
+])
+def test_study_actuator_refusals_name_the_field(extra, msg):
+    with pytest.raises(study.StudyError, match=msg):
+        study.normalise({"preset": "s30", **extra})

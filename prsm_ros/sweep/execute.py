@@ -12,12 +12,13 @@ import time
 
 import numpy as np
 
-from prsm_sim import Simulator, Trajectory
+from prsm_sim import Session, Simulator, Trajectory
+from prsm_sim.actuator import actuator_params_from_dict
 from prsm_sim.control import PositionController, run_position_loop
 from prsm_sim.life import life_from_samples
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.physics.inertia import mass_matrix
-from prsm_sim.scenarios import default_spec, run_scenario, summarise
+from prsm_sim.scenarios import default_spec, run_scenario, run_session_scenario, summarise
 
 from prsm_ros.sweep.study import POSITION, StudyError, base_params, controller_defaults
 
@@ -46,6 +47,10 @@ def simulate(norm: dict, scenario: str, inputs: dict) -> tuple[Trajectory, dict]
     params_o, scen, loop = _split({**norm["set"], **inputs})
     nominal = base_params(norm)
     params = nominal.with_overrides(params_o) if params_o else nominal
+    if norm.get("actuator") is not None:  # stepped through the session, as the node steps it
+        session = Session(params, norm["model"], norm["dt_s"], actuator_params_from_dict(norm["actuator"]))
+        spec = default_spec(params, scenario, **scen)
+        return run_session_scenario(session, spec, norm["duration_s"]), {"params": params}
     sim = Simulator(params, norm["model"], norm["dt_s"])
     if scenario != POSITION:
         spec = default_spec(params, scenario, **scen)

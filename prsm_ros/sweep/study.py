@@ -14,7 +14,10 @@
 Optional keys: `dt_s` (1e-3), `set` (fixed overrides, same keys as `vary`), `runs_per_task`
 (`auto` or a count; execution only, not part of the hash), `trajectories` (`{decimate: N}`:
 keep every N-th step of each run; output only, not hashed), `life.dynamic_load_rating_n`
-(for the L10 metrics), `tune` (the gain search of `prsm-sweep tune`, see `tune.py`).
+(for the L10 metrics), `tune` (the gain search of `prsm-sweep tune`, see `tune.py`), `actuator`
+(the actuator around the screw, a mapping as the node's `actuator` parameter: motor, drive,
+sensors, stops, brake, faults; each run is then stepped through `prsm_sim.Session` as the node
+steps it; every scenario but `position`, drive.mode effort).
 
 Keys that can be set or varied: every parameter `group.name` (`prsm-sim params`), the
 scenario's `scenario.load_n|speed_rad_s|torque_nm|frequency_hz`, the closed loop's
@@ -44,6 +47,7 @@ import numpy as np
 import yaml
 
 from prsm_sim import MODELS, OUTPUT_FIELDS, Params, preset
+from prsm_sim.actuator import actuator_params_from_dict
 from prsm_sim.control import DEFAULT_AMPLITUDE_M, DEFAULT_FREQUENCY_HZ, PositionController
 from prsm_sim.errors import PrsmError
 from prsm_sim.scenarios import SCENARIOS
@@ -56,7 +60,7 @@ SCENARIO_KEYS = ("load_n", "speed_rad_s", "torque_nm", "frequency_hz")
 CONTROLLER_KEYS = ("bandwidth_hz", "damping", "integral_ratio", "max_torque_nm", "load_n")
 REFERENCE_KEYS = ("amplitude_m", "frequency_hz")
 TOP_KEYS = ("preset", "params", "model", "scenario", "duration_s", "dt_s", "set", "vary", "samples", "seed",
-            "metrics", "runs_per_task", "trajectories", "life", "tune")
+            "metrics", "runs_per_task", "trajectories", "life", "tune", "actuator")
 # not part of the study's identity: how it is executed and what is kept besides the table
 EXECUTION_KEYS = ("runs_per_task", "trajectories", "tune")
 
@@ -225,8 +229,28 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
     tracking = [m for m in out["metrics"] if m.startswith("tracking_error")]
     if tracking and out["scenarios"] != [POSITION]:
         raise StudyError(f"metrics: {tracking[0]} needs scenario: {POSITION} (the closed position loop)")
+    if data.get("actuator") is not None:  # only then in the identity: a study without one keeps its hash
+        out["actuator"] = _actuator(data["actuator"], out)
     base_params(out)  # the base parameter set must build
     return out
+
+
+def _actuator(data: Any, norm: dict) -> dict:
+    """The `actuator` mapping, checked as `actuator_params_from_dict` builds it (kept as given: plain data)."""
+    try:
+        a = actuator_params_from_dict(data)
+        json.dumps(data, allow_nan=False)
+    except (PrsmError, TypeError, ValueError) as e:
+        raise StudyError(f"actuator: {e}") from None
+    if a.drive.mode != "effort":
+        raise StudyError(f"actuator.drive.mode = {a.drive.mode!r}: the scenarios command the screw torque (effort)")
+    if POSITION in norm["scenarios"]:
+        raise StudyError(f"actuator: the {POSITION} scenario drives the bare model only")
+    energy = [m for m in norm["metrics"] if m.startswith("energy_residual")]
+    if energy:
+        raise StudyError(f"metrics: {energy[0]} is the bare screw's balance; with an actuator its drive and motor "
+                         "hold energy too")
+    return data
 
 
 def execution_options(data: dict) -> dict:
