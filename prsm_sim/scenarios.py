@@ -23,7 +23,7 @@ from prsm_sim.simulator import Simulator
 from prsm_sim.stepping.ledger import efficiency, energy_guard_summary
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
-if TYPE_CHECKING:  # a session drives the scenarios from above (prsm_sim.session imports nothing here)
+if TYPE_CHECKING:  # for the annotation only: the session sits a layer above the scenarios
     from prsm_sim.session import Session
 
 SCENARIOS = ("step", "ramp", "sine", "heavy", "light", "sine-motion")
