@@ -208,8 +208,9 @@ class Simulator:
             self._packed = out = self._step_packed(x, command, load_n)
             self._before = x
         else:
-            self._before = self._state
-            self._state, out = self.model.step(self._state, command, load_n)
+            before = self._state
+            self._state, out = self.model.step(before, command, load_n)
+            self._before = before
         self.nstep += 1
         return out
 
