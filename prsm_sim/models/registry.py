@@ -27,7 +27,8 @@ def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled
         A validated parameter set, e.g. ``preset("s30")``.
     model : str
         One of `MODELS`: ``"ideal"`` (rigid lead with efficiencies), ``"jones2016"`` (2-DOF
-        viscous, docs/model.md §4.1) or ``"fu2018"`` (spatial force system, docs/model.md §4.2).
+        viscous, docs/model.md §4.1), ``"fu2018"`` (spatial force system, docs/model.md §4.2) or
+        ``"elastic"`` (fu2018 with an axially compliant screw–nut chain, docs/model.md §4.3).
     dt_s : float
         Fixed step, s, in (0, 0.1].
     kernel : {"compiled", "reference"}, default "compiled"
@@ -37,7 +38,7 @@ def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled
     Returns
     -------
     Model
-        The pure model: ``step(state, torque_nm, load_n) -> (State, Outputs)``.
+        The pure model: ``step(state, torque_nm, load_n) -> (State, Outputs)`` (`stepping.model.Model`).
 
     Raises
     ------
