@@ -320,7 +320,9 @@ class ElasticModel(Model):
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
         self.core = Fu2018(core_params, self.dt_s / self.substeps, kernel=kernel)
-        self._m_core = mass_matrix(core_params)
+        mm = mass_matrix(core_params)
+        # the core's mass matrix as Python floats: numpy scalars would slow every step's arithmetic
+        self._m_core = ((float(mm[0, 0]), float(mm[0, 1])), (float(mm[1, 0]), float(mm[1, 1])))
         # breakaway (the `stiction` group): a hold band of screw torque wider than the running one
         st = params.stiction
         self.breakaway = st.breakaway_ratio > 1.0
@@ -352,7 +354,7 @@ class ElasticModel(Model):
             czs=self.czs, sin_beta=self.sin_beta, mu_c=self.mu_c, eta_rf=self.eta_running[0],
             eta_rb=self.eta_running[1], d_mu=self.d_mu, p_sb_vs=self.p_over_sin_beta_per_vs, clearance=law.clearance,
             preload=law.preload, law_a=law.side.a, law_b=law.side.b, ea=law.ea, x_bearing=law.x_bearing,
-            c_housing=law.c_housing, d0=law.d0, v0=law.v0, m00=m_core[0, 0], m01=m_core[0, 1], m11=m_core[1, 1],
+            c_housing=law.c_housing, d0=law.d0, v0=law.v0, m00=m_core[0][0], m01=m_core[0][1], m11=m_core[1][1],
             impact_tol=IMPACT_TOL, impact_floor=IMPACT_FLOOR, impact_iter=float(IMPACT_ITERATIONS))
         self._kernel_e = np.array(self.constants, dtype=float)  # the compiled kernel's (`kernels.ElasticConstants`)
         if self._kn is not None:  # compiled or loaded from the disk cache now, not in a realtime loop's first step
@@ -392,8 +394,8 @@ class ElasticModel(Model):
         return st is not None and r <= 1.0
 
     def _core_kinetic_j(self, ws: float, wc: float) -> float:
-        mm = self._m_core
-        return 0.5 * (mm[0, 0] * ws * ws + 2 * mm[0, 1] * ws * wc + mm[1, 1] * wc * wc)
+        (m00, m01), (_, m11) = self._m_core
+        return 0.5 * (m00 * ws * ws + 2 * m01 * ws * wc + m11 * wc * wc)
 
     # -- energy ---------------------------------------------------------------------------
     def total_stored_energy_j(self, state: State) -> float:
@@ -456,7 +458,7 @@ class ElasticModel(Model):
         """The state as the compiled kernel takes it (floats; the solver memory as `kernels.kernel_memory`)."""
         # float() on every field: an int (a user's replace(state, nut_axial_m=0)) would make numba compile a
         # second specialisation on the spot
-        q = self.pack_state(s)[11]
+        q = s.part if isinstance(s.part, ElasticPart) else ElasticPart(*s.part)
         return (float(s.screw_angle_rad), float(s.screw_speed_rad_s), float(s.carrier_angle_rad),
                 float(s.carrier_speed_rad_s), float(q.nut_axial_m), float(q.nut_speed_m_s), float(q.flank_sign),
                 float(q.pin_force_n), float(q.gear_force_n), kernel_memory(q.solver), float(q.screw_accel_rad_s2),
