@@ -6,13 +6,16 @@ from the bag's log times. `/clock` carries the bag time: a recorded `/clock` top
 any other; when it is not played (absent, or not selected), a Clock with the current bag time is
 published before each new log time
 (the simulator's convention: the bag time is the simulation time), so nodes with
-use_sim_time follow the playback. Types must be importable (`pkg.msg`); topics of other types
-are skipped and reported.
+use_sim_time follow the playback. Only the message packages of the node's interface
+(`MESSAGE_PACKAGES`) are ever imported, never a package named by the bag; topics of other types,
+and topics whose messages cannot be decoded, are skipped and reported. Each message is decoded
+before it is sent, so a malformed one is skipped (and counted) rather than handed to subscribers.
 """
 
 from __future__ import annotations
 
 import importlib
+import re
 import time
 
 from prsm_ros.mcap import schema as mcap_schema
@@ -20,6 +23,11 @@ from prsm_ros.bag.reader import Bag, BagError
 
 
 WAIT_FOR_SUBSCRIBERS_S = 30.0
+# The ROS message packages play may import (those of the node's interface, the `ros` extra). A
+# bag's schema names a package; importing it would run whatever module of that name is on the path.
+MESSAGE_PACKAGES = frozenset({"std_msgs", "sensor_msgs", "geometry_msgs", "diagnostic_msgs", "rosgraph_msgs",
+                              "builtin_interfaces"})
+_TYPE_NAME = re.compile(r"[A-Z][A-Za-z0-9]*")
 
 
 def _wait_for_subscribers(pubs: dict, context, timeout_s: float) -> None:
@@ -36,14 +44,25 @@ def _wait_for_subscribers(pubs: dict, context, timeout_s: float) -> None:
 
 
 def message_class(type_name: str):
-    """The rclpy message class of `pkg/msg/Type`, or None when the package is not installed."""
+    """The rclpy message class of `pkg/msg/Type`; None when `pkg` is not one of MESSAGE_PACKAGES or not installed."""
     parts = type_name.split("/")
-    if len(parts) != 3 or parts[1] != "msg":
+    if len(parts) != 3 or parts[1] != "msg" or parts[0] not in MESSAGE_PACKAGES or not _TYPE_NAME.fullmatch(parts[2]):
         return None
     try:
-        return getattr(importlib.import_module(f"{parts[0]}.msg"), parts[2])
+        cls = getattr(importlib.import_module(f"{parts[0]}.msg"), parts[2])
     except (ImportError, AttributeError):
         return None
+    return cls if isinstance(cls, type) else None
+
+
+def _why_skipped(bag: Bag, topic: str) -> str:
+    info = bag.topics[topic]
+    if info.problem:
+        return f"{info.type or 'no schema'}: {info.problem}"
+    package = info.type.split("/")[0]
+    if package not in MESSAGE_PACKAGES:
+        return f"{info.type}: play publishes only the types of {', '.join(sorted(MESSAGE_PACKAGES))}"
+    return f"{info.type}: message package not installed"
 
 
 def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: float | None = None,
@@ -69,12 +88,12 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
         raise BagError(f"play publishes on ROS topics and needs rclpy and the ROS message packages "
                        f"({e.name} is not installed): pip install 'prsm[ros]'") from None
 
-    classes = {t: message_class(bag.topics[t].type) for t in selected}
-    skipped = {t: bag.topics[t].type for t, c in classes.items() if c is None}
+    classes = {t: None if bag.topics[t].problem else message_class(bag.topics[t].type) for t in selected}
+    skipped = {t: _why_skipped(bag, t) for t, c in classes.items() if c is None}
     playable = [t for t in selected if classes[t] is not None]
     if not playable:
-        raise BagError(f"{bag.path.name}: none of the selected topics has an installed message type "
-                       f"({', '.join(f'{t} ({ty})' for t, ty in skipped.items())})")
+        raise BagError(f"{bag.path.name}: none of the selected topics can be played "
+                       f"({'; '.join(f'{t} ({why})' for t, why in skipped.items())})")
     synth_clock = clock and "/clock" not in playable
     counts = {t: 0 for t in playable}
     clock_count = 0
@@ -91,7 +110,7 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
         wall0 = None
         t_first = None
         last_clock = None
-        for m in bag.messages(playable, start_ns, end_ns, decode=False, progress=progress, desc="playing"):
+        for m in bag.messages(playable, start_ns, end_ns, progress=progress, desc="playing"):
             if t_first is None:
                 t_first, wall0 = m.log_time_ns, time.monotonic()
             due = wall0 + (m.log_time_ns - t_first) * 1e-9 / rate

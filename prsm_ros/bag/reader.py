@@ -7,14 +7,18 @@ complete one, chunks included, stopping at the first truncated record; `Bag.note
 was recovered. Messages are decoded with mcap_ros2's CDR decoder from the file's own `ros2msg`
 schemas, so no ROS package needs to be installed to read a bag.
 
-`resolve_topics` finds the topics `prsm-bag` works with by type and name (DESIGN.md topic table),
-so a bag from another recorder with standard JointState / WrenchStamped topics works too.
+`resolve_topics` finds the topics `prsm-bag` works with by type and name (the node's interface),
+so a bag from another recorder with standard JointState / WrenchStamped topics works too. A topic
+whose messages cannot be decoded (`TopicInfo.problem`) never fills a role.
 """
 
 from __future__ import annotations
 
 import io
+import math
+import os
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -24,6 +28,10 @@ from prsm_sim.errors import PrsmError
 from prsm_ros.interface import TOPIC_DEFS
 
 MAGIC = b"\x89MCAP0\r\n"
+# A chunk's uncompressed size is allocated before it is read: a damaged size must not decide it.
+# rosbag2 writes 768 KiB chunks, the mcap CLI 4 MiB, our recorder 1 MiB.
+MAX_CHUNK_BYTES = 256 << 20
+MAX_WINDOW_S = 1e9  # --start/--end: seconds from the first message (int64 nanoseconds hold ±9.2e9 s)
 
 
 class BagError(PrsmError):
@@ -41,6 +49,9 @@ class TopicInfo:
     message_encoding: str = ""
     schema_encoding: str = ""
     channel_ids: list[int] = field(default_factory=list)
+    problem: str | None = None  # why its messages cannot be decoded (foreign encoding, schema not as its type says)
+    malformed: int = 0          # messages skipped because they did not decode with the schema
+    first_malformed: str | None = None
 
     @property
     def rate_hz(self) -> float | None:
@@ -108,9 +119,102 @@ def _require_magic(f, path) -> None:
         raise BagError(f"{path}: not an MCAP file (it does not start with the MCAP magic bytes)")
 
 
+class _Bounded:
+    """A file whose reads never ask for more than is left in it.
+
+    The mcap library reads a record's fields with the lengths the file declares; a damaged length
+    (2^40 bytes) would otherwise make Python allocate that much before finding the file shorter.
+    Not an io.RawIOBase: the mcap library would wrap one in a BufferedReader that closes it.
+    """
+
+    def __init__(self, f, size: int) -> None:
+        self._f, self._size = f, size
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        target = {io.SEEK_SET: 0, io.SEEK_CUR: self._f.tell(), io.SEEK_END: self._size}[whence] + offset
+        return self._f.seek(min(max(target, 0), self._size))
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def read(self, n: int = -1) -> bytes:
+        left = self._size - self._f.tell()
+        return self._f.read(left if n is None or n < 0 else min(n, left))
+
+
+class ChunkSkipped(Exception):
+    """A chunk that cannot be used (the reason says why); its messages are skipped, the rest is read."""
+
+
+def chunk_records(chunk) -> list:
+    """The schema, channel and message records inside one chunk, after its size and CRC are checked.
+
+    Raises ChunkSkipped naming the reason: a declared size over MAX_CHUNK_BYTES (so a damaged length
+    cannot make the reader allocate it), data that does not decompress to the declared size, a CRC
+    mismatch (a CRC of 0 means "not computed", MCAP spec), records that do not parse.
+    """
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Message, Schema
+
+    size = chunk.uncompressed_size
+    if size > MAX_CHUNK_BYTES:
+        raise ChunkSkipped(f"declares {size} bytes uncompressed, more than the {MAX_CHUNK_BYTES >> 20} MiB "
+                           "a chunk may hold here")
+    try:
+        if chunk.compression == "zstd":
+            import zstandard
+            declared = zstandard.frame_content_size(chunk.data)
+            if declared not in (-1, size):  # -1: the frame does not say
+                raise ChunkSkipped(f"its zstd frame holds {declared} bytes, the chunk declares {size}")
+            data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
+        elif chunk.compression == "lz4":
+            import lz4.frame
+            data = lz4.frame.decompress(chunk.data)
+        elif chunk.compression == "":
+            data = chunk.data
+        else:
+            raise ChunkSkipped(f"unknown compression {chunk.compression[:40]!r}")
+    except ImportError as e:
+        raise ChunkSkipped(f"{chunk.compression} compression needs the {e.name} package") from None
+    except damaged_data_errors() as e:
+        raise ChunkSkipped(f"does not decompress ({type(e).__name__})") from None
+    if len(data) != size:
+        raise ChunkSkipped(f"decompresses to {len(data)} bytes, the chunk declares {size}")
+    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ChunkSkipped("CRC mismatch")
+    stream = ReadDataStream(io.BytesIO(data))
+    out: list = []
+    try:
+        while stream.count < size:
+            opcode, length = stream.read1(), stream.read8()
+            if length > size - stream.count:
+                raise ChunkSkipped(f"a record inside declares {length} bytes, more than the chunk has left")
+            body = ReadDataStream(io.BytesIO(stream.read(length)))
+            if opcode == Opcode.MESSAGE:
+                out.append(Message.read(body, length))
+            elif opcode == Opcode.CHANNEL:
+                out.append(Channel.read(body))
+            elif opcode == Opcode.SCHEMA:
+                out.append(Schema.read(body))
+    except damaged_data_errors() as e:
+        raise ChunkSkipped(f"its records do not parse ({type(e).__name__})") from None
+    return out
+
+
 @dataclass
 class Scan:
-    """What a record walk found: header, schemas, channels, metadata, whether the file ended properly."""
+    """What a record walk found: header, schemas, channels, metadata, whether the file ended properly.
+
+    `bad_chunks`: (byte offset, reason) of chunks skipped; `undeclared`: messages on a channel no
+    Channel record declared (skipped).
+    """
 
     header: object | None = None
     schemas: dict = field(default_factory=dict)
@@ -120,6 +224,8 @@ class Scan:
     chunks: int = 0
     stopped_at: int | None = None
     problem: str | None = None
+    bad_chunks: list[tuple[int, str]] = field(default_factory=list)
+    undeclared: int = 0
 
 
 def scan_records(path, on_message=None) -> Scan:
@@ -128,7 +234,7 @@ def scan_records(path, on_message=None) -> Scan:
     The recovery routine for unfinished files (MCAP spec: records are length-prefixed, chunks are
     self-contained): schemas, channels and metadata are collected into the returned `Scan`, and
     each message (in complete chunks or bare) is passed to `on_message(schema, channel, message)`
-    in file order.
+    in file order. A chunk that fails its checks (`chunk_records`) is skipped and listed.
     """
     scan = Scan()
     for schema, channel, message in walk_records(path, scan):
@@ -142,7 +248,6 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
     from mcap.data_stream import ReadDataStream
     from mcap.opcode import Opcode
     from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
-    from mcap.stream_reader import breakup_chunk
 
     def take(rec):
         if isinstance(rec, Schema):
@@ -153,10 +258,12 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
             ch = scan.channels.get(rec.channel_id)
             if ch is not None:
                 return scan.schemas.get(ch.schema_id), ch, rec
+            scan.undeclared += 1
         return None
 
     damaged = damaged_data_errors()
     with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
         _require_magic(f, path)
         pos = 8
         while True:
@@ -165,10 +272,10 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 scan.stopped_at = pos
                 break
             opcode, length = struct.unpack("<BQ", head)
-            body = f.read(length) if length < (1 << 34) else b""
-            if len(body) < length:
+            if length > size - pos - 9:  # cut short, or a damaged length: nothing after it can be framed
                 scan.stopped_at = pos
                 break
+            body = f.read(length)
             stream = ReadDataStream(io.BytesIO(body))
             found = []
             try:
@@ -183,8 +290,11 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 elif opcode == Opcode.METADATA:
                     scan.metadata.append(Metadata.read(stream))
                 elif opcode == Opcode.CHUNK:
-                    found = [take(rec) for rec in breakup_chunk(Chunk.read(stream))]
-                    scan.chunks += 1
+                    try:
+                        found = [take(rec) for rec in chunk_records(Chunk.read(stream))]
+                        scan.chunks += 1
+                    except ChunkSkipped as e:  # framed by its length: the records after it are still readable
+                        scan.bad_chunks.append((pos, str(e)))
                 elif opcode == Opcode.FOOTER:
                     scan.complete = f.read(8) == MAGIC
                     break
@@ -196,30 +306,51 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
             pos += 9 + length
 
 
+def _bad_chunks_note(name: str, bad: list[tuple[int, str]]) -> str:
+    first = "; ".join(f"byte {pos}: {why}" for pos, why in bad[:3])
+    more = f"; and {len(bad) - 3} more" if len(bad) > 3 else ""
+    return f"{name}: skipped {len(bad)} damaged chunk(s) and the messages in them ({first}{more})"
+
+
 class Bag:
     """One MCAP file opened for reading: topics, run metadata, decoded messages.
 
-    `complete` is False for a file without footer (unfinished recording); `note` says what was
-    recovered then. Raises BagError for a file that is not MCAP.
+    `complete` is False for a file without footer (unfinished recording); `notes` say what was
+    recovered then, and what was skipped: damaged chunks, messages on undeclared channels, topics
+    whose schema the tools cannot use (`TopicInfo.problem`). Messages that do not decode with
+    their schema are skipped as they are read and counted in `TopicInfo.malformed`
+    (`reading_notes()`). Raises BagError for a file that is not MCAP.
     """
 
     def __init__(self, path) -> None:
         self.path = resolve_path(path)
+        if not self.path.is_file():  # a FIFO or device would block or never end
+            raise BagError(f"{self.path}: not a regular file")
         self.complete = True
-        self.note: str | None = None
+        self.notes: list[str] = []
         self.profile = ""
         self.library = ""
         self.metadata: dict[str, dict[str, str]] = {}
         self.topics: dict[str, TopicInfo] = {}
         self._schemas: dict = {}
         self._channels: dict = {}
+        self._chunk_indexes: list = []
+        self._bad_chunks: dict[int, str] = {}   # byte offset → reason, found while reading
         self._decoders: dict[int, object] = {}
-        self._indexed = False  # finished file with chunk indexes: read through the seeking reader
+        self._summary_damaged = False
+        self._indexed = False  # finished file with chunk indexes: read through the summary's chunk indexes
+        self._size = self.path.stat().st_size
         with open(self.path, "rb") as f:
             _require_magic(f, self.path)
         summary = self._read_summary()
         if summary is None:
             self._load_by_scan()
+        self._check_schemas()
+
+    @property
+    def note(self) -> str | None:
+        """What was recovered or skipped, one sentence per finding; None for a sound file."""
+        return "; ".join(self.notes + self.reading_notes()) or None
 
     # ---- loading -----------------------------------------------------------------------------
 
@@ -227,18 +358,21 @@ class Bag:
         """Header, summary and metadata of a finished file; None when the file must be scanned."""
         from mcap.reader import SeekingReader
         try:
-            with open(self.path, "rb") as f:
-                reader = SeekingReader(f)
+            with open(self.path, "rb") as raw:
+                f = _Bounded(raw, self._size)
+                reader = SeekingReader(f, record_size_limit=MAX_CHUNK_BYTES)
                 header = reader.get_header()
                 summary = reader.get_summary()
                 if summary is None or summary.statistics is None or not summary.chunk_indexes:
                     return None  # nothing to seek by: scanning gives the per-topic times too
                 metadata = list(reader.iter_metadata())
                 message_index_times = self._channel_time_ranges(f, summary)
-        except damaged_data_errors():  # no footer, damaged summary: fall back to scanning the records
+        except (*damaged_data_errors(), OSError):  # no footer, damaged footer or summary: scan the records
+            self._summary_damaged = True
             return None
         self.profile, self.library = header.profile, header.library
         self._schemas, self._channels = dict(summary.schemas), dict(summary.channels)
+        self._chunk_indexes = sorted(summary.chunk_indexes, key=lambda ci: (ci.message_start_time, ci.chunk_start_offset))
         self._indexed = True
         for m in metadata:
             self.metadata[m.name] = dict(m.metadata)
@@ -250,6 +384,10 @@ class Bag:
             if first is not None:
                 info.first_ns = first if info.first_ns is None else min(info.first_ns, first)
                 info.last_ns = last if info.last_ns is None else max(info.last_ns, last)
+        undeclared = {cid: n for cid, n in counts.items() if cid not in self._channels and n}
+        if undeclared:
+            self.notes.append(f"{self.path.name}: skipped {sum(undeclared.values())} message(s) on channel(s) "
+                              f"{', '.join(map(str, sorted(undeclared)[:5]))} that no Channel record declares")
         return summary
 
     @staticmethod
@@ -296,8 +434,17 @@ class Bag:
             end = max((t.last_ns for t in self.topics.values() if t.last_ns is not None), default=None)
             why = scan.problem or "no footer: the recording did not finish (killed, or disk full)"
             upto = f" up to log time {end * 1e-9:.3f} s" if end is not None else ""
-            self.note = (f"{self.path.name}: unfinished MCAP file ({why}); recovered {scan.chunks} complete "
-                         f"chunk(s), {n} message(s){upto}; data after byte {scan.stopped_at} was lost")
+            self.notes.append(f"{self.path.name}: unfinished MCAP file ({why}); recovered {scan.chunks} complete "
+                              f"chunk(s), {n} message(s){upto}; data after byte {scan.stopped_at} was lost")
+        elif scan.complete and self._summary_damaged:
+            self.notes.append(f"{self.path.name}: the summary could not be read (damaged footer or summary); "
+                              "read by scanning the records")
+        if scan.bad_chunks:
+            self._bad_chunks.update(scan.bad_chunks)
+            self.notes.append(_bad_chunks_note(self.path.name, scan.bad_chunks))
+        if scan.undeclared:
+            self.notes.append(f"{self.path.name}: skipped {scan.undeclared} message(s) on channels that no "
+                              "Channel record declares")
 
     def _topic_for(self, ch) -> TopicInfo:
         info = self.topics.get(ch.topic)
@@ -311,6 +458,24 @@ class Bag:
         if ch.id not in info.channel_ids:
             info.channel_ids.append(ch.id)
         return info
+
+    def _check_schemas(self) -> None:
+        """Set `TopicInfo.problem` for topics whose messages cannot be decoded as their type says."""
+        from prsm_ros.bag.schema_check import schema_problem
+        for info in self.topics.values():
+            for cid in info.channel_ids:
+                ch = self._channels[cid]
+                problem = schema_problem(ch.message_encoding, self._schemas.get(ch.schema_id))
+                if problem is None and self._decoder(ch) is None:
+                    problem = "its schema does not parse as a ros2msg definition"
+                if problem is not None:
+                    info.problem = problem
+                    self._decoders[cid] = None
+                    break
+        bad = [f"{t} ({i.problem})" for t, i in sorted(self.topics.items()) if i.problem]
+        if bad:
+            self.notes.append(f"{self.path.name}: cannot decode {', '.join(bad[:5])}"
+                              + (f" and {len(bad) - 5} more topic(s)" if len(bad) > 5 else ""))
 
     # ---- queries -----------------------------------------------------------------------------
 
@@ -331,17 +496,39 @@ class Bag:
         """The `prsm_run` record (empty for bags recorded elsewhere)."""
         return self.metadata.get("prsm_run", {})
 
+    def reading_notes(self) -> list[str]:
+        """What reading messages skipped so far: damaged chunks found in a finished file, malformed messages."""
+        notes = []
+        if self._indexed and self._bad_chunks:  # a scanned file's are among `notes` already
+            notes.append(_bad_chunks_note(self.path.name, sorted(self._bad_chunks.items())))
+        for t, info in sorted(self.topics.items()):
+            if info.malformed:
+                notes.append(f"{self.path.name}: skipped {info.malformed} malformed message(s) on {t} "
+                             f"(first: {info.first_malformed})")
+        return notes
+
     def require_topics(self, topics) -> None:
         """BagError naming the topics the bag has when one of `topics` is not in it."""
         for t in topics:
             if t not in self.topics:
                 raise BagError(f"{self.path.name}: no topic {t!r}; topics: {', '.join(sorted(self.topics)) or 'none'}")
 
+    def require_decodable(self, topics) -> None:
+        """BagError saying why when one of `topics` cannot be decoded (`TopicInfo.problem`)."""
+        self.require_topics(topics)
+        for t in topics:
+            if self.topics[t].problem:
+                raise BagError(f"{self.path.name}: topic {t} ({self.topics[t].type or 'no schema'}) cannot be "
+                               f"decoded: {self.topics[t].problem}")
+
     def window_ns(self, start_s: float | None, end_s: float | None) -> tuple[int | None, int | None]:
         """Log-time bounds (ns) for a range given in seconds from the bag's first message; None = open.
 
-        BagError when `end_s` is before `start_s`.
+        BagError when a bound is not a finite number or `end_s` is before `start_s`.
         """
+        for flag, v in (("--start", start_s), ("--end", end_s)):
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and abs(v) <= MAX_WINDOW_S):
+                raise BagError(f"{flag} {v!r}: must be a finite number of seconds within ±{MAX_WINDOW_S:g}")
         if start_s is not None and end_s is not None and end_s < start_s:
             raise BagError(f"--end {end_s} is before --start {start_s}")
         base = self.start_ns or 0
@@ -352,50 +539,75 @@ class Bag:
         t = normalise_type(type_name)
         return [name for name, info in self.topics.items() if info.type == t]
 
-    def _decode(self, schema, channel, message):
+    def _decoder(self, channel):
         dec = self._decoders.get(channel.id, False)
         if dec is False:
             from mcap_ros2.decoder import DecoderFactory
             try:
-                dec = DecoderFactory().decoder_for(channel.message_encoding, schema)
+                dec = DecoderFactory().decoder_for(channel.message_encoding, self._schemas.get(channel.schema_id))
             # a schema mcap_ros2 cannot parse or does not implement (wstring): the raw bytes are still available
-            except (ValueError, NotImplementedError, *damaged_data_errors()):
+            except (ValueError, NotImplementedError, KeyError, IndexError, AttributeError, *damaged_data_errors()):
                 dec = None
             except Exception as e:  # its schema parser's own errors, whose classes only a private module exports
                 if not type(e).__module__.startswith("mcap_ros2."):
                     raise
                 dec = None
             self._decoders[channel.id] = dec
+        return dec
+
+    def _decode(self, channel, message):
+        """The decoded message; None when it does not decode (counted as malformed on its topic)."""
+        dec = self._decoder(channel)
         if dec is None:
             return None
         try:
             return dec(message.data)
-        except (IndexError, *damaged_data_errors()) as e:  # CDR cut short or not matching its schema
-            raise BagError(f"{self.path.name}: a message on {channel.topic} at log time {message.log_time} ns "
-                           f"does not decode with its schema {schema.name if schema else '(none)'} "
-                           f"({type(e).__name__}: {e})") from None
+        # CDR cut short, a length past the end, bytes not matching the schema
+        except (IndexError, KeyError, TypeError, OverflowError, MemoryError, *damaged_data_errors()) as e:
+            info = self.topics[channel.topic]
+            info.malformed += 1
+            if info.first_malformed is None:
+                info.first_malformed = (f"log time {message.log_time * 1e-9:.6f} s, {len(message.data)} bytes: "
+                                        f"{str(e)[:80] or type(e).__name__}")
+            return None
 
     def messages(self, topics=None, start_ns: int | None = None, end_ns: int | None = None, *,
                  decode: bool = True, progress: bool = False, desc: str = "reading") -> Iterator[BagMessage]:
         """Messages of `topics` (all when None) with start_ns <= log time <= end_ns, in log-time order.
 
-        Unfinished files are read in file order (the order their writer appended, which for our
-        recorder is log-time order).
+        With `decode`, every topic must be decodable (`require_decodable`) and messages that do
+        not decode are skipped and counted (`reading_notes`). Unfinished files are read in file
+        order (the order their writer appended, which for our recorder is log-time order).
         """
         from tqdm import tqdm
 
         wanted = None if topics is None else set(topics)
-        self.require_topics(sorted(wanted or ()))
+        if decode:
+            self.require_decodable(sorted(wanted if wanted is not None else
+                                          (t for t, i in self.topics.items() if not i.problem)))
+            if wanted is None:
+                wanted = {t for t, i in self.topics.items() if not i.problem}
+        else:
+            self.require_topics(sorted(wanted or ()))
         total = sum(i.count for n, i in self.topics.items() if wanted is None or n in wanted)
         bar = tqdm(total=total, desc=desc, unit="msg", disable=(not progress) or None, mininterval=0.5, leave=False)
         try:
             for schema, channel, message in self._raw(wanted, start_ns, end_ns):
                 bar.update(1)
+                msg = None
+                if decode:
+                    msg = self._decode(channel, message)
+                    if msg is None:
+                        continue
                 yield BagMessage(channel.topic, normalise_type(schema.name) if schema else "",
-                                 message.log_time, message.publish_time, message.data,
-                                 self._decode(schema, channel, message) if decode else None)
+                                 message.log_time, message.publish_time, message.data, msg)
         finally:
             bar.close()
+
+    def check(self, progress: bool = False) -> None:
+        """Decode every message of every decodable topic, counting the malformed ones (`TopicInfo.malformed`)."""
+        for _ in self.messages(progress=progress, desc="checking"):
+            pass
 
     def _raw(self, wanted, start_ns, end_ns):
         def keep(channel, message) -> bool:
@@ -404,20 +616,62 @@ class Bag:
                     and (end_ns is None or message.log_time <= end_ns))
 
         if self._indexed:
-            from mcap.reader import SeekingReader
-            with open(self.path, "rb") as f:
-                reader = SeekingReader(f)
-                try:
-                    for schema, channel, message in reader.iter_messages(
-                            topics=None if wanted is None else sorted(wanted), log_time_order=True):
-                        if keep(channel, message):
-                            yield schema, channel, message
-                except damaged_data_errors() as e:  # a finished file whose chunk was damaged after writing
-                    raise BagError(f"{self.path.name}: damaged chunk data ({type(e).__name__}: {e})") from None
+            yield from self._indexed_raw(wanted, start_ns, end_ns, keep)
             return
         for schema, channel, message in walk_records(self.path, Scan()):
             if keep(channel, message):
                 yield schema, channel, message
+
+    def _indexed_raw(self, wanted, start_ns, end_ns, keep):
+        """Messages of a finished file in log-time order, chunk by chunk through the chunk indexes.
+
+        A chunk is decompressed only when its first log time is due (a merge over overlapping
+        chunks); one that fails its checks is skipped and noted, and messages on channels the
+        summary does not declare are skipped.
+        """
+        import heapq
+
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Chunk, Message
+
+        ids = None if wanted is None else {cid for t in wanted for cid in self.topics[t].channel_ids}
+        chunks = [ci for ci in self._chunk_indexes
+                  if (ids is None or ids & ci.message_index_offsets.keys())
+                  and (start_ns is None or ci.message_end_time >= start_ns)
+                  and (end_ns is None or ci.message_start_time <= end_ns)]
+        heap: list = []
+        seq = 0
+        i = 0
+        with open(self.path, "rb") as f:
+            while i < len(chunks) or heap:
+                while i < len(chunks) and (not heap or chunks[i].message_start_time <= heap[0][0]):
+                    ci = chunks[i]
+                    i += 1
+                    try:
+                        if ci.chunk_length < 9 or ci.chunk_start_offset + ci.chunk_length > self._size:
+                            raise ChunkSkipped("its index points past the end of the file")
+                        f.seek(ci.chunk_start_offset)
+                        opcode, length = struct.unpack("<BQ", f.read(9))
+                        if opcode != Opcode.CHUNK or length != ci.chunk_length - 9:
+                            raise ChunkSkipped("its index does not point at a chunk")
+                        try:
+                            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
+                        except damaged_data_errors() as e:
+                            raise ChunkSkipped(f"the chunk record does not parse ({type(e).__name__})") from None
+                        records = chunk_records(chunk)
+                    except ChunkSkipped as e:
+                        self._bad_chunks[ci.chunk_start_offset] = str(e)
+                        continue
+                    for rec in records:
+                        if isinstance(rec, Message):
+                            channel = self._channels.get(rec.channel_id)
+                            if channel is not None and keep(channel, rec):
+                                heapq.heappush(heap, (rec.log_time, seq, channel, rec))
+                                seq += 1
+                if heap:
+                    _, _, channel, message = heapq.heappop(heap)
+                    yield self._schemas.get(channel.schema_id), channel, message
 
     def read_topic(self, topic: str, start_ns: int | None = None, end_ns: int | None = None,
                    progress: bool = False) -> list[BagMessage]:
@@ -474,9 +728,10 @@ def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> 
                                f"topics: {', '.join(sorted(bag.topics)) or 'none'}")
             if bag.topics[t].type != type_name:
                 raise BagError(f"{bag.path.name}: topic {t!r} is {bag.topics[t].type}; {role} needs {type_name}")
+            bag.require_decodable([t])
             out[role] = t
             continue
-        typed = bag.topics_of_type(type_name)
+        typed = [t for t in bag.topics_of_type(type_name) if not bag.topics[t].problem]
         named = [t for t in typed if t == suffix or t.endswith(suffix)]
         if role in _BY_TYPE_ALONE and not named:
             others = [t for t in typed if not any(t.endswith(s) for r, (ty, s, _) in ROLES.items()

@@ -43,13 +43,17 @@ def info_dict(bag) -> dict:
         "topics": [{"topic": t.topic, "type": t.type, "count": t.count, "rate_hz": t.rate_hz,
                     "first_s": None if t.first_ns is None else t.first_ns * 1e-9,
                     "last_s": None if t.last_ns is None else t.last_ns * 1e-9,
-                    "encoding": f"{t.schema_encoding}/{t.message_encoding}"} for t in bag.topics.values()],
+                    "encoding": f"{t.schema_encoding}/{t.message_encoding}",
+                    "malformed": t.malformed, "problem": t.problem} for t in bag.topics.values()],
     }
 
 
 def _cmd_info(args) -> int:
     bag = open_bag(args.bag)
+    if not args.no_check:
+        bag.check(progress=True)
     d = info_dict(bag)
+    d["checked"] = not args.no_check
     if args.parameters:
         d["parameters_yaml"] = bag.run_metadata.get("parameters_yaml")
         d["node_parameters_yaml"] = bag.run_metadata.get("node_parameters_yaml")
@@ -70,10 +74,11 @@ def _cmd_info(args) -> int:
     print(f"metadata:  {', '.join(d['metadata_records']) or '(none)'}")
     width = max((len(t["topic"]) for t in d["topics"]), default=5)
     twidth = max((len(t["type"]) for t in d["topics"]), default=4)
-    print(f"\n{'topic':<{width}}  {'type':<{twidth}}  {'count':>8}  {'rate':>10}")
+    print(f"\n{'topic':<{width}}  {'type':<{twidth}}  {'count':>8}  {'rate':>10}  {'malformed':>9}")
     for t in sorted(d["topics"], key=lambda t: t["topic"]):
         rate = f"{t['rate_hz']:.1f} Hz" if t["rate_hz"] else "-"
-        print(f"{t['topic']:<{width}}  {t['type']:<{twidth}}  {t['count']:>8}  {rate:>10}")
+        bad = "undecodable" if t["problem"] else (str(t["malformed"]) if d["checked"] else "-")
+        print(f"{t['topic']:<{width}}  {t['type']:<{twidth}}  {t['count']:>8}  {rate:>10}  {bad:>9}")
     if args.parameters:
         print("\nparameters:\n" + (d["parameters_yaml"] or "(none recorded)"))
         if d["node_parameters_yaml"]:
@@ -82,8 +87,15 @@ def _cmd_info(args) -> int:
 
 
 def _note(bag) -> None:
-    if bag.note:
-        print(f"prsm-bag: note: {bag.note}", file=sys.stderr)
+    """What opening the bag recovered or skipped (damaged parts, undecodable topics), on stderr."""
+    for n in bag.notes:
+        print(f"prsm-bag: note: {n}", file=sys.stderr)
+
+
+def _reading_notes(bag) -> None:
+    """What reading skipped (malformed messages, damaged chunks), on stderr once the command is done."""
+    for n in bag.reading_notes():
+        print(f"prsm-bag: note: {n}", file=sys.stderr)
 
 
 def _cmd_export(args) -> int:
@@ -92,6 +104,7 @@ def _cmd_export(args) -> int:
     _note(bag)
     paths = export(bag, args.topic or [], args.output, start_s=args.start, end_s=args.end,
                    resample_hz=args.resample, method=args.method, merge=args.merge, fmt=args.format)
+    _reading_notes(bag)
     for p in paths:
         print(p)
     return 0
@@ -122,6 +135,7 @@ def _cmd_report(args) -> int:
               "internal_loads": args.internal_loads_topic}
     r = report(bag, args.output, dynamic_load_rating_n=args.dynamic_load_rating_n,
                screw_joint=args.screw_joint, nut_joint=args.nut_joint, topics=topics, plots=not args.no_plots)
+    _reading_notes(bag)
     from pathlib import Path
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -147,10 +161,11 @@ def _cmd_play(args) -> int:
     _note(bag)
     r = play(bag, rate=args.rate, start_s=args.start, end_s=args.end, topics=args.topic,
              clock=not args.no_clock, delay_s=args.delay, wait_for_subscribers=args.wait_for_subscribers)
+    _reading_notes(bag)
     for topic, n in r["published"].items():
         print(f"{topic}: {n}")
     for topic, ty in r["skipped"].items():
-        print(f"skipped {topic} ({ty}: message package not installed)", file=sys.stderr)
+        print(f"skipped {topic} ({ty})", file=sys.stderr)
     print(f"played in {r['wall_time_s']:.3f} s wall time at rate {r['rate']}")
     return 0
 
@@ -188,6 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.add_argument("--parameters", action="store_true", help="also print the recorded parameter set (YAML)")
+    p.add_argument("--no-check", action="store_true",
+                   help="summary only: do not decode every message to count the malformed ones")
     p.set_defaults(func=_cmd_info)
 
     p = sub.add_parser("export", help="topics to CSV (one column per field, time in seconds)")

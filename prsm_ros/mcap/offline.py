@@ -26,13 +26,14 @@ from prsm_ros.mcap.recorder import McapFile, run_metadata
 def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: str, progress: bool = True,
                           dt_s: float | None = None, reference_m=None,
                           extra_metadata: dict[str, dict[str, str]] | None = None,
-                          ros_distro: str | None = None) -> Path:
+                          ros_distro: str | None = None, chunk_size: int | None = None) -> Path:
     """Write `traj` (from `Simulator.run` or collected steps) as a ROS 2 MCAP file; returns the path.
 
     `dt_s`: the step (inferred from the time column when omitted). `reference_m`: optional nut
     position reference per step (m), recorded as a controller under test would publish it.
     `extra_metadata`: more MCAP metadata records, e.g. a scenario description. `ros_distro`: whose
-    message definitions to write (default: `codec.typestore_distro()`).
+    message definitions to write (default: `codec.typestore_distro()`). `chunk_size`: bytes per chunk
+    before compression (default the recorder's).
     """
     from tqdm import tqdm
 
@@ -54,7 +55,8 @@ def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: s
     metadata = run_metadata(params, preset=preset_name, model=model_name, dt_s=dt_s)
     metadata.update(extra_metadata or {})
     path = Path(path)
-    f = McapFile(path, metadata=metadata, codec=codec)
+    f = McapFile(path, metadata=metadata, codec=codec,
+                 **({} if chunk_size is None else {"chunk_size": chunk_size}))
     try:
         keys = ("labels", "screw_torque", *STEP_TOPICS) + (("nut_position_reference",) if reference_m is not None else ())
         ids = {key: f.add_channel(TOPIC_DEFS[key].resolved(), codec.classes[TOPIC_DEFS[key].type_name],

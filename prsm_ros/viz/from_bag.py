@@ -213,6 +213,7 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
         rec.disconnect()
         out.unlink(missing_ok=True)
         raise
+    warnings.extend(bag.reading_notes())  # malformed messages, damaged chunks: skipped while reading
     used = ([roles["labels"]] if labels is not None else []) + topics
     return {"bag": str(bag.path), "rrd": str(out), "source": source, "model": model, "geometry": geometry,
             "rows": writer.rows, "scene_frames": writer.scene_frames,

@@ -1,0 +1,120 @@
+"""Whether a bag's schema describes what its type name says, for the types the bag tools read by field.
+
+The tools read the node's interface types (JointState, Float64, WrenchStamped, …) by field name;
+a foreign bag whose `sensor_msgs/msg/JointState` schema holds some other definition would decode
+into an object without those fields. So each definition in such a schema (the type and the
+types it embeds) is compared, field by field (name, base type, array or not), with the standard
+definition of the same name: the rosbags typestore's (the `bag` extra), else the installed ROS
+packages'. With neither available the schema is taken as it is.
+
+Only the schema text is parsed (mcap_ros2's rosidl parser); nothing named by it is imported.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from functools import lru_cache
+
+from prsm_ros.interface import TOPIC_DEFS
+
+CDR = "cdr"
+ROS2MSG = "ros2msg"
+_DELIMITER = re.compile(r"^=+[ \t\r]*$", re.M)
+_MSG_LINE = re.compile(r"^\s*MSG:\s*(\S+)")
+MAX_SCHEMA_BYTES = 1 << 20  # a definition with its dependencies is a few KB
+
+
+def _split(name: str) -> tuple[str, str]:
+    parts = name.split("/")
+    return parts[0], parts[-1]
+
+
+def _normal(name: str) -> str:
+    pkg, typ = _split(name)
+    return f"{pkg}/msg/{typ}"
+
+
+def sections(name: str, text: str) -> dict[str, str]:
+    """`pkg/msg/Type` → its definition text, for the schema's own type and each `MSG:` section."""
+    parts = _DELIMITER.split(text)
+    out = {_normal(name): parts[0]}
+    for part in parts[1:]:
+        m = _MSG_LINE.search(part)
+        if m:
+            out[_normal(m.group(1))] = part[m.end():]
+    return out
+
+
+def signature(name: str, text: str) -> tuple:
+    """(field name, base type, is array) of each field of one definition; ValueError if it does not parse."""
+    from mcap_ros2._vendor.rosidl_adapter.parser import parse_message_string
+    pkg, typ = _split(name)
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):  # the parser also prints each error
+            spec = parse_message_string(pkg, typ, text)
+    except Exception as e:  # the vendored rosidl parser raises a dozen exception types on bad text
+        raise ValueError(f"{type(e).__name__}") from None
+    return tuple((f.name, f.type.type, bool(f.type.is_array)) for f in spec.fields)
+
+
+@lru_cache(maxsize=None)
+def _reference_text(name: str) -> str | None:
+    try:
+        from prsm_ros.mcap.codec import TypestoreCodec
+        return TypestoreCodec().definition(name)
+    except Exception:  # rosbags missing, or the type not in its store: try the installed packages
+        pass
+    try:
+        from prsm_ros.mcap.schema import full_definition
+        return full_definition(name)
+    except Exception:
+        return None
+
+
+@lru_cache(maxsize=None)
+def reference_signatures() -> dict[str, tuple]:
+    """Signatures of the interface's types and the types they embed, from the standard definitions."""
+    out: dict[str, tuple] = {}
+    for t in {d.type_name for d in TOPIC_DEFS.values()}:
+        text = _reference_text(t)
+        if text is None:
+            continue
+        for sub, body in sections(t, text).items():
+            try:
+                out.setdefault(sub, signature(sub, body))
+            except ValueError:
+                continue
+    return out
+
+
+def schema_problem(message_encoding: str, schema) -> str | None:
+    """Why messages with this encoding and schema cannot be decoded as their type says; None when they can."""
+    if message_encoding != CDR:
+        return f"message encoding {message_encoding[:40]!r}, not {CDR}"
+    if schema is None:
+        return "no schema"
+    if schema.encoding != ROS2MSG:
+        return f"schema encoding {schema.encoding[:40]!r}, not {ROS2MSG}"
+    if len(schema.data) > MAX_SCHEMA_BYTES:
+        return f"a schema of {len(schema.data)} bytes (more than {MAX_SCHEMA_BYTES >> 10} KiB)"
+    try:
+        text = schema.data.decode("utf-8")
+    except UnicodeDecodeError:
+        return "its schema is not UTF-8 text"
+    if schema.name.count("/") not in (1, 2):
+        return f"schema name {schema.name[:80]!r} is not pkg/msg/Type"
+    reference = reference_signatures()
+    for sub, body in sections(schema.name, text).items():
+        expected = reference.get(sub)
+        if expected is None:
+            continue
+        try:
+            got = signature(sub, body)
+        except ValueError as e:
+            return f"its definition of {sub} does not parse ({e})"
+        if got != expected:
+            fields = ", ".join(f for f, _, _ in got[:6]) or "none"
+            return f"its definition of {sub} is not the standard one (fields: {fields})"
+    return None
