@@ -604,6 +604,23 @@ class Bag:
         finally:
             bar.close()
 
+    def raw_messages(self, *, progress: bool = False) -> Iterator[tuple]:
+        """(schema, channel, message) records of every topic in log-time order, as the file holds them.
+
+        Messages of decodable topics that do not decode are skipped (counted as `messages` does);
+        those of undecodable topics (`TopicInfo.problem`) are passed through undecoded.
+        """
+        from tqdm import tqdm
+        bar = tqdm(total=self.message_count, desc="reading", unit="msg", disable=(not progress) or None,
+                   mininterval=0.5, leave=False)
+        try:
+            for schema, channel, message in self._raw(None, None, None):
+                bar.update(1)
+                if self.topics[channel.topic].problem or self._decode(channel, message) is not None:
+                    yield schema, channel, message
+        finally:
+            bar.close()
+
     def check(self, progress: bool = False) -> None:
         """Decode every message of every decodable topic, counting the malformed ones (`TopicInfo.malformed`)."""
         for _ in self.messages(progress=progress, desc="checking"):

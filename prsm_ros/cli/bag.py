@@ -7,6 +7,7 @@
     prsm-bag compare A_DIR B_DIR [--threshold 0.05] [--json] [--fail-on-regression]
     prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
     prsm-bag to-rrd BAG -o FILE.rrd
+    prsm-bag repair BAG OUT.mcap   (a killed recording's bag → a finished file every MCAP reader opens)
 
 BAG is an .mcap file (ours or any ROS 2 recorder's) or a rosbag2 directory holding one. Times
 given with --start/--end are seconds from the bag's first message. Progress goes to stderr; a
@@ -188,6 +189,16 @@ def _cmd_to_rrd(args) -> int:
     return 0
 
 
+def _cmd_repair(args) -> int:
+    from prsm_ros.bag.repair import repair
+    bag = open_bag(args.bag)
+    r = repair(bag, args.output, progress=True)
+    for n in r["notes"]:
+        print(f"prsm-bag: note: {n}", file=sys.stderr)
+    print(f"{r['output']}: {r['messages']} message(s) on {r['topics']} topic(s), with summary and footer")
+    return 0
+
+
 def _range_args(p) -> None:
     p.add_argument("--start", type=float, metavar="S", help="start, seconds from the bag's first message")
     p.add_argument("--end", type=float, metavar="S", help="end, seconds from the bag's first message")
@@ -197,7 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
     ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
                                  "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{info,export,report,compare,play,to-rrd}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{info,export,report,compare,play,to-rrd,repair}")
 
     p = sub.add_parser("info", help="topics, counts, rates, duration, run metadata")
     p.add_argument("bag")
@@ -265,6 +276,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag")
     p.add_argument("-o", "--output", required=True, help="the .rrd file to write")
     p.set_defaults(func=_cmd_to_rrd)
+
+    p = sub.add_parser("repair", help="rewrite an unfinished or damaged bag as a finished one (summary, footer)")
+    p.add_argument("bag")
+    p.add_argument("output", help="the .mcap file to write (not the bag itself)")
+    p.set_defaults(func=_cmd_repair)
     return ap
 
 
