@@ -222,6 +222,27 @@ def test_full_queue_drops_and_counts_instead_of_blocking(tmp_path):
     assert open_bag(tmp_path / "q.mcap").topics["/a"].count == rec.messages_written
 
 
+def test_untrusted_channels_record_only_bytes_that_deserialize(tmp_path):
+    """A 4-byte ~/screw_torque used to be recorded as received and then broke export and to-rrd.
+    Oracle: rclpy's own serializer for the good bytes; the reader's malformed count (0)."""
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64
+
+    good = [serialize_message(Float64(data=float(k))) for k in range(5)]
+    bad = [b"\x00\x01\x00\x00", b"", b"\x00\x01\x00\x00\x01"]
+    with McapRecorder(tmp_path / "u.mcap") as rec:
+        rec.add_channel("/cmd", Float64, TOPICS["screw_torque"].qos, untrusted=True)
+        rec.add_channel("/out", Float64, TOPICS["screw_torque"].qos)
+        for k, data in enumerate([good[0], bad[0], good[1], bad[1], good[2], bad[2], good[3], good[4]]):
+            rec.write("/cmd", data, k)
+        rec.write("/out", Float64(data=7.0), 9)
+    assert (rec.messages_written, rec.messages_malformed, rec.messages_dropped) == (6, 3, 0)
+    bag = open_bag(tmp_path / "u.mcap")
+    bag.check()
+    assert bag.topics["/cmd"].count == 5 and bag.topics["/cmd"].malformed == 0
+    assert [m.data for m in bag.messages(["/cmd"])] == good
+
+
 def test_unwritable_path_sets_error_and_the_caller_keeps_running(tmp_path):
     from std_msgs.msg import Float64
 

@@ -36,8 +36,9 @@ class RclpyCodec:
     """rclpy classes and serializer; definitions from the installed packages' share directories."""
 
     def __init__(self) -> None:
-        from rclpy.serialization import serialize_message
+        from rclpy.serialization import deserialize_message, serialize_message
         self.serialize = serialize_message
+        self.deserialize = deserialize_message  # (bytes, message class)
         self.ros_distro: str | None = None  # rosbag2_metadata() finds it from the environment / rclpy
 
     type_name = staticmethod(mcap_schema.type_name)
@@ -104,3 +105,6 @@ class TypestoreCodec:
 
     def serialize(self, msg: Any) -> bytes:
         return bytes(self.typestore.serialize_cdr(msg, msg.__msgtype__))
+
+    def deserialize(self, data: bytes, msg_class) -> Any:
+        return self.typestore.deserialize_cdr(data, msg_class.__msgtype__)

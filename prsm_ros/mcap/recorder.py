@@ -13,8 +13,11 @@ at most that much. An unwritable path or a full disk sets `.error`, stops record
 what could not be written in `messages_dropped`; the caller is never interrupted. `close()`
 writes the summary and footer within a timeout (a stalled disk cannot hang the caller: it gives up,
 sets `.error` and counts what was still queued as dropped); it is idempotent and also runs at
-interpreter exit. Every message offered ends up in exactly one of `messages_written` and
-`messages_dropped`.
+interpreter exit. A channel added as `untrusted` (the node's command topics: bytes as another
+participant sent them) has its CDR bytes checked against the type in the writer thread; bytes
+that do not deserialize are not written but counted in `messages_malformed`, so a bag holds only
+messages its readers can decode. Every message offered ends up in exactly one of
+`messages_written`, `messages_dropped` and `messages_malformed`.
 """
 
 from __future__ import annotations
@@ -107,6 +110,14 @@ class McapFile:
         except BaseException:
             self.abort()
             raise
+
+    def check(self, msg_class, data: bytes) -> bool:
+        """Whether `data` deserializes as `msg_class` (the codec's own deserializer)."""
+        try:
+            self._codec.deserialize(data, msg_class)
+        except Exception:  # each middleware raises its own types for bytes it cannot read
+            return False
+        return True
 
     def add_channel(self, topic: str, msg_class, qos) -> int:
         """Declare `topic` (schema and QoS metadata); returns its channel id. Re-adding is a no-op."""
@@ -201,6 +212,7 @@ class McapRecorder:
         self._queue: deque = deque()
         self._queue_size = queue_size
         self._classes: dict[str, type] = {}
+        self._malformed = 0  # untrusted bytes that did not deserialize (writer thread only)
         self._flush_interval_s = float(flush_interval_s)
         self._stop = threading.Event()
         self._closed = False
@@ -230,18 +242,28 @@ class McapRecorder:
             return self._dropped_full + self._lost
 
     @property
+    def messages_malformed(self) -> int:
+        """Bytes on an `untrusted` channel that did not deserialize as its type: not written."""
+        return self._malformed
+
+    @property
     def queue_length(self) -> int:
         return len(self._queue)
 
-    def add_channel(self, topic: str, msg_class, qos) -> None:
-        """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing)."""
+    def add_channel(self, topic: str, msg_class, qos, *, untrusted: bool = False) -> None:
+        """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing).
+
+        `untrusted`: the bytes written to it come from elsewhere (a subscription); each is checked
+        in the writer thread and left out, counted in `messages_malformed`, when it does not
+        deserialize as `msg_class`.
+        """
         known = self._classes.get(topic)
         if known is not None and known is not msg_class:
             raise InputError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
                              f"cannot add it again as {mcap_schema.type_name(msg_class)}")
         mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the thread
         self._classes[topic] = msg_class
-        self._queue.append((topic, (msg_class, qos), None))
+        self._queue.append((topic, (msg_class, qos, untrusted), None))
 
     def backlog(self) -> int:
         """Messages queued for the writer thread: a producer with no deadline (the node's `fast`
@@ -342,6 +364,7 @@ class McapRecorder:
 
     def _run(self) -> None:
         ids: dict[str, int] = {}
+        checked: dict[str, type] = {}  # untrusted topics → the class their bytes must deserialize as
         last_flush = time.monotonic()
         queue = self._queue
         clock = time.perf_counter
@@ -355,7 +378,14 @@ class McapRecorder:
                 while queue and f is not None:
                     topic, msg, stamp = queue.popleft()
                     if stamp is None:  # a channel declaration, kept in order with the messages
-                        ids[topic] = f.add_channel(topic, *msg)
+                        cls, qos, untrusted = msg
+                        ids[topic] = f.add_channel(topic, cls, qos)
+                        if untrusted:
+                            checked[topic] = cls
+                        continue
+                    cls = checked.get(topic)
+                    if cls is not None and type(msg) is bytes and not f.check(cls, msg):
+                        self._malformed += 1
                         continue
                     f.write(ids[topic], msg, stamp)
                     if clock() > slice_end:
