@@ -27,20 +27,16 @@ def _yaml_mapping(text: str, source: str, what: str) -> dict:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ParamError(f"{source}:{where} not valid YAML ({getattr(e, 'problem', None) or e})") from None
+        raise ParamError(f"{source}:{where} not valid YAML ({getattr(e, 'problem', None) or type(e).__name__})") from None
     if not isinstance(data, dict):
         raise ParamError(f"{source}: expected a mapping of {what}, got {type(data).__name__}")
     return dict(data)
 
 
 def _read_text(path: str | Path, what: str) -> str:
-    p = Path(path)
-    try:
-        return p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ParamError(f"{p}: cannot read {what} ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise ParamError(f"{p}: not a text (UTF-8) file") from None
+    """A regular UTF-8 file within `limits.TEXT_FILE_MAX_BYTES` (ParamError naming the file otherwise)."""
+    from prsm_ros.limits import read_text_file
+    return read_text_file(path, what=what, error=ParamError)
 
 
 def params_from_yaml(text: str, source: str = "<string>") -> Params:

@@ -20,6 +20,7 @@ import numpy as np
 
 from prsm_ros.bag.reader import Bag, BagError, resolve_topics
 from prsm_ros.interface import parse_labels
+from prsm_ros.limits import MAX_TABLE_VALUES
 
 
 def _is_time(obj) -> bool:
@@ -154,7 +155,7 @@ def resample(names: list[str], data: np.ndarray, hz: float, method: str = "linea
         return np.empty((0, len(names)))
     t0 = t[0] if t0 is None else t0
     t1 = t[-1] if t1 is None else t1
-    grid = t0 + np.arange(int(math.floor((t1 - t0) * hz + 1e-9)) + 1) / hz
+    grid = t0 + np.arange(grid_length(t0, t1, hz, len(names))) / hz
     out = np.empty((grid.size, len(names)))
     out[:, 0] = grid
     if method == "hold":
@@ -168,6 +169,15 @@ def resample(names: list[str], data: np.ndarray, hz: float, method: str = "linea
             ok = np.isfinite(col)
             out[:, j] = np.interp(grid, t[ok], col[ok], left=np.nan, right=np.nan) if ok.any() else np.nan
     return out
+
+
+def grid_length(t0: float, t1: float, hz: float, columns: int) -> int:
+    """Points of the uniform grid from t0 to t1 at `hz`; BagError when the table would exceed MAX_TABLE_VALUES."""
+    n = int(math.floor(max(t1 - t0, 0.0) * hz + 1e-9)) + 1
+    if n * max(columns, 1) > MAX_TABLE_VALUES:
+        raise BagError(f"--resample {hz:g} Hz over {t1 - t0:.6g} s gives {n} rows × {columns} columns: more than "
+                       f"the {MAX_TABLE_VALUES} values export may build; lower the rate or narrow --start/--end")
+    return n
 
 
 def _fmt(v) -> str:
@@ -237,7 +247,7 @@ def export(bag: Bag, topics: list[str], out, *, start_s: float | None = None, en
         for tb in tables:
             names, data = tb.numeric()
             res = resample(names, data, resample_hz, method, t0, t1) if len(data) else None
-            grid_len = int(math.floor((t1 - t0) * resample_hz + 1e-9)) + 1
+            grid_len = grid_length(t0, t1, resample_hz, len(names))
             blocks.append(res[:, 1:] if res is not None else np.full((grid_len, len(names) - 1), np.nan))
             columns += [f"{tb.topic}:{n}" for n in names[1:]]
         grid = t0 + np.arange(blocks[0].shape[0]) / resample_hz

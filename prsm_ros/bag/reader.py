@@ -26,6 +26,7 @@ from typing import Iterator
 from prsm_sim.errors import PrsmError
 
 from prsm_ros.interface import TOPIC_DEFS
+from prsm_ros.limits import file_kind
 
 MAGIC = b"\x89MCAP0\r\n"
 # A chunk's uncompressed size is allocated before it is read: a damaged size must not decide it.
@@ -324,8 +325,9 @@ class Bag:
 
     def __init__(self, path) -> None:
         self.path = resolve_path(path)
-        if not self.path.is_file():  # a FIFO or device would block or never end
-            raise BagError(f"{self.path}: not a regular file")
+        kind = file_kind(self.path.stat().st_mode)
+        if kind:  # a FIFO would block the reader, a device never end
+            raise BagError(f"{self.path}: {kind}, not an MCAP file (a regular file)")
         self.complete = True
         self.notes: list[str] = []
         self.profile = ""

@@ -32,6 +32,7 @@ from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_sessio
 
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
+from prsm_ros.limits import run_steps
 
 PROGRESS_MIN_STEPS = 20_000
 
@@ -124,6 +125,10 @@ def cmd_steady_state(args) -> None:
     else:
         spec = default_spec(p, "light", load_n=args.load if args.load is not None else p.loads.nut_load_n,
                             speed_rad_s=args.speed)
+        for name, v in (("duration_s", args.duration), ("dt_s", args.dt)):
+            if not (math.isfinite(v) and v > 0):
+                raise CliError(f"{name} = {v!r}: must be a finite number > 0")
+        run_steps(args.duration, args.dt, error=CliError)
         sim = Simulator(p, args.model, args.dt)
         s = summarise(run_scenario(sim, spec, args.duration))
         w = s["final"]["screw_speed_rad_s"]
@@ -159,10 +164,10 @@ def cmd_run(args) -> None:
     for name, v in (("duration_s", args.duration), ("dt_s", args.dt)):
         if not (math.isfinite(v) and v > 0):
             raise CliError(f"{name} = {v!r}: must be a finite number > 0")
+    n = run_steps(args.duration, args.dt, error=CliError)
     actuator = _actuator(args)
     # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults in the session
     sim = Simulator(p, args.model, args.dt) if actuator is None else Session(p, args.model, args.dt, actuator)
-    n = int(round(args.duration / args.dt))
     bar = None
     if n >= PROGRESS_MIN_STEPS and not args.no_progress:
         from tqdm import tqdm

@@ -18,6 +18,7 @@ from pathlib import Path
 from prsm_sim.errors import PrsmError
 
 from prsm_ros.json_out import dumps
+from prsm_ros.limits import read_text_file
 
 PROG = "prsm-sweep"
 
@@ -33,7 +34,7 @@ def cmd_run(args) -> int:
     from prsm_ros.sweep import runner, study
     raw, norm, ex = study.load(args.study)
     out = Path(args.output)
-    text = Path(args.study).read_text(encoding="utf-8")
+    text = read_text_file(args.study, what="study file", error=study.StudyError)  # the file load() accepted
     try:
         s = runner.run_study(norm, out, address=args.address, workers=args.workers,
                              runs_per_task=args.runs_per_task or ex["runs_per_task"], decimate=ex["decimate"],

@@ -52,6 +52,8 @@ from prsm_sim.control import DEFAULT_AMPLITUDE_M, DEFAULT_FREQUENCY_HZ, Position
 from prsm_sim.errors import PrsmError
 from prsm_sim.scenarios import SCENARIOS
 
+from prsm_ros.limits import MAX_STUDY_RUNS, read_text_file, run_steps
+
 POSITION = "position"  # the demo's nut-position loop (prsm_sim.control), run offline
 ALL_SCENARIOS = (*SCENARIOS, POSITION)
 GRID_KINDS = ("values", "linspace")
@@ -172,10 +174,14 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
         path = Path(str(data["params"]))
         if base_dir is not None and not path.is_absolute():
             path = base_dir / path
+        text = read_text_file(path, what="parameter file", error=StudyError)
         try:
-            pdata = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-            raise StudyError(f"params = {str(data['params'])!r}: cannot read the parameter file ({e})") from None
+            pdata = yaml.safe_load(text)
+        except yaml.YAMLError as e:  # its str() quotes the file: give the place only
+            mark = getattr(e, "problem_mark", None)
+            where = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""
+            raise StudyError(f"params = {str(data['params'])!r}:{where} not valid YAML "
+                             f"({getattr(e, 'problem', None) or type(e).__name__})") from None
         out["params"] = pdata
     else:
         out["preset"] = str(data.get("preset", "jones2016"))
@@ -195,6 +201,7 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
     out["dt_s"] = _number("dt_s", data.get("dt_s", 1e-3), positive=True)
     if out["duration_s"] < out["dt_s"]:
         raise StudyError(f"duration_s = {out['duration_s']}: shorter than one step ({out['dt_s']} s)")
+    run_steps(out["duration_s"], out["dt_s"], error=StudyError)
     fixed = data.get("set") or {}
     if not isinstance(fixed, dict):
         raise StudyError(f"set = {fixed!r}: expected a mapping of group.name: value")
@@ -212,6 +219,12 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
             raise StudyError(f"{extra[0]}: the {POSITION} scenario takes scenario.load_n only (its motion is the "
                              f"reference.* settings)")
     out["samples"] = _number("samples", data.get("samples", 1), whole=True, lo=1)
+    runs = out["samples"] * len(out["scenarios"]) * math.prod(  # counted before anything is built
+        len(d["args"]) if d["kind"] == "values" else int(d["args"][2])
+        for d in out["vary"].values() if d["kind"] in GRID_KINDS)
+    if runs > MAX_STUDY_RUNS:
+        raise StudyError(f"samples = {out['samples']} over {runs // out['samples']} grid point(s) = {runs} runs: "
+                         f"more than the {MAX_STUDY_RUNS} runs a study may have")
     out["seed"] = _number("seed", data.get("seed", 0), whole=True, lo=0)
     metrics = data.get("metrics", list(DEFAULT_METRICS))
     if not isinstance(metrics, list) or not metrics:
@@ -269,13 +282,11 @@ def load(path: str | Path) -> tuple[dict, dict, dict]:
     """Read a study file → (raw mapping, normalised study, execution options)."""
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise StudyError(f"{p}: cannot read the study ({e.strerror or e})") from None
+        data = yaml.safe_load(read_text_file(p, what="study file", error=StudyError))
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""
-        raise StudyError(f"{p}:{where} not valid YAML ({getattr(e, 'problem', None) or e})") from None
+        raise StudyError(f"{p}:{where} not valid YAML ({getattr(e, 'problem', None) or type(e).__name__})") from None
     except UnicodeDecodeError:
         raise StudyError(f"{p}: not a text (UTF-8) file") from None
     try:
