@@ -37,7 +37,7 @@ def read_text_file(path, *, what: str, max_bytes: int = TEXT_FILE_MAX_BYTES, err
     try:
         fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as e:
-        raise error(f"{p}: cannot read the {what} ({e.strerror or e})") from None
+        raise error(f"{p}: cannot read {what} ({e.strerror or e})") from None
     try:
         kind = file_kind(os.fstat(fd).st_mode)
         if kind:
@@ -45,7 +45,7 @@ def read_text_file(path, *, what: str, max_bytes: int = TEXT_FILE_MAX_BYTES, err
         with os.fdopen(fd, "rb", closefd=False) as f:
             data = f.read(max_bytes + 1)
     except OSError as e:
-        raise error(f"{p}: cannot read the {what} ({e.strerror or e})") from None
+        raise error(f"{p}: cannot read {what} ({e.strerror or e})") from None
     finally:
         os.close(fd)
     if len(data) > max_bytes:
