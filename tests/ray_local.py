@@ -4,6 +4,7 @@ module that finds Ray already started by another uses it (Ray takes seconds to s
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 
@@ -12,14 +13,14 @@ import pytest
 
 @pytest.fixture(scope="session")
 def embedded_ray():
+    from prsm_ros.sweep.runner import LOCAL_ONLY_ENV, start_embedded
+    os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported (see start_embedded)
     import ray  # the test extra installs it: a missing Ray is a failure, not a skip
     if ray.is_initialized():  # started by this fixture for an earlier module: its teardown stops it
         yield
         return
     tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
-    # workers at normal priority, as prsm-sweep starts them: Ray's default niceness starves them on a busy machine
-    ray.init(num_cpus=2, _temp_dir=tmp, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
-             _system_config={"worker_niceness": 0})
+    start_embedded(2, tmp)  # as prsm-sweep starts it: loopback only, workers at normal priority
     try:
         yield
     finally:

@@ -53,12 +53,11 @@ def _median_spread(values: list[float]) -> tuple[float, float]:
 
 
 def measure(quick: bool = False) -> list[dict]:
-    import ray
     repeats = 1 if quick else 3
     n_scale, n_short, n_long = (24, 60, 6) if quick else (80, 200, 16)
     tmp = Path(tempfile.mkdtemp(prefix="prsmray-", dir="/tmp"))
-    ray.init(num_cpus=2, _temp_dir=str(tmp / "r"), include_dashboard=False, logging_level="ERROR", log_to_driver=False,
-             _system_config={"worker_niceness": 0})  # as prsm-sweep does (runner.py)
+    runner.start_embedded(2, str(tmp / "r"))  # as prsm-sweep does
+    import ray
     try:
         mid = _study(0.3, n_scale)
         _ray_rate(mid, 2, 4, tmp)  # warm the worker processes (imports) before timing

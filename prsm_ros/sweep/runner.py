@@ -28,6 +28,15 @@ PARTS = "parts"
 TRAJECTORIES = "trajectories"
 STUDY_JSON = "study.json"
 TASKS_PER_WORKER = 4  # batches per worker for `runs_per_task: auto`: enough to balance, few enough to amortise
+# An embedded Ray is for this machine only. Ray takes the node's address from the network (its
+# route to the outside) and its gRPC servers (GCS, raylet, object manager, workers) then listen
+# on every interface; with cluster mode off (Ray's switch for single-machine platforms, read when
+# Ray is imported and inherited by the processes it starts) the node address is the loopback
+# one and every server listens on 127.0.0.1 only. Token authentication, which Ray 2.60 turns on
+# for a new local cluster unless RAY_AUTH_MODE says otherwise, guards those ports against other
+# users of this machine.
+LOCAL_ONLY_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
+LOOPBACK = "127.0.0.1"
 
 
 class RayUnavailable(StudyError):
@@ -119,9 +128,11 @@ def connect(address: str | None, workers: int | None):
     """Start or join Ray → (ray module, shutdown-when-done, temp dir to remove).
 
     An already initialised Ray (a caller's own, e.g. a test's) is used as it is. An embedded
-    Ray gets its own short temp dir (unix socket paths are limited to ~100 characters) and no
-    dashboard; `workers` caps its CPUs.
+    Ray gets its own short temp dir (unix socket paths are limited to ~100 characters), no
+    dashboard and listens on loopback only (`start_embedded`); `workers` caps its CPUs.
     """
+    if not address:
+        os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported (see start_embedded)
     try:
         import ray
     except ImportError as e:
@@ -136,10 +147,7 @@ def connect(address: str | None, workers: int | None):
             ray.init(address=address, logging_level="ERROR", log_to_driver=False)
         else:
             tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
-            # worker_niceness 0: Ray nices its workers (15) by default, which starves a study's runs
-            # behind any normal-priority process on a busy machine; here the tasks are the work
-            ray.init(num_cpus=workers or os.cpu_count() or 1, _temp_dir=tmp, include_dashboard=False,
-                     logging_level="ERROR", log_to_driver=False, _system_config={"worker_niceness": 0})
+            start_embedded(workers or os.cpu_count() or 1, tmp)
     except Exception as e:  # Ray's own errors (ConnectionError, RuntimeError, ...): one line for the user
         if tmp:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -147,6 +155,29 @@ def connect(address: str | None, workers: int | None):
         hint = " (a head with token authentication needs RAY_AUTH_MODE=token here)" if address else ""
         raise RayUnavailable(f"cannot {'join Ray at ' + address if address else 'start Ray'}: {first}{hint}") from None
     return ray, True, tmp
+
+
+def start_embedded(num_cpus: int, temp_dir: str) -> None:
+    """`ray.init` of a Ray on this machine only (loopback, no dashboard, workers at normal priority).
+
+    RuntimeError when Ray would still listen on another address.
+    """
+    os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported, and for the processes it starts
+    import ray
+    # Ray reads the switch into a module constant when it is imported; a caller (a notebook, a
+    # test module) may have imported Ray before this ran. The constant is only read when Ray
+    # picks the node address, so setting it here has the effect the environment would have had.
+    from ray._private import ray_constants
+    if getattr(ray_constants, "ENABLE_RAY_CLUSTER", False):
+        ray_constants.ENABLE_RAY_CLUSTER = False
+    # worker_niceness 0: Ray nices its workers (15) by default, which starves a study's runs
+    # behind any normal-priority process on a busy machine; here the tasks are the work
+    ray.init(num_cpus=num_cpus, _temp_dir=temp_dir, include_dashboard=False, _node_ip_address=LOOPBACK,
+             logging_level="ERROR", log_to_driver=False, _system_config={"worker_niceness": 0})
+    node_ip = ray.util.get_node_ip_address()
+    if node_ip != LOOPBACK:
+        ray.shutdown()
+        raise RuntimeError(f"the embedded Ray would listen on {node_ip}, not only on {LOOPBACK}")
 
 
 def disconnect(ray, owned: bool, tmp: str | None) -> None:
