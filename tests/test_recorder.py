@@ -243,6 +243,43 @@ def test_untrusted_channels_record_only_bytes_that_deserialize(tmp_path):
     assert [m.data for m in bag.messages(["/cmd"])] == good
 
 
+def _many_chunks(path, channels: int, chunks: int, pack: bool):
+    """A file of `chunks` chunks over `channels` Float64 channels, written by mcap's Writer (ours packed or not)."""
+    import tracemalloc
+
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    from prsm_ros.mcap.recorder import pack_chunk_indexes
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=1 << 20, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+        packed = pack_chunk_indexes(w) if pack else None
+        assert (packed is not None) == pack
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+        ids = [w.register_channel(f"/t{k}", "cdr", sid, {}) for k in range(channels)]
+        tracemalloc.start()
+        before = tracemalloc.get_traced_memory()[0]
+        for c in range(chunks):
+            for cid in ids:
+                w.add_message(cid, c * 1000 + cid, b"\x00\x01\x00\x00" + bytes(8), c * 1000 + cid)
+            w.flush()
+        retained = tracemalloc.get_traced_memory()[0] - before
+        tracemalloc.stop()
+        w.finish()
+    return retained / chunks
+
+
+def test_chunk_indexes_are_kept_packed_and_the_file_is_unchanged(tmp_path):
+    """Recorder memory per chunk (what grows with realtime recording): the mcap Writer's own
+    ChunkIndex objects are the oracle for the bytes, its unpacked memory for the saving."""
+    channels, chunks = 15, 2000  # the node's channel count; many chunks, as an hour at 20 chunks/s has 72,000
+    plain = _many_chunks(tmp_path / "plain.mcap", channels, chunks, pack=False)
+    packed = _many_chunks(tmp_path / "packed.mcap", channels, chunks, pack=True)
+    assert (tmp_path / "plain.mcap").read_bytes() == (tmp_path / "packed.mcap").read_bytes()
+    record = 9 + 8 * 4 + 4 + 10 * channels + 8 + 4 + len("zstd") + 8 * 2  # a ChunkIndex record (MCAP spec)
+    assert packed < 1.5 * record < plain / 3, (packed, record, plain)
+
+
 def test_unwritable_path_sets_error_and_the_caller_keeps_running(tmp_path):
     from std_msgs.msg import Float64
 

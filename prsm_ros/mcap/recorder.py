@@ -18,6 +18,12 @@ participant sent them) has its CDR bytes checked against the type in the writer 
 that do not deserialize are not written but counted in `messages_malformed`, so a bag holds only
 messages its readers can decode. Every message offered ends up in exactly one of
 `messages_written`, `messages_dropped` and `messages_malformed`.
+
+Memory: the summary (written at the end) needs one chunk index per chunk, kept until then
+(`PackedChunkIndexes`): ~0.25 KB per chunk with the node's 15 channels, so a realtime recording
+with a chunk every FLUSH_INTERVAL_S grows by ~18 MB per hour (~1.4 KB per chunk, ~100 MB per
+hour, as mcap's objects). The alternative, longer chunks, would lose more on SIGKILL; a file
+per hour would bound it, at the cost of one recording in several files.
 """
 
 from __future__ import annotations
@@ -46,6 +52,53 @@ YIELD_S = 5e-5
 MAX_WAKE_S = 0.01
 FLUSH_INTERVAL_S = 0.05  # see McapRecorder: the GIL held by a chunk's index, and the loss on SIGKILL
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
+
+
+class PackedChunkIndexes:
+    """The writer's chunk indexes as the bytes of their summary records, kept until the summary is written.
+
+    The mcap Writer keeps one ChunkIndex object per chunk for the summary: with the node's 15
+    channels and a chunk every FLUSH_INTERVAL_S that is ~1.4 KB of Python objects per chunk,
+    ~100 MB per hour of realtime recording. Serialised at once, as the summary will hold them,
+    a chunk's index is ~60 bytes + 10 per channel (~0.2 KB at 15 channels, ~16 MB per hour at
+    20 chunks/s); the file written is byte for byte the same. The Writer only appends to this
+    and iterates it once in `finish`, writing each item into its summary builder.
+    """
+
+    def __init__(self) -> None:
+        self._data = bytearray()
+        self.count = 0
+
+    def append(self, index) -> None:
+        from mcap.data_stream import RecordBuilder
+        builder = RecordBuilder()
+        index.write(builder)
+        self._data += builder.end()
+        self.count += 1
+
+    @property
+    def nbytes(self) -> int:
+        return len(self._data)
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __iter__(self):
+        yield self  # one item: every record, written in one piece
+
+    def write(self, builder) -> None:
+        builder.write(bytes(self._data))
+
+
+def pack_chunk_indexes(writer) -> PackedChunkIndexes | None:
+    """Make `writer` (mcap.writer.Writer) keep its chunk indexes packed; None when its layout is not the
+    one this was written for (another mcap version), which then keeps its own list."""
+    attr = "_Writer__chunk_indices"
+    if type(getattr(writer, attr, None)) is not list or getattr(writer, attr):
+        return None
+    packed = PackedChunkIndexes()
+    setattr(writer, attr, packed)
+    return packed
 
 
 def package_version() -> str:
@@ -103,6 +156,7 @@ class McapFile:
         try:
             self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD,
                                   index_types=IndexType.ALL)
+            self.chunk_indexes = pack_chunk_indexes(self._writer)
             self._writer.start(profile=mcap_schema.PROFILE, library=f"prsm {package_version()}; {LIBRARY_IDENTIFIER}")
             for name, data in records.items():
                 self._writer.add_metadata(name, data)
