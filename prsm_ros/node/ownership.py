@@ -21,6 +21,13 @@ from dataclasses import dataclass, field
 from prsm_sim.errors import ParamError
 
 PREFIX_BYTES = 12  # RTPS GUID prefix: the participant; the last 4 bytes name the writer
+# The node's reader queue on each command topic (keep last N, whatever depth the interface gives
+# the writers). All writers of a topic share it: with depth 1 a second writer sending ten times
+# faster than the owner replaced the owner's command before the node took it, the watchdog zeroed
+# the torque and ownership lapsed to the flooder. The node drains the queue once per step and
+# decides per message by its writer (a refusal is a counter), so with depth 100 the owner's
+# commands survive a writer up to ~100 messages per step (100 kHz at update_rate 1 kHz).
+COMMAND_QUEUE_DEPTH = 100
 
 
 def participant_of(message_info: dict | None) -> bytes | None:

@@ -1,0 +1,127 @@
+"""Long step requests run on their own thread, in slices, so no request can hold the node.
+
+`~/step` may ask for up to 10,000,000 steps and a lockstep command for up to `lockstep_steps`
+(1,000,000): minutes of work. Run inside the executor, that work would keep every service
+unanswered and SIGTERM unheeded until it ended. Here the work is a `StepJob` handed to one worker
+thread, which runs it in slices of about SLICE_S, taking the node's lock for one slice at a time:
+between slices services answer, commands arrive, and a stop ends the job within one slice.
+
+A request waits for its job up to `wait_or_detach`'s timeout (`~/step`: INLINE_WAIT_S, so work
+of up to a second is answered when done, as before); a job still running then is *detached*: the
+request answers "accepted" at once, and `on_detached_done` runs when the job ends (the node posts
+an event). Jobs run one after another in the order submitted.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+INLINE_WAIT_S = 1.0   # a request's work up to this long is answered when done
+INLINE_STEPS = 1000   # lockstep: a command's steps up to this many run at once in the executor (≲ 0.1 s)
+SLICE_S = 0.01        # work per slice (the node's lock is held that long at most, plus one step)
+STOP_JOIN_S = 1.0
+
+
+@dataclass
+class StepJob:
+    steps: int
+    what: str                      # who asked ("~/step", "lockstep command")
+    done: int = 0                  # steps done so far
+    stopped: str | None = None     # why it ended before `steps` (None: all done, or still running)
+    finished: threading.Event = field(default_factory=threading.Event)
+    detached: bool = False         # its request was answered before it ended
+
+    @property
+    def remaining(self) -> int:
+        return self.steps - self.done
+
+
+class StepJobs:
+    """One worker thread running StepJobs in slices.
+
+    `run_slice(job, n)` does up to `n` steps of `job` (taking whatever lock it needs) and returns
+    how many it did, with a reason as second value when the job must end early (a fault, a
+    resume, a stop). `on_detached_done(job)` runs on the worker thread after a detached job ends.
+    """
+
+    def __init__(self, run_slice: Callable[[StepJob, int], tuple[int, str | None]],
+                 on_detached_done: Callable[[StepJob], None], stop: threading.Event) -> None:
+        self._run_slice = run_slice
+        self._on_detached_done = on_detached_done
+        self._stop = stop
+        self._cond = threading.Condition()
+        self._queue: deque[StepJob] = deque()
+        self._current: StepJob | None = None
+        self._thread: threading.Thread | None = None
+        self._per_slice = 1.0  # steps per slice, adapted to SLICE_S from what the last slice took
+
+    @property
+    def busy(self) -> bool:
+        with self._cond:
+            return self._current is not None or bool(self._queue)
+
+    def submit(self, steps: int, what: str) -> StepJob:
+        job = StepJob(steps, what)
+        with self._cond:
+            self._queue.append(job)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._work, name="prsm-step-jobs", daemon=True)
+                self._thread.start()
+            self._cond.notify()
+        return job
+
+    def wait_or_detach(self, job: StepJob, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` for `job`; True when it ended, else it is detached (False)."""
+        if job.finished.wait(timeout_s):
+            return True
+        with self._cond:
+            if job.finished.is_set():
+                return True
+            job.detached = True
+            return False
+
+    def stop(self, timeout_s: float = STOP_JOIN_S) -> bool:
+        """Wake the worker (the node's stop event is set) and wait for it; True when it ended."""
+        with self._cond:
+            self._cond.notify_all()
+            thread = self._thread
+        if thread is None:
+            return True
+        thread.join(timeout_s)
+        return not thread.is_alive()
+
+    def _work(self) -> None:
+        import time
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop.is_set():
+                    self._cond.wait()
+                if self._stop.is_set():
+                    for job in [*self._queue, *([self._current] if self._current else [])]:
+                        job.stopped = job.stopped or "the node is stopping"
+                        job.finished.set()
+                    self._queue.clear()
+                    return
+                job = self._current = self._queue.popleft()
+            while job.remaining > 0 and job.stopped is None:
+                if self._stop.is_set():
+                    job.stopped = "the node is stopping"
+                    break
+                n = max(1, min(job.remaining, int(self._per_slice)))
+                t0 = time.perf_counter()
+                did, why = self._run_slice(job, n)
+                took = time.perf_counter() - t0
+                job.done += did
+                if did and took > 0:
+                    self._per_slice = min(max(did * SLICE_S / took, 1.0), 1e6)
+                if why is not None or did < n:
+                    job.stopped = why or "stepping stopped"
+            with self._cond:
+                self._current = None
+                job.finished.set()
+                detached = job.detached
+            if detached:
+                self._on_detached_done(job)
