@@ -14,6 +14,7 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | velocity_command       | ~/velocity_command          | std_msgs/Float64 (rad/s)      | in (command_interface velocity) |
 | position_command       | ~/position_command          | std_msgs/Float64 (m)          | in (command_interface position) |
 | inject_fault           | ~/inject_fault              | std_msgs/String ('kind=…,start_s=…') | in (with an actuator) |
+| brake_command          | ~/brake_command             | std_msgs/Bool (true: engage)  | in (with an actuator) |
 | joint_states           | joint_states                | sensor_msgs/JointState        | out (measured, with an actuator) |
 | ground_truth           | ~/ground_truth/joint_states | sensor_msgs/JointState        | out (with an actuator) |
 | wrench                 | ~/nut/wrench                | geometry_msgs/WrenchStamped   | out |
@@ -120,6 +121,8 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("velocity_command", "~/velocity_command", "std_msgs/msg/Float64", qos(1), "in"),
     TopicDef("position_command", "~/position_command", "std_msgs/msg/Float64", qos(1), "in"),
     TopicDef("inject_fault", "~/inject_fault", "std_msgs/msg/String", qos(10), "in"),
+    # the brake, owned like the commands (a service cannot tell who calls it)
+    TopicDef("brake_command", "~/brake_command", "std_msgs/msg/Bool", qos(10), "in"),
     TopicDef("nut_position_reference", "~/nut_position_reference", "std_msgs/msg/Float64", qos(10), "in"),
     # keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no state
     TopicDef("joint_states", "joint_states", "sensor_msgs/msg/JointState", qos(100), "out"),

@@ -19,7 +19,7 @@ from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, TimeReference
-from std_msgs.msg import Float64, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, String
+from std_msgs.msg import Bool, Float64, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout, String
 
 from prsm_sim import InternalLayout
 
@@ -36,7 +36,7 @@ __all__ = ["CLASSES", "LABELS_FORMAT", "NODE_NAME", "NUT_FRAME", "NUT_JOINT", "S
 # The rclpy class of every type the interface uses (the message kit of `MessageBuilder`).
 CLASSES: dict[str, type] = {f"{c.__module__.split('.')[0]}/msg/{c.__name__}": c for c in (
     Time, Header, JointState, Vector3, Wrench, WrenchStamped, MultiArrayDimension, MultiArrayLayout,
-    Float64MultiArray, String, Float64, Clock, DiagnosticArray, TimeReference)}
+    Float64MultiArray, String, Float64, Clock, DiagnosticArray, TimeReference, Bool)}
 
 
 def qos_profile(spec: QosSpec) -> QoSProfile:

@@ -29,7 +29,7 @@ def plugin_command(velocity: float, position: float):
 def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64, String
+    from std_msgs.msg import Bool, Float64, String
     from std_srvs.srv import SetBool
 
     params = {"model": "ideal", "preset": "s30", "time_mode": "lockstep", "lockstep_steps": STEPS,
@@ -45,6 +45,8 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
         cli.publisher("/prsm_actuator/screw_torque", Float64)
         cli.publisher("/prsm_actuator/position_command", Float64)
         cli.publisher("/prsm_actuator/inject_fault", String)
+        cli.publisher("/prsm_actuator/brake_command", Bool)
+        events = cli.subscribe("/prsm_actuator/events", String)
         cli.wait_for_node(proc)
         n = 0
 
@@ -64,7 +66,9 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
         for x in positions:
             send("/prsm_actuator/position_command", Float64(data=x))
         brake = cli.call("/prsm_actuator/brake", SetBool, SetBool.Request(data=True))
-        assert not brake.success and "no brake fitted" in brake.message
+        assert not brake.success and "owned by" in brake.message  # the owner brakes on ~/brake_command
+        cli.publish("/prsm_actuator/brake_command", Bool(data=True))
+        cli.spin_until(lambda: any("no brake fitted" in m.data for m in events), 10.0, "the brake refusal event")
         cli.publish("/prsm_actuator/inject_fault", String(data="kind=jam,value=100"))
         cli.spin_for(0.3)  # the injection is not a command: no step until the next one
         send("/prsm_actuator/position_command", Float64(data=0.001))

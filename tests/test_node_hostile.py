@@ -7,7 +7,8 @@
 - `~/step` of 10,000,000 steps: answered "accepted" at once, services still answer while it
   runs, and SIGTERM ends the node cleanly with the work unfinished (a finished bag). Used to block
   the executor for minutes (no service, no SIGTERM).
-- `~/inject_fault` from a participant that does not own the actuator: refused and reported.
+- `~/inject_fault` and `~/brake_command` from a participant that does not own the actuator:
+  refused and reported once; the `~/brake` service refuses while the actuator is owned.
 
 Oracles: what each writer sent (counted by the test), the node's /diagnostics counters, its
 `~/events`, and the bag read back. Waits are on events with generous ceilings; the node's CPU
@@ -179,8 +180,9 @@ def test_a_10_million_step_request_is_accepted_and_sigterm_still_ends_the_node(t
     assert 0 < b.topics["/joint_states"].count < 10_000_000
 
 
-def test_a_fault_from_a_participant_that_does_not_own_the_actuator_is_refused(tmp_path):
-    from std_msgs.msg import Float64, String
+def test_a_fault_or_brake_from_a_participant_that_does_not_own_the_actuator_is_refused(tmp_path):
+    from std_msgs.msg import Bool, Float64, String
+    from std_srvs.srv import SetBool
     from sensor_msgs.msg import JointState
 
     params = {"time_mode": "lockstep", "record": False, "cmd_timeout": 0.0, "ownership_timeout": 0.0,
@@ -191,6 +193,7 @@ def test_a_fault_from_a_participant_that_does_not_own_the_actuator_is_refused(tm
         events = a.subscribe("/prsm_actuator/events", String)
         a.publisher(TORQUE, Float64)
         b.publisher("/prsm_actuator/inject_fault", String)
+        b.publisher("/prsm_actuator/brake_command", Bool)
         a.wait_for_node(proc, timeout=60.0)
         b.wait_for_node(proc, timeout=60.0)
         a.publish(TORQUE, Float64(data=0.5))
@@ -201,4 +204,10 @@ def test_a_fault_from_a_participant_that_does_not_own_the_actuator_is_refused(tm
                      "the refused fault reported")
         assert len([e for e in _events(events) if e["code"] == "fault_not_owner"]) == 1
         assert not [e for e in _events(events) if e["source"] != "refusals"]  # no fault started
+        # the brake: owned on its topic; the service (whose caller rclpy does not name) refuses while owned
+        b.publish("/prsm_actuator/brake_command", Bool(data=True))
+        a.spin_until(lambda: any(e["code"] == "brake_not_owner" for e in _events(events)), 30.0,
+                     "the refused brake reported")
+        res = b.call("/prsm_actuator/brake", SetBool, SetBool.Request(data=True))
+        assert not res.success and "owned by" in res.message
         assert proc.stop(signal.SIGINT) == 0, proc.stderr

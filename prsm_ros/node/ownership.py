@@ -91,6 +91,13 @@ class CommandOwnership:
         return (f"command from participant {name} refused: the actuator is owned by {participant_name(self.owner)} "
                 "(until it calls ~/release_control or stays quiet for the ownership timeout)")
 
+    def owner_now(self) -> bytes | None:
+        """The owner at this moment (after a lapse is applied); None when nobody owns or ownership is off."""
+        if not self.enabled:
+            return None
+        self._lapse_if_quiet(self._clock())
+        return self.owner
+
     def accepted(self, participant: bytes | None) -> None:
         """A valid command from an admitted participant: it owns (or keeps) the actuator."""
         if not self.enabled:
