@@ -200,13 +200,13 @@ def test_a_fault_or_brake_from_a_participant_that_does_not_own_the_actuator_is_r
         a.spin_until(lambda: len(js) == 1, 30.0, "the owner's first state")
         for _ in range(3):
             b.publish("/prsm_actuator/inject_fault", String(data="kind=drive_fault,start_s=0"))
-        a.spin_until(lambda: any(e["code"] == "fault_not_owner" for e in _events(events)), 30.0,
+        a.spin_until(lambda: any(e["code"] == "inject_fault_not_owner" for e in _events(events)), 30.0,
                      "the refused fault reported")
-        assert len([e for e in _events(events) if e["code"] == "fault_not_owner"]) == 1
+        assert len([e for e in _events(events) if e["code"] == "inject_fault_not_owner"]) == 1
         assert not [e for e in _events(events) if e["source"] != "refusals"]  # no fault started
         # the brake: owned on its topic; the service (whose caller rclpy does not name) refuses while owned
         b.publish("/prsm_actuator/brake_command", Bool(data=True))
-        a.spin_until(lambda: any(e["code"] == "brake_not_owner" for e in _events(events)), 30.0,
+        a.spin_until(lambda: any(e["code"] == "brake_command_not_owner" for e in _events(events)), 30.0,
                      "the refused brake reported")
         res = b.call("/prsm_actuator/brake", SetBool, SetBool.Request(data=True))
         assert not res.success and "owned by" in res.message

@@ -39,6 +39,23 @@ class StepJob:
         return self.steps - self.done
 
 
+def answer(job: StepJob, ended: bool, time_s: float) -> tuple[bool, str]:
+    """(success, message) for the request that submitted `job`; `ended`: it ended before the answer."""
+    if not ended:
+        return True, (f"accepted: {job.steps} steps run in the background ({job.done} done so far); "
+                      "~/events reports step_done when they end")
+    return job.stopped is None, (f"stepped {job.done} of {job.steps} steps to t = {time_s:.6f} s"
+                                 + (f" ({job.stopped})" if job.stopped else ""))
+
+
+def done_event(job: StepJob, time_s: float) -> dict:
+    """The `~/events` entry (severity, code, message, details) for a detached job that has ended."""
+    return {"severity": "info" if job.stopped is None else "warn", "code": "step_done",
+            "message": (f"{job.what}: {job.done} of {job.steps} steps done at t = {time_s:.6f} s"
+                        + (f" ({job.stopped})" if job.stopped else "")),
+            "details": {"steps": job.steps, "done": job.done, "stopped": job.stopped or ""}}
+
+
 class StepJobs:
     """One worker thread running StepJobs in slices.
 
