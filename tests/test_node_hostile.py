@@ -180,6 +180,24 @@ def test_a_10_million_step_request_is_accepted_and_sigterm_still_ends_the_node(t
     assert 0 < b.topics["/joint_states"].count < 10_000_000
 
 
+def test_a_lockstep_command_of_a_million_steps_leaves_the_node_responsive(tmp_path):
+    """lockstep_steps at its maximum: the command's steps run in slices; services answer, SIGTERM ends the node."""
+    from std_msgs.msg import Float64
+    from std_srvs.srv import SetBool, Trigger
+
+    params = {"time_mode": "lockstep", "lockstep_steps": 1_000_000, "record": False, "cmd_timeout": 0.0}
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        cli.publisher(TORQUE, Float64)
+        cli.wait_for_node(proc, timeout=60.0)
+        cli.publish(TORQUE, Float64(data=0.5))
+        res = cli.call("/prsm_actuator/release_control", Trigger, timeout=30.0)
+        assert res.success and res.message.startswith("released by")  # the command was taken, the node answers
+        res = cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True), timeout=30.0)
+        t_s = float(res.message.split("t = ")[1].split(" s")[0])
+        assert res.success and t_s < 1000.0  # answered before the command's 10^6 steps of 1 ms (to 1000 s) were done
+        assert proc.stop(signal.SIGTERM) == 0, proc.stderr
+
+
 def test_a_fault_or_brake_from_a_participant_that_does_not_own_the_actuator_is_refused(tmp_path):
     from std_msgs.msg import Bool, Float64, String
     from std_srvs.srv import SetBool

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 INLINE_WAIT_S = 1.0   # a request's work up to this long is answered when done
+STEP_REQUEST = "~/step"  # StepJob.what of a ~/step request (it runs while paused; lockstep jobs while not)
 INLINE_STEPS = 1000   # lockstep: a command's steps up to this many run at once in the executor (≲ 0.1 s)
 SLICE_S = 0.01        # work per slice (the node's lock is held that long at most, plus one step)
 STOP_JOIN_S = 1.0
