@@ -83,18 +83,23 @@ def huge_lengths(base: Path, out: Path) -> Path:
     return out
 
 
-def foreign_joint_states(out: Path, definition: bytes) -> Path:
-    """/joint_states whose schema says sensor_msgs/msg/JointState but whose definition is `definition`."""
+def beside_screw_torque(out: Path, topic: str, schema_name: str, definition: bytes, n: int = 20) -> Path:
+    """`topic` with schema `schema_name` / `definition` and Float64 bytes, beside a good ~/screw_torque (n each)."""
     f, w = _writer(out)
-    sid = w.register_schema("sensor_msgs/msg/JointState", "ros2msg", definition)
-    cid = w.register_channel("/joint_states", "cdr", sid, {})
+    sid = w.register_schema(schema_name, "ros2msg", definition)
+    cid = w.register_channel(topic, "cdr", sid, {})
     tq = _float64_channel(w, SCREW_TORQUE)
-    for k in range(20):
+    for k in range(n):
         w.add_message(cid, k * 10_000_000, FLOAT64_CDR, k * 10_000_000)
         w.add_message(tq, k * 10_000_000, FLOAT64_CDR, k * 10_000_000)
     w.finish()
     f.close()
     return out
+
+
+def foreign_joint_states(out: Path, definition: bytes) -> Path:
+    """/joint_states whose schema says sensor_msgs/msg/JointState but whose definition is `definition`."""
+    return beside_screw_torque(out, "/joint_states", "sensor_msgs/msg/JointState", definition)
 
 
 def wrong_schema(out: Path) -> Path:
@@ -161,16 +166,7 @@ def malformed_messages(out: Path) -> Path:
 
 def evil_schema(out: Path) -> Path:
     """A topic whose schema names the package `evilmod` (play used to import `evilmod.msg`)."""
-    f, w = _writer(out)
-    sid = w.register_schema("evilmod/msg/Evil", "ros2msg", b"float64 data")
-    cid = w.register_channel("/evil", "cdr", sid, {})
-    tq = _float64_channel(w, SCREW_TORQUE)
-    for k in range(5):
-        w.add_message(cid, k * 1000, FLOAT64_CDR, k * 1000)
-        w.add_message(tq, k * 1000, FLOAT64_CDR, k * 1000)
-    w.finish()
-    f.close()
-    return out
+    return beside_screw_torque(out, "/evil", "evilmod/msg/Evil", b"float64 data", n=5)
 
 
 def evil_module(folder: Path) -> Path:
