@@ -133,7 +133,7 @@ def test_a_10_khz_second_writer_cannot_take_the_actuator_from_its_owner(tmp_path
         during = js[js_before:]
         print(f"\nnode CPU over 2 s: {cpu_quiet:.2f} s with the owner alone, {cpu_flood:.2f} s while draining "
               f"{flood_sent} flood commands ({flood_sent / 2.0 / 1000:.1f} kHz from the flooder's count)")
-        assert flood_sent >= 0.5 * FLOOD_HZ * 2.0, "the flooder did not flood"  # a loaded machine may send fewer
+        assert flood_sent >= 0.3 * FLOOD_HZ * 2.0, "the flooder did not flood"  # a loaded machine may send fewer
         assert v["command_owner"] == owner_name and v["ownership_lapses"] == "0"
         assert v["timeouts"] == "0" and v["timed_out"] == "False"
         assert all(m.effort[0] == 0.5 for m in during) and len(during) > 50
@@ -182,16 +182,19 @@ def test_a_10_million_step_request_is_accepted_and_sigterm_still_ends_the_node(t
 
 def test_a_lockstep_command_of_a_million_steps_leaves_the_node_responsive(tmp_path):
     """lockstep_steps at its maximum: the command's steps run in slices; services answer, SIGTERM ends the node."""
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
     from std_srvs.srv import SetBool, Trigger
 
     params = {"time_mode": "lockstep", "lockstep_steps": 1_000_000, "record": False, "cmd_timeout": 0.0}
     with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        js = cli.subscribe("/joint_states", JointState)
         cli.publisher(TORQUE, Float64)
         cli.wait_for_node(proc, timeout=60.0)
         cli.publish(TORQUE, Float64(data=0.5))
+        cli.spin_until(lambda: len(js) > 0, 30.0, "the command's steps under way")
         res = cli.call("/prsm_actuator/release_control", Trigger, timeout=30.0)
-        assert res.success and res.message.startswith("released by")  # the command was taken, the node answers
+        assert res.success and res.message.startswith("released by")  # the node answers while it steps
         res = cli.call("/prsm_actuator/pause", SetBool, SetBool.Request(data=True), timeout=30.0)
         t_s = float(res.message.split("t = ")[1].split(" s")[0])
         assert res.success and t_s < 1000.0  # answered before the command's 10^6 steps of 1 ms (to 1000 s) were done
