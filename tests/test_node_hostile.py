@@ -26,6 +26,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
@@ -72,6 +73,7 @@ def _events(msgs) -> list[dict]:
     return [json.loads(m.data) for m in msgs]
 
 
+@pytest.mark.slow  # a flooder process, 5 s of commands
 def test_a_10_khz_second_writer_cannot_take_the_actuator_from_its_owner(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState

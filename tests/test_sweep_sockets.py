@@ -14,6 +14,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 CHILD = textwrap.dedent("""
@@ -57,6 +59,7 @@ CHILD = textwrap.dedent("""
 LOOPBACK = ("127.", "::1", "::ffff:127.")
 
 
+@pytest.mark.slow  # starts Ray in a child process
 def test_an_embedded_study_listens_on_loopback_only(tmp_path):
     res = subprocess.run([sys.executable, "-c", CHILD, str(tmp_path / "out")], capture_output=True, text=True,
                          timeout=300, cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)})
