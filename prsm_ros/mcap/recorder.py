@@ -6,7 +6,7 @@ by default; `prsm_ros.mcap.codec` for writing without ROS), `offered_qos_profile
 with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
 metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
 
-`McapRecorder` is what the node uses (DESIGN.md: the recorder never runs on the step path): the
+`McapRecorder` is what the node uses (the recorder never runs on the step path): the
 caller only appends `(channel, message, stamp)` to a bounded queue; a background thread serializes,
 writes, and flushes a finished chunk at least every `flush_interval_s`, so a killed process loses
 at most that much. An unwritable path or a full disk sets `.error`, stops recording and counts
@@ -45,7 +45,7 @@ DEFAULT_CHUNK_SIZE = 1 << 20  # bytes before compression; a flush usually closes
 # writer sleeps for real after each slice of work: the step loop then waits at most one slice.
 WORK_SLICE_S = 2e-4
 YIELD_S = 5e-5
-# The writer thread's sleep between drains (`_run`). Longer sleeps save wake-ups (issue 15, the node's six
+# The writer thread's sleep between drains (`_run`). Longer sleeps save wake-ups (the node's six
 # messages a step at 1 kHz: writer thread 9.5 % of a core waking every 10 ms, 7.5-7.9 % every 50 ms) but
 # each drain is then a burst of ~3 ms of writes that competes with the step loop and the controller: the
 # bench's command-to-state latency p99 went from 1.9-3.2 ms to 4.4-6.6 ms, so latency wins.
@@ -243,7 +243,7 @@ class McapRecorder:
     each chunk's finishing work: its message index is built in Python (about 1 µs per message,
     more on a busy machine) holding the GIL, so the node's step thread waits for it. At the
     node's ~6,000 messages/s a 0.25 s chunk holds it for 1.5 ms or more, a 0.05 s chunk about
-    0.3 ms, for one chunk record and index entry more per 50 ms (issue 15; interleaved runs on a
+    0.3 ms, for one chunk record and index entry more per 50 ms (interleaved runs on a
     busy machine, command-to-state latency p99: 1.46–1.79 ms with 0.25 s, 1.15–1.89 ms with
     0.05 s, 0.88 ms unrecorded; batch throughput a few per cent lower, within the run-to-run spread).
     """
