@@ -70,13 +70,16 @@ from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage
 from prsm_ros.node.diagnostics import (FAULT_LOG_LENGTH, Report, energy_fault_event, fault_event_details,
                                        fault_event_line, fault_event_report, simulation_report)
-from prsm_ros.node.ownership import CommandOwnership, participant_of
+from prsm_ros.node.owned_inputs import OWNED_INPUTS
+from prsm_ros.node.ownership import COMMAND_QUEUE_DEPTH, CommandOwnership, participant_name, participant_of
+from prsm_ros.node.refusals import Refusals, short
 from prsm_ros.node.scheduling import raise_process_threads
 from prsm_ros.node.sinks import open_sinks
-from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns
+from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns, with_depth
 from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, params_template, runtime_change
 from prsm_ros.node.joint_commands import offer_joint_command
 from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
+from prsm_ros.node.step_jobs import INLINE_STEPS, INLINE_WAIT_S, STEP_REQUEST, StepJobs, answer, done_event
 
 # diagnostics.OK, WARN, ERROR as DiagnosticStatus levels
 DIAGNOSTIC_LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
@@ -92,6 +95,8 @@ REALTIME_SWITCH_INTERVAL_S = 1e-4  # GIL hand-over bound in realtime mode (Pytho
 STEP_THREAD_STOP_S = 5.0  # a step in progress (a stiff model step) finishes well within this
 RECORDER_CLOSE_S = 5.0  # the queue (at most queue_size messages) and the summary; a stalled disk gives up
 RERUN_CLOSE_S = 5.0
+PAUSED_POLL_S = 0.05  # paused: wall time between two takes of the commands waiting
+PAUSED_POLL_BUSY_S = 0.005  # ... when the last take found some (COMMAND_QUEUE_DEPTH at 10 kHz is 10 ms)
 READER_COUNT_EVERY = 50  # steps between two counts of the per-step topics' matched readers (module doc)
 # the command topics and the interface each commands (joint_commands: the active one; the reference is only recorded)
 COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "position_command": "position",
@@ -143,7 +148,7 @@ class PrsmNode(Node):
         self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
         if cfg.time_mode == "realtime":
             self._prepare_realtime()
-        channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile)
+        channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile, k in self.sub)
                     for k, name in self._topic_names.items()}
         self.recorder, self.rerun = open_sinks(cfg, self.get_fully_qualified_name(), channels, self.session.layout)
 
@@ -166,6 +171,8 @@ class PrsmNode(Node):
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
 
         self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
+        self.refusals = Refusals()
+        self.jobs = StepJobs(self._step_slice, self._step_job_done, self._stop)
         if cfg.time_mode != "lockstep":
             self._thread = threading.Thread(target=self._loop, name="prsm-step-loop", daemon=True)
             self._thread.start()
@@ -192,13 +199,17 @@ class PrsmNode(Node):
             # delivers them because a command is what advances time
             polled = cfg.time_mode != "lockstep"
             group = PolledGroup() if polled else None
+            # every input is decided per writer: a reader queue deep enough that a fast writer cannot push
+            # the owner's messages out between two takes (ownership.COMMAND_QUEUE_DEPTH)
             self.sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k),
-                                                    functools.partial(self._on_command_message, k), TOPICS[k].qos,
+                                                    functools.partial(self._on_command_message, k),
+                                                    with_depth(TOPICS[k].qos, COMMAND_QUEUE_DEPTH),
                                                     qos_overriding_options=qos_opts(), raw=True, callback_group=group)
                         for k in COMMAND_TOPICS}
-            self.sub["inject_fault"] = self.create_subscription(
-                TOPICS["inject_fault"].msg_class, self._topic("inject_fault"), self._on_inject_fault,
-                TOPICS["inject_fault"].qos, qos_overriding_options=qos_opts())
+            for k in OWNED_INPUTS:
+                self.sub[k] = self.create_subscription(
+                    TOPICS[k].msg_class, self._topic(k), functools.partial(self._on_owned_input, k),
+                    with_depth(TOPICS[k].qos, COMMAND_QUEUE_DEPTH), qos_overriding_options=qos_opts())
         except (InvalidQosOverridesError, ParameterException) as e:
             raise ConfigError(f"QoS override: {e}") from None
         self.poller = CommandPoller()
@@ -307,58 +318,75 @@ class PrsmNode(Node):
     def _on_command(self, key: str, raw: bytes, info: dict) -> None:
         """Lock held: one command message as CDR bytes, from the executor (lockstep) or the step thread's poll.
 
-        Recorded as received; refused when another participant owns the actuator (counted, and in
-        lockstep it does not advance time); else offered to the gate, and an accepted command makes
-        its sender the owner and is echoed with the step that applies it (every command topic).
+        Refused when another participant owns the actuator (counted, not recorded, and in lockstep
+        it does not advance time: a flood from another writer costs a counter per message); else
+        recorded when it decodes and offered to the gate, and an accepted command makes its sender
+        the owner and is echoed with the step that applies it (every command topic). A reference
+        is recorded only (from the owner, or from anyone while nobody owns the actuator).
         """
-        self._record(key, raw)
-        if key == "nut_position_reference":
-            return
         who = participant_of(info)
         reason = self.ownership.admit(who)
         if reason is not None:
-            self._warn_throttled("ownership", f"{self._topic_names[key]}: {reason}")
+            self._refused(who, "not_owner", f"{self._topic_names[key]}: {reason}")
             return
-        reason, header_ns = self._offer(key, raw)
+        if key == "nut_position_reference":
+            self._record(key, raw)
+            return
+        reason, header_ns, malformed = self._offer(key, raw)
+        if malformed:  # not this type's CDR: kept out of the bag
+            self._refused(who, f"{key}_malformed", f"{self._topic_names[key]}: {reason}")
+            return
+        self._record(key, raw)
         if reason is None:
             self.ownership.accepted(who)
             self.echo.offer(stamp_of(header_ns, info.get("source_timestamp")), self._topic_names[key])
+        else:
+            self._refused(who, f"{key}_refused", f"{self._topic_names[key]}: {reason}")
         self._after_command(key, reason)
 
-    def _offer(self, key: str, raw: bytes) -> tuple[str | None, int | None]:
-        """A command's CDR bytes to the session: (the reason it was refused or None, a JointState's header stamp ns)."""
+    def _refused(self, who: bytes | None, code: str, text: str) -> None:
+        """Lock held: count a refusal (refusals); the first of a writer for a reason is logged and put on ~/events."""
+        writer = participant_name(who)
+        if self.refusals.refuse(writer, code):
+            text = short(text)
+            self.get_logger().warning(f"{text} (further refusals of this kind from {writer} are only counted "
+                                      "on /diagnostics)")
+            self._publish(self.pub["events"], "events", event_message(
+                self.session.time_s, "refusals", "warn", code, text, {"writer": writer}))
+
+    def _offer(self, key: str, raw: bytes) -> tuple[str | None, int | None, bool]:
+        """A command's CDR bytes to the session: (the reason it was refused or None, a JointState's header
+        stamp ns, whether the bytes were malformed)."""
         try:
             if key != "joint_commands":
-                return self.session.offer(COMMAND_TOPICS[key], _float64(raw)), None
+                return self.session.offer(COMMAND_TOPICS[key], _float64(raw)), None, False
             msg = deserialize_message(raw, JointState)
             arrays = {"position": msg.position, "velocity": msg.velocity, "effort": msg.effort}
             return (offer_joint_command(self.session, msg.name, arrays),
-                    msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+                    msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, False)
         except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
             return self.session.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
-                                                 f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})"), None
+                                                 f"{TOPICS[key].msg_class.__name__} ({type(e).__name__}: {e})"), None, True
 
-    def _on_inject_fault(self, msg) -> None:
-        """A fault spec 'kind=…,start_s=…,duration_s=…,value=…' (start_s in simulation time; omitted: now)."""
-        from prsm_sim.actuator import parse_fault
+    def _on_owned_input(self, key: str, msg, info) -> None:
+        """~/inject_fault, ~/brake_command (owned_inputs): from the owner, or anyone while nobody owns the actuator."""
         with self._lock:
-            self._record("inject_fault", msg)
-            text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={self.session.time_s!r}"
-            try:
-                reason = self.session.inject(parse_fault(text))
-            except PrsmError as e:
-                reason = str(e)
+            who = participant_of(info)
+            reason, code = self.ownership.admit(who), f"{key}_not_owner"
+            if reason is None:
+                self._record(key, msg)
+                reason, code = OWNED_INPUTS[key](self.session, msg), f"{key}_refused"
             if reason is not None:
-                self._warn_throttled("inject_fault", f"{self._topic_names['inject_fault']}: {reason}")
-            else:
-                self.get_logger().info(f"fault scheduled: {msg.data}")
+                self._refused(who, code, f"{self._topic_names[key]}: {reason}")
 
     def _after_command(self, key: str, reason: str | None) -> None:
-        """Called with the lock held: warn (throttled per topic) about a refused command; step in lockstep."""
-        if reason is not None:
-            self._warn_throttled(key, f"{self._topic_names[key]}: {reason}")
+        """Called with the lock held after a command: step in lockstep (a long request on the jobs thread)."""
         if self.config.time_mode == "lockstep" and not self.session.paused and not self._stop.is_set():
-            self._advance(self.config.lockstep_steps, publish_last_state=True)
+            n = self.config.lockstep_steps
+            if n <= INLINE_STEPS and not self.jobs.busy:
+                self._advance(n, publish_last_state=True)
+            else:  # more than a moment of work: on the jobs thread, in slices (step_jobs)
+                self.jobs.submit(n, "lockstep command")
 
     def _warn_throttled(self, key: str, text: str) -> None:
         now = time.monotonic()
@@ -499,10 +527,12 @@ class PrsmNode(Node):
         """Paused or faulted: commands still count, own and reach the bag while nothing steps."""
         try:
             with self._lock:
-                self.poller.sweep()
+                taken = self.poller.sweep()
         except Exception as e:  # a bug: logged, never the end of the step thread
+            taken = 0
             self._warn_throttled("poll", f"taking commands failed: {type(e).__name__}: {e}")
-        self._resumed.wait(0.05)
+        # commands waiting: come back before a flood can overrun the reader queue (COMMAND_QUEUE_DEPTH)
+        self._resumed.wait(PAUSED_POLL_BUSY_S if taken else PAUSED_POLL_S)
 
     def _wait_for_recorder(self) -> None:
         """`fast` mode has no deadline to keep: when the bag writer falls behind (a busy machine),
@@ -527,17 +557,36 @@ class PrsmNode(Node):
         return response
 
     def _srv_step(self, request, response):
+        """`step_count` steps on the jobs thread: answered when done within INLINE_WAIT_S, else "accepted"
+        at once and a `step_done` event when they end (step_jobs)."""
         with self._lock:
-            n = self.config.step_count
-            if not self.session.paused:
-                response.success, response.message = False, "not paused: ~/step works only while paused (call ~/pause true first)"
-            elif self.session.fault is not None:
-                response.success, response.message = False, f"faulted: {self.session.fault}"
-            else:
-                done = self._advance(n, publish_last_state=True)
-                response.success = done == n
-                response.message = f"stepped {done} of {n} steps to t = {self.session.time_s:.6f} s"
+            refused = ("not paused: ~/step works only while paused (call ~/pause true first)" if not self.session.paused
+                       else f"faulted: {self.session.fault}" if self.session.fault is not None
+                       else "a step request is still running (~/events reports step_done)" if self.jobs.busy else None)
+            if refused:
+                response.success, response.message = False, refused
+                return response
+            job = self.jobs.submit(self.config.step_count, STEP_REQUEST)
+        response.success, response.message = answer(job, self.jobs.wait_or_detach(job, INLINE_WAIT_S),
+                                                     self.session.time_s)
         return response
+
+    def _step_slice(self, job, n: int) -> tuple[int, str | None]:
+        """Jobs thread: up to `n` steps of `job` under the lock (the state published after the last)."""
+        with self._lock:
+            if self._stop.is_set():
+                return 0, "the node is stopping"
+            if (job.what == STEP_REQUEST) != self.session.paused:  # ~/step runs while paused, lockstep while not
+                return 0, f"{'resumed' if job.what == STEP_REQUEST else 'paused'} before the steps were done"
+            if self.session.fault is not None:
+                return 0, f"faulted: {self.session.fault}"
+            return self._advance(n, publish_last_state=n == job.remaining), None
+
+    def _step_job_done(self, job) -> None:
+        """Jobs thread: a request answered "accepted" has ended: an event says how."""
+        with self._lock:
+            msg = event_message(self.session.time_s, "step", **done_event(job, self.session.time_s))
+            self._publish(self.pub["events"], "events", msg)
 
     def _srv_reset(self, request, response):
         with self._lock:
@@ -560,7 +609,15 @@ class PrsmNode(Node):
         return response
 
     def _srv_brake(self, request, response):
+        """The brake by service, while nobody owns the actuator: rclpy does not say who calls a
+        service, so an owned actuator brakes through ~/brake_command from its owner."""
         with self._lock:
+            owner = self.ownership.owner_now()
+            if owner is not None:
+                response.success = False
+                response.message = (f"the actuator is owned by {participant_name(owner)}: its owner engages the "
+                                    f"brake on {self._topic_names['brake_command']} (std_msgs/Bool)")
+                return response
             reason = self.session.brake(bool(request.data))
             response.success = reason is None
             response.message = reason or (f"brake {'engaging' if request.data else 'releasing'} "
@@ -618,7 +675,7 @@ class PrsmNode(Node):
             # rclpy does not report what a reliable writer discards for a slow reader: readers count
             # gaps in the state stamps; the node can say how many there are
             "joint_states_readers": self.pub["joint_states"].get_subscription_count(),
-            **self.ownership.diagnostics(), **self.echo.report(),
+            **self.ownership.diagnostics(), **self.refusals.diagnostics(), **self.echo.report(),
         }
         self._step_wall_max_s = 0.0
         problems = []
@@ -649,6 +706,9 @@ class PrsmNode(Node):
         """
         self._stop.set()
         self._resumed.set()
+        jobs = getattr(self, "jobs", None)  # absent when set-up failed before it
+        if jobs is not None and not jobs.stop():
+            self.get_logger().error("the step-jobs thread did not stop within its slice")
         if self._thread is not None:
             self._thread.join(timeout=STEP_THREAD_STOP_S)
             if self._thread.is_alive():

@@ -41,8 +41,8 @@ def open_recorder(cfg: NodeConfig, node_name: str, channels: dict):
     if rec.error:
         rec.close()
         raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {rec.error}")
-    for name, (msg_class, qos) in channels.items():
-        rec.add_channel(name, msg_class, qos)
+    for name, (msg_class, qos, untrusted) in channels.items():  # untrusted: bytes from other participants
+        rec.add_channel(name, msg_class, qos, untrusted=untrusted)
     return rec
 
 
