@@ -40,7 +40,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_sim",),
     # prsm_ros: all I/O
     ("prsm_ros.interface", "prsm_ros.cdr_read", "prsm_ros.ros_env", "prsm_ros.json_out",
-     "prsm_ros.param_files"),  # the ROS interface as plain data, CDR reading, JSON, parameter files
+     "prsm_ros.param_files", "prsm_ros.limits"),  # the ROS interface as plain data, CDR reading, JSON, parameter files, input limits
     ("prsm_ros.cdr_write",),  # per-step messages as CDR bytes (rclpy)
     ("prsm_ros.messages",),  # the interface bound to rclpy
     ("prsm_ros.mcap",),  # MCAP schema, codec, recorder, offline runs

@@ -7,13 +7,11 @@ types it embeds) is compared, field by field (name, base type, array or not), wi
 definition of the same name: the rosbags typestore's (the `bag` extra), else the installed ROS
 packages'. With neither available the schema is taken as it is.
 
-Only the schema text is parsed (mcap_ros2's rosidl parser); nothing named by it is imported.
+Only the schema text is parsed (field lines, here); nothing named by it is imported.
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
 import re
 from functools import lru_cache
 
@@ -23,6 +21,9 @@ CDR = "cdr"
 ROS2MSG = "ros2msg"
 _DELIMITER = re.compile(r"^=+[ \t\r]*$", re.M)
 _MSG_LINE = re.compile(r"^\s*MSG:\s*(\S+)")
+# TYPE[<=N][ARRAY] NAME[ DEFAULT | =VALUE]: the field and constant lines of the .msg language (rosidl)
+_FIELD = re.compile(r"(?P<type>[A-Za-z][A-Za-z0-9_]*(?:/[A-Za-z][A-Za-z0-9_]*)?)(?:<=\d+)?"
+                    r"(?P<array>\[(?:<=)?\d*\])?\s+(?P<name>[A-Za-z][A-Za-z0-9_]*)(?P<rest>\s*=.*|\s+.*|)")
 MAX_SCHEMA_BYTES = 1 << 20  # a definition with its dependencies is a few KB
 
 
@@ -48,15 +49,24 @@ def sections(name: str, text: str) -> dict[str, str]:
 
 
 def signature(name: str, text: str) -> tuple:
-    """(field name, base type, is array) of each field of one definition; ValueError if it does not parse."""
-    from mcap_ros2._vendor.rosidl_adapter.parser import parse_message_string
-    pkg, typ = _split(name)
-    try:
-        with contextlib.redirect_stderr(io.StringIO()):  # the parser also prints each error
-            spec = parse_message_string(pkg, typ, text)
-    except Exception as e:  # the vendored rosidl parser raises a dozen exception types on bad text
-        raise ValueError(f"{type(e).__name__}") from None
-    return tuple((f.name, f.type.type, bool(f.type.is_array)) for f in spec.fields)
+    """(field name, base type, is array) of each field of one `.msg` definition; ValueError naming the
+    first line that is neither a field, a constant, a comment nor blank.
+
+    The base type drops the package (`std_msgs/Header` and a package-relative `Header` are the same
+    type), string bounds and array sizes; constants are not fields.
+    """
+    fields = []
+    for number, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        m = _FIELD.fullmatch(line)
+        if m is None:
+            raise ValueError(f"line {number} is not a field")
+        if m.group("rest").startswith("="):  # a constant: NAME=VALUE
+            continue
+        fields.append((m.group("name"), m.group("type").rsplit("/", 1)[-1], m.group("array") is not None))
+    return tuple(fields)
 
 
 @lru_cache(maxsize=None)

@@ -164,12 +164,6 @@ def start_embedded(num_cpus: int, temp_dir: str) -> None:
     """
     os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported, and for the processes it starts
     import ray
-    # Ray reads the switch into a module constant when it is imported; a caller (a notebook, a
-    # test module) may have imported Ray before this ran. The constant is only read when Ray
-    # picks the node address, so setting it here has the effect the environment would have had.
-    from ray._private import ray_constants
-    if getattr(ray_constants, "ENABLE_RAY_CLUSTER", False):
-        ray_constants.ENABLE_RAY_CLUSTER = False
     # worker_niceness 0: Ray nices its workers (15) by default, which starves a study's runs
     # behind any normal-priority process on a busy machine; here the tasks are the work
     ray.init(num_cpus=num_cpus, _temp_dir=temp_dir, include_dashboard=False, _node_ip_address=LOOPBACK,
@@ -177,7 +171,10 @@ def start_embedded(num_cpus: int, temp_dir: str) -> None:
     node_ip = ray.util.get_node_ip_address()
     if node_ip != LOOPBACK:
         ray.shutdown()
-        raise RuntimeError(f"the embedded Ray would listen on {node_ip}, not only on {LOOPBACK}")
+        # Ray reads the switch when it is imported: a caller (a notebook) imported it before this ran
+        raise RuntimeError(f"the embedded Ray would listen on {node_ip}, not only on {LOOPBACK}: set "
+                           f"{', '.join(f'{k}={v}' for k, v in LOCAL_ONLY_ENV.items())} in the environment "
+                           "before Ray is imported")
 
 
 def disconnect(ray, owned: bool, tmp: str | None) -> None:
