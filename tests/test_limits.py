@@ -26,13 +26,13 @@ def _sim(capsys, *args):
 
 
 def _sweep(capsys, *args):
-    from prsm_ros.sweep.cli import main
+    from prsm_ros.cli.sweep import main
     rc = main([str(a) for a in args])
     return rc, capsys.readouterr().err
 
 
 def _bag(capsys, *args):
-    from prsm_ros.bag.cli import main
+    from prsm_ros.cli.bag import main
     rc = main([str(a) for a in args])
     return rc, capsys.readouterr().err
 
@@ -103,9 +103,9 @@ def test_export_resampling_and_time_windows_are_bounded(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, expected", [
-    (["prsm_ros.bag.cli", "info", "{fifo}"], "a FIFO, not an MCAP file"),
+    (["prsm_ros.cli.bag", "info", "{fifo}"], "a FIFO, not an MCAP file"),
     (["prsm_ros.cli.sim", "params", "--params", "{fifo}"], "a FIFO, not a parameter file"),
-    (["prsm_ros.sweep.cli", "run", "{fifo}", "-o", "out"], "a FIFO, not a study file"),
+    (["prsm_ros.cli.sweep", "run", "{fifo}", "-o", "out"], "a FIFO, not a study file"),
 ])
 def test_a_fifo_is_refused_not_waited_on(tmp_path, argv, expected):
     fifo = tmp_path / "f.mcap"
