@@ -31,8 +31,14 @@ publishes (a controller waits for each state).
 
 Services (std_srvs): `~/pause` (SetBool: true pauses, false resumes), `~/step` (Trigger: advances
 `step_count` steps, only while paused — std_srvs has no integer request, so the count is a
-parameter), `~/reset` (Trigger: time zero, at rest at `initial_nut_position`, command and counters
-cleared, fault cleared). SIGINT and SIGTERM stop the node cleanly (exit 0, MCAP closed).
+parameter; more than a second of steps is answered "accepted" and ends with a `step_done` event,
+`step_jobs`), `~/reset` (Trigger: time zero, at rest at `initial_nut_position`, command and
+counters cleared, fault cleared). SIGINT and SIGTERM stop the node cleanly (exit 0, MCAP closed)
+whatever is in flight.
+
+Every input is decided per writer: commands, `~/inject_fault` and `~/brake_command` come from the
+owner (or anyone while nobody owns the actuator); everything refused is reported once per writer
+and reason, then counted (`refusals`), so a flood reaches neither `~/events` nor the bag.
 """
 
 from __future__ import annotations
