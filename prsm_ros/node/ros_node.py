@@ -84,6 +84,7 @@ from prsm_ros.node.sinks import open_sinks
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns, with_depth
 from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, params_template, runtime_change
 from prsm_ros.node.joint_commands import offer_joint_command
+from prsm_ros.limits import read_text_file
 from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
 from prsm_ros.node.step_jobs import INLINE_STEPS, INLINE_WAIT_S, STEP_REQUEST, StepJobs, answer, done_event
 
@@ -768,6 +769,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"prsm-node: error: unknown argument {user[0]!r}; ROS arguments go after --ros-args "
               "(see prsm-node --help)", file=sys.stderr)
         return 2
+    ros = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
+    for flag, path in zip(ros, ros[1:]):  # rcl reads a params file whatever its size, and waits on a FIFO
+        if flag == "--params-file":
+            try:
+                read_text_file(path, what="parameters file", error=ConfigError)
+            except ConfigError as e:
+                print(f"prsm-node: error: --params-file {e}", file=sys.stderr)
+                return 2
 
     stop = threading.Event()
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
