@@ -86,7 +86,8 @@ from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, params_templat
 from prsm_ros.node.joint_commands import offer_joint_command
 from prsm_ros.limits import read_text_file
 from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
-from prsm_ros.node.step_jobs import INLINE_STEPS, INLINE_WAIT_S, STEP_REQUEST, StepJobs, answer, done_event
+from prsm_ros.node.step_jobs import (INLINE_STEPS, INLINE_WAIT_S, STEP_REQUEST, StepJobs, answer, done_event,
+                                     request_refused, stop_reason)
 
 # diagnostics.OK, WARN, ERROR as DiagnosticStatus levels
 DIAGNOSTIC_LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
@@ -567,9 +568,7 @@ class PrsmNode(Node):
         """`step_count` steps on the jobs thread: answered when done within INLINE_WAIT_S, else "accepted"
         at once and a `step_done` event when they end (step_jobs)."""
         with self._lock:
-            refused = ("not paused: ~/step works only while paused (call ~/pause true first)" if not self.session.paused
-                       else f"faulted: {self.session.fault}" if self.session.fault is not None
-                       else "a step request is still running (~/events reports step_done)" if self.jobs.busy else None)
+            refused = request_refused(self.session, self.jobs)
             if refused:
                 response.success, response.message = False, refused
                 return response
@@ -581,13 +580,8 @@ class PrsmNode(Node):
     def _step_slice(self, job, n: int) -> tuple[int, str | None]:
         """Jobs thread: up to `n` steps of `job` under the lock (the state published after the last)."""
         with self._lock:
-            if self._stop.is_set():
-                return 0, "the node is stopping"
-            if (job.what == STEP_REQUEST) != self.session.paused:  # ~/step runs while paused, lockstep while not
-                return 0, f"{'resumed' if job.what == STEP_REQUEST else 'paused'} before the steps were done"
-            if self.session.fault is not None:
-                return 0, f"faulted: {self.session.fault}"
-            return self._advance(n, publish_last_state=n == job.remaining), None
+            why = stop_reason(job, self.session, self._stop.is_set())
+            return (0, why) if why else (self._advance(n, publish_last_state=n == job.remaining), None)
 
     def _step_job_done(self, job) -> None:
         """Jobs thread: a request answered "accepted" has ended: an event says how."""

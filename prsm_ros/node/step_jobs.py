@@ -40,6 +40,25 @@ class StepJob:
         return self.steps - self.done
 
 
+def request_refused(session, jobs: StepJobs) -> str | None:
+    """Why a ~/step request is refused now (None: it may run): only while paused, not faulted, one at a time."""
+    if not session.paused:
+        return "not paused: ~/step works only while paused (call ~/pause true first)"
+    if session.fault is not None:
+        return f"faulted: {session.fault}"
+    return "a step request is still running (~/events reports step_done)" if jobs.busy else None
+
+
+def stop_reason(job: StepJob, session, stopping: bool) -> str | None:
+    """Why `job` must end before its next slice (None: go on). A ~/step job runs while paused, a
+    lockstep job while running; neither runs on a fault or while the node stops."""
+    if stopping:
+        return "the node is stopping"
+    if (job.what == STEP_REQUEST) != session.paused:
+        return f"{'resumed' if job.what == STEP_REQUEST else 'paused'} before the steps were done"
+    return f"faulted: {session.fault}" if session.fault is not None else None
+
+
 def answer(job: StepJob, ended: bool, time_s: float) -> tuple[bool, str]:
     """(success, message) for the request that submitted `job`; `ended`: it ended before the answer."""
     if not ended:
