@@ -1,6 +1,6 @@
 """`prsm-bag`: inspect, export, report on, replay and convert ROS 2 MCAP recordings.
 
-    prsm-bag info BAG [--json] [--parameters]
+    prsm-bag info BAG [--json] [--parameters] [--check | --no-check]
     prsm-bag export BAG -t TOPIC [-t TOPIC ...] -o OUT [--start S] [--end S] [--resample HZ] [--method linear|hold] [--merge]
     prsm-bag report BAG -o DIR [--json] [--dynamic-load-rating-n N] [--screw-joint NAME] [--nut-joint NAME]
     prsm-bag report DIR|GLOB -o DIR [--address HOST:PORT]   (many bags → DIR/fleet.parquet; on Ray if installed)
@@ -25,6 +25,7 @@ from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 from prsm_ros.json_out import dumps
 
 EXIT_ERROR = 2  # a user error: a bad argument, file or bag (the one exit status of every prsm tool)
+INFO_CHECK_MAX_MESSAGES = 100_000  # info decodes every message of a bag up to this size (~20 s) unless told
 EXIT_REGRESSION = 3  # compare --fail-on-regression found one
 
 
@@ -51,10 +52,14 @@ def info_dict(bag) -> dict:
 
 def _cmd_info(args) -> int:
     bag = open_bag(args.bag)
-    if not args.no_check:
+    check = args.check if args.check is not None else bag.message_count <= INFO_CHECK_MAX_MESSAGES
+    if check:
         bag.check(progress=True)
     d = info_dict(bag)
-    d["checked"] = not args.no_check
+    d["checked"] = check
+    if not check:  # not known, rather than none
+        for t in d["topics"]:
+            t["malformed"] = None
     if args.parameters:
         d["parameters_yaml"] = bag.run_metadata.get("parameters_yaml")
         d["node_parameters_yaml"] = bag.run_metadata.get("node_parameters_yaml")
@@ -80,6 +85,8 @@ def _cmd_info(args) -> int:
         rate = f"{t['rate_hz']:.1f} Hz" if t["rate_hz"] else "-"
         bad = "undecodable" if t["problem"] else (str(t["malformed"]) if d["checked"] else "-")
         print(f"{t['topic']:<{width}}  {t['type']:<{twidth}}  {t['count']:>8}  {rate:>10}  {bad:>9}")
+    if not d["checked"]:
+        print(f"malformed messages not counted ({d['messages']} messages; --check decodes every one)")
     if args.parameters:
         print("\nparameters:\n" + (d["parameters_yaml"] or "(none recorded)"))
         if d["node_parameters_yaml"]:
@@ -214,8 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bag")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.add_argument("--parameters", action="store_true", help="also print the recorded parameter set (YAML)")
-    p.add_argument("--no-check", action="store_true",
-                   help="summary only: do not decode every message to count the malformed ones")
+    p.add_argument("--check", action=argparse.BooleanOptionalAction, default=None,
+                   help="decode every message to count the malformed ones (default: for bags of at most "
+                        f"{INFO_CHECK_MAX_MESSAGES} messages; a message takes ~0.2 ms)")
     p.set_defaults(func=_cmd_info)
 
     p = sub.add_parser("export", help="topics to CSV (one column per field, time in seconds)")
