@@ -222,4 +222,6 @@ def test_no_module_named_by_a_bag_is_imported_and_play_survives_the_corpus(corpu
     rcs = json.loads(res.stdout.split("RC ")[-1])
     assert all(rc in (0, EXIT_ERROR) for rc in rcs), (rcs, res.stderr[-3000:])
     assert "skipped /evil (evilmod/msg/Evil: play publishes only the types of" in res.stderr
+    assert f"skipped 1 malformed message(s) on {hb.SCREW_TORQUE}" in res.stderr  # never handed to subscribers
+    assert "skipped 2 malformed message(s) on /joint_states" in res.stderr
     assert not marker.exists(), "a module named by the bag was imported"

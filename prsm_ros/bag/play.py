@@ -9,7 +9,8 @@ published before each new log time
 use_sim_time follow the playback. Only the message packages of the node's interface
 (`MESSAGE_PACKAGES`) are ever imported, never a package named by the bag; topics of other types,
 and topics whose messages cannot be decoded, are skipped and reported. Each message is decoded
-before it is sent, so a malformed one is skipped (and counted) rather than handed to subscribers.
+before it is sent (rclpy's deserializer), so a malformed one is skipped and counted rather than
+handed to subscribers.
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
 
     try:
         import rclpy
+        from rclpy.serialization import deserialize_message
         from rosgraph_msgs.msg import Clock
     except ModuleNotFoundError as e:  # an install without the ros extra (pip install 'prsm[bag]')
         raise BagError(f"play publishes on ROS topics and needs rclpy and the ROS message packages "
@@ -110,7 +112,12 @@ def play(bag: Bag, *, rate: float = 1.0, start_s: float | None = None, end_s: fl
         wall0 = None
         t_first = None
         last_clock = None
-        for m in bag.messages(playable, start_ns, end_ns, progress=progress, desc="playing"):
+        for m in bag.messages(playable, start_ns, end_ns, decode=False, progress=progress, desc="playing"):
+            try:  # rclpy's own deserializer: what a subscriber would do with the bytes, ~100× mcap_ros2's speed
+                deserialize_message(m.data, classes[m.topic])
+            except Exception as e:  # the middleware's error types for bytes it cannot read
+                bag.count_malformed(m.topic, m.log_time_ns, len(m.data), str(e) or type(e).__name__)
+                continue
             if t_first is None:
                 t_first, wall0 = m.log_time_ns, time.monotonic()
             due = wall0 + (m.log_time_ns - t_first) * 1e-9 / rate

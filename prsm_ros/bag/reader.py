@@ -566,12 +566,15 @@ class Bag:
             return dec(message.data)
         # CDR cut short, a length past the end, bytes not matching the schema
         except (IndexError, KeyError, TypeError, OverflowError, MemoryError, *damaged_data_errors()) as e:
-            info = self.topics[channel.topic]
-            info.malformed += 1
-            if info.first_malformed is None:
-                info.first_malformed = (f"log time {message.log_time * 1e-9:.6f} s, {len(message.data)} bytes: "
-                                        f"{str(e)[:80] or type(e).__name__}")
+            self.count_malformed(channel.topic, message.log_time, len(message.data), str(e) or type(e).__name__)
             return None
+
+    def count_malformed(self, topic: str, log_time_ns: int, nbytes: int, why: str) -> None:
+        """Count a message of `topic` that does not decode (skipped; `reading_notes` names the first)."""
+        info = self.topics[topic]
+        info.malformed += 1
+        if info.first_malformed is None:
+            info.first_malformed = f"log time {log_time_ns * 1e-9:.6f} s, {nbytes} bytes: {why[:80]}"
 
     def messages(self, topics=None, start_ns: int | None = None, end_ns: int | None = None, *,
                  decode: bool = True, progress: bool = False, desc: str = "reading") -> Iterator[BagMessage]:
