@@ -177,7 +177,8 @@ class Ctl:
 
     def list_params(self, prefix: str = "") -> list[str]:
         from rcl_interfaces.srv import ListParameters
-        req = ListParameters.Request(prefixes=[prefix] if prefix else [], depth=0)
+        # all of them, filtered here: ROS matches prefixes only at whole dotted components
+        req = ListParameters.Request(prefixes=[], depth=0)
         names = sorted(self.call("list_parameters", ListParameters, req).result.names)
         return [n for n in names if n.startswith(prefix)]
 

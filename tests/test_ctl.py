@@ -1,0 +1,166 @@
+"""`prsm-ctl` drives a running `prsm-node`: every verb, against a real node process over DDS.
+
+The verbs run in this process through `prsm_ros.cli.ctl.main` (each call its own rclpy context, as
+a separate `prsm-ctl` process would have), except where the exit status and the one-line error of
+the real command matter (node not found, `state --follow` ended by Ctrl-C): there the command
+runs as a process. What each verb did is checked on the node itself (its parameters, its
+services' answers, its topics), not on prsm-ctl's own words.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
+import yaml
+
+from prsm_ros.cli import ctl
+from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, ros_test_env
+
+ENV = ros_test_env("test_ctl")
+PARAMS = {"model": "ideal", "preset": "s30", "start_paused": True, "record": False, "cmd_timeout": 0.0,
+          # a command from a prsm-ctl process makes that process the owner; a short lapse lets the next one in
+          "ownership_timeout": 0.05,
+          "actuator": "{motor: {}, brake: {holding_torque_nm: 8.0}}"}
+TIMEOUT = str(10 * CEILING_FACTOR)
+
+
+@pytest.fixture(scope="module")
+def node(tmp_path_factory):
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ.update({k: ENV[k] for k in saved})
+    with NodeProcess(ENV, PARAMS, workdir=tmp_path_factory.mktemp("ctl")) as proc, RosClient(ENV) as cli:
+        cli.wait_for_node(proc)
+        yield proc, cli
+        assert proc.stop() == 0, proc.stderr
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+def run(capsys, *argv: str) -> tuple[int, list, str]:
+    """(exit status, the JSON records printed, stderr) of one prsm-ctl call."""
+    rc = ctl.main(["--json", "--timeout", TIMEOUT, *argv])
+    out, err = capsys.readouterr()
+    return rc, [json.loads(line) for line in out.splitlines() if line.strip()], err
+
+
+def test_pause_step_resume_reset(node, capsys):
+    proc, cli = node
+    rc, rec, _ = run(capsys, "state")
+    assert rc == 0 and rec[0]["paused"] == "True" and rec[0]["time_s"] == 0.0
+    rc, rec, err = run(capsys, "step", "5")
+    assert rc == 0, err
+    assert rec[0]["message"].startswith("stepped 5 of 5 steps to t = 0.005000 s")
+    assert cli.get_parameters(["step_count"]) == {"step_count": 1}  # N applies to that call only
+    rc, rec, _ = run(capsys, "resume")
+    assert rc == 0 and rec[0]["message"].startswith("running")
+    rc, _, err = run(capsys, "step", "1")
+    assert rc == 2 and "refused: not paused" in err and err.count("\n") == 1
+    rc, rec, _ = run(capsys, "state")
+    assert rc == 0 and rec[0]["paused"] == "False" and rec[0]["time_s"] > 0.005
+    assert set(rec[0]) >= {"screw_joint", "nut_joint", "command_interface"}
+    rc, rec, _ = run(capsys, "pause")
+    assert rc == 0 and rec[0]["message"].startswith("paused")
+    rc, rec, _ = run(capsys, "reset")
+    assert rc == 0 and rec[0]["message"] == "reset to t = 0, nut at 0 m"
+    rc, rec, _ = run(capsys, "state")
+    assert rec[0]["time_s"] == 0.0
+
+
+def test_param_get_set_list_dump(node, capsys):
+    proc, cli = node
+    rc, rec, _ = run(capsys, "param", "set", "load_force", "500")
+    assert rc == 0
+    assert cli.get_parameters(["load_force"]) == {"load_force": 500.0}
+    rc, rec, _ = run(capsys, "param", "get", "load_force", "max_effort")
+    assert rec == [{"name": "load_force", "value": 500.0}, {"name": "max_effort", "value": 50.0}]
+    rc, _, err = run(capsys, "param", "get", "lod_force")
+    assert rc == 2 and "did you mean load_force" in err and err.count("\n") == 1
+    rc, _, err = run(capsys, "param", "set", "load_force", "nan")
+    assert rc == 2 and "load_force" in err and "refused" in err
+    assert cli.get_parameters(["load_force"]) == {"load_force": 500.0}
+    rc, rec, _ = run(capsys, "param", "list", "physics.mass.")
+    assert "physics.mass.moved_mass_kg" in rec[0]["names"] and all(n.startswith("physics.mass.") for n in rec[0]["names"])
+    rc = ctl.main(["param", "dump"])
+    dump = yaml.safe_load(capsys.readouterr().out)
+    assert dump["prsm_actuator"]["ros__parameters"]["load_force"] == 500.0
+    assert run(capsys, "param", "set", "load_force", "0.0")[0] == 0
+
+
+def test_interface_command_release(node, capsys):
+    from sensor_msgs.msg import TimeReference
+    proc, cli = node
+    echo = cli.subscribe("/prsm_actuator/command_echo", TimeReference)
+    assert run(capsys, "resume")[0] == 0
+    rc, _, _ = run(capsys, "interface", "velocity")
+    assert rc == 0 and cli.get_parameters(["command_interface"]) == {"command_interface": "velocity"}
+    rc, _, err = run(capsys, "command", "torque", "0.1")
+    assert rc == 2 and "command_interface is velocity" in err and "prsm-ctl interface effort" in err
+    rc, rec, err = run(capsys, "command", "velocity", "2.0")
+    assert rc == 0, err
+    assert rec[0]["topic"] == "/prsm_actuator/velocity_command"
+    cli.spin_until(lambda: any(m.source.endswith("velocity_command") for m in echo), 10.0, "the command's echo")
+    rc, rec, _ = run(capsys, "state")
+    assert rec[0]["command"] == "2.0"
+    rc, _, err = run(capsys, "command", "velocity", "inf")
+    assert rc == 2 and "must be finite" in err
+    rc, rec, _ = run(capsys, "release")
+    assert rc == 0
+    assert run(capsys, "interface", "effort")[0] == 0
+    assert run(capsys, "pause")[0] == 0
+
+
+def test_brake_fault_events(node, capsys):
+    from std_msgs.msg import String
+    proc, cli = node
+    events = cli.subscribe("/prsm_actuator/events", String)
+    assert run(capsys, "resume")[0] == 0
+    rc, rec, err = run(capsys, "brake", "on")
+    assert rc == 0 and rec[0]["message"].startswith("brake engaging"), err
+    rc, rec, _ = run(capsys, "brake", "off")
+    assert rc == 0 and rec[0]["message"].startswith("brake releasing")
+    rc, rec, err = run(capsys, "fault", "inject", "jam", "duration_s=0.05", "value=3")
+    assert rc == 0, err
+    cli.spin_until(lambda: any('"fault_clear"' in m.data for m in events), 10.0, "the jam's start and clear")
+    rc, rec, _ = run(capsys, "events")
+    codes = [(e["code"], e["details"].get("kind")) for e in rec]
+    assert ("fault_start", "jam") in codes and ("fault_clear", "jam") in codes
+    rc, _, err = run(capsys, "fault", "inject", "jamm")
+    assert rc == 2 and "jamm" in err
+    rc, rec, _ = run(capsys, "fault", "clear")
+    assert rc == 0 and "runtime fault(s) ended" in rec[0]["message"]
+    assert run(capsys, "pause")[0] == 0
+
+
+def test_the_command_state_follow_and_a_missing_node(node, tmp_path):
+    base = [sys.executable, "-m", "prsm_ros.cli.ctl"]
+    env = {**ENV, "PYTHONPATH": os.pathsep.join(sys.path)}
+    r = subprocess.run(base + ["--node", "/nobody", "--timeout", "1", "state"], env=env, capture_output=True,
+                       text=True, timeout=60 * CEILING_FACTOR)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and "node /nobody not found on ROS_DOMAIN_ID" in r.stderr
+    assert run_cli(base + ["resume"], env) == 0
+    follow = subprocess.Popen(base + ["state", "--follow", "--rate", "50"], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        lines = [follow.stdout.readline() for _ in range(3)]  # blocks until the node's states arrive
+        assert all(line.startswith("t = ") and "screw_joint" in line for line in lines), lines
+        follow.send_signal(signal.SIGINT)
+        assert follow.wait(timeout=20 * CEILING_FACTOR) == 130
+    finally:
+        if follow.poll() is None:
+            follow.kill()
+            follow.wait()
+    assert run_cli(base + ["pause"], env) == 0
+
+
+def run_cli(cmd: list[str], env: dict) -> int:
+    return subprocess.run(cmd + ["--timeout", TIMEOUT], env=env, capture_output=True, timeout=120 * CEILING_FACTOR).returncode
