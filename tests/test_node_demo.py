@@ -108,3 +108,20 @@ def test_import_prsm_sim_leaves_scipy_unloaded():
     code = "import sys, prsm_sim; print(sorted(m for m in sys.modules if m.partition('.')[0] == 'scipy'))"
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and res.stdout.strip() == "[]", res.stdout + res.stderr
+
+
+def test_prsm_demo_takes_a_gains_file(tmp_path, capsys):
+    """The file `prsm-sweep tune` writes reaches the controller process (its summary reports the gains it ran)."""
+    from prsm_ros.sweep.gains import gains_document
+    gains = tmp_path / "gains.yaml"
+    gains.write_text(gains_document({"bandwidth_hz": 20.0, "damping": 1.3}, "tuned elsewhere"), encoding="utf-8")
+    exe = Path(sys.executable).parent / "prsm-demo"
+    res = subprocess.run([str(exe), "--time-mode", "lockstep", "--duration", "0.3", "--no-record", "--gains", str(gains)],
+                         env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "gains            bandwidth 20 Hz, damping 1.3, integral ratio 10, torque limit 50 N·m" in res.stdout
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("controller: {bandwith_hz: 20}\n", encoding="utf-8")
+    assert demo_main(["--gains", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "controller.bandwith_hz: unknown gain" in err

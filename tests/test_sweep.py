@@ -227,7 +227,7 @@ metrics: [efficiency]
 def test_tuned_gains_beat_the_demo_defaults_on_held_out_draws(tmp_path, embedded_ray):
     # the demo's position law (prsm_sim.control) against s30/fu2018 at 1 ms, plant spread of friction,
     # moved mass and load; the defaults (8 Hz, ζ = 1, κ = 10) are the baseline on draws not tuned on
-    f = _write(tmp_path / "tune.yaml", """\
+    plant = """\
 preset: s30
 model: fu2018
 scenario: position
@@ -240,8 +240,10 @@ vary:
   mass.moved_mass_kg: {lognormal: [50, 0.3]}
   scenario.load_n: {uniform: [1000, 3000]}
 samples: 3
-seed: 1
 metrics: [tracking_error_max_m, tracking_error_rms_m]
+"""
+    f = _write(tmp_path / "tune.yaml", plant + """\
+seed: 1
 tune:
   gains:
     controller.bandwidth_hz: {uniform: [2, 30]}
@@ -251,18 +253,33 @@ tune:
   seed: 0
   holdout_seed: 99
 """)
-    out = tmp_path / "best.json"
+    out = tmp_path / "tuned"
     rc, text = _run(["tune", str(f), "-o", str(out), "--json"])
     assert rc == 0
-    r = json.loads(out.read_text())
+    r = json.loads((out / "tuned.json").read_text())
     assert r == json.loads(text)
     assert set(r["best_gains"]) == {"controller.bandwidth_hz", "controller.damping"} and len(r["trial_table"]) == 3
     assert r["default_gains"] == {"controller.bandwidth_hz": 8.0, "controller.damping": 1.0}
     h = r["holdout"]
     assert math.isfinite(h["tuned"]) and h["tuned"] < h["default"]
+    # Tune's own experiment folder lives under the output directory, not in a deleted temporary one
+    assert any((out / "ray_tune" / "prsm-tune").iterdir())
     # a second run of the command may not overwrite the saved result silently
     rc, _ = _run(["tune", str(f), "-o", str(out)])
-    assert rc == 2 and json.loads(out.read_text()) == r
+    assert rc == 2 and json.loads((out / "tuned.json").read_text()) == r
+
+    # the gains file, read as the demo controller reads it, measured by `prsm-sweep run` on other draws
+    from prsm_ros.sweep.gains import as_study_set, load_gains
+    gains = load_gains(out / "gains.yaml")
+    assert as_study_set(gains) == r["best_gains"]
+    worst = {}
+    for name, extra in (("tuned", as_study_set(gains)), ("default", {})):
+        sets = "".join(f"  {k}: {v!r}\n" for k, v in extra.items())
+        study_file = _write(tmp_path / f"{name}.yaml", plant.replace("set:\n", "set:\n" + sets) + "seed: 4242\n")
+        rc, _ = _run(["run", str(study_file), "-o", str(tmp_path / f"runs_{name}"), "--no-progress"])
+        assert rc == 0
+        worst[name] = float(_metrics(tmp_path / f"runs_{name}", ["tracking_error_max_m"])["tracking_error_max_m"].max())
+    assert worst["tuned"] < worst["default"], worst
 
 
 def _free_port() -> int:

@@ -4,6 +4,7 @@
     prsm-demo --time-mode lockstep --model fu2018 --duration 2 --record run.mcap
     prsm-demo --no-record --rerun spawn
     prsm-demo --command-interface velocity     # the node's drive closes the speed loop
+    prsm-demo --gains tune_out/gains.yaml      # gains tuned by prsm-sweep tune
 
 It starts `prsm-node` and `python -m prsm_ros.cli.demo_controller` as separate OS processes, lets the
 controller track a smooth nut-position profile through the torque topic for `--duration` seconds
@@ -58,6 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rerun", default="off", choices=("off", "save", "spawn", "connect"),
                    help="Rerun output of the node (default off)")
     p.add_argument("--rerun-target", default="", help="save: .rrd path; spawn: port; connect: address")
+    p.add_argument("--gains", metavar="FILE", help="controller gains file, as prsm-sweep tune writes it (DIR/gains.yaml)")
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: yours, else one from the pid)")
     return p
 
@@ -77,6 +79,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"prsm-demo: error: --realtime-priority {args.realtime_priority}: must be in 0..99 (0: normal)",
               file=sys.stderr)
         return 2
+    if args.gains:
+        from prsm_ros.sweep.gains import load_gains
+        from prsm_sim.errors import InputError
+        try:
+            gains = load_gains(args.gains)
+        except InputError as e:
+            print(f"prsm-demo: error: --gains {e}", file=sys.stderr)
+            return 2
     try:
         env = isolated_env(args.domain_id)
     except ValueError as e:
@@ -92,7 +102,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"prsm-demo: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} "
           f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}; "
           f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N, "
-          f"{args.command_interface} commands", flush=True)
+          f"{args.command_interface} commands"
+          + (f"; gains {', '.join(f'{k} {v:g}' for k, v in gains.items())} from {args.gains}" if args.gains else ""),
+          flush=True)
 
     with tempfile.TemporaryDirectory(prefix="prsm_demo_") as tmp:
         node_log = Path(tmp) / "node.log"
@@ -102,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
                                ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
                                 "--wall-timeout", repr(60.0 + 20 * args.duration),
                                 "--command-interface", args.command_interface,
-                                "--realtime-priority", str(realtime_priority)],
+                                "--realtime-priority", str(realtime_priority)]
+                               + (["--gains", str(Path(args.gains).resolve())] if args.gains else []),
                                env, stdout=subprocess.PIPE)
             try:
                 out = wait_for_controller(ctl, node)
@@ -150,6 +163,10 @@ def summary_text(s: dict, dt_s: float, record: Path | None) -> str:
         f"  real-time factor {s['real_time_factor']:10.3f}     ({s['wall_time_s']:.2f} s wall)",
         f"  scheduling       controller {s['scheduling']}",
     ]
+    if "gains" in s:
+        g = s["gains"]
+        lines.append(f"  gains            bandwidth {g['bandwidth_hz']:g} Hz, damping {g['damping']:g}, "
+                     f"integral ratio {g['integral_ratio']:g}, torque limit {g['max_torque_nm']:g} N·m")
     if not s["completed"]:
         lines.append("  (incomplete: the controller stopped before the end of the run)")
     if record is not None:

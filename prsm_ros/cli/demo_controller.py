@@ -15,6 +15,9 @@ pauses the node again. With `--realtime-priority` every thread of the controller
 included, runs SCHED_FIFO where the OS allows. At the end it prints one JSON line with the tracking
 summary, which `prsm-demo` reads.
 
+`--gains FILE` takes the gains `prsm-sweep tune` writes (`prsm_ros.sweep.gains`); `--bandwidth` and
+`--max-torque`, when given, override the file's.
+
 The control law and its reference live in the pure core (`prsm_sim.control`, where its equation
 is documented) so that studies and gain tuning (`prsm-sweep tune`) run the very same law offline.
 """
@@ -67,6 +70,17 @@ def _executor():
         return SingleThreadedExecutor()
 
 
+def controller(args: argparse.Namespace, params) -> PositionController:
+    """The position law with the demo's defaults, then the gains file's, then --bandwidth/--max-torque."""
+    from prsm_ros.sweep.gains import load_gains
+    gains = {**DEFAULT_GAINS, "max_torque_nm": DEFAULT_MAX_TORQUE_NM, **(load_gains(args.gains) if args.gains else {})}
+    if args.bandwidth is not None:
+        gains["bandwidth_hz"] = args.bandwidth
+    if args.max_torque is not None:
+        gains["max_torque_nm"] = args.max_torque
+    return PositionController(reflected_inertia(params), params.geometry.lead_per_rad_m, load_n=args.load, **gains)
+
+
 def run(args: argparse.Namespace) -> dict:
     import rclpy
     from sensor_msgs.msg import JointState
@@ -79,8 +93,7 @@ def run(args: argparse.Namespace) -> dict:
     from prsm_ros.node.scheduling import raise_process_threads
 
     params = preset(args.preset)
-    ctl = PositionController(reflected_inertia(params), params.geometry.lead_per_rad_m, bandwidth_hz=args.bandwidth,
-                             load_n=args.load, max_torque_nm=args.max_torque)
+    ctl = controller(args, params)
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node("prsm_demo_controller")
     cmd_topic = TOPICS[COMMAND_TOPICS[args.command_interface]]
@@ -111,7 +124,7 @@ def run(args: argparse.Namespace) -> dict:
             st["done"] = True
             return
         if args.command_interface == "velocity":
-            command = velocity_command(x_ref, v_ref, x, params.geometry.lead_per_rad_m, args.bandwidth)
+            command = velocity_command(x_ref, v_ref, x, params.geometry.lead_per_rad_m, ctl.bandwidth_hz)
         elif args.command_interface == "position":
             command = x_ref
         else:
@@ -163,7 +176,9 @@ def run(args: argparse.Namespace) -> dict:
     return {"rms_error_m": track.rms_m, "max_error_m": track.max_abs_m, "final_position_m": st["x"],
             "final_reference_m": reference(st["t"], args.amplitude, args.frequency)[0], "sim_time_s": st["t"],
             "states_received": track.n, "wall_time_s": wall, "real_time_factor": sim / wall if wall > 0 else math.nan,
-            "completed": st["done"], "scheduling": scheduling}
+            "completed": st["done"], "scheduling": scheduling,
+            "gains": {"bandwidth_hz": ctl.bandwidth_hz, "damping": ctl.damping, "integral_ratio": ctl.integral_ratio,
+                      "max_torque_nm": ctl.max_torque_nm}}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -173,8 +188,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--load", type=float, default=0.0, help="the node's load_force, fed forward (N)")
     p.add_argument("--amplitude", type=float, default=DEFAULT_AMPLITUDE_M, help="reference stroke (m)")
     p.add_argument("--frequency", type=float, default=DEFAULT_FREQUENCY_HZ, help="reference frequency (Hz)")
-    p.add_argument("--bandwidth", type=float, default=DEFAULT_GAINS["bandwidth_hz"], help="closed-loop bandwidth (Hz)")
-    p.add_argument("--max-torque", type=float, default=DEFAULT_MAX_TORQUE_NM, help="controller torque limit (N·m)")
+    p.add_argument("--gains", metavar="FILE", help="gains file (prsm-sweep tune writes one: DIR/gains.yaml)")
+    p.add_argument("--bandwidth", type=float, help=f"closed-loop bandwidth (Hz; default {DEFAULT_GAINS['bandwidth_hz']:g})")
+    p.add_argument("--max-torque", type=float, help=f"controller torque limit (N·m; default {DEFAULT_MAX_TORQUE_NM:g})")
     p.add_argument("--command-interface", default="effort", choices=tuple(COMMAND_TOPICS),
                    help="what to command: screw torque (effort), screw speed (velocity) or nut position (position)")
     p.add_argument("--realtime-priority", type=int, default=0,

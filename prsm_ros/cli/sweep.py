@@ -2,7 +2,7 @@
 
     prsm-sweep run STUDY.yaml -o DIR [--address HOST:PORT] [--workers N]
     prsm-sweep report DIR [--json] [--no-plots]
-    prsm-sweep tune STUDY.yaml [-o BEST.json] [--address HOST:PORT] [--workers N]
+    prsm-sweep tune STUDY.yaml [-o DIR] [--address HOST:PORT] [--workers N]   (DIR/gains.yaml → prsm-demo --gains)
 
 Without --address an embedded Ray starts on this machine and stops at the end; with it the
 study runs on that Ray cluster. Errors print one line and exit 2; an interrupted run exits 130
@@ -69,10 +69,18 @@ def cmd_tune(args) -> int:
         ts = tune.settings(raw, norm)
     except study.StudyError as e:
         raise study.StudyError(f"{args.study}: {e}") from None
-    out = Path(args.output or f"{Path(args.study).stem}.tuned.json")
-    if out.exists() and not args.force:
-        raise study.StudyError(f"-o {out}: exists; give another file or --force to replace it")
-    r = tune.run_tune(norm, ts, address=args.address, workers=args.workers)
+    out = Path(args.output or f"{Path(args.study).stem}_tune")
+    if out.exists() and not out.is_dir():
+        raise study.StudyError(f"-o {out}: not a directory")
+    held = [out / n for n in (tune.RESULT_JSON, tune.GAINS_YAML, tune.TUNE_DIR) if (out / n).exists()]
+    if held and not args.force:
+        raise study.StudyError(f"-o {out}: holds a tuning result ({held[0].name}); give another directory "
+                               "or --force to replace it")
+    if (out / tune.TUNE_DIR).exists():
+        import shutil
+        shutil.rmtree(out / tune.TUNE_DIR)
+    out.mkdir(parents=True, exist_ok=True)
+    r = tune.run_tune(norm, ts, out / tune.TUNE_DIR, address=args.address, workers=args.workers)
     r["study"] = study.study_hash(norm)
     tune.save(r, out)
     if args.json:
@@ -82,7 +90,9 @@ def cmd_tune(args) -> int:
         print(f"best gains ({r['objective']} of {r['metric']} over {r['draws']} draws, {r['trials']} trials): "
               + ", ".join(f"{k} = {v:.4g}" for k, v in r["best_gains"].items()))
         print(f"held-out draws (seed {r['holdout_seed']}): tuned {h['tuned']:.4g}, demo defaults {h['default']:.4g}"
-              f" ({yaml.safe_dump(r['default_gains'], default_flow_style=True).strip()}) → {out}")
+              f" ({yaml.safe_dump(r['default_gains'], default_flow_style=True).strip()})")
+        print(f"→ {out / tune.GAINS_YAML} (prsm-demo --gains {out / tune.GAINS_YAML}), {out / tune.RESULT_JSON}, "
+              f"Ray Tune's trials in {out / tune.TUNE_DIR}")
     return 0
 
 
@@ -106,10 +116,13 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--json", action="store_true", help="machine-readable report")
     rep.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     rep.set_defaults(func=cmd_report)
-    tn = sub.add_parser("tune", parents=[ray_opts], help="tune controller gains against the study's plant spread")
+    from prsm_ros.sweep import tune as tune_doc
+    tn = sub.add_parser("tune", parents=[ray_opts], help="tune controller gains against the study's plant spread",
+                        description=tune_doc.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     tn.add_argument("study", metavar="STUDY.yaml")
-    tn.add_argument("-o", "--output", metavar="BEST.json", help="where to save the result (default STUDY.tuned.json)")
-    tn.add_argument("--force", action="store_true", help="replace an existing result file")
+    tn.add_argument("-o", "--output", metavar="DIR",
+                    help="where to save gains.yaml, tuned.json and Ray Tune's trials (default ./STUDY_tune)")
+    tn.add_argument("--force", action="store_true", help="replace an existing result in DIR")
     tn.set_defaults(func=cmd_tune)
     return ap
 

@@ -1,6 +1,7 @@
-"""Controller gains tuned against the plant spread with Ray Tune (`prsm-sweep tune STUDY.yaml`).
+"""Controller gains tuned against the plant spread with Ray Tune (`prsm-sweep tune STUDY.yaml -o DIR`).
 
-The study's `vary:` draws are the plant spread (Monte Carlo); its `tune:` section names the
+The study is a `prsm-sweep run` study with `scenario: position` (the demo's position loop run
+offline); its `vary:` draws are the plant spread (Monte Carlo) and its `tune:` section names the
 gains and their search ranges:
 
     tune:
@@ -18,6 +19,15 @@ A trial evaluates one gain set on every draw of the study (sequentially: one tri
 CPU's work) and reports the objective; Ray Tune searches. Afterwards the best gains and the
 demo's defaults are scored on a held-out set of draws (same distributions, another seed),
 so the gain is judged on plants it was not tuned on.
+
+Gains: controller.bandwidth_hz (Hz), controller.damping (ζ), controller.integral_ratio (κ),
+controller.max_torque_nm (N·m); each {uniform: [low, high]}, {loguniform: [low, high]} or
+{values: [..]}, positive. A gain tuned must not also be in the study's set: or vary:.
+
+DIR receives: gains.yaml (the best gains: `prsm-demo --gains DIR/gains.yaml`, or the demo
+controller's --gains), tuned.json (gains, objective, held-out comparison, every trial) and
+ray_tune/ (Ray Tune's own experiment folder: trial logs and checkpoints). An existing DIR with
+these files is refused unless --force.
 """
 
 from __future__ import annotations
@@ -25,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import math
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -105,8 +114,9 @@ def _trainable(config: dict, norm: dict, metric: str, objective: str) -> None:
     tune.report({"objective": score(values, objective), "worst": float(np.max(values)) if values else math.inf})
 
 
-def run_tune(norm: dict, ts: dict, *, address: str | None = None, workers: int | None = None) -> dict:
-    """Search, then compare the best and the demo's default gains on held-out draws."""
+def run_tune(norm: dict, ts: dict, storage: Path, *, address: str | None = None, workers: int | None = None) -> dict:
+    """Search (Ray Tune's experiment folder under `storage`), then compare the best and the demo's
+    default gains on held-out draws."""
     from prsm_ros.sweep.runner import connect, disconnect
     ray, owned, tmp = connect(address, workers)
     try:
@@ -117,16 +127,16 @@ def run_tune(norm: dict, ts: dict, *, address: str | None = None, workers: int |
         space = {k: dom[d["kind"]](d["args"]) for k, d in ts["space"].items()}
         trainable = tune.with_resources(tune.with_parameters(_trainable, norm=norm, metric=ts["metric"],
                                                              objective=ts["objective"]), {"cpu": 1})
-        with tempfile.TemporaryDirectory(prefix="prsmtune-") as storage:
-            tuner = tune.Tuner(trainable, param_space=space,
-                               tune_config=tune.TuneConfig(metric="objective", mode="min", num_samples=ts["trials"],
-                                                           search_alg=BasicVariantGenerator(random_state=ts["seed"]),
-                                                           reuse_actors=True),  # one process per CPU, not per trial
-                               run_config=tune.RunConfig(storage_path=storage, name="prsm-tune", verbose=0))
-            with contextlib.redirect_stdout(sys.stderr):  # Tune's banners; stdout is for our result
-                grid = tuner.fit()
-            best = grid.get_best_result()
-            trials = grid.get_dataframe()
+        tuner = tune.Tuner(trainable, param_space=space,
+                           tune_config=tune.TuneConfig(metric="objective", mode="min", num_samples=ts["trials"],
+                                                       search_alg=BasicVariantGenerator(random_state=ts["seed"]),
+                                                       reuse_actors=True),  # one process per CPU, not per trial
+                           run_config=tune.RunConfig(storage_path=str(Path(storage).resolve()), name="prsm-tune",
+                                                     verbose=0))
+        with contextlib.redirect_stdout(sys.stderr):  # Tune's banners; stdout is for our result
+            grid = tuner.fit()
+        best = grid.get_best_result()
+        trials = grid.get_dataframe()
         best_gains = {k: float(best.config[k]) for k in ts["space"]}
         defaults = {k: v for k, v in controller_defaults().items() if k in ts["space"]}
         held = ray.get([ray.remote(num_cpus=1)(evaluate).remote(norm, g, ts["metric"], ts["holdout_seed"])
@@ -143,6 +153,18 @@ def run_tune(norm: dict, ts: dict, *, address: str | None = None, workers: int |
             "trial_table": trials[cols].rename(columns=lambda c: c.removeprefix("config/")).to_dict("records")}
 
 
-def save(result: dict, path: Path) -> None:
+RESULT_JSON, GAINS_YAML, TUNE_DIR = "tuned.json", "gains.yaml", "ray_tune"
+
+
+def save(result: dict, out_dir: Path) -> None:
+    """DIR/tuned.json (everything) and DIR/gains.yaml (the best gains, for `prsm-demo --gains`)."""
+    from prsm_ros.sweep.gains import gains_document
     from prsm_ros.json_out import dumps
-    path.write_text(dumps(result) + "\n", encoding="utf-8")
+    (out_dir / RESULT_JSON).write_text(dumps(result) + "\n", encoding="utf-8")
+    h = result["holdout"]
+    gains = {k.removeprefix("controller."): v for k, v in result["best_gains"].items()}
+    comment = (f"demo position controller gains tuned by prsm-sweep tune (study {result.get('study', '?')}):\n"
+               f"{result['objective']} of {result['metric']} on held-out draws (seed {result['holdout_seed']}): "
+               f"{h['tuned']:.6g} tuned, {h['default']:.6g} with the demo's defaults\n"
+               f"use: prsm-demo --gains {out_dir / GAINS_YAML}")
+    (out_dir / GAINS_YAML).write_text(gains_document(gains, comment), encoding="utf-8")
