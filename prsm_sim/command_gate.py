@@ -5,7 +5,7 @@ for the command of the active interface (`effort`: screw torque N·m, `velocity`
 rad/s, `position`: nut position m). Rules:
 
 - a command for an interface that is not the active one is refused with a reason naming the
-  active one; a non-finite value is rejected and counted; the last valid command stays in force;
+  active one and counted as such (`rejected_inactive_interface`, not malformed); a non-finite value is rejected and counted; the last valid command stays in force;
 - a torque beyond ±max_effort is saturated to the limit and counted;
 - a message a transport could not read at all (`refuse_malformed`) is counted as received and
   malformed;
@@ -41,6 +41,7 @@ class GateCounters:
     accepted: int = 0
     rejected_non_finite: int = 0
     rejected_malformed: int = 0
+    rejected_inactive_interface: int = 0  # a well-formed command for an interface that is not the active one
     saturated: int = 0
     timeouts: int = 0  # entries into the timed-out state
 
@@ -90,7 +91,7 @@ class CommandGate:
         """Take a command for `interface` at simulation time `now_s`; returns the rejection reason or None."""
         self.counters.received += 1
         if interface != self.interface:
-            self.counters.rejected_malformed += 1
+            self.counters.rejected_inactive_interface += 1
             return (f"{interface} command refused: the active command interface is {self.interface!r} "
                     f"({INTERFACE_UNIT[self.interface]})")
         try:

@@ -420,7 +420,8 @@ class Session:
             "timed_out": gate.timed_out, "timeout_behaviour": gate.timeout_behaviour,
             "cmd_timeout_s": gate.cmd_timeout_s, "load_n": self.load_n,
             "counters": {"received": c.received, "accepted": c.accepted, "rejected_non_finite": c.rejected_non_finite,
-                         "rejected_malformed": c.rejected_malformed, "saturated": c.saturated, "timeouts": c.timeouts},
+                         "rejected_malformed": c.rejected_malformed,
+                         "rejected_inactive_interface": c.rejected_inactive_interface, "saturated": c.saturated, "timeouts": c.timeouts},
         }
         last = self._last
         d["energy"] = None if last is None else {"residual_j": last.energy_residual_j, "flow_j": last.energy_flow_j,

@@ -71,7 +71,7 @@ def simulation_report(status: dict, transport: dict[str, Any], problems: list[st
         "command_nm": status["command_nm"], "timed_out": status["timed_out"], "load_force_n": status["load_n"],
         "commands_received": c["received"], "commands_accepted": c["accepted"],
         "rejected_non_finite": c["rejected_non_finite"], "rejected_malformed": c["rejected_malformed"],
-        "saturated": c["saturated"], "timeouts": c["timeouts"],
+        "rejected_inactive_interface": c["rejected_inactive_interface"], "saturated": c["saturated"], "timeouts": c["timeouts"],
         "fault": status["fault"] or "", "command_interface": status["command_interface"], "command": status["command"],
     }
     problems = list(problems)

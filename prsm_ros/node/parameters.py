@@ -10,6 +10,15 @@ the reason, nothing changed).
 
 Units are SI (REP 103). Doubles also accept integers (`cmd_timeout: 1`), because YAML and
 `ros2 param set` type "1" as an integer and refusing it helps no one.
+
+The actuator around the screw is configured by ordinary nested parameters, one per field of
+`prsm_sim.actuator` (`actuator.<group>.<field>`, e.g. `actuator.stops.max_position_m`,
+`actuator.drive.speed_bandwidth_hz`), plus `actuator.<group>.fitted` (true: the group with its
+defaults; for the motor, false removes it). NaN stands for "none" where the field's value may be
+None (no stop on that side, gains tuned from the inertia, no load-cell filter). Only names given
+at start-up (`-p`, a params file) apply; they override the same field of the `actuator` string
+form (a YAML mapping, still accepted); a given name with a value other than its default, or a
+`fitted: true`, runs the actuator.
 """
 
 from __future__ import annotations
@@ -20,7 +29,8 @@ from typing import Any
 
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
-from prsm_sim.actuator import COMMAND_INTERFACES, ActuatorParams, actuator_params_from_dict, parse_faults
+from prsm_sim.actuator import (COMMAND_INTERFACES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
+                                SensorParams, StopParams, actuator_params_from_dict, parse_faults)
 from prsm_sim.params import parse_float
 
 from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
@@ -28,6 +38,11 @@ from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
 TIME_MODES = ("realtime", "fast", "lockstep")
 RERUN_MODES = ("off", "save", "spawn", "connect")
 PHYSICS_PREFIX = "physics."
+ACTUATOR_PREFIX = "actuator."
+# the groups of the actuator, each a frozen dataclass of prsm_sim.actuator (drive.mode is `command_interface`)
+ACTUATOR_GROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sensors": SensorParams,
+                                    "stops": StopParams, "brake": BrakeParams}
+ACTUATOR_SKIPPED = {("drive", "mode")}
 DEFAULT_PRESET = "s30"
 DEFAULT_MODEL = "jones2016"
 
@@ -53,10 +68,13 @@ class NodeParam:
     lo_open: bool = False
     choices: tuple[str, ...] | None = None
     read_only: bool = False
+    nan_is_none: bool = False  # a double whose NaN means "none" (actuator fields that may be None)
 
     @property
     def allowed(self) -> str:
         """The constraint in words, for descriptors and error messages."""
+        if self.nan_is_none:
+            return "a number, or NaN for none"
         if self.choices is not None:
             return f"one of {', '.join(self.choices)}"
         if isinstance(self.default, bool):
@@ -134,9 +152,34 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
 )
 
 
+def actuator_parameters() -> tuple[NodeParam, ...]:
+    """`actuator.<group>.fitted` and `actuator.<group>.<field>` for every field of the actuator's groups."""
+    out = []
+    for group, cls in ACTUATOR_GROUPS.items():
+        what = "fit the default motor (false: none)" if group == "motor" else f"the {group} group at its defaults"
+        out.append(NodeParam(f"{ACTUATOR_PREFIX}{group}.fitted", False, "", f"actuator: {what}; runs the actuator",
+                             read_only=True))
+        for f in fields(cls):
+            if (group, f.name) in ACTUATOR_SKIPPED:
+                continue
+            kind = str(f.type)
+            default = f.default
+            none_ok = "None" in kind
+            if none_ok and default is None:
+                default = math.nan
+            elif kind.startswith("int"):
+                default = int(default)
+            elif kind.startswith("float"):
+                default = float(default)
+            out.append(NodeParam(f"{ACTUATOR_PREFIX}{group}.{f.name}", default, unit_of(f.name),
+                                 f"actuator {group}: {f.name.replace('_', ' ')} (prsm_sim.actuator.{cls.__name__})"
+                                 + ("; NaN: none" if none_ok else ""), read_only=True, nan_is_none=none_ok))
+    return tuple(out)
+
+
 def node_parameters() -> tuple[NodeParam, ...]:
-    """All non-physics parameters, topic names included (their defaults come from messages.TOPICS)."""
-    return NODE_PARAMETERS + tuple(_topic_params())
+    """All non-physics parameters: the node's, the actuator's nested ones, topic names (defaults from messages.TOPICS)."""
+    return NODE_PARAMETERS + actuator_parameters() + tuple(_topic_params())
 
 
 def physics_parameters(params: Params) -> dict[str, Any]:
@@ -145,14 +188,19 @@ def physics_parameters(params: Params) -> dict[str, Any]:
     return {PHYSICS_PREFIX + key: d[key.split(".")[0]][key.split(".")[1]] for key in Params.override_keys()}
 
 
-def physics_unit(key: str) -> str:
+def unit_of(key: str) -> str:
     """Unit from the field-name suffix (the project names units in field names)."""
     for suffix, unit in (("_kg_m3", "kg/m³"), ("_m2_s", "m²/s"), ("_kgm2", "kg·m²"), ("_n_s_m", "N·s/m"),
-                         ("_nm_s_rad", "N·m·s/rad"), ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_kg", "kg"),
-                         ("_deg", "deg"), ("_w", "W"), ("_n", "N"), ("_m", "m")):
+                         ("_nm_s_rad", "N·m·s/rad"), ("_nm_rad", "N·m/rad"), ("_nm_a", "N·m/A"), ("_n_m", "N/m"),
+                         ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_1_s", "1/s"), ("_per_rev", "counts/rev"),
+                         ("_steps", "steps"), ("_kg", "kg"), ("_deg", "deg"), ("_hz", "Hz"), ("_ohm", "Ω"),
+                         ("_nm", "N·m"), ("_w", "W"), ("_a", "A"), ("_h", "H"), ("_s", "s"), ("_n", "N"), ("_m", "m")):
         if key.endswith(suffix):
             return unit
     return ""
+
+
+physics_unit = unit_of
 
 
 @dataclass(frozen=True)
@@ -163,6 +211,7 @@ class NodeConfig:
     params: Params  # the preset with every physics.* value applied, validated
     topics: dict[str, str] = field(default_factory=dict)  # topic key → name
     actuator: ActuatorParams = field(default_factory=ActuatorParams)  # `actuator` + `faults` + the interface
+    actuator_given: frozenset[str] = frozenset()  # the actuator.* names given at start-up (they apply)
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name == "values":
@@ -181,11 +230,16 @@ class NodeConfig:
         """Run the actuator around the screw: asked for by `actuator`, `faults` or a non-effort interface.
         Otherwise the node runs the bare model, publishing exactly what it did before the actuator existed."""
         v = self.values
-        return bool(v["actuator"].strip() or v["faults"].strip()) or v["command_interface"] != "effort"
+        nested = {p.name: p.default for p in actuator_parameters() if p.name in self.actuator_given}
+        asked = any((n.endswith(".fitted") and v[n]) or not _same(v[n], d) for n, d in nested.items())
+        return bool(v["actuator"].strip() or v["faults"].strip()) or v["command_interface"] != "effort" or asked
 
     @classmethod
-    def from_values(cls, values: dict[str, Any]) -> NodeConfig:
-        """Validate a full name → value mapping (node and physics parameters); ConfigError on the first problem."""
+    def from_values(cls, values: dict[str, Any], given: frozenset[str] | set[str] | None = None) -> NodeConfig:
+        """Validate a full name → value mapping (node and physics parameters); ConfigError on the first problem.
+
+        `given`: the actuator.* names set at start-up; None takes those whose value differs from the default.
+        """
         out: dict[str, Any] = {}
         for p in node_parameters():
             out[p.name] = check_value(p, values.get(p.name, p.default))
@@ -197,11 +251,24 @@ class NodeConfig:
         except ParamError as e:
             raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
         topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
-        return cls(values=out, params=params, topics=topics, actuator=actuator_config(out, params))
+        nested = actuator_parameters()
+        if given is None:
+            given = {p.name for p in nested if not _same(out[p.name], p.default)}
+        given = frozenset(n for n in given if n.startswith(ACTUATOR_PREFIX))
+        return cls(values=out, params=params, topics=topics, actuator=actuator_config(out, params, given),
+                   actuator_given=given)
 
 
-def actuator_config(values: dict[str, Any], params: Params) -> ActuatorParams:
-    """ActuatorParams from the `actuator` (YAML mapping), `faults` and `command_interface` parameters."""
+def _same(a: Any, b: Any) -> bool:
+    """Equal, NaN equal to NaN (a NaN default means none)."""
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return type(a) is type(b) and a == b
+
+
+def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str] = frozenset()) -> ActuatorParams:
+    """ActuatorParams from the `actuator` (YAML mapping), the actuator.* names `given`, `faults` and
+    `command_interface` parameters; a given nested name overrides the same field of the mapping."""
     import yaml
     from dataclasses import replace
     from prsm_sim.actuator.faults import check_fault
@@ -211,15 +278,60 @@ def actuator_config(values: dict[str, Any], params: Params) -> ActuatorParams:
     except yaml.YAMLError as e:
         first = str(e).splitlines()[0]
         raise ConfigError(f"parameter actuator = {text!r}: not a YAML mapping ({first})") from None
+    data = data if data is not None else {}
+    if given:
+        if not isinstance(data, dict):
+            raise ConfigError(f"parameter actuator = {text!r}: expected a mapping of groups "
+                              f"({', '.join(ACTUATOR_GROUPS)}, faults)")
+        data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+        for name in sorted(given):
+            group, key = name[len(ACTUATOR_PREFIX):].split(".", 1)
+            v = values[name]
+            if key == "fitted":
+                if group == "motor" and not v:
+                    data["motor"] = None
+                elif not isinstance(data.get(group), dict):
+                    data[group] = {}
+                continue
+            if not isinstance(data.get(group), dict):
+                data[group] = {}
+            data[group][key] = None if isinstance(v, float) and math.isnan(v) else v
+        if data.get("motor") is None and any(n.startswith(f"{ACTUATOR_PREFIX}motor.") and not n.endswith(".fitted")
+                                             for n in given) and values.get(f"{ACTUATOR_PREFIX}motor.fitted", True):
+            data["motor"] = data.get("motor") or {}
     try:
-        a = actuator_params_from_dict(data if data is not None else {})
+        a = actuator_params_from_dict(data)
         faults = a.faults + parse_faults(values["faults"])
         for f in faults:
             check_fault(f, params, values["model"], a.motor is not None)
+            bound_fault(f)
     except ParamError as e:
-        name = "faults" if str(e).startswith("fault") else "actuator"
-        raise ConfigError(f"parameter {name}: {e}") from None
+        text_e = str(e)
+        if text_e.startswith("fault"):
+            raise ConfigError(f"parameter faults: {e}") from None
+        group = text_e.split(".", 1)[0].removeprefix("unknown parameter ")
+        nested = any(n.startswith(f"{ACTUATOR_PREFIX}{group}.") for n in given)
+        raise ConfigError(f"parameter actuator.{e}" if nested and group in ACTUATOR_GROUPS
+                          else f"parameter actuator: {e}") from None
     return replace(a, faults=faults, drive=replace(a.drive, mode=values["command_interface"]))
+
+
+# What a fault's value may be, like a command's bound: a larger one is a mistake or an attack,
+# never a test (a jam 1e300 N·m, a friction factor of a million), and is refused.
+FAULT_VALUE_LIMITS = {"friction_surge": (100.0, ""), "lubrication_loss": (100.0, ""), "jam": (1e6, "N·m"),
+                      "sensor_bias": (1e6, "in the sensor's unit"), "sensor_noise": (1e6, "in the sensor's unit"),
+                      "backlash": (1.0, "m/s")}
+FAULT_START_LIMIT_S = 1e9
+
+
+def bound_fault(f: Fault) -> Fault:
+    """The fault, or ParamError when its value or start lies beyond what any test needs."""
+    limit, unit = FAULT_VALUE_LIMITS.get(f.kind, (None, ""))
+    if limit is not None and abs(f.value) > limit:
+        raise ParamError(f"fault.value = {f.value!r}: {f.kind} allows |value| <= {limit:g}" + (f" {unit}" if unit else ""))
+    if f.start_s > FAULT_START_LIMIT_S:
+        raise ParamError(f"fault.start_s = {f.start_s!r}: must be <= {FAULT_START_LIMIT_S:g} s")
+    return f
 
 
 def check_value(p: NodeParam, value: Any) -> Any:
@@ -229,6 +341,12 @@ def check_value(p: NodeParam, value: Any) -> Any:
         return ConfigError(f"parameter {p.name} = {value!r}: must be {why or p.allowed}{unit}")
 
     d = p.default
+    if p.nan_is_none and value is None:
+        return math.nan
+    if p.nan_is_none and isinstance(value, str) and value.strip().lower() in ("nan", ".nan", "none", "null"):
+        return math.nan
+    if p.nan_is_none and isinstance(value, float) and math.isnan(value):
+        return value
     if isinstance(d, bool):
         if not isinstance(value, bool):
             raise bad()
@@ -285,7 +403,7 @@ def runtime_change(old: NodeConfig, changes: dict[str, Any]) -> NodeConfig:
     MCAP channels describe one layout per run.
     """
     from prsm_sim import build_model
-    new = NodeConfig.from_values({**old.values, **physics_parameters(old.params), **changes})
+    new = NodeConfig.from_values({**old.values, **physics_parameters(old.params), **changes}, old.actuator_given)
     if new.params != old.params:
         before = build_model(old.params, old.model, old.dt_s).layout
         after = build_model(new.params, new.model, new.dt_s).layout
@@ -309,6 +427,7 @@ def params_template(preset_name: str = DEFAULT_PRESET, node_name: str = "prsm_ac
     import yaml
     lines = ["# prsm-node parameters; use with: prsm-node --ros-args --params-file FILE", f"{node_name}:",
              "  ros__parameters:"]
+    nested = []
     for p in node_parameters():
         if p.name == "preset":
             value = preset_name
@@ -316,7 +435,15 @@ def params_template(preset_name: str = DEFAULT_PRESET, node_name: str = "prsm_ac
             value = p.default
         unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
         text = yaml.safe_dump({p.name: value}, default_flow_style=True).strip()[1:-1]
-        lines.append(f"    {text}  # {p.description}{unit}; {p.allowed}")
+        line = f"{text}  # {p.description}{unit}; {p.allowed}"
+        if p.name.startswith(ACTUATOR_PREFIX):
+            nested.append(line)
+        else:
+            lines.append(f"    {line}")
+    # commented out: a name given runs the actuator and overrides the `actuator` mapping (module doc)
+    lines.append("    # the actuator (prsm_sim.actuator), one name per field: uncomment what you set; any of them "
+                 "runs the actuator")
+    lines += [f"    # {line}" for line in nested]
     for key, value in physics_parameters(check_preset(preset_name)).items():
         unit = physics_unit(key)
         text = yaml.safe_dump({key: value}, default_flow_style=True).strip()[1:-1]
