@@ -24,6 +24,7 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 | clock                  | /clock                      | rosgraph_msgs/Clock           | out |
 | diagnostics            | /diagnostics                | diagnostic_msgs/DiagnosticArray | out |
 | events                 | ~/events                    | std_msgs/String (JSON)        | out, latched history |
+| robot_description      | robot_description           | std_msgs/String (URDF)        | out, latched |
 
 `~/events`: one JSON object per event (`event_document`): time_s (simulation time), source (what
 raised it, e.g. "energy_guard"), severity ("info", "warn", "error"), code (a stable identifier),
@@ -135,6 +136,8 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("clock", "/clock", "rosgraph_msgs/msg/Clock", qos(1), "out"),
     TopicDef("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", SYSTEM_DEFAULT_QOS, "out"),
     TopicDef("events", "~/events", "std_msgs/msg/String", qos(100, latched=True), "out"),
+    # the actuator as configured (prsm_ros.urdf), as robot_state_publisher publishes it: reliable, transient local
+    TopicDef("robot_description", "robot_description", "std_msgs/msg/String", qos(1, latched=True), "out"),
 )}
 
 

@@ -160,3 +160,14 @@ def _ros2_control(robot_name: str, names: Names, interface: str, effort_nm: floa
             f"    <joint name={q(names.screw_joint)}>", *screw_cmd, *state, "    </joint>",
             f"    <joint name={q(names.nut_joint)}>", *nut_cmd, *state, "    </joint>",
             "  </ros2_control>"]
+
+
+def urdf_for_node(cfg, node_name: str, namespace: str = "/") -> str:
+    """The URDF of a node's configuration (`prsm_ros.node.parameters.NodeConfig`) with its topic names."""
+    from prsm_ros.interface import TOPIC_DEFS, resolve_name
+
+    def topic(key: str) -> str:
+        return resolve_name(cfg.topics.get(key, TOPIC_DEFS[key].name), node_name, namespace)
+    return actuator_urdf(cfg.params, cfg.actuator if cfg.with_actuator else None, robot_name=node_name,
+                         interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
+                         joint_commands_topic=topic("joint_commands"), joint_states_topic=topic("joint_states"))

@@ -12,8 +12,10 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
-from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, NodeConfig, NodeParam, check_preset, check_value,
-                                      node_parameters, physics_parameters, physics_type, physics_unit)
+from prsm_ros.node.parameters import (ACTUATOR_PREFIX, PHYSICS_PREFIX, RCLPY_PARAMETERS, ConfigError, NodeConfig,
+                                      NodeParam, ParamSources, check_preset, check_value, nearest_hint,
+                                      node_parameters, physics_parameters, physics_type, physics_unit,
+                                      unknown_parameter)
 
 
 def declare_parameters(node: Node) -> NodeConfig:
@@ -31,7 +33,9 @@ def declare_parameters(node: Node) -> NodeConfig:
             additional_constraints=f"{physics_type(base, key).__name__}; validated by prsm_sim.Params",
             dynamic_typing=True)
         values[key] = _declare(node, key, default, desc)
-    return NodeConfig.from_values(values)
+    # the actuator.* names given at start-up apply (they override the `actuator` mapping)
+    given = {k for k in _overrides(node) if k.startswith(ACTUATOR_PREFIX) and k in values}
+    return NodeConfig.from_values(values, given)
 
 
 def _overrides(node: Node) -> dict:
@@ -55,16 +59,21 @@ def _declare(node: Node, name: str, default: Any, desc: ParameterDescriptor, spe
         raise ConfigError(f"parameter {name}: {e}") from None
 
 
-def check_unknown_overrides(node: Node, config: NodeConfig) -> None:
-    """A physics.* key in the parameter file that was not declared is a typo: refused; other unknown keys are logged."""
-    for k in sorted(k for k in _overrides(node) if not node.has_parameter(k)):
-        if k.startswith(PHYSICS_PREFIX):
-            group = k[len(PHYSICS_PREFIX):].split(".")[0]
-            allowed = [n for n in physics_parameters(config.params) if n.startswith(f"{PHYSICS_PREFIX}{group}.")]
-            raise ConfigError(f"unknown parameter {k}; allowed: "
-                              + (", ".join(allowed) if allowed else
-                                 "physics.<group>.<name> with group geometry, mass, friction, ideal or loads"))
-        node.get_logger().warning(f"parameter {k} is not a parameter of this node; ignored")
+def check_unknown_overrides(node: Node, sources: ParamSources | None) -> None:
+    """A name given to this node (`-p`, its own section of a params file) that it does not have is
+    refused (ConfigError naming the nearest valid one); one from a wildcard section is only warned
+    about (multi-node files are normal); rclpy's own parameters pass. `sources` None: every name
+    given is this node's (a node built in-process with parameter_overrides)."""
+    known = sorted(node.list_parameters([], 0).names)
+    for k in sorted(n for n in _overrides(node) if not node.has_parameter(n)):
+        if k in RCLPY_PARAMETERS:
+            continue
+        where = None if sources is None else sources.own.get(k)
+        if sources is None or where is not None:
+            raise ConfigError(unknown_parameter(k, where or "given to this node", known))
+        hint = nearest_hint(k, known)
+        node.get_logger().warning(f"parameter {k} ({sources.wildcard.get(k, 'a parameter file')}) is not a parameter "
+                                  "of this node; ignored" + (hint if "did you mean" in hint else ""))
 
 
 def descriptor(p: NodeParam) -> ParameterDescriptor:
@@ -83,7 +92,8 @@ def descriptor(p: NodeParam) -> ParameterDescriptor:
 def usage() -> str:
     """`prsm-node --help`: the command line and every parameter with its default, unit and allowed values."""
     lines = ["prsm-node: the simulated PRSM actuator (planetary roller screw) on the ROS 2 graph.", "",
-             "usage: prsm-node [--help] [--params-template [PRESET]] [--ros-args ...]",
+             "usage: prsm-node [--help] [--params-template [PRESET]] [--urdf] [--ros-args ...]", "",
+             "  --urdf: print the URDF of the actuator as the parameters configure it, and exit",
              "", "parameters (-p name:=value, or a ros__parameters YAML via --params-file):"]
     for p in node_parameters():
         unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""

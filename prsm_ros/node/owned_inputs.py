@@ -13,9 +13,11 @@ from prsm_sim import PrsmError
 def inject_fault(session, msg) -> str | None:
     """~/inject_fault (String 'kind=…,start_s=…,duration_s=…,value=…'; start_s in simulation time, omitted: now)."""
     from prsm_sim.actuator import parse_fault
+
+    from prsm_ros.node.parameters import bound_fault  # fault values bounded like commands
     text = msg.data if "start_s" in msg.data else f"{msg.data},start_s={session.time_s!r}"
     try:
-        return session.inject(parse_fault(text))
+        return session.inject(bound_fault(parse_fault(text)))
     except PrsmError as e:
         return str(e)
 

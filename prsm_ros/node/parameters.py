@@ -113,7 +113,10 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
     NodeParam("lockstep_steps", 1, "steps", "steps advanced per received command in lockstep mode", lo=1, hi=1_000_000),
     NodeParam("step_count", 1, "steps", "steps advanced by one ~/step call (std_srvs/Trigger) while paused",
               lo=1, hi=10_000_000),
-    NodeParam("start_paused", False, "", "start paused (resume with ~/pause false)", read_only=True),
+    NodeParam("start_paused", False, "", "start paused (resume with ~/pause false, or prsm-ctl resume)",
+              read_only=True),
+    NodeParam("wait_for_controller", False, "", "start paused; the first command accepted from a controller "
+              "resumes the node (that controller owns it from then on)", read_only=True),
     NodeParam("joint_states_rate", 0.0, "Hz", "publish rate of joint_states and ~/nut/wrench (0: every step)",
               lo=0.0, hi=1e6),
     NodeParam("internal_loads_rate", 100.0, "Hz", "DDS publish rate of ~/internal_loads in realtime and fast "
@@ -449,3 +452,137 @@ def params_template(preset_name: str = DEFAULT_PRESET, node_name: str = "prsm_ac
         text = yaml.safe_dump({key: value}, default_flow_style=True).strip()[1:-1]
         lines.append(f"    {text}" + (f"  # [{unit}]" if unit else ""))
     return "\n".join(lines) + "\n"
+
+
+# -- where the start-up values come from ---------------------------------------------------------
+# rclpy's own parameters: a node accepts them without declaring them itself
+RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
+PARAMS_FILE_MAX_BYTES = 1 << 20  # a ros__parameters file is a few kB; rcl's parser takes minutes on 9 MB
+
+
+@dataclass(frozen=True)
+class ParamSources:
+    """The parameter names of the command line, by where they come from.
+
+    `own`: `-p` and sections naming this node exactly (a name there that the node does not have is
+    an error); `wildcard`: sections matching it through `*` or `**` (other nodes' names are normal
+    there); `unmatched_files`: params files with no section for this node → the sections they have.
+    """
+
+    own: dict[str, str] = field(default_factory=dict)  # name → where it was given
+    wildcard: dict[str, str] = field(default_factory=dict)
+    unmatched_files: dict[str, list[str]] = field(default_factory=dict)
+    node: str = "/prsm_actuator"  # the node's full name the sections were matched against
+
+    def warnings(self) -> list[str]:
+        return [f"{f}: no section for {self.node} (sections: {', '.join(s) or 'none'}); its parameters do not apply"
+                for f, s in self.unmatched_files.items()]
+
+
+def _ros_args(args: list[str]) -> list[str]:
+    """The arguments inside --ros-args … [--] blocks."""
+    out, inside = [], False
+    for a in args:
+        if a == "--ros-args":
+            inside = True
+        elif a == "--":
+            inside = False
+        elif inside:
+            out.append(a)
+    return out
+
+
+def _section_matches(key: str, fqn: str) -> str | None:
+    """'own' when a params-file section names the node `fqn` exactly, 'wildcard' through * or **, else None."""
+    import re
+    k = key if key.startswith("/") else "/" + key
+    if "*" not in k:
+        return "own" if k == fqn else None
+    rx = "".join(".*" if part == "**" else "[^/]*" if part == "*" else re.escape(part)
+                 for part in re.split(r"(\*\*|\*)", k))
+    # rcl: "/**/name" matches "/name" too (** stands for any number of namespace levels, zero included)
+    rx = rx.replace("/.*/", "(/.*)?/")
+    return "wildcard" if re.fullmatch(rx, fqn) else None
+
+
+def _flatten(d: dict, prefix: str = "") -> list[str]:
+    names = []
+    for k, v in d.items():
+        name = f"{prefix}{k}"
+        names += _flatten(v, name + ".") if isinstance(v, dict) else [name]
+    return names
+
+
+def param_sources(args: list[str], node_name: str, namespace: str = "/") -> ParamSources:
+    """Read the command line's `-p` and `--params-file` names (ConfigError for a missing, unreadable,
+    oversized or non-YAML file, in one line naming it). Remaps of __node and __ns are followed."""
+    import yaml
+    ros = _ros_args(args)
+    for flag, value in zip(ros, ros[1:]):
+        if flag in ("-r", "--remap") and ":=" in value:
+            lhs, rhs = value.split(":=", 1)
+            target = lhs.rsplit(":", 1)[-1] if lhs.count(":") else lhs
+            if target == "__node" and (lhs == "__node" or lhs.split(":")[0] == node_name):
+                node_name = rhs
+            elif target == "__ns" and (lhs == "__ns" or lhs.split(":")[0] == node_name):
+                namespace = rhs
+    fqn = ("/" + namespace.strip("/") if namespace.strip("/") else "") + "/" + node_name
+    own, wild, unmatched = {}, {}, {}
+    for flag, value in zip(ros, ros[1:]):
+        if flag in ("-p", "--param") and ":=" in value:
+            name = value.split(":=", 1)[0]
+            if name.count(":") == 1:  # node:name:=value addresses one node
+                target, name = name.split(":")
+                if target not in (node_name, fqn):
+                    continue
+            own[name] = "-p"
+        elif flag == "--params-file":
+            path = value
+            try:
+                import os
+                size = os.stat(path).st_size
+                if size > PARAMS_FILE_MAX_BYTES:
+                    raise ConfigError(f"--params-file {path}: {size} bytes; a parameters file is at most "
+                                      f"{PARAMS_FILE_MAX_BYTES} bytes")
+                with open(path, encoding="utf-8") as f:
+                    doc = yaml.safe_load(f)
+            except OSError as e:
+                raise ConfigError(f"--params-file {path}: cannot read it ({e.strerror or e})") from None
+            except UnicodeDecodeError:
+                raise ConfigError(f"--params-file {path}: not a UTF-8 text file") from None
+            except yaml.YAMLError as e:
+                mark = getattr(e, "problem_mark", None)
+                where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+                raise ConfigError(f"--params-file {path}: not valid YAML{where} "
+                                  f"({getattr(e, 'problem', None) or type(e).__name__})") from None
+            if not isinstance(doc, dict):
+                raise ConfigError(f"--params-file {path}: expected a mapping of node names to "
+                                  "{ros__parameters: {...}}")
+            matched = False
+            for key, section in doc.items():
+                kind = _section_matches(str(key), fqn)
+                if kind is None:
+                    continue
+                params = section.get("ros__parameters") if isinstance(section, dict) else None
+                if not isinstance(params, dict):
+                    raise ConfigError(f"--params-file {path}: section {key}: expected ros__parameters: {{...}}")
+                matched = True
+                for name in _flatten(params):
+                    (own if kind == "own" else wild)[name] = f"{path}, section {key}"
+            if not matched:
+                unmatched[path] = [str(k) for k in doc]
+    for name in own:
+        wild.pop(name, None)
+    return ParamSources(own, wild, unmatched, fqn)
+
+
+def nearest_hint(name: str, known: list[str]) -> str:
+    """'; did you mean NAME?' for the closest known name, else where the names are listed."""
+    import difflib
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    return f"; did you mean {close[0]}?" if close else "; prsm-node --help lists them"
+
+
+def unknown_parameter(name: str, where: str, known: list[str]) -> str:
+    """The one line that refuses a parameter this node does not have, with the nearest valid name."""
+    return f"unknown parameter {name} ({where}){nearest_hint(name, known)}"

@@ -65,7 +65,7 @@ from rclpy.qos import DurabilityPolicy, QoSPolicyKind
 from rclpy.qos_overriding_options import InvalidQosOverridesError, QoSOverridingOptions
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 from std_srvs.srv import SetBool, Trigger
 
 from prsm_sim import ModelError, PrsmError, Session
@@ -82,9 +82,10 @@ from prsm_ros.node.refusals import Refusals, short
 from prsm_ros.node.scheduling import raise_process_threads
 from prsm_ros.node.sinks import open_sinks
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns, with_depth
-from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, params_template, runtime_change
+from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, ParamSources, param_sources, params_template,
+                                      runtime_change)
+from prsm_ros.urdf import urdf_for_node
 from prsm_ros.node.joint_commands import offer_joint_command
-from prsm_ros.limits import read_text_file
 from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
 from prsm_ros.node.step_jobs import (INLINE_STEPS, INLINE_WAIT_S, STEP_REQUEST, StepJobs, answer, done_event,
                                      request_refused, stop_reason)
@@ -122,7 +123,8 @@ def _unmatched(pub) -> bool:
 class PrsmNode(Node):
     """Publishers, subscriptions, services and the step loop; all logic lives in the helpers."""
 
-    def __init__(self, **node_kwargs: Any) -> None:
+    def __init__(self, param_sources: ParamSources | None = None, **node_kwargs: Any) -> None:
+        self.param_sources = param_sources  # where the start-up names came from (main); None: all ours
         super().__init__(NODE_NAME, **node_kwargs)
         self.recorder = self.rerun = None
         self._thread: threading.Thread | None = None
@@ -144,7 +146,7 @@ class PrsmNode(Node):
                                nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
                                interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
                                cmd_timeout_s=cfg.cmd_timeout, timeout_behaviour=cfg.timeout_behaviour)
-        if cfg.start_paused:
+        if cfg.start_paused or cfg.wait_for_controller:
             self.session.pause()
         self.mapper = MessageMapper(self.session.layout, cfg.model)
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
@@ -152,7 +154,7 @@ class PrsmNode(Node):
         self._set_decimation()
 
         self._create_topics()
-        check_unknown_overrides(self, cfg)
+        check_unknown_overrides(self, self.param_sources)
         self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
         if cfg.time_mode == "realtime":
             self._prepare_realtime()
@@ -177,6 +179,10 @@ class PrsmNode(Node):
         self._energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
+        self._publish(self.pub["robot_description"], "robot_description",
+                      String(data=urdf_for_node(cfg, self.get_name(), self.get_namespace())))
+        # wait_for_controller: paused until the first command accepted from a controller (`_hand_over`)
+        self._await_controller = cfg.wait_for_controller
 
         self.pacer = DeadlinePacer(cfg.dt_s, cfg.real_time_factor, spin_s=cfg.pacing_spin)
         self.refusals = Refusals()
@@ -188,7 +194,8 @@ class PrsmNode(Node):
             f"{cfg.model} model, preset {cfg.preset}, {cfg.update_rate} Hz, {cfg.time_mode}"
             + (f" ×{cfg.real_time_factor:g}" if cfg.time_mode == "realtime" else "")
             + (f", recording to {self.recorder.path}" if self.recorder else "")
-            + (", paused" if cfg.start_paused else ""))
+            + (", waiting for a controller's first command" if cfg.wait_for_controller
+               else ", paused" if cfg.start_paused else ""))
 
     def _create_topics(self) -> None:
         """Publishers, command subscriptions (polled by the step thread in realtime and fast mode), topic names."""
@@ -200,7 +207,7 @@ class PrsmNode(Node):
             self.pub = {k: self.create_publisher(TOPICS[k].msg_class, self._topic(k), TOPICS[k].qos,
                                                  qos_overriding_options=qos_opts())
                         for k in ("joint_states", "wrench", "internal_loads", "labels", "command_echo", "diagnostics",
-                                  "events") + (("clock",) if cfg.publish_clock else ())
+                                  "events", "robot_description") + (("clock",) if cfg.publish_clock else ())
                         + (("ground_truth",) if self.session.actuator is not None else ())}
             # commands arrive as raw CDR (recorded as they are); in realtime and fast mode the step
             # thread takes them itself before each step (command_poll), in lockstep the executor
@@ -348,9 +355,23 @@ class PrsmNode(Node):
         if reason is None:
             self.ownership.accepted(who)
             self.echo.offer(stamp_of(header_ns, info.get("source_timestamp")), self._topic_names[key])
+            if self._await_controller:
+                self._hand_over(key, who)
         else:
             self._refused(who, f"{key}_refused", f"{self._topic_names[key]}: {reason}")
         self._after_command(key, reason)
+
+    def _hand_over(self, key: str, who) -> None:
+        """Lock held: wait_for_controller's first accepted command resumes the node (logged, on ~/events)."""
+        self._await_controller = False
+        self.session.resume()
+        self._resumed.set()
+        text = (f"resumed at t = {self.session.time_s:.6f} s by the first command on {self._topic_names[key]} "
+                f"(controller {participant_name(who)})")
+        self.get_logger().info(text)
+        self._publish(self.pub["events"], "events", event_message(
+            self.session.time_s, "node", "info", "controller_resumed", text, {"topic": self._topic_names[key],
+                                                                             "participant": participant_name(who)}))
 
     def _refused(self, who: bytes | None, code: str, text: str) -> None:
         """Lock held: count a refusal (refusals); the first of a writer for a reason is logged and put on ~/events."""
@@ -759,18 +780,21 @@ def main(argv: list[str] | None = None) -> int:
             print(f"prsm-node: error: {e}", file=sys.stderr)
             return 2
         return 0
+    urdf = "--urdf" in user
+    user = [a for a in user if a != "--urdf"]
     if user:
         print(f"prsm-node: error: unknown argument {user[0]!r}; ROS arguments go after --ros-args "
               "(see prsm-node --help)", file=sys.stderr)
         return 2
-    ros = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
-    for flag, path in zip(ros, ros[1:]):  # rcl reads a params file whatever its size, and waits on a FIFO
-        if flag == "--params-file":
-            try:
-                read_text_file(path, what="parameters file", error=ConfigError)
-            except ConfigError as e:
-                print(f"prsm-node: error: --params-file {e}", file=sys.stderr)
-                return 2
+    try:  # a missing or broken params file: one line here, not rcl's traceback at init
+        sources = param_sources(args, NODE_NAME)
+    except ConfigError as e:
+        print(f"prsm-node: error: {e}", file=sys.stderr)
+        return 2
+    for warning in sources.warnings():
+        print(f"prsm-node: warning: {warning}", file=sys.stderr)
+    if urdf:
+        return _print_urdf(args, sources)
 
     stop = threading.Event()
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
@@ -779,7 +803,7 @@ def main(argv: list[str] | None = None) -> int:
     node = None
     try:
         try:
-            node = PrsmNode()
+            node = PrsmNode(param_sources=sources)
         except PrsmError as e:  # a parameter refused (ConfigError), or a model the parameters cannot build
             _exit_now(2, f"prsm-node: error: {e}")
         except Exception as e:  # e.g. an RCLError for a QoS override the middleware refuses
@@ -801,6 +825,22 @@ def main(argv: list[str] | None = None) -> int:
             node.close()
             node.destroy_node()
         rclpy.try_shutdown()
+    return 0
+
+
+def _print_urdf(args: list[str], sources: ParamSources) -> int:
+    """`prsm-node --urdf [--ros-args …]`: the parameters read as the node reads them, the URDF on stdout."""
+    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        node = Node(NODE_NAME, start_parameter_services=False, enable_rosout=False)
+        cfg = declare_parameters(node)
+        check_unknown_overrides(node, sources)
+        text = urdf_for_node(cfg, node.get_name(), node.get_namespace())
+    except PrsmError as e:
+        _exit_now(2, f"prsm-node: error: {e}")
+    print(text, end="", flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
     return 0
 
 
