@@ -509,7 +509,7 @@ def _flatten(d: dict, prefix: str = "") -> list[str]:
     names = []
     for k, v in d.items():
         name = f"{prefix}{k}"
-        names += _flatten(v, name + ".") if isinstance(v, dict) else [name]
+        names += _flatten(v, name + ".") if isinstance(v, dict) and v else [name]  # rcl keeps `x: {}` as x
     return names
 
 
@@ -536,6 +536,12 @@ def param_sources(args: list[str], node_name: str, namespace: str = "/") -> Para
                 if target not in (node_name, fqn):
                     continue
             own[name] = "-p"
+            text = value.split(":=", 1)[1].strip()
+            if text.startswith("{"):  # rcl reads -p values as YAML scalars or lists, never mappings
+                raise ConfigError(f"-p {value}: rcl cannot read a YAML mapping after := (in a shell, "
+                                  f"-p {name}:=\"{{…}}\" reaches it without its quotes); give the nested names "
+                                  f"(-p {name}.motor.fitted:=true …) or quote the whole argument: "
+                                  f"-p '{name}:=\"{{…}}\"'")
         elif flag == "--params-file":
             path = value
             try:

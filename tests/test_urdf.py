@@ -1,0 +1,145 @@
+"""The actuator's URDF (`prsm-node --urdf`, `robot_description`) and the README's command lines as a shell runs them.
+
+Oracles: the node's own messages (joint names and coordinates of `joint_states`, the wrench's
+frame), read by an independent URDF library (yourdfpy) from the description the node publishes;
+the README's sign convention (a positive nut position is the body's −z for right-hand threads,
+x_nut = (L/2π) θ_S); the stop given as a nested parameter on the command line, seen in the URDF
+limit and by `prsm-ctl param get`. The shell tests run real `bash -c` command lines, so the
+quoting a user types is what is tested, not a Python dict.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
+
+yourdfpy = pytest.importorskip("yourdfpy")
+
+from prsm_sim import preset  # noqa: E402
+from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, ros_test_env  # noqa: E402
+
+ENV = ros_test_env("test_urdf")
+NODE = [sys.executable, "-m", "prsm_ros.node.ros_node"]
+SHELL_ENV = {**ENV, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+
+
+def load(text: str):
+    return yourdfpy.URDF.load(io.BytesIO(text.encode()), load_meshes=False)
+
+
+def urdf_of(*ros_args: str) -> str:
+    r = subprocess.run(NODE + ["--urdf", "--ros-args", *ros_args], env=ENV, capture_output=True, text=True,
+                       timeout=60 * CEILING_FACTOR)
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+def test_urdf_against_the_node_messages_and_a_nested_stop(tmp_path, capsys):
+    from geometry_msgs.msg import WrenchStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, String
+    from prsm_ros.cli import ctl
+
+    params = {"model": "ideal", "preset": "s30", "time_mode": "lockstep", "record": False, "cmd_timeout": 0.0,
+              "actuator.motor.fitted": True, "actuator.stops.max_position_m": 0.1}
+    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
+        desc = cli.subscribe("/robot_description", String)
+        js = cli.subscribe("/joint_states", JointState)
+        wrench = cli.subscribe("/prsm_actuator/nut/wrench", WrenchStamped)
+        cli.publisher("/prsm_actuator/screw_torque", Float64)
+        cli.wait_for_node(proc)
+        cli.spin_until(lambda: desc, 10.0, "robot_description (transient local)")
+        for k in range(3):
+            cli.publish("/prsm_actuator/screw_torque", Float64(data=2.0))
+            cli.spin_until(lambda: len(js) > k and len(wrench) > k, 10.0, f"state {k + 1}")
+        # prsm-ctl sees the nested stop given with -p
+        saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+        os.environ.update({k: ENV[k] for k in saved})
+        try:
+            assert ctl.main(["--timeout", str(10 * CEILING_FACTOR), "param", "get",
+                             "actuator.stops.max_position_m"]) == 0
+        finally:
+            os.environ.update({k: v for k, v in saved.items() if v is not None})
+        assert capsys.readouterr().out.strip() == "0.1"
+        assert proc.stop() == 0, proc.stderr
+
+    text = desc[-1].data
+    assert text == urdf_of(*(a for k, v in params.items() for a in ("-p", f"{k}:={_ros(v)}")))
+    u = load(text)
+    assert set(u.joint_names) == set(js[-1].name) == {"screw_joint", "nut_joint"}
+    screw, nut = u.joint_map["screw_joint"], u.joint_map["nut_joint"]
+    assert screw.type == "continuous" and list(screw.axis) == [0, 0, 1]
+    assert nut.type == "prismatic" and list(nut.axis) == [0, 0, -1]
+    # the stop from -p, and the thread end on the side without a stop
+    geo = preset("s30").geometry
+    travel = getattr(geo, "travel_m", geo.screw_length_m)
+    assert (nut.limit.lower, nut.limit.upper) == (pytest.approx(-0.5 * travel), 0.1)
+    assert wrench[-1].header.frame_id == nut.child == "nut_link" and u.base_link == screw.parent == nut.parent
+    # the description's frames follow the node's coordinates: nut at z = −x_nut, x_nut = (L/2π) θ_S
+    last = js[-1]
+    theta, x_nut = last.position[list(last.name).index("screw_joint")], last.position[list(last.name).index("nut_joint")]
+    assert x_nut > 0 and x_nut == pytest.approx(geo.lead_per_rad_m * theta, rel=1e-12)
+    u.update_cfg({"screw_joint": theta, "nut_joint": x_nut})
+    nut_z = u.get_transform("nut_link", u.base_link)[2, 3]
+    screw_rot = u.get_transform("screw_link", u.base_link)[:2, :2]
+    assert nut_z == pytest.approx(-x_nut, rel=1e-12)
+    assert screw_rot[1, 0] == pytest.approx(math.sin(theta), abs=1e-12)  # right-handed about +z
+    # ros2_control: the topic-based system on the node's topics, the active interface commanded
+    assert "<plugin>joint_state_topic_hardware_interface/JointStateTopicSystem</plugin>" in text
+    assert ">/prsm_actuator/joint_commands<" in text and ">/joint_states<" in text
+    assert '<command_interface name="effort">' in text
+    # masses from the parameters: the nut link moves the load mass and the rollers
+    m = preset("s30").mass
+    assert u.link_map["nut_link"].inertial.mass == pytest.approx(m.moved_mass_kg + geo.n_rollers * m.roller_mass_kg)
+
+
+def _ros(v) -> str:
+    return ("true" if v else "false") if isinstance(v, bool) else str(v)
+
+
+def shell(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(["bash", "-c", cmd], env=SHELL_ENV, cwd=cwd, capture_output=True, text=True,
+                          timeout=60 * CEILING_FACTOR)
+
+
+NESTED = ("-p command_interface:=velocity -p actuator.motor.fitted:=true "
+          "-p actuator.sensors.encoder_counts_per_rev:=4096 "
+          "-p actuator.stops.min_position_m:=0.0 -p actuator.stops.max_position_m:=0.3 "
+          "-p actuator.brake.holding_torque_nm:=8.0 -p actuator.brake.engage_on_watchdog:=true "
+          '-p faults:="kind=jam,start_s=2.0,duration_s=0.5,value=30"')
+
+
+@pytest.mark.parametrize("args", [
+    NESTED,
+    # the string form, quoted so that the shell hands rcl a string
+    "-p command_interface:=velocity "
+    "-p 'actuator:=\"{motor: {}, stops: {min_position_m: 0.0, max_position_m: 0.3}, brake: {holding_torque_nm: 8.0}}\"'",
+    "--params-file actuator.yaml",
+], ids=["nested -p", "quoted string form", "nested params file"])
+def test_readme_actuator_command_lines_in_a_shell(tmp_path, args):
+    (tmp_path / "actuator.yaml").write_text(
+        "prsm_actuator:\n  ros__parameters:\n    command_interface: velocity\n    actuator:\n"
+        "      motor: {fitted: true}\n      stops: {min_position_m: 0.0, max_position_m: 0.3}\n", encoding="utf-8")
+    exe = shlex.join(NODE)
+    r = shell(f"{exe} --urdf --ros-args {args}", tmp_path)
+    assert r.returncode == 0, r.stderr
+    nut = load(r.stdout).joint_map["nut_joint"]
+    assert (nut.limit.lower, nut.limit.upper) == (0.0, 0.3)
+    assert '<command_interface name="velocity">' in r.stdout  # the screw's speed is commanded
+    # the motor is fitted: its rotor joins the screw's inertia about z
+    screw = load(r.stdout).link_map["screw_link"].inertial.inertia
+    assert screw[2, 2] > preset("s30").mass.screw_inertia_kgm2
+
+
+def test_the_old_readme_form_is_refused_in_one_line(tmp_path):
+    r = shell(f"{shlex.join(NODE)} --ros-args -p actuator:=\"{{motor: {{}}}}\"", tmp_path)
+    assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1
+    assert "rcl cannot read a YAML mapping" in r.stderr and "actuator.motor.fitted:=true" in r.stderr
