@@ -164,3 +164,30 @@ def test_the_command_state_follow_and_a_missing_node(node, tmp_path):
 
 def run_cli(cmd: list[str], env: dict) -> int:
     return subprocess.run(cmd + ["--timeout", TIMEOUT], env=env, capture_output=True, timeout=120 * CEILING_FACTOR).returncode
+
+
+def test_wait_for_controller_hands_the_plant_to_the_first_command(tmp_path, capsys):
+    """Realtime with load, as a user's controller joins late: nothing steps until its first command."""
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, String
+    params = {"model": "ideal", "preset": "s30", "record": False, "load_force": 500.0, "wait_for_controller": True}
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    env = ros_test_env("test_ctl_wait")
+    os.environ.update({k: env[k] for k in saved})
+    try:
+        with NodeProcess(env, params, workdir=tmp_path / "run") as proc, RosClient(env) as cli:
+            js = cli.subscribe("/joint_states", JointState)
+            events = cli.subscribe("/prsm_actuator/events", String)
+            cli.publisher("/prsm_actuator/screw_torque", Float64)
+            cli.wait_for_node(proc)
+            assert ctl.main(["--json", "--timeout", TIMEOUT, "state"]) == 0
+            rec = json.loads(capsys.readouterr().out)
+            assert rec["paused"] == "True" and rec["time_s"] == 0.0 and js == []
+            cli.publish("/prsm_actuator/screw_torque", Float64(data=0.4))
+            cli.spin_until(lambda: js, 10.0, "the first state after the controller's command")
+            t0 = js[0].header.stamp.sec + js[0].header.stamp.nanosec * 1e-9
+            assert t0 == pytest.approx(1e-3)  # the first step after the hand-over, not seconds of free fall
+            cli.spin_until(lambda: any('"controller_resumed"' in m.data for m in events), 10.0, "the hand-over event")
+            assert proc.stop() == 0, proc.stderr
+    finally:
+        os.environ.update({k: v for k, v in saved.items() if v is not None})

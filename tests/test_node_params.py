@@ -141,3 +141,48 @@ def test_namespace_and_topic_parameters_move_the_topics(tmp_path):
         cli.spin_until(lambda: expected <= names(), 10.0, f"topics {sorted(expected)}")  # discovery is gradual
         assert "/joint_states" not in names() and "/left/joint_states" not in names()
         assert proc.stop() == 0
+
+
+def _start(tmp_path, *ros_args: str):
+    import subprocess
+    import sys
+    from ros_procs import CEILING_FACTOR
+    return subprocess.run([sys.executable, "-m", "prsm_ros.node.ros_node", "--urdf", "--ros-args", *ros_args],
+                          env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=60 * CEILING_FACTOR)
+
+
+def test_params_files_broken_missing_wildcard_and_for_another_node(tmp_path):
+    """One line and exit 2 for a file that cannot be read; warnings (not errors) for names in a `/**`
+    section and for a file with no section for this node; rclpy's own parameters accepted."""
+    (tmp_path / "broken.yaml").write_text("prsm_actuator:\n  ros__parameters: [\n", encoding="utf-8")
+    (tmp_path / "multi.yaml").write_text(
+        "/**:\n  ros__parameters:\n    use_sim_time: false\n    other_nodes_gain: 3.0\n"
+        "prsm_actuator:\n  ros__parameters:\n    max_effort: 20.0\n", encoding="utf-8")
+    (tmp_path / "other.yaml").write_text("controller:\n  ros__parameters:\n    gain: 1.0\n"
+                                         "/robot/arm:\n  ros__parameters:\n    x: 1\n", encoding="utf-8")
+    for args, says in ((["--params-file", "broken.yaml"], "--params-file broken.yaml: not valid YAML at line 3"),
+                       (["--params-file", "missing.yaml"], "--params-file missing.yaml: cannot read it")):
+        r = _start(tmp_path, *args)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and says in r.stderr, r.stderr
+    r = _start(tmp_path, "--params-file", "multi.yaml", "--params-file", "other.yaml", "-p", "use_sim_time:=false")
+    assert r.returncode == 0, r.stderr
+    assert "other.yaml: no section for /prsm_actuator (sections: controller, /robot/arm)" in r.stderr
+    assert "parameter other_nodes_gain (multi.yaml, section /**) is not a parameter of this node; ignored" in r.stderr
+    assert "use_sim_time" not in r.stderr and 'effort="20.0"' in r.stdout  # the node's own section applied
+
+
+def test_a_misspelt_safety_parameter_in_the_nodes_section_is_refused(tmp_path):
+    (tmp_path / "typo.yaml").write_text("prsm_actuator:\n  ros__parameters:\n    max_efort: 1.0\n", encoding="utf-8")
+    r = _start(tmp_path, "--params-file", "typo.yaml")
+    assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1
+    assert r.stderr.strip() == ("prsm-node: error: unknown parameter max_efort (typo.yaml, section prsm_actuator); "
+                                "did you mean max_effort?")
+
+
+def test_fault_values_are_bounded_like_commands():
+    for spec, says in (("kind=jam,value=1e300", "jam allows |value| <= 1e+06 N·m"),
+                       ("kind=friction_surge,value=1e5", "friction_surge allows |value| <= 100"),
+                       ("kind=jam,value=3,start_s=1e12", "fault.start_s = 1000000000000.0: must be <= 1e+09 s")):
+        with pytest.raises(Exception, match="parameter faults: ") as e:
+            NodeConfig.from_values({"faults": spec})
+        assert says in str(e.value)

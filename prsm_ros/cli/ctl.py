@@ -371,12 +371,14 @@ def cmd_fault(ctl: Ctl, args, emit) -> None:
     from std_msgs.msg import String
 
     from prsm_sim.actuator import parse_fault
+
+    from prsm_ros.node.parameters import bound_fault
     if not args.spec:
         raise CtlError("fault inject: expected KIND [key=value ...], e.g. fault inject jam duration_s=0.5 value=30")
     first = args.spec[0]
     text = ",".join(args.spec if "=" in first else [f"kind={first}", *args.spec[1:]])
     try:
-        parse_fault(text if "start_s" in text else f"{text},start_s=0")  # the node checks it again at its time
+        bound_fault(parse_fault(text if "start_s" in text else f"{text},start_s=0"))  # the node checks it again
     except PrsmError as e:
         raise CtlError(f"fault inject: {e}") from None
     name = ctl.publish_once("inject_fault", String(data=text))
