@@ -248,7 +248,8 @@ class MessageBuilder:
     """
 
     def __init__(self, layout: InternalLayout, model_name: str, classes: Mapping[str, type],
-                 float_array: Callable[[np.ndarray], Any]) -> None:
+                 float_array: Callable[[np.ndarray], Any], *, joint_names: tuple[str, str] = (SCREW_JOINT, NUT_JOINT),
+                 nut_frame: str = NUT_FRAME) -> None:
         self.layout = layout
         self.model_name = model_name
         c = classes
@@ -260,7 +261,8 @@ class MessageBuilder:
         self._string, self._float64 = c["std_msgs/msg/String"], c["std_msgs/msg/Float64"]
         self._clock = c["rosgraph_msgs/msg/Clock"]
         self._float_array = float_array
-        self._names = [SCREW_JOINT, NUT_JOINT]
+        self._names = list(joint_names)  # screw, nut (the node's joints.* parameters)
+        self._nut_frame = nut_frame
         self._fields = [n for n, _ in OUTPUT_FIELDS]
         self._size = len(self._fields) + layout.size
         dim, lay = c["std_msgs/msg/MultiArrayDimension"], c["std_msgs/msg/MultiArrayLayout"]
@@ -295,7 +297,7 @@ class MessageBuilder:
         """Axial thread force on the nut in force.z of `nut_link` (z along +x_nut)."""
         v = self._vector3
         return self._wrench_stamped(
-            header=self._header_for(out.time_s, stamp_msg, NUT_FRAME),
+            header=self._header_for(out.time_s, stamp_msg, self._nut_frame),
             wrench=self._wrench(force=v(x=0.0, y=0.0, z=float(out.nut_force_n)), torque=v(x=0.0, y=0.0, z=0.0)))
 
     def internal_loads(self, out: Outputs):

@@ -96,8 +96,9 @@ def _float_array(a: np.ndarray) -> array.array:
 class MessageMapper(MessageBuilder):
     """Outputs → rclpy messages for one model's layout (the interface's mapping with rclpy's classes)."""
 
-    def __init__(self, layout: InternalLayout, model_name: str) -> None:
-        super().__init__(layout, model_name, CLASSES, _float_array)
+    def __init__(self, layout: InternalLayout, model_name: str, *, joint_names: tuple[str, str] = (SCREW_JOINT, NUT_JOINT),
+                 nut_frame: str = NUT_FRAME) -> None:
+        super().__init__(layout, model_name, CLASSES, _float_array, joint_names=joint_names, nut_frame=nut_frame)
 
     @staticmethod
     def clock(time_s: float) -> Clock:
@@ -105,5 +106,5 @@ class MessageMapper(MessageBuilder):
 
     def encoder(self) -> StepEncoder:
         """The same per-step messages as CDR bytes, without message objects (`prsm_ros.cdr_write`)."""
-        return StepEncoder(self.layout, tuple(self._names), NUT_FRAME,
+        return StepEncoder(self.layout, tuple(self._names), self._nut_frame,
                            [(d.label, d.size) for d in self._multiarray_layout.dim])

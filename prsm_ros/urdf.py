@@ -168,6 +168,9 @@ def urdf_for_node(cfg, node_name: str, namespace: str = "/") -> str:
 
     def topic(key: str) -> str:
         return resolve_name(cfg.topics.get(key, TOPIC_DEFS[key].name), node_name, namespace)
-    return actuator_urdf(cfg.params, cfg.actuator if cfg.with_actuator else None, robot_name=node_name,
+    v = cfg.values
+    names = Names(screw_joint=v["joints.screw"], nut_joint=v["joints.nut"], base_link=v["frames.base"],
+                  screw_link=v["frames.screw"], nut_link=v["frames.nut"])
+    return actuator_urdf(cfg.params, cfg.actuator if cfg.with_actuator else None, robot_name=node_name, names=names,
                          interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
                          joint_commands_topic=topic("joint_commands"), joint_states_topic=topic("joint_states"))

@@ -143,3 +143,25 @@ def test_the_old_readme_form_is_refused_in_one_line(tmp_path):
     r = shell(f"{shlex.join(NODE)} --ros-args -p actuator:=\"{{motor: {{}}}}\"", tmp_path)
     assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1
     assert "rcl cannot read a YAML mapping" in r.stderr and "actuator.motor.fitted:=true" in r.stderr
+
+
+def test_joint_and_frame_names_from_parameters(tmp_path):
+    """Renamed joints reach the node's joint_states, the wrench frame and the URDF alike."""
+    from geometry_msgs.msg import WrenchStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    params = {"model": "ideal", "time_mode": "lockstep", "record": False, "joints.screw": "left_screw",
+              "joints.nut": "left_nut", "frames.nut": "left_nut_link", "frames.base": "left_base"}
+    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
+        desc = cli.subscribe("/robot_description", String)
+        js = cli.subscribe("/joint_states", JointState)
+        wrench = cli.subscribe("/prsm_actuator/nut/wrench", WrenchStamped)
+        cli.publisher("/prsm_actuator/joint_commands", JointState)
+        cli.wait_for_node(proc)
+        cli.publish("/prsm_actuator/joint_commands", JointState(name=["left_screw"], effort=[1.0]))
+        cli.spin_until(lambda: js and wrench and desc, 10.0, "a state, a wrench and the description")
+        assert proc.stop() == 0, proc.stderr
+    assert list(js[0].name) == ["left_screw", "left_nut"] and js[0].effort[0] == 1.0  # the command was taken
+    u = load(desc[-1].data)
+    assert set(u.joint_names) == {"left_screw", "left_nut"} and u.base_link == "left_base"
+    assert wrench[0].header.frame_id == u.joint_map["left_nut"].child == "left_nut_link"

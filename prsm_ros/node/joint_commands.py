@@ -61,13 +61,14 @@ def decode_joint_command(names: Sequence[str], arrays: dict[str, Sequence[float]
     return value, None  # the gate checks it is a finite number
 
 
-def offer_joint_command(session: Session, names: Sequence[str], arrays: dict[str, Sequence[float]]) -> str | None:
+def offer_joint_command(session: Session, names: Sequence[str], arrays: dict[str, Sequence[float]],
+                        joints: dict[str, str] | None = None) -> str | None:
     """A JointState command to `session` for its active interface: the reason it was refused, or None.
 
     A message that does not hold a value for the active interface is counted by the gate as
     received and malformed; the value it holds goes to the gate, which checks it is a finite number.
     """
-    value, reason = decode_joint_command(names, arrays, session.interface)
+    value, reason = decode_joint_command(names, arrays, session.interface, joints)
     if reason is not None:
         return session.refuse_malformed(reason)
     return session.offer(session.interface, value)

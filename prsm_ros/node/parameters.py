@@ -148,6 +148,13 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
               "actuator loses it (0: only ~/release_control ends ownership)", lo=0.0, hi=1e6),
     NodeParam("command_ownership", True, "", "the first participant to send a valid command owns the "
               "actuator; commands from others are refused and counted", read_only=True),
+    NodeParam("joints.screw", "screw_joint", "", "name of the screw's revolute joint (joint_states, "
+              "~/joint_commands, the URDF's continuous joint)", read_only=True),
+    NodeParam("joints.nut", "nut_joint", "", "name of the nut's prismatic joint (joint_states, ~/joint_commands, "
+              "the URDF)", read_only=True),
+    NodeParam("frames.base", "base_link", "", "the URDF's fixed root link (the housing)", read_only=True),
+    NodeParam("frames.screw", "screw_link", "", "the URDF's screw link", read_only=True),
+    NodeParam("frames.nut", "nut_link", "", "the URDF's nut link, the frame of ~/nut/wrench", read_only=True),
     NodeParam("rerun", "off", "", "Rerun output (environment RERUN=off forces off)", choices=RERUN_MODES,
               read_only=True),
     NodeParam("rerun_target", "", "", "save: .rrd path; spawn: port; connect: viewer address ('' → default)",
@@ -225,6 +232,11 @@ class NodeConfig:
             raise AttributeError(name) from None
 
     @property
+    def joint_names(self) -> tuple[str, str]:
+        """(screw, nut) joint names."""
+        return self.values["joints.screw"], self.values["joints.nut"]
+
+    @property
     def dt_s(self) -> float:
         return 1.0 / self.values["update_rate"]
 
@@ -254,6 +266,14 @@ class NodeConfig:
         except ParamError as e:
             raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
         topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
+        for group in (("joints.screw", "joints.nut"), ("frames.base", "frames.screw", "frames.nut")):
+            names = [out[n] for n in group]
+            for n in group:
+                if not out[n].strip() or any(c in out[n] for c in " \t\n\"'<>&"):
+                    raise ConfigError(f"parameter {n} = {out[n]!r}: must be a non-empty name without spaces, "
+                                      "quotes or <>&")
+            if len(set(names)) != len(names):
+                raise ConfigError(f"parameters {', '.join(group)} = {names}: must differ")
         nested = actuator_parameters()
         if given is None:
             given = {p.name for p in nested if not _same(out[p.name], p.default)}

@@ -148,7 +148,10 @@ class PrsmNode(Node):
                                cmd_timeout_s=cfg.cmd_timeout, timeout_behaviour=cfg.timeout_behaviour)
         if cfg.start_paused or cfg.wait_for_controller:
             self.session.pause()
-        self.mapper = MessageMapper(self.session.layout, cfg.model)
+        self.mapper = MessageMapper(self.session.layout, cfg.model, joint_names=cfg.joint_names,
+                                    nut_frame=cfg.values["frames.nut"])
+        # which joint takes which command interface, with the joints' configured names
+        self._joints = {"position": cfg.joint_names[1], "velocity": cfg.joint_names[0], "effort": cfg.joint_names[0]}
         self.encoder = self.mapper.encoder()  # per-step messages straight to CDR bytes
         self._batch: list | None = None  # a step's messages for the bag, handed over at once (`_advance`)
         self._set_decimation()
@@ -391,7 +394,7 @@ class PrsmNode(Node):
                 return self.session.offer(COMMAND_TOPICS[key], _float64(raw)), None, False
             msg = deserialize_message(raw, JointState)
             arrays = {"position": msg.position, "velocity": msg.velocity, "effort": msg.effort}
-            return (offer_joint_command(self.session, msg.name, arrays),
+            return (offer_joint_command(self.session, msg.name, arrays, self._joints),
                     msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, False)
         except Exception as e:  # bytes that are not this type's CDR (a raw publisher): refused, never raised
             return self.session.refuse_malformed(f"a {len(raw)}-byte message that is not a valid "
