@@ -47,7 +47,29 @@ def info_dict(bag) -> dict:
                     "last_s": None if t.last_ns is None else t.last_ns * 1e-9,
                     "encoding": f"{t.schema_encoding}/{t.message_encoding}",
                     "malformed": t.malformed, "problem": t.problem} for t in bag.topics.values()],
+        "commands": command_counts(bag),
     }
+
+
+COMMAND_COUNTERS = ("commands_received", "commands_accepted", "rejected_non_finite", "rejected_malformed",
+                    "rejected_inactive_interface", "saturated", "commands_superseded", "commands_refused_not_owner")
+
+
+def command_counts(bag) -> dict | None:
+    """The node's command counters at its last /diagnostics in the bag (None: no prsm-node diagnostics).
+
+    The bag records the commands the node took from its readers; `commands_superseded` are those a
+    writer sent that its reader's queue replaced before the node took them (never in the bag)."""
+    if "/diagnostics" not in bag.topics:
+        return None
+    last = None
+    for m in bag.messages(["/diagnostics"]):
+        for st in getattr(m.msg, "status", ()):
+            if str(getattr(st, "name", "")).endswith(": simulation"):
+                last = {kv.key: kv.value for kv in st.values}
+    if last is None:
+        return None
+    return {k: (int(last[k]) if last[k].isdigit() else last[k]) for k in COMMAND_COUNTERS if k in last}
 
 
 def _cmd_info(args) -> int:
@@ -78,6 +100,9 @@ def _cmd_info(args) -> int:
     else:
         print("run:       no prsm_run metadata (recorded elsewhere)")
     print(f"metadata:  {', '.join(d['metadata_records']) or '(none)'}")
+    if d["commands"]:
+        print("commands:  " + ", ".join(f"{k.removeprefix('commands_')} {v}" for k, v in d["commands"].items())
+              + "  (the node's last /diagnostics; superseded: replaced in a reader's queue, not in the bag)")
     width = max((len(t["topic"]) for t in d["topics"]), default=5)
     twidth = max((len(t["type"]) for t in d["topics"]), default=4)
     print(f"\n{'topic':<{width}}  {'type':<{twidth}}  {'count':>8}  {'rate':>10}  {'malformed':>9}")

@@ -76,6 +76,7 @@ from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage
 from prsm_ros.node.diagnostics import (FAULT_LOG_LENGTH, Report, energy_fault_event, fault_event_details,
                                        fault_event_line, fault_event_report, simulation_report)
+from prsm_ros.node.command_sequence import SupersededCounter
 from prsm_ros.node.owned_inputs import OWNED_INPUTS
 from prsm_ros.node.ownership import COMMAND_QUEUE_DEPTH, CommandOwnership, participant_name, participant_of
 from prsm_ros.node.refusals import Refusals, short
@@ -142,6 +143,7 @@ class PrsmNode(Node):
         self._lock = threading.Lock()
         self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
         self.echo = CommandEcho()
+        self.superseded = SupersededCounter()  # commands replaced in a reader's queue before a step took them
         self.session = Session(cfg.params, cfg.model, cfg.dt_s, cfg.actuator if cfg.with_actuator else None,
                                nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
                                interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
@@ -342,6 +344,7 @@ class PrsmNode(Node):
         the owner and is echoed with the step that applies it (every command topic). A reference
         is recorded only (from the owner, or from anyone while nobody owns the actuator).
         """
+        self.superseded.observe(key, info)  # before anything refuses it: the writer's numbering counts every sample
         who = participant_of(info)
         reason = self.ownership.admit(who)
         if reason is not None:
@@ -617,6 +620,7 @@ class PrsmNode(Node):
         with self._lock:
             self.session.reset(self.config.initial_nut_position)
             self.echo.reset()
+            self.superseded.reset()
             self._energy_fault_reported = False
             self.pacer.restart()
             if self.session.paused:  # nothing steps while paused: a controller still sees the reset now
@@ -701,6 +705,7 @@ class PrsmNode(Node):
             # gaps in the state stamps; the node can say how many there are
             "joint_states_readers": self.pub["joint_states"].get_subscription_count(),
             **self.ownership.diagnostics(), **self.refusals.diagnostics(), **self.echo.report(),
+            **self.superseded.report(),
         }
         self._step_wall_max_s = 0.0
         problems = []
