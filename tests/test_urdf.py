@@ -110,26 +110,25 @@ def shell(cmd: str, cwd: Path) -> subprocess.CompletedProcess:
                           timeout=60 * CEILING_FACTOR)
 
 
-NESTED = ("-p command_interface:=velocity -p actuator.motor.fitted:=true "
-          "-p actuator.sensors.encoder_counts_per_rev:=4096 "
-          "-p actuator.stops.min_position_m:=0.0 -p actuator.stops.max_position_m:=0.3 "
-          "-p actuator.brake.holding_torque_nm:=8.0 -p actuator.brake.engage_on_watchdog:=true "
-          '-p faults:="kind=jam,start_s=2.0,duration_s=0.5,value=30"')
+ROS_DOC = Path(__file__).resolve().parent.parent / "docs" / "ros.md"
 
 
-@pytest.mark.parametrize("args", [
-    NESTED,
-    # the string form, quoted so that the shell hands rcl a string
-    "-p command_interface:=velocity "
-    "-p 'actuator:=\"{motor: {}, stops: {min_position_m: 0.0, max_position_m: 0.3}, brake: {holding_torque_nm: 8.0}}\"'",
-    "--params-file actuator.yaml",
-], ids=["nested -p", "quoted string form", "nested params file"])
-def test_readme_actuator_command_lines_in_a_shell(tmp_path, args):
-    (tmp_path / "actuator.yaml").write_text(
-        "prsm_actuator:\n  ros__parameters:\n    command_interface: velocity\n    actuator:\n"
-        "      motor: {fitted: true}\n      stops: {min_position_m: 0.0, max_position_m: 0.3}\n", encoding="utf-8")
-    exe = shlex.join(NODE)
-    r = shell(f"{exe} --urdf --ros-args {args}", tmp_path)
+def doc_command_lines() -> list[str]:
+    """The `prsm-node --urdf` lines of docs/ros.md, as written."""
+    return [line.strip() for line in ROS_DOC.read_text(encoding="utf-8").splitlines()
+            if line.startswith("prsm-node --urdf")]
+
+
+def doc_params_file() -> str:
+    import re
+    return re.search(r"^```yaml\n(prsm_actuator:.*?)^```", ROS_DOC.read_text(encoding="utf-8"), re.S | re.M).group(1)
+
+
+@pytest.mark.parametrize("line", doc_command_lines() + ["prsm-node --urdf --ros-args --params-file actuator.yaml"],
+                         ids=["nested -p", "quoted string form", "nested params file"])
+def test_documented_actuator_command_lines_in_a_shell(tmp_path, line):
+    (tmp_path / "actuator.yaml").write_text(doc_params_file(), encoding="utf-8")
+    r = shell(line.replace("prsm-node", shlex.join(NODE), 1), tmp_path)
     assert r.returncode == 0, r.stderr
     nut = load(r.stdout).joint_map["nut_joint"]
     assert (nut.limit.lower, nut.limit.upper) == (0.0, 0.3)
