@@ -10,6 +10,7 @@ quoting a user types is what is tested, not a Python dict.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import math
 import os
@@ -43,23 +44,13 @@ def urdf_of(*ros_args: str) -> str:
 
 
 def test_urdf_against_the_node_messages_and_a_nested_stop(tmp_path, capsys):
-    from geometry_msgs.msg import WrenchStamped
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64, String
+    from std_msgs.msg import Float64
     from prsm_ros.cli import ctl
 
     params = {"model": "ideal", "preset": "s30", "time_mode": "lockstep", "record": False, "cmd_timeout": 0.0,
               "actuator.motor.fitted": True, "actuator.stops.max_position_m": 0.1}
-    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
-        desc = cli.subscribe("/robot_description", String)
-        js = cli.subscribe("/joint_states", JointState)
-        wrench = cli.subscribe("/prsm_actuator/nut/wrench", WrenchStamped)
-        cli.publisher("/prsm_actuator/screw_torque", Float64)
-        cli.wait_for_node(proc)
-        cli.spin_until(lambda: desc, 10.0, "robot_description (transient local)")
-        for k in range(3):
-            cli.publish("/prsm_actuator/screw_torque", Float64(data=2.0))
-            cli.spin_until(lambda: len(js) > k and len(wrench) > k, 10.0, f"state {k + 1}")
+    with lockstep_node(tmp_path, params, "/prsm_actuator/screw_torque", [Float64(data=2.0)] * 3) as (proc, desc, js,
+                                                                                                       wrench):
         # prsm-ctl sees the nested stop given with -p
         saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
         os.environ.update({k: ENV[k] for k in saved})
@@ -69,7 +60,6 @@ def test_urdf_against_the_node_messages_and_a_nested_stop(tmp_path, capsys):
         finally:
             os.environ.update({k: v for k, v in saved.items() if v is not None})
         assert capsys.readouterr().out.strip() == "0.1"
-        assert proc.stop() == 0, proc.stderr
 
     text = desc[-1].data
     assert text == urdf_of(*(a for k, v in params.items() for a in ("-p", f"{k}:={_ros(v)}")))
@@ -99,6 +89,26 @@ def test_urdf_against_the_node_messages_and_a_nested_stop(tmp_path, capsys):
     # masses from the parameters: the nut link moves the load mass and the rollers
     m = preset("s30").mass
     assert u.link_map["nut_link"].inertial.mass == pytest.approx(m.moved_mass_kg + geo.n_rollers * m.roller_mass_kg)
+
+
+@contextlib.contextmanager
+def lockstep_node(tmp_path, params: dict, topic: str, commands: list):
+    """A lockstep node sent `commands` on `topic`, one state each: (process, descriptions, states, wrenches)."""
+    from geometry_msgs.msg import WrenchStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
+        desc = cli.subscribe("/robot_description", String)
+        js = cli.subscribe("/joint_states", JointState)
+        wrench = cli.subscribe("/prsm_actuator/nut/wrench", WrenchStamped)
+        cli.publisher(topic, type(commands[0]))
+        cli.wait_for_node(proc)
+        cli.spin_until(lambda: desc, 10.0, "robot_description (transient local)")
+        for k, msg in enumerate(commands):
+            cli.publish(topic, msg)
+            cli.spin_until(lambda: len(js) > k and len(wrench) > k, 10.0, f"state {k + 1}")
+        yield proc, desc, js, wrench
+        assert proc.stop() == 0, proc.stderr
 
 
 def _ros(v) -> str:
@@ -146,20 +156,12 @@ def test_the_old_readme_form_is_refused_in_one_line(tmp_path):
 
 def test_joint_and_frame_names_from_parameters(tmp_path):
     """Renamed joints reach the node's joint_states, the wrench frame and the URDF alike."""
-    from geometry_msgs.msg import WrenchStamped
     from sensor_msgs.msg import JointState
-    from std_msgs.msg import String
     params = {"model": "ideal", "time_mode": "lockstep", "record": False, "joints.screw": "left_screw",
               "joints.nut": "left_nut", "frames.nut": "left_nut_link", "frames.base": "left_base"}
-    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
-        desc = cli.subscribe("/robot_description", String)
-        js = cli.subscribe("/joint_states", JointState)
-        wrench = cli.subscribe("/prsm_actuator/nut/wrench", WrenchStamped)
-        cli.publisher("/prsm_actuator/joint_commands", JointState)
-        cli.wait_for_node(proc)
-        cli.publish("/prsm_actuator/joint_commands", JointState(name=["left_screw"], effort=[1.0]))
-        cli.spin_until(lambda: js and wrench and desc, 10.0, "a state, a wrench and the description")
-        assert proc.stop() == 0, proc.stderr
+    command = JointState(name=["left_screw"], effort=[1.0])
+    with lockstep_node(tmp_path, params, "/prsm_actuator/joint_commands", [command]) as (proc, desc, js, wrench):
+        pass
     assert list(js[0].name) == ["left_screw", "left_nut"] and js[0].effort[0] == 1.0  # the command was taken
     u = load(desc[-1].data)
     assert set(u.joint_names) == {"left_screw", "left_nut"} and u.base_link == "left_base"

@@ -181,9 +181,12 @@ def actuator_parameters() -> tuple[NodeParam, ...]:
                 default = int(default)
             elif kind.startswith("float"):
                 default = float(default)
-            out.append(NodeParam(f"{ACTUATOR_PREFIX}{group}.{f.name}", default, unit_of(f.name),
-                                 f"actuator {group}: {f.name.replace('_', ' ')} (prsm_sim.actuator.{cls.__name__})"
-                                 + ("; NaN: none" if none_ok else ""), read_only=True, nan_is_none=none_ok))
+            unit = unit_of(f.name)
+            words = f.name[:-len(_unit_suffix(f.name))] if unit else f.name
+            out.append(NodeParam(f"{ACTUATOR_PREFIX}{group}.{f.name}", default, unit,
+                                 f"actuator {group}: {words.replace('_', ' ')} (prsm_sim.actuator.{cls.__name__})"
+                                 + (f"; NaN: {NAN_MEANS.get(f.name, 'none')}" if none_ok else ""),
+                                 read_only=True, nan_is_none=none_ok))
     return tuple(out)
 
 
@@ -198,16 +201,28 @@ def physics_parameters(params: Params) -> dict[str, Any]:
     return {PHYSICS_PREFIX + key: d[key.split(".")[0]][key.split(".")[1]] for key in Params.override_keys()}
 
 
+# what NaN ("None" in prsm_sim.actuator) means for the actuator's optional fields
+NAN_MEANS = {"coupling_stiffness_nm_rad": "rigid coupling", "speed_kp_nm_s_rad": "tuned from the inertia",
+             "speed_ki_nm_rad": "tuned from the inertia", "position_kp_1_s": "tuned from the inertia",
+             "loop_rate_hz": "once per simulation step", "linear_encoder_resolution_m": "no linear encoder",
+             "load_cell_bandwidth_hz": "unfiltered", "min_position_m": "no stop on this side",
+             "max_position_m": "no stop on this side"}
+
+
+def _unit_suffix(key: str) -> str:
+    return next((s for s, _ in _UNITS if key.endswith(s)), "")
+
+
 def unit_of(key: str) -> str:
     """Unit from the field-name suffix (the project names units in field names)."""
-    for suffix, unit in (("_kg_m3", "kg/m³"), ("_m2_s", "m²/s"), ("_kgm2", "kg·m²"), ("_n_s_m", "N·s/m"),
-                         ("_nm_s_rad", "N·m·s/rad"), ("_nm_rad", "N·m/rad"), ("_nm_a", "N·m/A"), ("_n_m", "N/m"),
-                         ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_1_s", "1/s"), ("_per_rev", "counts/rev"),
-                         ("_steps", "steps"), ("_kg", "kg"), ("_deg", "deg"), ("_hz", "Hz"), ("_ohm", "Ω"),
-                         ("_nm", "N·m"), ("_w", "W"), ("_a", "A"), ("_h", "H"), ("_s", "s"), ("_n", "N"), ("_m", "m")):
-        if key.endswith(suffix):
-            return unit
-    return ""
+    return next((u for s, u in _UNITS if key.endswith(s)), "")
+
+
+_UNITS = (("_kg_m3", "kg/m³"), ("_m2_s", "m²/s"), ("_kgm2", "kg·m²"), ("_n_s_m", "N·s/m"),
+          ("_nm_s_rad", "N·m·s/rad"), ("_nm_rad", "N·m/rad"), ("_nm_a", "N·m/A"), ("_n_m", "N/m"),
+          ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_1_s", "1/s"), ("_per_rev", "counts/rev"),
+          ("_steps", "steps"), ("_kg", "kg"), ("_deg", "deg"), ("_hz", "Hz"), ("_ohm", "Ω"),
+          ("_nm", "N·m"), ("_w", "W"), ("_a", "A"), ("_h", "H"), ("_s", "s"), ("_n", "N"), ("_m", "m"))
 
 
 physics_unit = unit_of
