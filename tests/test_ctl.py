@@ -14,6 +14,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
@@ -50,6 +51,14 @@ def run(capsys, *argv: str) -> tuple[int, list, str]:
     rc = ctl.main(["--json", "--timeout", TIMEOUT, *argv])
     out, err = capsys.readouterr()
     return rc, [json.loads(line) for line in out.splitlines() if line.strip()], err
+
+
+def until_state(capsys, key: str, value: str) -> None:
+    """`prsm-ctl state` until the node reports `key` = `value` (a topic command is acknowledged by DDS
+    before the node has acted on it; /diagnostics come once a second)."""
+    end = time.monotonic() + 30 * CEILING_FACTOR
+    while run(capsys, "state")[1][0].get(key) != value:
+        assert time.monotonic() < end, f"the node never reported {key} = {value}"
 
 
 def test_pause_step_resume_reset(node, capsys):
@@ -124,9 +133,11 @@ def test_brake_fault_events(node, capsys):
     events = cli.subscribe("/prsm_actuator/events", String)
     assert run(capsys, "resume")[0] == 0
     rc, rec, err = run(capsys, "brake", "on")
-    assert rc == 0 and rec[0]["message"].startswith("brake engaging"), err
+    assert rc == 0, err
+    until_state(capsys, "brake_engaged", "True")  # the node's own word, on /diagnostics
     rc, rec, _ = run(capsys, "brake", "off")
-    assert rc == 0 and rec[0]["message"].startswith("brake releasing")
+    assert rc == 0
+    until_state(capsys, "brake_engaged", "False")
     rc, rec, err = run(capsys, "fault", "inject", "jam", "duration_s=0.05", "value=3")
     assert rc == 0, err
     cli.spin_until(lambda: any('"fault_clear"' in m.data for m in events), 10.0, "the jam's start and clear")

@@ -385,6 +385,24 @@ def cmd_fault(ctl: Ctl, args, emit) -> None:
     emit({"topic": name, "fault": text}, f"sent {text!r} to {name} (the node logs it and publishes it on ~/events when it starts)")
 
 
+def brake(ctl: Ctl, engage: bool) -> dict:
+    """Engage or release the brake: on the node's owned `~/brake_command` topic where it has one
+    (the brake is owned like the commands), else through its `~/brake` service."""
+    from std_msgs.msg import Bool
+    subs = ctl.node.get_subscriber_names_and_types_by_node(ctl.node_name, ctl.namespace)
+    topic = next((name for name, _ in subs if name.rsplit("/", 1)[-1] == "brake_command"), None)
+    if topic is None:
+        return ctl.trigger("brake", engage)
+    from rclpy.duration import Duration
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    pub = ctl.node.create_publisher(Bool, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    ctl.spin_until(lambda: pub.get_subscription_count() > 0, f"nobody reads {topic}")
+    pub.publish(Bool(data=engage))
+    if not pub.wait_for_all_acked(Duration(nanoseconds=int(ctl.timeout_s * 1e9))):
+        raise CtlError(f"{topic}: the node did not acknowledge the message")
+    return {"topic": topic, "message": f"sent brake {'engage' if engage else 'release'} to {topic}"}
+
+
 def run(args) -> int:
     emit = _emitter(args.json)
     if args.verb == "param" and args.action in ("get", "set") and not args.names:
@@ -411,7 +429,7 @@ def run(args) -> int:
             r = ctl.trigger("reset" if v == "reset" else "release_control")
             emit(r, r["message"])
         elif v == "brake":
-            r = ctl.trigger("brake", args.on_off == "on")
+            r = brake(ctl, args.on_off == "on")
             emit(r, r["message"])
         elif v == "interface":
             r = ctl.set_param("command_interface", args.interface)
