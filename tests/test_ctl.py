@@ -115,7 +115,7 @@ def test_interface_command_release(node, capsys):
     assert rc == 2 and "command_interface is velocity" in err and "prsm-ctl interface effort" in err
     rc, rec, err = run(capsys, "command", "velocity", "2.0")
     assert rc == 0, err
-    assert rec[0]["topic"] == "/prsm_actuator/velocity_command"
+    assert rec[0]["topic"] == "/prsm_actuator/velocity_command" and rec[0]["applied_at_s"] > 0
     cli.spin_until(lambda: any(m.source.endswith("velocity_command") for m in echo), 10.0, "the command's echo")
     rc, rec, _ = run(capsys, "state")
     assert rec[0]["command"] == "2.0"

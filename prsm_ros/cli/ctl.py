@@ -46,6 +46,7 @@ DEFAULT_NODE = "/prsm_actuator"
 COMMAND_KINDS = {"torque": ("effort", "screw_torque", "N·m"), "velocity": ("velocity", "velocity_command", "rad/s"),
                  "position": ("position", "position_command", "m")}
 INTERFACES = ("effort", "velocity", "position")
+APPLY_WAIT_S = 2.0  # `command`: how long to wait for the node to apply or refuse it
 EVENTS_SETTLE_S = 0.5  # `events` without --follow: the latched history is complete when nothing came for this long
 
 
@@ -219,6 +220,14 @@ class Ctl:
             raise CtlError(f"{name}: the node did not acknowledge the message")
         return name
 
+    def participant_of(self, topic: str) -> str | None:
+        """This process's DDS participant as the node names writers (GUID prefix, hex), from its writer on `topic`."""
+        from prsm_ros.node.ownership import PREFIX_BYTES
+        for info in self.node.get_publishers_info_by_topic(topic):
+            if info.node_name == self.node.get_name() and info.node_namespace == self.node.get_namespace():
+                return bytes(info.endpoint_gid[:PREFIX_BYTES]).hex()
+        return None
+
     def subscribe(self, key: str, msg_class, callback, qos=None):
         from prsm_ros.messages import TOPICS, with_depth
         return self.node.create_subscription(msg_class, self.topic(key), callback,
@@ -353,8 +362,49 @@ def cmd_command(ctl: Ctl, args, emit) -> None:
     if active != interface:
         raise CtlError(f"command {args.kind}: the node's command_interface is {active}; "
                        f"`prsm-ctl interface {interface}` first (or send a {_kind_of(active)} command)")
+    from sensor_msgs.msg import TimeReference
+    from std_msgs.msg import String
+    echoes: list = []
+    refusals: list = []
+    ctl.subscribe("command_echo", TimeReference, echoes.append)
+    ctl.subscribe("events", String, lambda m: refusals.append(m.data), qos=_volatile_events_qos())
     name = ctl.publish_once(key, Float64(data=value))
-    emit({"topic": name, "value": value, "unit": unit}, f"sent {value:g} {unit} to {name}")
+    me = ctl.participant_of(name)
+    # applied (echoed by the step that took it) or refused (an event naming this writer), for a while
+    end = time.monotonic() + min(ctl.timeout_s, APPLY_WAIT_S)
+    while time.monotonic() < end:
+        ctl.executor.spin_once(timeout_sec=0.02)
+        refused = _refusal_for(refusals, me)
+        if refused is not None:
+            raise CtlError(f"command {args.kind} {value:g} refused by {ctl.target}: {refused}")
+        done = next((m for m in echoes if m.source == name), None)
+        if done is not None:
+            t = done.header.stamp.sec + done.header.stamp.nanosec * 1e-9
+            emit({"topic": name, "value": value, "unit": unit, "applied_at_s": t},
+                 f"{value:g} {unit} on {name}: applied by the step at t = {t:.6f} s")
+            return
+    emit({"topic": name, "value": value, "unit": unit, "applied_at_s": None},
+         f"sent {value:g} {unit} to {name}; not applied within {min(ctl.timeout_s, APPLY_WAIT_S):g} s "
+         "(the node is paused, or see prsm-ctl events)")
+
+
+def _volatile_events_qos():
+    """~/events for new events only: a volatile reader gets none of the latched history."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _refusal_for(events: list[str], participant: str | None) -> str | None:
+    """The message of the first refusal event that names this writer."""
+    for text in events:
+        try:
+            doc = json.loads(text)
+        except ValueError:
+            continue
+        details = doc.get("details") or {}
+        if participant is not None and details.get("writer") == participant:
+            return str(doc.get("message", doc.get("code", "refused")))
+    return None
 
 
 def _kind_of(interface: str) -> str:
