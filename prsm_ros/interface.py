@@ -136,7 +136,7 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("clock", "/clock", "rosgraph_msgs/msg/Clock", qos(1), "out"),
     TopicDef("diagnostics", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", SYSTEM_DEFAULT_QOS, "out"),
     TopicDef("events", "~/events", "std_msgs/msg/String", qos(100, latched=True), "out"),
-    # the actuator as configured (prsm_ros.urdf), as robot_state_publisher publishes it: reliable, transient local
+    # the actuator as configured (prsm_ros.node.urdf), as robot_state_publisher publishes it: reliable, transient local
     TopicDef("robot_description", "robot_description", "std_msgs/msg/String", qos(1, latched=True), "out"),
 )}
 

@@ -15,7 +15,7 @@ import pytest
 
 from prsm_sim import preset
 from prsm_sim.actuator import Actuator, ActuatorParams, MotorParams
-from prsm_sim.drive_train import lead_m, lead_per_rad_m, reflected_inertia_kgm2, reflected_mass_kg
+from prsm_sim.actuator.drive_train import lead_m, lead_per_rad_m, reflected_inertia_kgm2, reflected_mass_kg
 
 
 def test_lead_of_s30():

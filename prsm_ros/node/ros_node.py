@@ -85,7 +85,7 @@ from prsm_ros.node.sinks import open_sinks
 from prsm_ros.messages import NODE_NAME, TOPICS, MessageMapper, event_message, stamp, time_ns, with_depth
 from prsm_ros.node.parameters import (PHYSICS_PREFIX, ConfigError, ParamSources, param_sources, params_template,
                                       runtime_change)
-from prsm_ros.urdf import urdf_for_node
+from prsm_ros.node.urdf import urdf_for_node
 from prsm_ros.node.joint_commands import offer_joint_command
 from prsm_ros.node.pacing import DeadlinePacer, every_n_steps, reduce_timer_slack, request_realtime_priority
 from prsm_ros.node.step_jobs import (INLINE_STEPS, INLINE_WAIT_S, STEP_REQUEST, StepJobs, answer, done_event,

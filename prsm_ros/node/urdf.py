@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from xml.sax.saxutils import quoteattr
 
 from prsm_sim.actuator import ActuatorParams
-from prsm_sim.drive_train import lead_per_rad_m, motor_inertia_at_screw_kgm2
+from prsm_sim.actuator.drive_train import lead_per_rad_m, motor_inertia_at_screw_kgm2
 from prsm_sim.params import Params
 
 PLUGIN = "joint_state_topic_hardware_interface/JointStateTopicSystem"
