@@ -82,7 +82,7 @@ def test_node_counts_what_its_reader_replaced_and_the_bag_says_so(tmp_path, caps
     pytest.importorskip("rclpy")
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64
-    from prsm_ros.bag.cli import main as bag_main
+    from prsm_ros.cli.bag import main as bag_main
     from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env
     env = ros_test_env("test_command_sequence_node")
     n = 300
