@@ -25,6 +25,7 @@ from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, ros_test_env
 
 ENV = ros_test_env("test_ctl")
 PARAMS = {"model": "ideal", "preset": "s30", "start_paused": True, "record": False, "cmd_timeout": 0.0,
+          "diagnostics_rate": 10.0,  # `state` waits for one report
           # a command from a prsm-ctl process makes that process the owner; a short lapse lets the next one in
           "ownership_timeout": 0.05,
           "actuator": "{motor: {}, brake: {holding_torque_nm: 8.0}}"}

@@ -124,14 +124,18 @@ class Ctl:
             self.executor.spin_once(timeout_sec=0.02)
 
     def wait_for_node(self) -> None:
+        """Until the node's `~/pause` service is ready (endpoint discovery: faster than the node list)."""
         import os
 
-        def present() -> bool:
-            return any(n == self.node_name and (ns.rstrip("/") or "/") == (self.namespace.rstrip("/") or "/")
-                       for n, ns in self.node.get_node_names_and_namespaces())
+        from std_srvs.srv import SetBool
+        client = self.node.create_client(SetBool, f"{self.target}/pause")
         domain = os.environ.get("ROS_DOMAIN_ID", "0") or "0"
-        self.spin_until(present, f"node {self.target} not found on ROS_DOMAIN_ID {domain} (is prsm-node running, "
-                                 "with the same ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE?)")
+        try:
+            self.spin_until(client.service_is_ready,
+                            f"node {self.target} not found on ROS_DOMAIN_ID {domain} (is prsm-node running, "
+                            "with the same ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE?)")
+        finally:
+            self.node.destroy_client(client)
 
     # -- services ----------------------------------------------------------------------------
     def call(self, service: str, srv_class, request=None):
@@ -439,9 +443,8 @@ def brake(ctl: Ctl, engage: bool) -> dict:
     """Engage or release the brake: on the node's owned `~/brake_command` topic where it has one
     (the brake is owned like the commands), else through its `~/brake` service."""
     from std_msgs.msg import Bool
-    subs = ctl.node.get_subscriber_names_and_types_by_node(ctl.node_name, ctl.namespace)
-    topic = next((name for name, _ in subs if name.rsplit("/", 1)[-1] == "brake_command"), None)
-    if topic is None:
+    topic = f"{ctl.target}/brake_command"
+    if ctl.node.count_subscribers(topic) == 0:  # endpoints are discovered with the node's services
         return ctl.trigger("brake", engage)
     from rclpy.duration import Duration
     from rclpy.qos import QoSProfile, ReliabilityPolicy
