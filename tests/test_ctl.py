@@ -203,3 +203,27 @@ def test_wait_for_controller_hands_the_plant_to_the_first_command(tmp_path, caps
             assert proc.stop() == 0, proc.stderr
     finally:
         os.environ.update({k: v for k, v in saved.items() if v is not None})
+
+
+def test_a_command_refused_by_the_owner_rule_says_so(tmp_path, capsys):
+    """Another controller owns the actuator: prsm-ctl's command is refused with the node's reason
+    (its refusal event names prsm-ctl's writer), and goes through once ownership is released."""
+    from std_msgs.msg import Float64
+    params = {"model": "ideal", "record": False, "cmd_timeout": 0.0, "ownership_timeout": 0.0}
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    env = ros_test_env("test_ctl_owner")
+    os.environ.update({k: env[k] for k in saved})
+    try:
+        with NodeProcess(env, params, workdir=tmp_path / "run") as proc, RosClient(env) as cli:
+            cli.publisher("/prsm_actuator/screw_torque", Float64)
+            cli.wait_for_node(proc)
+            cli.publish("/prsm_actuator/screw_torque", Float64(data=0.1))  # this client owns it from now on
+            until_state(capsys, "command", "0.1")
+            rc, _, err = run(capsys, "command", "torque", "0.3")
+            assert rc == 2 and err.count("\n") == 1 and "refused by /prsm_actuator" in err and "owned by" in err, err
+            assert run(capsys, "release")[0] == 0
+            rc, rec, err = run(capsys, "command", "torque", "0.3")
+            assert rc == 0 and rec[0]["applied_at_s"] > 0, err
+            assert proc.stop() == 0, proc.stderr
+    finally:
+        os.environ.update({k: v for k, v in saved.items() if v is not None})
