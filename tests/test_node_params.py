@@ -161,7 +161,7 @@ def test_params_files_broken_missing_wildcard_and_for_another_node(tmp_path):
     (tmp_path / "other.yaml").write_text("controller:\n  ros__parameters:\n    gain: 1.0\n"
                                          "/robot/arm:\n  ros__parameters:\n    x: 1\n", encoding="utf-8")
     for args, says in ((["--params-file", "broken.yaml"], "--params-file broken.yaml: not valid YAML at line 3"),
-                       (["--params-file", "missing.yaml"], "--params-file missing.yaml: cannot read it")):
+                       (["--params-file", "missing.yaml"], "missing.yaml: cannot read parameters file (No such file")):
         r = _start(tmp_path, *args)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and says in r.stderr, r.stderr
     r = _start(tmp_path, "--params-file", "multi.yaml", "--params-file", "other.yaml", "-p", "use_sim_time:=false")

@@ -492,7 +492,6 @@ def params_template(preset_name: str = DEFAULT_PRESET, node_name: str = "prsm_ac
 # -- where the start-up values come from ---------------------------------------------------------
 # rclpy's own parameters: a node accepts them without declaring them itself
 RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
-PARAMS_FILE_MAX_BYTES = 1 << 20  # a ros__parameters file is a few kB; rcl's parser takes minutes on 9 MB
 
 
 @dataclass(frozen=True)
@@ -552,6 +551,8 @@ def param_sources(args: list[str], node_name: str, namespace: str = "/") -> Para
     """Read the command line's `-p` and `--params-file` names (ConfigError for a missing, unreadable,
     oversized or non-YAML file, in one line naming it). Remaps of __node and __ns are followed."""
     import yaml
+
+    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
     ros = _ros_args(args)
     for flag, value in zip(ros, ros[1:]):
         if flag in ("-r", "--remap") and ":=" in value:
@@ -579,18 +580,9 @@ def param_sources(args: list[str], node_name: str, namespace: str = "/") -> Para
                                   f"-p '{name}:=\"{{…}}\"'")
         elif flag == "--params-file":
             path = value
+            text = read_text_file(path, what="parameters file", error=ConfigError)
             try:
-                import os
-                size = os.stat(path).st_size
-                if size > PARAMS_FILE_MAX_BYTES:
-                    raise ConfigError(f"--params-file {path}: {size} bytes; a parameters file is at most "
-                                      f"{PARAMS_FILE_MAX_BYTES} bytes")
-                with open(path, encoding="utf-8") as f:
-                    doc = yaml.safe_load(f)
-            except OSError as e:
-                raise ConfigError(f"--params-file {path}: cannot read it ({e.strerror or e})") from None
-            except UnicodeDecodeError:
-                raise ConfigError(f"--params-file {path}: not a UTF-8 text file") from None
+                doc = yaml.safe_load(text)
             except yaml.YAMLError as e:
                 mark = getattr(e, "problem_mark", None)
                 where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

@@ -21,7 +21,6 @@ from typing import Any
 from prsm_sim.errors import InputError
 
 GAIN_NAMES = ("bandwidth_hz", "damping", "integral_ratio", "max_torque_nm")
-MAX_FILE_BYTES = 1 << 20  # a gains file is a few lines; a larger one is not one
 
 
 def parse_gains(data: Any, where: str = "gains") -> dict[str, float]:
@@ -42,13 +41,9 @@ def parse_gains(data: Any, where: str = "gains") -> dict[str, float]:
 def load_gains(path: str | Path) -> dict[str, float]:
     """Read a gains file (YAML); InputError naming the file and what is wrong."""
     import yaml
+    from prsm_ros.limits import read_text_file
     p = Path(path)
-    try:
-        if p.stat().st_size > MAX_FILE_BYTES:
-            raise InputError(f"{p}: {p.stat().st_size} bytes; a gains file is at most {MAX_FILE_BYTES} bytes")
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise InputError(f"{p}: cannot read ({e.strerror or e})") from None
+    text = read_text_file(p, what="gains file", error=InputError)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
