@@ -56,7 +56,7 @@ def test_a_jazzy_client_drives_the_kilted_node(tmp_path):
         ok("command", "torque", "0.2")
         state = ok("state")[0]
         assert state["paused"] == "False" and state["command"] == "0.2" and state["time_s"] > 0.005
-        assert ok("brake", "on")[0]["message"].startswith("brake engaging")
+        assert ok("brake", "on")[0]["message"] == "sent brake engage to /prsm_actuator/brake_command"
         ok("fault", "inject", "jam", "duration_s=0.05", "value=3")
         ok("pause")
         assert proc.stop() == 0, proc.stderr
