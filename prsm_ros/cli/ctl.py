@@ -439,6 +439,44 @@ def cmd_fault(ctl: Ctl, args, emit) -> None:
     emit({"topic": name, "fault": text}, f"sent {text!r} to {name} (the node logs it and publishes it on ~/events when it starts)")
 
 
+def step(ctl: Ctl, n: int | None) -> dict:
+    """~/step (`n` sets step_count for this call only). A request the node runs in the background
+    ("accepted") is waited for until its `step_done` event, within --timeout."""
+    from std_msgs.msg import String
+    events: list[str] = []
+    ctl.subscribe("events", String, lambda m: events.append(m.data), qos=_volatile_events_qos())
+    old = None
+    if n is not None:
+        old = ctl.get_params(["step_count"])["step_count"]
+        ctl.set_param("step_count", n)
+    try:
+        r = ctl.trigger("step")
+    finally:
+        if old is not None:
+            ctl.set_param("step_count", old)
+    if not r["message"].startswith("accepted"):
+        return r
+
+    def done() -> dict | None:
+        for text in events:
+            try:
+                doc = json.loads(text)
+            except ValueError:
+                continue
+            if doc.get("code") == "step_done":
+                return doc
+        return None
+    end = time.monotonic() + ctl.timeout_s
+    while time.monotonic() < end:
+        ctl.executor.spin_once(timeout_sec=0.05)
+        doc = done()
+        if doc is not None:
+            if doc.get("severity") != "info":
+                raise CtlError(f"{ctl.target}/step: {doc.get('message', 'stopped')}")
+            return {**r, "message": str(doc.get("message", "done")), "event": doc}
+    return {**r, "message": r["message"] + f" (still running after --timeout {ctl.timeout_s:g} s)"}
+
+
 def brake(ctl: Ctl, engage: bool) -> dict:
     """Engage or release the brake: on the node's owned `~/brake_command` topic where it has one
     (the brake is owned like the commands), else through its `~/brake` service."""
@@ -468,15 +506,7 @@ def run(args) -> int:
             r = ctl.trigger("pause", v == "pause")
             emit(r, r["message"])
         elif v == "step":
-            if args.n is not None:
-                old = ctl.get_params(["step_count"])["step_count"]
-                ctl.set_param("step_count", args.n)
-                try:
-                    r = ctl.trigger("step")
-                finally:
-                    ctl.set_param("step_count", old)
-            else:
-                r = ctl.trigger("step")
+            r = step(ctl, args.n)
             emit(r, r["message"])
         elif v in ("reset", "release"):
             r = ctl.trigger("reset" if v == "reset" else "release_control")
