@@ -15,6 +15,8 @@ from __future__ import annotations
 import re
 from functools import lru_cache
 
+from prsm_sim.errors import InputError
+
 from prsm_ros.interface import TOPIC_DEFS
 
 CDR = "cdr"
@@ -49,7 +51,7 @@ def sections(name: str, text: str) -> dict[str, str]:
 
 
 def signature(name: str, text: str) -> tuple:
-    """(field name, base type, is array) of each field of one `.msg` definition; ValueError naming the
+    """(field name, base type, is array) of each field of one `.msg` definition; InputError (a ValueError) naming the
     first line that is neither a field, a constant, a comment nor blank.
 
     The base type drops the package (`std_msgs/Header` and a package-relative `Header` are the same
@@ -62,7 +64,7 @@ def signature(name: str, text: str) -> tuple:
             continue
         m = _FIELD.fullmatch(line)
         if m is None:
-            raise ValueError(f"line {number} is not a field")
+            raise InputError(f"line {number} is not a field")
         if m.group("rest").startswith("="):  # a constant: NAME=VALUE
             continue
         fields.append((m.group("name"), m.group("type").rsplit("/", 1)[-1], m.group("array") is not None))

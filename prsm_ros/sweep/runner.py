@@ -160,7 +160,7 @@ def connect(address: str | None, workers: int | None):
 def start_embedded(num_cpus: int, temp_dir: str) -> None:
     """`ray.init` of a Ray on this machine only (loopback, no dashboard, workers at normal priority).
 
-    RuntimeError when Ray would still listen on another address.
+    StudyError when Ray would still listen on another address.
     """
     os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported, and for the processes it starts
     import ray
@@ -172,7 +172,7 @@ def start_embedded(num_cpus: int, temp_dir: str) -> None:
     if node_ip != LOOPBACK:
         ray.shutdown()
         # Ray reads the switch when it is imported: a caller (a notebook) imported it before this ran
-        raise RuntimeError(f"the embedded Ray would listen on {node_ip}, not only on {LOOPBACK}: set "
+        raise StudyError(f"the embedded Ray would listen on {node_ip}, not only on {LOOPBACK}: set "
                            f"{', '.join(f'{k}={v}' for k, v in LOCAL_ONLY_ENV.items())} in the environment "
                            "before Ray is imported")
 
