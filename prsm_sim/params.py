@@ -66,9 +66,15 @@ class Geometry:
     gear_ratio : float, optional
         Ring/spur gear tooth ratio g; default r_N / r_R (no roller migration, docs/model.md §2).
     screw_length_m : float, optional
-        Screw length for its inertia, m; default 4 × the threaded roller length.
+        Threaded screw length, m (its inertia, the thread ends); default 4 × the threaded roller length.
     pin_radius_m : float, optional
         Roller journal radius in the carrier, m (pin friction lever); default r_R / 2.
+    nut_length_m : float, optional
+        Threaded nut length, m; default n_teeth × pitch.
+    thread_ends : bool, default True
+        The nut stays on the threads: x = 0 is the nut centred on the screw, and a stiff, damped
+        stop (the actuator's stop law) holds it within ±(screw_length_m − nut_length_m)/2.
+        False removes the ends (a screw of unlimited length); the lengths move them.
 
     Raises
     ------
@@ -87,6 +93,8 @@ class Geometry:
     gear_ratio: float | None = None  # ring/spur tooth ratio g; default r_N / r_R (no migration)
     screw_length_m: float | None = None  # default 4 × the threaded roller length
     pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
+    nut_length_m: float | None = None  # threaded nut length; default n_teeth × pitch
+    thread_ends: bool = True  # the nut stops at ±(screw_length_m − nut_length_m)/2 (False: no ends)
 
     def __post_init__(self) -> None:
         g = "geometry"
@@ -110,7 +118,13 @@ class Geometry:
             _set(self, "screw_length_m", 4 * self.n_teeth * self.pitch_m)
         if self.pin_radius_m is None:
             _set(self, "pin_radius_m", self.roller_radius_m / 2)
-        check_positive(g, self, "screw_length_m", "pin_radius_m")
+        if self.nut_length_m is None:
+            _set(self, "nut_length_m", self.n_teeth * self.pitch_m)
+        check_positive(g, self, "screw_length_m", "pin_radius_m", "nut_length_m")
+        check_field(g, "thread_ends", self.thread_ends, isinstance(self.thread_ends, bool), "must be true or false")
+        if self.thread_ends:
+            check_field(g, "nut_length_m", self.nut_length_m, self.nut_length_m < self.screw_length_m,
+                        f"must be shorter than screw_length_m ({self.screw_length_m:g} m) while thread_ends is on")
         n_max = math.floor(math.pi / math.asin(min(1.0, self.roller_radius_m / self.carrier_radius_m)))
         check_field(g, "n_rollers", self.n_rollers, self.n_rollers <= n_max,
                f"at most {n_max} rollers of radius {self.roller_radius_m:g} m fit on the {self.carrier_radius_m:g} m pin circle")
@@ -145,6 +159,12 @@ class Geometry:
     @property
     def nut_lead_angle_rad(self) -> float:
         return math.atan(self.lead_m / (2 * math.pi * self.nut_radius_m))
+
+    @property
+    def travel_m(self) -> float | None:
+        """Nut travel on the threads, screw_length_m − nut_length_m (x = 0: the nut centred); None
+        without thread ends."""
+        return self.screw_length_m - self.nut_length_m if self.thread_ends else None
 
     @property
     def roller_length_m(self) -> float:
@@ -613,6 +633,7 @@ class Params:
 
 
 _INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth")}
+_BOOL_FIELDS = {("geometry", "thread_ends")}
 _STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution"),
                ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law")}
 
@@ -621,6 +642,10 @@ def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:
     """Accept YAML's ints for floats and integral floats for counts; refuse anything else by name."""
     if value is None:
         return None
+    if (gname, key) in _BOOL_FIELDS:
+        if not isinstance(value, bool):
+            raise ParamError(f"{gname}.{key} = {value!r}: must be true or false")
+        return value
     if (gname, key) in _STR_FIELDS:
         if not isinstance(value, str):
             raise ParamError(f"{gname}.{key} = {value!r}: must be a string")

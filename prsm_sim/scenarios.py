@@ -145,6 +145,14 @@ def _closed_loop(driver, spec: ScenarioSpec, n: int, progress, step, speed) -> l
     params, dt = driver.params, driver.dt_s
     j = reflected_inertia(params)
     bw = min(100.0, 1.0 / (20.0 * dt))
+    model = getattr(driver, "model", None)  # a Session names its screw model; a Simulator's model (or actuator)
+    name = getattr(driver, "model_name", None) or getattr(model, "model_name", None) or getattr(model, "name", "")
+    if name == "elastic":
+        # above its axial mode the chain decouples the nut: the loop then acts on the screw side alone,
+        # and a gain set on the whole inertia would make the sampled loop ring at the Nyquist rate
+        # (kp dt / J_core > 2). Kept at kp dt / J_core ≤ 1/2, the bandwidth lowered to match.
+        j_core = reflected_inertia(params.with_overrides({"mass.moved_mass_kg": 1e-9 * params.mass.moved_mass_kg}))
+        bw = min(bw, 0.25 * j_core / (j * dt))
     kp, ki = 2.0 * j * bw, j * bw * bw
     ff = spec.load_n * params.geometry.lead_per_rad_m
     integ = 0.0
@@ -177,7 +185,8 @@ def summarise(traj: Trajectory, tail_fraction: float = 0.1) -> dict:
     n = len(traj)
     tail = slice(max(0, n - max(1, int(n * tail_fraction))), n)
     c = traj.columns
-    eff = efficiency(float(np.mean(c["power_out_w"][tail])), float(np.mean(c["power_dissipated_w"][tail])))
+    eff = efficiency(float(np.mean(c["power_in_w"][tail])), float(np.mean(c["power_out_w"][tail])),
+                     float(np.mean(c["power_dissipated_w"][tail])))
     w_s, w_c = c["screw_speed_rad_s"][tail], c["carrier_speed_rad_s"][tail]
     moving = np.abs(w_s) > 1e-9
     # the screw's books; an actuator's state holds its screw's (and its own ledger beside them)

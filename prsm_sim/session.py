@@ -21,7 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from prsm_sim.actuator import Actuator, ActuatorParams, ActuatorState, Fault, FaultEvent
+from prsm_sim.actuator import ACTUATOR_QUANTITIES, Actuator, ActuatorParams, ActuatorState, Fault, FaultEvent
+from prsm_sim.actuator.stops import ThreadEndEvent
 from prsm_sim.checks import is_finite_number
 from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate, GateCounters
 from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
@@ -34,8 +35,11 @@ from prsm_sim.stepping.records import InternalLayout, Outputs
 
 
 STATE_FORMAT = "prsm_session/1"
+_THREAD_END = [n for n, _ in ACTUATOR_QUANTITIES].index("thread_end")  # in the actuator's output block
+_STOP_FORCE = [n for n, _ in ACTUATOR_QUANTITIES].index("stop_force_n")
 # what a session holds besides its simulator and its gate, saved by `get_state`
-_RUN_FIELDS = ("nut_position_m", "load_n", "initial_load_n", "_paused", "fault", "_last", "_events")
+_RUN_FIELDS = ("nut_position_m", "load_n", "initial_load_n", "_paused", "fault", "_last", "_events",
+               "_at_thread_end", "_edge_events")
 
 
 def state_is_finite(out: Outputs) -> bool:
@@ -66,7 +70,9 @@ class Session:
     load_n : float, default 0.0
         Nut load, N, held until `step(load_n=...)` or `load_n` changes it.
     initial_load_n : float, optional
-        The load `reset` returns to; None: a reset keeps the load in force.
+        Start (and return on `reset`) in equilibrium under this nut load, N, and with it as the load
+        in force (`Simulator`'s `initial_load_n`: a deflected `elastic` chain, a drive holding it);
+        None: at rest and unloaded, and a reset keeps the load in force.
     kernel : {"compiled", "reference"}
         As for `Simulator`.
     interface : {"effort", "velocity", "position"}
@@ -97,11 +103,14 @@ class Session:
         self.model_name = model
         self.kernel = kernel
         self.actuator_params = actuator
-        self.simulator = Simulator(params, model, dt_s, nut_position_m, actuator=actuator, kernel=kernel)
+        self.simulator = Simulator(params, model, dt_s, nut_position_m, actuator=actuator, kernel=kernel,
+                                   initial_load_n=initial_load_n)
         self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
         self.nut_position_m = float(nut_position_m)
-        self.load_n = float(load_n)
         self.initial_load_n = None if initial_load_n is None else float(initial_load_n)
+        self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else self.initial_load_n
+        self._at_thread_end = False  # the nut pressed on a thread end after the last step
+        self._edge_events: list = []  # thread-end events (stops.ThreadEndEvent) not yet taken
         self._paused = False
         self.fault: str | None = None
         self._last: Outputs | None = None
@@ -217,8 +226,25 @@ class Session:
             raise ModelError(self.fault)
         if before is not None:
             self._events += act.events(before, sim.state)
+            at_end = bool(self.layout.view(out.internal, "actuator")[_THREAD_END]) if self._thread_ends else False
+            end_force = self.layout.view(out.internal, "actuator")[_STOP_FORCE] if at_end else 0.0
+        else:
+            end_force = sim.thread_end_force_n
+            at_end = end_force != 0.0
+        if at_end != self._at_thread_end:
+            self._at_thread_end = at_end
+            self._edge_events.append(ThreadEndEvent(out.time_s, "reached" if at_end else "left", float(end_force)))
         self._last = out
         return out
+
+    @property
+    def _thread_ends(self) -> bool:
+        return self.simulator.params.geometry.thread_ends
+
+    def take_edge_events(self) -> list:
+        """The thread-end events (`ThreadEndEvent`: the nut reached or left an end) since the last call."""
+        ev, self._edge_events = self._edge_events, []
+        return ev
 
     def fail(self, reason: str) -> None:
         """Stop stepping for a reason outside the model (e.g. a transport that cannot deliver the
@@ -302,6 +328,11 @@ class Session:
         """Fault events wait to be taken."""
         return bool(self._events)
 
+    @property
+    def pending_edge_events(self) -> bool:
+        """Thread-end events wait to be taken (`take_edge_events`)."""
+        return bool(self._edge_events)
+
     # -- run control ------------------------------------------------------------------------
     @property
     def paused(self) -> bool:
@@ -323,7 +354,7 @@ class Session:
                 raise InputError(f"nut_position_m = {nut_position_m!r}: must be a finite number (m)")
             self.nut_position_m = float(nut_position_m)
         mode = self.gate.interface
-        self.simulator.reset(self.nut_position_m)
+        self.simulator.reset(self.nut_position_m, initial_load_n=self.initial_load_n)
         self.gate.reset(self.nut_position_m)
         if self.actuator is not None:
             self.simulator.state = self.actuator.set_mode(self.simulator.state, mode)
@@ -332,11 +363,13 @@ class Session:
         self.fault = None
         self._last = None
         self._events = []
+        self._at_thread_end = False
+        self._edge_events = []
 
     def rebuild(self, params: Params) -> None:
         """New parameters for the same model, keeping the state and the step count (a runtime change)."""
         sim = Simulator(params, self.model_name, self.simulator.dt_s, self.nut_position_m,
-                        actuator=self.actuator_params, kernel=self.kernel)
+                        actuator=self.actuator_params, kernel=self.kernel, initial_load_n=self.initial_load_n)
         sim.restore(self.simulator.state, self.simulator.nstep)
         self.simulator = sim
         self._screw_model = None
@@ -391,7 +424,7 @@ class Session:
             if data.get(k) != v:
                 raise InputError(f"state {k} = {data.get(k)!r}: this session has {k} = {v!r}; build it with "
                                  "the arguments of the session that saved the state")
-        types = reachable_types(self.simulator.state, Outputs, FaultEvent, GateCounters)
+        types = reachable_types(self.simulator.state, Outputs, FaultEvent, GateCounters, ThreadEndEvent)
         gate, run = from_plain(data.get("gate"), types, "gate"), from_plain(data.get("session"), types, "session")
         if not (isinstance(gate, dict) and gate.keys() == vars(self.gate).keys()
                 and isinstance(run, dict) and run.keys() == set(_RUN_FIELDS)):

@@ -10,11 +10,15 @@ state and counts steps, so a node or a CLI can drive it without bookkeeping of i
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
 
 from prsm_sim.actuator import Actuator
+from prsm_sim.actuator.stops import engaged, limits_of
+from prsm_sim.actuator.stops import solve as solve_stop
+from prsm_sim.checks import is_finite_number
 from prsm_sim.errors import InputError
 from prsm_sim.models.registry import MODELS, build_model  # MODELS: importable from here too
 from prsm_sim.params import Params
@@ -22,7 +26,7 @@ from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.stepping.model import check_step_inputs
 from prsm_sim.stepping.packed import PACKED_STATE_SIZE
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
-from prsm_sim.stepping.trajectory import Trajectory
+from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
 
 class Simulator:
@@ -40,6 +44,15 @@ class Simulator:
         Initial nut position x_nut, m (the screw angle follows from x_nut = (L/2π) θ_S).
     kernel : {"compiled", "reference"}, default "compiled"
         Compiled (numba) or pure-Python step for ``fu2018`` and ``elastic`` (see `build_model`).
+    initial_load_n : float, optional
+        Start in equilibrium under this nut load, N: ``elastic``'s chain deflected to carry it,
+        ``fu2018``'s friction state at it, an actuator's drive holding it in velocity and position
+        mode (`Model.initial_state`); resets return to it. None: at rest and unloaded.
+
+    Thread ends (`Geometry.thread_ends`, on by default): the nut stays within
+    ±(screw_length_m − nut_length_m)/2; a bare model is held there by the stop law in `step` and
+    `run` (`thread_end_force_n` is the end's force over the last step, N along +x_nut, 0 off the
+    ends); an actuator holds them with its stops.
 
     Attributes
     ----------
@@ -65,7 +78,8 @@ class Simulator:
     """
 
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
-                 nut_position_m: float = 0.0, actuator=None, kernel: str = "compiled") -> None:
+                 nut_position_m: float = 0.0, actuator=None, kernel: str = "compiled", *,
+                 initial_load_n: float | None = None) -> None:
         if actuator is None:
             self.model = build_model(params, model, dt_s, kernel)
         else:  # the actuator around the screw (prsm_sim.actuator): `step`'s first input is then its command
@@ -73,8 +87,17 @@ class Simulator:
         self.command_name = self.model.command_name  # what `step`'s first input is (torque_nm, or an actuator's command)
         self.params = params
         self.dt_s = self.model.dt_s
+        # thread ends: the actuator holds them itself (with its stops); a bare model here
+        travel = params.geometry.travel_m
+        self._limits = () if actuator is not None or travel is None else limits_of(None, travel)
+        self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits else (-math.inf, math.inf)
+        self.thread_end_force_n = 0.0
+        self._check_on_threads(nut_position_m)
+        if initial_load_n is not None and not is_finite_number(initial_load_n):
+            raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N) or None")
         self._initial_nut_position_m = float(nut_position_m)
-        self.state = self.model.initial_state(nut_position_m)
+        self._initial_load_n = 0.0 if initial_load_n is None else float(initial_load_n)
+        self.state = self.model.initial_state(nut_position_m, self._initial_load_n)
         self.nstep = 0
 
     def __repr__(self) -> str:
@@ -120,13 +143,15 @@ class Simulator:
         x = self._packed
         return x[0] if x is not None else self._state.time_s
 
-    def reset(self, nut_position_m: float | None = None) -> State:
+    def reset(self, nut_position_m: float | None = None, *, initial_load_n: float | None = None) -> State:
         """Back to rest at the initial (or the given) nut position, time zero, counters cleared.
 
         Parameters
         ----------
         nut_position_m : float, optional
             New initial nut position, m; kept for later resets.
+        initial_load_n : float, optional
+            New load to start in equilibrium under, N; kept for later resets.
 
         Returns
         -------
@@ -134,8 +159,14 @@ class Simulator:
             The new current state.
         """
         if nut_position_m is not None:
+            self._check_on_threads(nut_position_m)
             self._initial_nut_position_m = float(nut_position_m)
-        self.state = self.model.initial_state(self._initial_nut_position_m)
+        if initial_load_n is not None:
+            if not is_finite_number(initial_load_n):
+                raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N)")
+            self._initial_load_n = float(initial_load_n)
+        self.state = self.model.initial_state(self._initial_nut_position_m, self._initial_load_n)
+        self.thread_end_force_n = 0.0
         self.nstep = 0
         return self.state
 
@@ -160,7 +191,8 @@ class Simulator:
     def get_state(self) -> dict:
         """Everything that decides the next steps as plain data (`prsm_sim.plain`: json.dumps writes it)."""
         x = self._packed
-        return to_plain({"nstep": self.nstep, "nut_position_m": self._initial_nut_position_m, "state": self.state,
+        return to_plain({"nstep": self.nstep, "nut_position_m": self._initial_nut_position_m,
+                         "initial_load_n": self._initial_load_n, "state": self.state,
                          "packed": None if x is None else tuple(x[:PACKED_STATE_SIZE])})
 
     def set_state(self, data: dict) -> None:
@@ -171,6 +203,7 @@ class Simulator:
             raise InputError(f"state.packed: a packed record of {PACKED_STATE_SIZE} items for a packed model expected")
         self.restore(d["state"], d["nstep"])
         self._initial_nut_position_m = float(d["nut_position_m"])
+        self._initial_load_n = float(d.get("initial_load_n", 0.0))
         if packed is not None:  # the packed record as it was (its stored energy is not recomputed)
             self._packed = self._state_of = packed
 
@@ -205,12 +238,24 @@ class Simulator:
             command, load_n = check_step_inputs(command, load_n, self.command_name)
         x = self._packed
         if x is not None:  # the record is the outputs and the next packed state
-            self._packed = out = self._step_packed(x, command, load_n)
+            out = self._step_packed(x, command, load_n)
+            if out.nut_position_m > self._hi or out.nut_position_m < self._lo:  # ran past a thread end (NaN: no)
+                out = self._at_end(self.model.unpack_state(x), out,
+                                   lambda f: self._step_packed(x, command, load_n - f), lambda r: r.nut_position_m)
+            elif self.thread_end_force_n:
+                self.thread_end_force_n = 0.0
+            self._packed = out
             self._before = x
         else:
-            before = self._state
-            self._state, out = self.model.step(before, command, load_n)
-            self._before = before
+            s0 = self._state
+            new, out = self.model.step(s0, command, load_n)
+            if out.nut_position_m > self._hi or out.nut_position_m < self._lo:
+                new, out = self._at_end(s0, (new, out), lambda f: self.model.step(s0, command, load_n - f),
+                                        lambda r: r[1].nut_position_m)
+            elif self.thread_end_force_n:
+                self.thread_end_force_n = 0.0
+            self._state = new
+            self._before = s0
         self.nstep += 1
         return out
 
@@ -231,6 +276,28 @@ class Simulator:
             self._state = before
         self._before = None
         self.nstep -= 1
+
+    def _check_on_threads(self, nut_position_m) -> None:
+        if not is_finite_number(nut_position_m):
+            raise InputError(f"nut_position_m = {nut_position_m!r}: must be a finite number (m)")
+        travel = self.params.geometry.travel_m
+        if travel is not None and abs(nut_position_m) > 0.5 * travel:
+            raise InputError(f"nut_position_m = {nut_position_m!r}: must lie on the threads, |x| <= "
+                             f"{0.5 * travel:g} m ((screw_length_m - nut_length_m)/2; geometry.thread_ends = false "
+                             f"removes the ends)")
+
+    def _at_end(self, before: State, free, advance, nut):
+        """The step against a thread end: the stop law solved on the model's own step (actuator/stops.py);
+        the end's force joins the load on the nut (`load_force_n` reports their sum, so the ledger holds
+        its work). Sets `thread_end_force_n`."""
+        m = self.model
+        lim = engaged(self._limits, nut(free))
+        j = m.kinetic[0]
+        compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
+        x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
+        f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
+        self.thread_end_force_n = f
+        return res
 
     def _deprecated_torque_nm(self, command, torque_nm):
         if command is not None:
@@ -265,6 +332,13 @@ class Simulator:
             values; the state is left unchanged.
         """
         traj = self.model.run(self.state, command, load_n)
+        x = traj.columns["nut_position_m"]
+        if len(x) and (x.min() < self._lo or x.max() > self._hi):
+            # the run reaches a thread end: stepped instead, each step against the end as `step` takes it
+            tau = np.asarray(command, dtype=float)
+            rows = [self.step(float(t), float(f)) for t, f in zip(tau, np.broadcast_to(np.asarray(load_n, float),
+                                                                                     tau.shape))]
+            return trajectory_from_rows(rows, self.layout, self.state)
         self.state = traj.final_state
         self.nstep += len(traj)
         return traj

@@ -113,8 +113,12 @@ def test_stiff_elastic_reproduces_fu2018():
     ref.state = replace(ref.state, screw_speed_rad_s=w0, carrier_speed_rad_s=wc0)
     a = ref.run(np.repeat(tau, ns), np.repeat(load, ns))
     for k in ("screw_speed_rad_s", "carrier_speed_rad_s", "nut_velocity_m_s", "efficiency"):
-        print(k, b[k][-1] / a[k][-1] - 1)
-        assert b[k][-1] == pytest.approx(a[k][-1], rel=2e-4), k
+        if k == "efficiency":  # of the mechanism, P_out/(P_out + P_diss) (accelerating: the output is undefined)
+            va, vb = (t["power_out_w"][-1] / (t["power_out_w"][-1] + t["power_dissipated_w"][-1]) for t in (a, b))
+        else:
+            va, vb = a[k][-1], b[k][-1]
+        print(k, vb / va - 1)
+        assert vb == pytest.approx(va, rel=2e-4), k
     ra, rb = a.internal_block("per_roller")[-1], b.internal_block("per_roller")[-1]
     print("per-roller", np.max(np.abs(rb[:, :5] - ra[:, :5])) / np.max(np.abs(ra[:, :5])))
     assert np.max(np.abs(rb[:, :5] - ra[:, :5])) <= 2e-4 * np.max(np.abs(ra[:, :5]))

@@ -43,10 +43,14 @@ def test_ledger_scalar_and_column_forms_are_one_rule():
         assert (flow[k], residual[k], w_in[k], fault[k]) == (f, r, wi, verdict)  # the same sums: the same bits
     assert bool(energy_fault(2.0, 0.003)) and not energy_fault(2.0, 0.001) and not energy_fault(0.5, 0.4)
     np.testing.assert_array_equal(energy_fault(np.array([2.0, 2.0]), np.array([0.003, 0.001])), [True, False])
-    p_out, p_d = np.array([2.0, -2.0, -1.0, 0.0]), np.array([1.0, 1.0, 3.0, 1.0])
-    cols = efficiency_columns(p_out, p_d)
-    np.testing.assert_array_equal(cols[:3], [efficiency(a, b) for a, b in zip(p_out[:3], p_d[:3])])
-    assert cols[:3].tolist() == [2.0 / 3.0, 0.5, -2.0] and math.isnan(cols[3]) and math.isnan(efficiency(0.0, 1.0))
+    # steady forward, steady backward, a self-locking screw driven back (no power through), accelerating (the
+    # stored energy takes 1.5 W of 3 W), friction giving power back, standstill
+    p_in = np.array([3.0, -1.0, 1.0, 3.0, 2.0, 0.0])
+    p_out = np.array([2.0, -2.0, -1.0, 1.0, 2.1, 0.0])
+    p_d = np.array([1.0, 1.0, 2.0, 0.5, -0.1, 0.0])
+    cols = efficiency_columns(p_in, p_out, p_d)
+    np.testing.assert_array_equal(cols, [efficiency(a, b, c) for a, b, c in zip(p_in, p_out, p_d)])
+    assert cols[:2].tolist() == [2.0 / 3.0, 0.5] and np.isnan(cols[2:]).all()
 
 
 def test_state_holds_the_models_own_part_and_reads_its_fields_by_name():

@@ -313,6 +313,52 @@ def _write_csv(path: str, traj) -> None:
         raise CliError(f"cannot write CSV {path}: {e.strerror or e}") from None
 
 
+def cmd_envelope(args) -> None:
+    from pathlib import Path
+
+    from prsm_ros.sweep.envelope import run_envelope, run_one
+    from prsm_sim.envelope import case_from_seed
+    if args.seed is not None or args.case is not None:
+        if args.seed is not None:
+            case = case_from_seed(args.seed)
+        else:
+            try:
+                doc = yaml.safe_load(Path(args.case).read_text(encoding="utf-8"))
+            except (OSError, yaml.YAMLError) as e:
+                raise CliError(f"--case {args.case}: cannot read it ({getattr(e, 'strerror', None) or e})") from None
+            case = doc.get("case", doc) if isinstance(doc, dict) else None
+            if not isinstance(case, dict):
+                raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")
+        r = run_one(case)
+        if args.json:
+            print(dumps({"case": case, **r}))
+        else:
+            print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
+                  f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
+                  + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
+        if not r["ok"]:
+            raise SystemExit(1)
+        return
+    if not (isinstance(args.runs, int) and args.runs >= 1):
+        raise CliError(f"--runs {args.runs!r}: must be a whole number >= 1")
+    bar = None
+    if not args.no_progress:
+        from tqdm import tqdm
+        bar = tqdm(total=args.runs, unit="run", file=sys.stderr, desc="envelope")
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.update(done - bar.n)
+
+    summary = run_envelope(args.runs, Path(args.output), first_seed=args.first_seed, address=args.address,
+                           workers=args.workers, progress=progress)
+    if bar is not None:
+        bar.close()
+    print(dumps(summary) if args.json else
+          f"{summary['runs']} runs on {summary['workers']} workers in {summary['wall_s']} s: {summary['failed']} "
+          f"broke an invariant" + (f" (cases in {args.output}/failures)" if summary["failed"] else ""))
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="prsm-sim", description="Offline planetary roller screw simulation.")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -360,6 +406,17 @@ def build_parser() -> argparse.ArgumentParser:
     mo.add_argument("--load", type=float, help="operating axial load, N (default: the preset's)")
     mo.add_argument("--nut-position", type=float, default=0.0, help="nut position (sets the shaft length), m")
     mo.set_defaults(func=cmd_modes)
+    env = sub.add_parser("envelope", parents=[common], help="closed loops at the plant's edges, checked against "
+                                                            "its invariants (on Ray)")
+    env.add_argument("--runs", type=int, default=1000, help="cases to run (consecutive seeds)")
+    env.add_argument("--first-seed", type=int, default=0, help="seed of the first case")
+    env.add_argument("-o", "--output", default="envelope-out", help="directory for failures/ and summary.json")
+    env.add_argument("--address", help="a Ray head, HOST:PORT (default: an embedded Ray on this machine)")
+    env.add_argument("--workers", type=int, help="CPUs of the embedded Ray (default: all)")
+    env.add_argument("--seed", type=int, help="run the one case of this seed here and report it")
+    env.add_argument("--case", metavar="FILE.yaml", help="run a case (or a failure file) here and report it")
+    env.add_argument("--no-progress", action="store_true", help="no progress bar")
+    env.set_defaults(func=cmd_envelope)
     return ap
 
 

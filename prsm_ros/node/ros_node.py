@@ -146,6 +146,7 @@ class PrsmNode(Node):
         self.superseded = SupersededCounter()  # commands replaced in a reader's queue before a step took them
         self.session = Session(cfg.params, cfg.model, cfg.dt_s, cfg.actuator if cfg.with_actuator else None,
                                nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
+                               initial_load_n=cfg.load_force,  # starts in equilibrium at its load
                                interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
                                cmd_timeout_s=cfg.cmd_timeout, timeout_behaviour=cfg.timeout_behaviour)
         if cfg.start_paused or cfg.wait_for_controller:
@@ -276,7 +277,7 @@ class PrsmNode(Node):
                     return SetParametersResult(successful=False, reason=reason)
             old, self.config = self.config, new
             self.session.configure_gate(new.max_effort, new.cmd_timeout, new.timeout_behaviour)
-            self.session.load_n = new.load_force
+            self.session.load_n = self.session.initial_load_n = new.load_force
             self.session.nut_position_m = new.initial_nut_position
             if new.params != old.params:
                 self.session.rebuild(new.params)
@@ -488,6 +489,8 @@ class PrsmNode(Node):
             self._publish_state(out, ns)
         if self.session.pending_events:
             self._publish_fault_events(self.session.take_events())
+        if self.session.pending_edge_events:
+            self._publish_edge_events(self.session.take_edge_events())
         echoed = self.echo.take()
         if echoed is not None:
             cmd_ns, source = echoed
@@ -671,6 +674,15 @@ class PrsmNode(Node):
             self._publish(self.pub["events"], "events", event_message(
                 e.time_s, "actuator", "warn" if e.what == "start" else "info", f"fault_{e.what}", e.describe(),
                 fault_event_details(e)))
+
+    def _publish_edge_events(self, events) -> None:
+        """The nut reaching or leaving a thread end: logged and on ~/events (the bag keeps it)."""
+        for e in events:
+            self.get_logger().warning(f"t = {e.time_s:.6f} s: {e.describe()}") if e.what == "reached" \
+                else self.get_logger().info(f"t = {e.time_s:.6f} s: {e.describe()}")
+            self._publish(self.pub["events"], "events", event_message(
+                e.time_s, "plant", "warn" if e.what == "reached" else "info", f"thread_end_{e.what}", e.describe(),
+                {"force_n": e.force_n}))
 
     # -- diagnostics -----------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:

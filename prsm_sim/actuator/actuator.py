@@ -26,11 +26,12 @@ import numpy as np
 
 from prsm_sim.actuator import faults as fl
 from prsm_sim.actuator.brake import brake_level, stiction_torque
-from prsm_sim.actuator.drive import drive_update
+from prsm_sim.actuator.drive import drive_update, shape_reference
 from prsm_sim.actuator.motor import current_reference, current_step, voltage
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
 from prsm_sim.actuator.sensors import DROPOUT_STREAM, STREAM, first_order, normal, quantise, uniform
-from prsm_sim.actuator.stops import stop_force, stop_penetration, stop_stored_j
+from prsm_sim.actuator.stops import engaged, limits_of, stop_penetration, stop_stored_j
+from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.errors import InputError
 from prsm_sim.models.registry import build_model
 from prsm_sim.stepping.ledger import efficiency
@@ -57,6 +58,7 @@ ACTUATOR_QUANTITIES = (
     ("stop_force_n", "N"),
     ("stop_penetration_m", "m"),
     ("stop_absorbed_j", "J"),
+    ("thread_end", "1"),  # 1 while the nut presses on a thread end (the last of the threaded length)
     ("energy_in_j", "J"),
     ("load_work_j", "J"),
     ("dissipated_j", "J"),
@@ -120,7 +122,8 @@ class ActuatorState:
     load_cell_filtered_n: float = 0.0
     ledger: Ledger = Ledger()
     coupling_nm: float = 0.0  # the compliant coupling's torque over the last step (its next linearisation point)
-    command_prev: float = math.nan  # the position command at the drive's last loop update (its feed-forward)
+    reference_m: float = math.nan  # the drive's shaped position reference (`shape_reference`; NaN: not started)
+    reference_m_s: float = 0.0  # its rate, the position loop's feed-forward
 
     @property
     def time_s(self) -> float:
@@ -162,12 +165,16 @@ class Actuator(Model):
         elif rate is not None:
             self.hold_steps = int(round(1.0 / (rate * self.dt_s)))
         self.h_sub = self.dt_s / self.n_sub
+        # end stops and thread ends, the innermost on each side (stops.py)
+        self.limits = limits_of(a.stops, params.geometry.travel_m) if a.stops.fitted or params.geometry.thread_ends \
+            else ()
         self._models: dict[tuple[float, float], Model] = {}
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m
         self.J = self._probe_inertia(base)
         # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
-        self.drive = a.drive.tuned(self.J + (0.0 if self.rigid else self.motor_inertia))
+        self.J_drive = self.J + (0.0 if self.rigid else self.motor_inertia)  # the inertia the drive moves
+        self.drive = a.drive.tuned(self.J_drive)
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
         self.layout = InternalLayout(blocks=base.layout.blocks + (
@@ -184,6 +191,11 @@ class Actuator(Model):
             p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
             mod = self._models[key] = build_model(p, self.model_name, self.h_sub, self.kernel)
         return mod
+
+    def _accel_limit(self, torque_limit_nm: float) -> float:
+        """Screw acceleration (rad/s²) the position reference may ask for: half the torque limit on the inertia
+        the drive moves (the other half for the load, friction and the error), unlimited without a motor."""
+        return 0.5 * torque_limit_nm / self.J_drive
 
     def _probe_inertia(self, model: Model) -> float:
         """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
@@ -247,12 +259,25 @@ class Actuator(Model):
         return t1, new, out
 
     # -- state ---------------------------------------------------------------------------
-    def initial_state(self, nut_position_m: float = 0.0) -> ActuatorState:
-        screw = self._model(fl.NONE).initial_state(nut_position_m)
+    def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> ActuatorState:
+        """At rest with the nut at `nut_position_m`, in equilibrium under the nut load `load_n`: the screw
+        model pre-deflected at it (`Model.initial_state`) and, in velocity and position mode, the drive
+        already holding it with the frictionless holding torque (L/2π) F (its speed integrator, the
+        motor current and a compliant coupling's twist), the load cell reading it."""
+        screw = self._model(fl.NONE).initial_state(nut_position_m, load_n)
         th = screw.screw_angle_rad
-        st = ActuatorState(screw=screw, mode=self.actuator.drive.mode, motor_angle_rad=th)
-        sample = self._sample(th, 0.0, screw, 0.0)
-        enc = self._encoder_screw_angle(th * self.ratio, th)
+        mode = self.actuator.drive.mode
+        m = self.actuator.motor
+        hold = self.p * load_n if mode != "effort" else 0.0
+        if m is not None:  # as far as the drive can
+            lim = self.ratio * m.peak_torque_nm
+            hold = max(-lim, min(lim, hold))
+        th_r = th if self.rigid or hold == 0.0 else th + hold / m.coupling_stiffness_nm_rad
+        i_a = 0.0 if m is None else hold / (self.ratio * m.torque_constant_nm_a)
+        st = ActuatorState(screw=screw, mode=mode, motor_angle_rad=th_r, current_a=i_a, integral_nm=hold,
+                           torque_ref_nm=hold, coupling_nm=0.0 if self.rigid else hold)
+        sample = self._sample(th_r, 0.0, screw, float(load_n))
+        enc = self._encoder_screw_angle(th_r * self.ratio, th)
         *meas, filt = self._measure(0, (), 0.0, sample, sample, fl.NONE, first=True)
         return replace(st, encoder_rad=enc, history=(sample,), measured=tuple(meas), load_cell_filtered_n=filt)
 
@@ -263,7 +288,7 @@ class Actuator(Model):
         """Switch the command interface; the speed integrator restarts from the present torque (bumpless)."""
         check_interface(mode)
         return replace(state, mode=mode, integral_nm=state.torque_ref_nm if mode != "effort" else 0.0,
-                       command_prev=math.nan)
+                       reference_m=math.nan, reference_m_s=0.0)
 
     def command_brake(self, state: ActuatorState, engage: bool) -> ActuatorState:
         """Engage or release the holding brake; refused (InputError, nothing changed) where unsupported."""
@@ -333,7 +358,7 @@ class Actuator(Model):
         sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
         volt = tau_st = f_stop = 0.0
         tau_c = st.coupling_nm
-        cmd_prev = st.command_prev
+        ref, ref_v = st.reference_m, st.reference_m_s
         tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
         loop_due = st.step % self.hold_steps == 0
         for j in range(self.n_sub):
@@ -349,13 +374,22 @@ class Actuator(Model):
                 x_meas = self._read_linear(self._nut_x(screw), enc, act, st.step * self.n_sub + j)
                 if act.drive_off:
                     tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
+                    ref, ref_v = math.nan, 0.0  # restarts from the command when the drive comes back
                 else:
-                    ff = 0.0
+                    ff = ff_nm = 0.0
+                    target = command
                     if st.mode == "position" and self.drive.position_feedforward:
-                        if math.isfinite(cmd_prev):
-                            ff = (command - cmd_prev) / (p * h_loop)
-                        cmd_prev = command
-                    d = drive_update(self.drive, st.mode, command, integ, w_meas, x_meas, p, tlim, h_loop, ff)
+                        if not math.isfinite(ref):
+                            # the reference starts at the command: it shapes the command's changes (the loop
+                            # alone takes out an initial error, as without feed-forward)
+                            ref, ref_v = command, 0.0
+                        # the loops compare the nut now with the reference now; the torque that takes the
+                        # reference to its next point over this update is fed forward
+                        target, v0 = ref, ref_v
+                        ref, ref_v = shape_reference(ref, ref_v, command, self.drive.speed_limit_rad_s * p,
+                                                     self._accel_limit(tlim) * p, h_loop)
+                        ff, ff_nm = v0 / p, self.J_drive * (ref_v - v0) / (p * h_loop)
+                    d = drive_update(self.drive, st.mode, target, integ, w_meas, x_meas, p, tlim, h_loop, ff, ff_nm)
                     tau_ref, integ, limited, w_ref = d
             # current loop and motor torque (screw side)
             if m is None:
@@ -365,47 +399,53 @@ class Actuator(Model):
                 cs = current_step(m, i_a, i_ref, h)
                 volt = voltage(m, cs, i_a, w_r * N, h)
                 tau_d = N * m.torque_constant_nm_a * cs.mean_current_a
-            ws0 = screw.screw_speed_rad_s
-            x0 = p * screw.screw_angle_rad
             if self.rigid:
                 tau_drive_screw = tau_d
             else:
                 k, c = m.coupling_stiffness_nm_rad, m.coupling_damping_nm_s_rad
-                phi0, dw0 = th_r - screw.screw_angle_rad, w_r - ws0
+                phi0 = th_r - screw.screw_angle_rad
                 # linearise where the last step ended: the explicit spring torque k φ0 would swing with
                 # the coupling's ringing and evaluate a set-valued friction on the wrong side
                 tau_drive_screw = tau_c
-            # end stops, dry friction (brake, jam) and a compliant coupling are solved implicitly on
-            # the screw's local linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a): s comes
-            # from two model steps at this state (exact for the linear models; fu2018's effective
-            # inertia moves with its friction regime, so a fixed J would not do)
+            # dry friction (brake, jam) and a compliant coupling are solved implicitly on the screw's local
+            # linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a): s comes from two model steps at
+            # this state (exact for the linear models; fu2018's effective inertia moves with its friction
+            # regime, so a fixed J would not do)
             cap = level * a.brake.holding_torque_nm + act.jam_nm
-            f_stop = tau_st = 0.0
             implicit = not self.rigid or cap > 0.0
-            if a.stops.fitted and not implicit:
-                w_guess = ws0 + h * (tau_drive_screw - p * load_n) / J
-                reach = 2.0 * h * p * max(abs(ws0), abs(w_guess))
-                implicit = stop_penetration(a.stops, x0 + reach) > 0.0 or stop_penetration(a.stops, x0 - reach) > 0.0
             if implicit:
                 w_a, s_w, th_a, s_th = self._response(model, screw, tau_drive_screw, load_n)
-                w_pred = w_a
-                th_pred = th_a
-                if a.stops.fitted:
-                    f_stop = stop_force(a.stops, x0, p * ws0, p * w_pred, h, p * p * s_w)
-                    w_pred += p * s_w * f_stop
-                    th_pred += p * s_th * f_stop
-                tau_st = stiction_torque(cap, w_pred, h / s_w, h)
-                th_pred += s_th * tau_st
-            load_in = load_n - f_stop if f_stop != 0.0 else load_n
-            if self.rigid:
-                tau_in = tau_drive_screw + tau_st if tau_st != 0.0 else tau_drive_screw
-                new, out = model.step(screw, tau_in, load_in)
             else:
+                s_th = 0.5 * h * h / J
+
+            def advance(f_stop, screw=screw, tau_drive_screw=tau_drive_screw, th_r=th_r, w_r=w_r, tau_d=tau_d):
+                """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, outputs,
+                stiction torque, coupling torque, screw torque)."""
+                load_in = load_n - f_stop if f_stop != 0.0 else load_n
+                t_st = 0.0
+                if implicit:
+                    w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
+                    t_st = stiction_torque(cap, w_pred, h / s_w, h)
+                    th_pred += s_th * t_st
+                if self.rigid:
+                    tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
+                    return (*model.step(screw, tau_in, load_in), t_st, tau_d, tau_in)
                 th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
-                tau_c, new, out = self._coupling(model, screw, tau_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
-                                                 th_sfree, s_th)
+                t_c, nw, o = self._coupling(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+                                            th_sfree, s_th)
+                return nw, o, t_st, t_c, t_c + t_st
+
+            res = advance(0.0)
+            f_stop = 0.0
+            if self.limits:
+                # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
+                lim = engaged(self.limits, self._nut_x(res[0]))
+                if lim is not None:
+                    f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
+                                             p * p * s_th)
+            new, out, tau_st, tau_c, tau_in = res
+            if not self.rigid:
                 tau_drive_screw = tau_c
-                tau_in = tau_c + tau_st
             dth = new.screw_angle_rad - screw.screw_angle_rad
             # where load and stop force act: the nut (its own coordinate in `elastic`)
             dx_nut = new.nut_axial_m - screw.nut_axial_m if self.elastic else p * dth
@@ -413,7 +453,6 @@ class Actuator(Model):
             if self.rigid:
                 th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
                 dth_r = dth
-                tau_c = tau_d
             else:
                 w_r1 = w_r + h * (tau_d - tau_c) / self.motor_inertia
                 th_r1 = th_r + 0.5 * h * (w_r + w_r1)
@@ -443,7 +482,7 @@ class Actuator(Model):
             n = self.n_sub
             pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
             out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
-                          power_dissipated_w=pd, efficiency=efficiency(pout, pd))
+                          power_dissipated_w=pd, efficiency=efficiency(pin, pout, pd))
         # sensors: the true sample now, delivered `latency_steps` later
         sample = self._sample(th_r, w_r, screw, out.nut_force_n)
         lat = a.sensors.latency_steps
@@ -452,10 +491,11 @@ class Actuator(Model):
         *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
         meas = tuple(meas)
         nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
-                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, cmd_prev)
+                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, ref, ref_v)
         # the actuator block
-        x = p * screw.screw_angle_rad
-        stop_e = stop_stored_j(a.stops, x) if a.stops.fitted else 0.0
+        x = self._nut_x(screw)
+        stop_e = stop_stored_j(self.limits, x)
+        depth, at_end = stop_penetration(self.limits, x)
         stored = self.stored_energy(nxt)
         diss = (screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_e
                 + led.backlash_j)
@@ -466,8 +506,7 @@ class Actuator(Model):
         n_active = float(sum(f.active(st.time_s) for f in self.all_faults(st))) if act is not fl.NONE else 0.0
         block = (command, _MODE_CODE[st.mode], w_ref, tau_ref, float(limited), i_a, motor_torque,
                  w_r * N, volt, (led.energy_in_j - st.ledger.energy_in_j) / self.dt_s, tau_c, level, brake_t,
-                 tau_st - brake_t, f_stop, stop_penetration(a.stops, x) if a.stops.fitted else 0.0,
-                 led.stop_work_j - stop_e, led.energy_in_j, led.load_work_j, diss, stored, n_active)
+                 tau_st - brake_t, f_stop, depth, led.stop_work_j - stop_e, float(at_end), led.energy_in_j, led.load_work_j, diss, stored, n_active)
         # `out` was made by the screw model for this call alone: completing its internal vector in
         # place saves a copy of the whole record per step
         object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
@@ -500,8 +539,8 @@ class Actuator(Model):
             e = self._model(fl.NONE).total_stored_energy_j(s)
         else:
             e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
-        if self.actuator.stops.fitted:
-            e += stop_stored_j(self.actuator.stops, self.p * s.screw_angle_rad)
+        if self.limits:
+            e += stop_stored_j(self.limits, self._nut_x(s))
         if m is not None:
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:
@@ -584,12 +623,13 @@ class Actuator(Model):
             x = quantise(now[3], res)
             v = now[4] if res == 0 else (0.0 if first else (x - quantise(before[3], res)) / h)
             out += [x, v]
-        # load cell: first-order filter, bias, noise
-        filt = first_order(filtered_n, now[5], sp.load_cell_bandwidth_hz, h) if not first else now[5]
-        f = filt + sp.load_cell_bias_n if sp.load_cell_bias_n else filt
+        # load cell, in a conditioning chain's order: element (true force) → amplifier (bias, white noise of
+        # σ per sample at the step rate) → anti-alias first-order low-pass, so the filter acts on the noise
+        raw = now[5] + sp.load_cell_bias_n if sp.load_cell_bias_n else now[5]
         if sp.load_cell_noise_n:
-            f += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
-        out.append(f)
+            raw += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
+        filt = first_order(filtered_n, raw, sp.load_cell_bandwidth_hz, h) if not first else raw
+        out.append(filt)
         if prev is not None:
             lin = sp.linear_encoder_resolution_m is not None
             for sensor, idx in _GROUPS.items():

@@ -19,14 +19,45 @@ class DriveOut(NamedTuple):
     speed_reference_rad_s: float
 
 
+def shape_reference(r_m: float, v_m_s: float, target_m: float, v_max_m_s: float, a_max_m_s2: float,
+                    h_s: float) -> tuple[float, float]:
+    """The drive's position reference one loop update on: it follows the command with |v| ≤ v_max and
+    |dv/dt| ≤ a_max, braking so as to stop at the command, never past it. Its rate is the position
+    loop's feed-forward: a command step then neither asks for more acceleration than a_max (no torque
+    kick) nor waits on the position error.
+
+    Braking is planned on the loop's own grid: the speed u₁ at the end of this update is the largest
+    from which the remaining distance still suffices, h (u₀ + u₁)/2 + u₁²/(2 a) ≤ |e| (trapezoidal
+    position, speed falling by a h per update afterwards).
+    """
+    e = target_m - r_m
+    if e == 0.0 and v_m_s == 0.0:
+        return r_m, 0.0
+    s = 1.0 if e > 0.0 else -1.0
+    a, u0, dist = a_max_m_s2, s * v_m_s, abs(e)
+    c = 0.5 * h_s * u0 - dist
+    if c >= 0.0:
+        return target_m, 0.0  # even braking to rest over this update reaches the command: arrived
+    if math.isinf(a):
+        u1 = min(v_max_m_s, 2.0 * dist / h_s - u0)
+    else:
+        u1 = a * (-0.5 * h_s + math.sqrt(0.25 * h_s * h_s - 2.0 * c / a))
+        u1 = max(u0 - a * h_s, min(u0 + a * h_s, v_max_m_s, u1))
+    r1 = r_m + 0.5 * h_s * s * (u0 + u1)
+    if (target_m - r1) * s <= 0.0:
+        return target_m, 0.0
+    return r1, s * u1
+
+
 def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: float, speed_meas_rad_s: float,
                  nut_meas_m: float, lead_per_rad_m: float, torque_limit_nm: float, h_s: float,
-                 feedforward_rad_s: float = 0.0) -> DriveOut:
+                 feedforward_rad_s: float = 0.0, feedforward_nm: float = 0.0) -> DriveOut:
     """One loop update.
 
     effort: the command is the screw torque (N·m). velocity: the command is the screw speed
     (rad/s); τ = kp e + ∫ ki e dt. position: the command is the nut position (m);
-    ω_ref = kp_pos (x_ref − x) / (L/2π) + `feedforward_rad_s`, then the speed loop. The speed reference is clamped
+    ω_ref = kp_pos (x_ref − x) / (L/2π) + `feedforward_rad_s`, then the speed loop with the torque
+    `feedforward_nm` (the reference's acceleration times the inertia) added. The speed reference is clamped
     to ±speed_limit; the torque to ±torque_limit, and the integrator holds while the output
     sits on the limit and the error would push it further (conditional integration).
     """
@@ -41,11 +72,11 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
     w_ref = max(-lim, min(lim, w_ref))
     e = w_ref - speed_meas_rad_s
     integ = integral_nm + drive.speed_ki_nm_rad * e * h_s
-    raw = drive.speed_kp_nm_s_rad * e + integ
+    raw = drive.speed_kp_nm_s_rad * e + integ + feedforward_nm
     tau = max(-torque_limit_nm, min(torque_limit_nm, raw))
     limited = tau != raw
     if limited and raw * e > 0.0:
         # anti-windup: the integrator stops where the output meets the limit (never beyond its new value)
-        edge = math.copysign(torque_limit_nm, raw) - drive.speed_kp_nm_s_rad * e
+        edge = math.copysign(torque_limit_nm, raw) - drive.speed_kp_nm_s_rad * e - feedforward_nm
         integ = min(integ, max(edge, integral_nm)) if raw > 0 else max(integ, min(edge, integral_nm))
     return DriveOut(tau, integ, limited, w_ref)

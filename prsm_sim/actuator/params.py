@@ -86,9 +86,11 @@ class DriveParams:
     kp_pos = 2πf/5 (the position loop a fifth of the speed loop's bandwidth).
     `loop_rate_hz` None runs the loops once per simulation step; a faster rate sub-steps the
     step (screw model at the sub-step), a slower one holds the output between updates.
-    `speed_limit_rad_s` (screw) clamps the speed reference. `position_feedforward` adds the
-    command's own rate, Δx_ref / (Δt L/2π), to the speed reference (no lag on a moving
-    reference; a jump in the command is clipped by the speed limit).
+    `speed_limit_rad_s` (screw) clamps the speed reference. `position_feedforward`: the position
+    loop follows a reference shaped from the command (`drive.shape_reference`: at most the speed
+    limit and half the torque limit's acceleration on the inertia it drives, braking to stop at
+    the command) and adds its rate to the speed reference: no lag on a moving command, and a
+    command step neither kicks the torque nor rises slower than the loop alone would.
     """
 
     mode: str = "effort"
@@ -130,8 +132,11 @@ class SensorParams:
     - `encoder_counts_per_rev`: motor encoder counts per motor turn (0: no quantisation);
       speed is then the difference of quantised angles over the step.
     - `linear_encoder_resolution_m`: None = not fitted; 0 = fitted and ideal.
-    - load cell: additive `load_cell_bias_n`, Gaussian `load_cell_noise_n` (1σ), first-order
-      `load_cell_bandwidth_hz` (None: none).
+    - load cell: the amplifier's `load_cell_bias_n` and white Gaussian noise `load_cell_noise_n`
+      (1σ in N of each sample at the simulation step rate f_s = 1/dt), then an anti-alias
+      first-order low-pass `load_cell_bandwidth_hz` f_c (None: none) that filters both: the
+      reading's σ is `load_cell_noise_n` · √((1 − a)/(1 + a)), a = exp(−2π f_c/f_s), about
+      √(π f_c/f_s) of it for f_c ≪ f_s (unfiltered: independent of f_s).
     - `latency_steps`: every published measurement is this many simulation steps old (the
       drive reads its own encoders fresh at its loop rate; their quantisation and faults apply).
     - `dropout_probability`: per sample and sensor; a dropped sample repeats the last one.

@@ -1,53 +1,152 @@
-"""Stiff, damped end stops on the nut, treated implicitly over a step (issue 14).
+"""Stiff, damped end stops on the nut and the thread ends, solved implicitly on the plant's own response.
 
-A penalty contact F = k δ + c δ' on penetration δ beyond a stroke limit, never pulling.
-Explicitly a 1e8 N/m stop on a nut reflecting ~100 kg oscillates at ~1000 rad/s, at the edge
-of stability at 1 ms; so the force held over the step is solved with the nut's end-of-step
-speed, using the screw's linear response ω1 = ω_free − (h p / J) F_stop (backward Euler on the
-contact, trapezoidal on the position, as the models advance the angle).
+A penalty contact on the nut's own axial position x_N (not the screw's thread position (L/2π) θ_S:
+with a compliant chain they differ by its deflection): penetration δ = x_N − x_max (or x_min − x_N),
+force F = k δ₁ + c (δ₁ − δ₀⁺)/h on the penetration at the step's end and its mean rate over the
+step (backward Euler on the contact), held over the step, never pulling. The force is solved to consistency with the step
+itself: F − law(δ₁(F)) = 0 with the nut's end position from the plant's own step
+under the load less F. That residual is strictly increasing in F (the harder the stop pushes, the
+less the nut goes in), so its root is unique; it covers a screw that sticks (δ₁ no longer moves
+with F: at rest the force is then exactly k δ, the static law) as well as one that slides. The
+damper acts on the mean rate: on the end speed instead, a nut that rattles on a compliant chain
+(speeds alternating from step to step) would draw energy from it.
+
+Energy: the work the nut does on the stop over a step is F Δx_N; the stop stores ½ k δ²; the rest,
+F Δx_N − Δ(½ k δ²) = ½ k Δδ² + c Δδ²/h (in contact over the whole step) is ≥ 0 in every case
+(entering, leaving, clipped at zero), so the stop only absorbs energy (a 1e8 N/m stop on a ~100 kg
+reflected mass rings at ~1000 rad/s, beyond an explicit step).
+
+The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2.
 """
 
 from __future__ import annotations
 
+import math
+from typing import Callable, NamedTuple
+
 from prsm_sim.actuator.params import StopParams
 
+MAX_ITERATIONS = 60
+REL_TOL = 1e-10  # of the contact force (plus 1 mN)
+BRACKET_TOL = 1e-6  # a bracket this narrow (of the force) ends the search
+POSITION_TOL_M = 1e-12  # or k times this: a model's end position is not smoother in the force than its own rounding
 
-def stop_force(stops: StopParams, x0_m: float, v0_m_s: float, v_free_m_s: float, h_s: float,
-               compliance_m_s_n: float) -> float:
-    """Stop force on the nut held over the step, signed along +x_nut (N; 0 out of contact).
 
-    `v_free_m_s`: nut speed at the end of the step without the stop; `compliance_m_s_n`:
-    ∂v1/∂F = h p² / J (the nut's speed change per newton held over the step).
-    Penetration at the end of the step: δ1 = δ0 + ½ h (v0 + v1) into the stop.
+class ThreadEndEvent(NamedTuple):
+    """The nut reached (pressed onto) or left a thread end, at the end of the step ending at `time_s`."""
+
+    time_s: float
+    what: str  # "reached" or "left"
+    force_n: float  # the end's force on the nut then (N, along +x_nut; 0 when it left)
+
+    def describe(self) -> str:
+        if self.what == "reached":
+            return f"the nut reached a thread end (end force {self.force_n:.1f} N): the last of the threaded length"
+        return "the nut left the thread end"
+
+
+class Limit(NamedTuple):
+    position_m: float
+    sign: float  # +1: an upper limit (the nut pushes into it moving +x), −1: a lower one
+    stiffness_n_m: float
+    damping_n_s_m: float
+    thread_end: bool
+
+
+def limits_of(stops: StopParams | None, travel_m: float | None) -> tuple[Limit, ...]:
+    """The innermost limit on each side: the user's stops and the thread ends at ±travel_m/2 (None: none).
+
+    The thread ends use the stops' contact law (their stiffness and damping; the defaults without stops)."""
+    s = stops if stops is not None else StopParams()
+    k, c = s.stiffness_n_m, s.damping_n_s_m
+    out = []
+    for sign, user in ((1.0, s.max_position_m), (-1.0, s.min_position_m)):
+        end = None if travel_m is None else sign * 0.5 * travel_m
+        if user is not None and (end is None or sign * user <= sign * end):
+            out.append(Limit(user, sign, k, c, False))
+        elif end is not None:
+            out.append(Limit(end, sign, k, c, True))
+    return tuple(out)
+
+
+def penetration(limit: Limit, x_m: float) -> float:
+    """Penetration beyond `limit` (m, > 0 inside; negative outside)."""
+    return limit.sign * (x_m - limit.position_m)
+
+
+def engaged(limits: tuple[Limit, ...], x1_m: float) -> Limit | None:
+    """The limit a step ending at x1 (its end position without a stop force) presses into, if any."""
+    for lim in limits:
+        if penetration(lim, x1_m) > 0.0:
+            return lim
+    return None
+
+
+def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float], object],
+          nut_position: Callable[[object], float], compliance_m_n: float) -> tuple[float, object]:
+    """The stop force held over the step (N, signed along +x_nut) and the step's result under it.
+
+    `free`: the step's result without a stop force; `advance(F)`: the step with the stop force F
+    (signed along +x_nut) added to what pushes the nut; `x0_m`: the nut's position at the step's
+    start; `nut_position(result)`: its end position; `compliance_m_n`: an estimate of −∂x₁/∂F (the
+    first guess; exact for linear models).
     """
-    k, c = stops.stiffness_n_m, stops.damping_n_s_m
-    out = 0.0
-    for limit, sign in ((stops.max_position_m, 1.0), (stops.min_position_m, -1.0)):
-        if limit is None:
-            continue
-        d0 = sign * (x0_m - limit)  # penetration, > 0 inside the stop
-        u0, uf = sign * v0_m_s, sign * v_free_m_s  # speeds into the stop
-        if d0 + 0.5 * h_s * (u0 + uf) <= 0.0:
-            continue  # no contact even without the stop's force
-        # F = k (d0 + ½h(u0 + u1)) + c u1,  u1 = uf − C F  (F pushes out of the stop)
-        cc = compliance_m_s_n
-        f = (k * (d0 + 0.5 * h_s * (u0 + uf)) + c * uf) / (1.0 + (0.5 * h_s * k + c) * cc)
-        if f > 0.0:
-            out += -sign * f
-    return out
+    k, c = limit.stiffness_n_m, limit.damping_n_s_m
+    sgn = limit.sign
+    d0 = max(0.0, penetration(limit, x0_m))
+
+    def law(res) -> float:  # magnitude of the contact force the step's end asks for (pushing out)
+        d1 = penetration(limit, nut_position(res))
+        return max(0.0, k * d1 + c * (d1 - d0) / h_s)
+
+    t0 = law(free)
+    if t0 <= 0.0:
+        return 0.0, free
+    lo, r_lo, hi, r_hi = 0.0, -t0, math.inf, math.inf
+    f = t0 / (1.0 + (k + c / h_s) * max(compliance_m_n, 0.0))
+    best = (math.inf, 0.0, free)
+    prev = (0.0, -t0)
+    last_width = math.inf
+    for _ in range(MAX_ITERATIONS):
+        res = advance(-sgn * f)
+        r = f - law(res)
+        if abs(r) < best[0]:
+            best = (abs(r), f, res)
+        if abs(r) <= REL_TOL * (f + 1e-3) + k * POSITION_TOL_M:
+            return -sgn * f, res
+        if r < 0.0:
+            lo, r_lo = f, r
+        else:
+            hi, r_hi = f, r
+        # secant through the last two points, kept inside the bracket (else bisection / doubling), and
+        # bisection whenever the bracket did not halve (a root on a jump: the secant creeps up one side)
+        # (the residual's slope is at least 1: f − r always lands on the root's far side)
+        nxt = f - r * (f - prev[0]) / (r - prev[1]) if r != prev[1] else f - r
+        prev = (f, r)
+        width = hi - lo
+        if not (lo < nxt < hi) or (math.isfinite(width) and width > 0.5 * last_width):
+            nxt = 0.5 * (lo + hi) if math.isfinite(hi) else 2.0 * lo + t0
+        if math.isfinite(width) and width <= BRACKET_TOL * (hi + 1e-3):
+            break  # bracketed to a ppm: the root sits on a jump (stick/slip), any force inside it holds
+        last_width = width
+        f = nxt
+    return -sgn * best[1], best[2]
 
 
-def stop_penetration(stops: StopParams, x_m: float) -> float:
-    """Penetration beyond either limit (m, ≥ 0)."""
-    d = 0.0
-    if stops.max_position_m is not None:
-        d = max(d, x_m - stops.max_position_m)
-    if stops.min_position_m is not None:
-        d = max(d, stops.min_position_m - x_m)
-    return d
+def stop_stored_j(limits: tuple[Limit, ...], x_m: float) -> float:
+    """Elastic energy in the stop the nut is in, ½ k δ² (J)."""
+    e = 0.0
+    for lim in limits:
+        d = penetration(lim, x_m)
+        if d > 0.0:
+            e += 0.5 * lim.stiffness_n_m * d * d
+    return e
 
 
-def stop_stored_j(stops: StopParams, x_m: float) -> float:
-    """Elastic energy in the stop, ½ k δ² (J)."""
-    d = stop_penetration(stops, x_m)
-    return 0.5 * stops.stiffness_n_m * d * d
+def stop_penetration(limits: tuple[Limit, ...], x_m: float) -> tuple[float, bool]:
+    """(penetration beyond the limit the nut is in, m ≥ 0; whether that limit is a thread end)."""
+    for lim in limits:
+        d = penetration(lim, x_m)
+        if d > 0.0:
+            return d, lim.thread_end
+    return 0.0, False

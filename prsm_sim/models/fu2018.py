@@ -38,7 +38,7 @@ dissipated work by the trapezoidal rule on the dissipated power, both second ord
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -313,6 +313,18 @@ class Fu2018(Model):
             # the model is built, rather than in the first step of a realtime loop
             self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, self._kernel_k, self._kernel_s)
 
+    def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> State:
+        """At rest; under a nut load the friction state (flank pair, pin forces, gear force) is the static
+        one that load and its frictionless holding torque (L/2π) F set (`stick_forces`)."""
+        s = super().initial_state(nut_position_m)
+        if load_n == 0.0:
+            return s
+        st, _ = self.stick_forces(self.geo.lead_per_rad_m * load_n, load_n, 1 if load_n >= 0.0 else -1, 0.0)
+        if st is None:
+            return s
+        return replace(s, part=s.part._replace(flank_sign=int(st.sign), pin_force_n=st.pin_force_sum_n,
+                                                gear_force_n=st.f_gt))
+
     def _side(self, sign: int) -> _Side:
         ev = self.params.friction.contact_evaluation
         s = contact_for(self.geo, "screw", ev, sign)
@@ -331,8 +343,9 @@ class Fu2018(Model):
           the one of the last step), `pin_abs` = |F_pin,1| + |F_pin,2| of the last step (N,
           scales pin friction) and `gear_sign` (±1, sign of the last tangential gear force);
           `stick`: None while sliding, or at rest (u = 0) the static friction of the screw on
-          the roller per unit screw normal force (3-vector, carrier frame) and the share σ of
-          the pin and rolling moments, as `stick_forces` solves them.
+          the roller per unit screw normal force (3-vector, carrier frame), the share σ of
+          the pin and rolling moments and the screw normal force N_S, as `stick_forces` solves
+          them (the accelerations are then zero).
         - geometry and friction laws come from the parameters the model was built with; nothing
           else is read, nothing is stored: a pure function.
         - output: `Forces`, per roller: accelerations (rad/s²), normal and friction forces (N),
@@ -408,25 +421,34 @@ class Fu2018(Model):
         # N_N = αN a_S + βN (nut), N_S = αS a_S + βS (screw)
         alpha_n = mp / (nr * enz)
         beta_n = load / (nr * enz)
-        alpha_s = -i_s / (nr * mom_s)
-        beta_s = (tau - nr * mom_f0) / (nr * mom_s)
         rhs7 = -nr * m_pin + m_drag
-        # roller axial (3)
-        a11 = -mr_p - esz * alpha_s - enz * alpha_n
-        a12 = mr_kmig
-        b1 = f0z + esz * beta_s + enz * beta_n
-        # roller spin (6) with F_gt from (5) and F_pt from (7)
-        cs = r_g * esy - spin_s
-        cn = r_g * eny - (spin_n - mu_rr)  # M_rr moved to the left-hand side
-        a21 = cs * alpha_s + cn * alpha_n
-        a22 = j_spin
-        b2 = spin_f0 + m_pin - r_g * f0y - r_g * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
-        det = a11 * a22 - a12 * a21
-        acc_s = (b1 * a22 - a12 * b2) / det
-        acc_c = (a11 * b2 - a21 * b1) / det
-        if not forces:
-            return acc_s, acc_c
-        n_s = alpha_s * acc_s + beta_s
+        if stick is not None:
+            # the static state `_stick` solved: no acceleration and its own N_S. The screw's moment
+            # equation cannot give N_S here: with no torque the static friction cancels the contact
+            # force's moment about the screw axis (mom_s = 0)
+            acc_s = acc_c = 0.0
+            if not forces:
+                return acc_s, acc_c
+            n_s = stick[4]
+        else:
+            alpha_s = -i_s / (nr * mom_s)
+            beta_s = (tau - nr * mom_f0) / (nr * mom_s)
+            # roller axial (3)
+            a11 = -mr_p - esz * alpha_s - enz * alpha_n
+            a12 = mr_kmig
+            b1 = f0z + esz * beta_s + enz * beta_n
+            # roller spin (6) with F_gt from (5) and F_pt from (7)
+            cs = r_g * esy - spin_s
+            cn = r_g * eny - (spin_n - mu_rr)  # M_rr moved to the left-hand side
+            a21 = cs * alpha_s + cn * alpha_n
+            a22 = j_spin
+            b2 = spin_f0 + m_pin - r_g * f0y - r_g * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
+            det = a11 * a22 - a12 * a21
+            acc_s = (b1 * a22 - a12 * b2) / det
+            acc_c = (a11 * b2 - a21 * b1) / det
+            if not forces:
+                return acc_s, acc_c
+            n_s = alpha_s * acc_s + beta_s
         n_n = alpha_n * acc_s + beta_n
         f_pt = (rhs7 - i_c * acc_c) / (nr * a)
         f_gt = mr_a * acc_c - esy * n_s - eny * n_n - f_pt - f0y
@@ -508,13 +530,15 @@ class Fu2018(Model):
                 n_ = x0[0] + s_ * x1[0]
                 if n_ > 0.0:
                     qq = (q0[0] + s_ * q1[0], q0[1] + s_ * q1[1], q0[2] + s_ * q1[2])
-                    r_ = _dot(qq, qq) / (n_ * n_)
+                    # (|q|/N_S)²: N_S may be so small (at rest with no load) that N_S² underflows to zero
+                    r_ = math.sqrt(_dot(qq, qq)) / n_
+                    r_ *= r_
                     if r_ < best:
                         best, sig, n_s, q = r_, s_, n_, qq
             if best == math.inf:
                 continue
             f = self._solve((0.0, 0.0), tau, load, sg, pin_abs, gear_sign, True,
-                            (q[0] / n_s, q[1] / n_s, q[2] / n_s, sig))
+                            (q[0] / n_s, q[1] / n_s, q[2] / n_s, sig, n_s))
             if f.n_s >= 0.0 and f.n_n >= 0.0 and math.isfinite(f.n_s):
                 mag = math.sqrt(_dot(q, q)) / n_s
                 return f, (mag / mu if mu > 0 else (0.0 if mag == 0.0 else math.inf))

@@ -193,7 +193,7 @@ def load(kernel: str):
 
 # -- fu2018 -------------------------------------------------------------------------------------
 @_compiled
-def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, st1, st2, st3, K, S):
+def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, st1, st2, st3, st4, K, S):
     """`Fu2018._solve`: equations 1–7 eliminated to a 2×2 system; 29 floats (`Forces` order). Without
     `forces` only the accelerations are meaningful (the rest is NaN)."""
     row = S[0] if sign > 0.0 else S[1]
@@ -240,23 +240,29 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
     mu_rr = mu_rr_r * s_c * s_1g
     alpha_n = mp / (nr * enz)
     beta_n = load / (nr * enz)
-    alpha_s = -i_s / (nr * mom_s)
-    beta_s = (tau - nr * mom_f0) / (nr * mom_s)
     rhs7 = -nr * m_pin + m_drag
-    a11 = -mr_p - esz * alpha_s - enz * alpha_n
-    a12 = mr_kmig
-    b1 = f0z + esz * beta_s + enz * beta_n
-    cs = r_g * esy - spin_s
-    cn = r_g * eny - (spin_n - mu_rr)
-    a21 = cs * alpha_s + cn * alpha_n
-    a22 = j_spin
-    b2 = spin_f0 + m_pin - r_g * f0y - r_g * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
-    det = a11 * a22 - a12 * a21
-    acc_s = (b1 * a22 - a12 * b2) / det
-    acc_c = (a11 * b2 - a21 * b1) / det
-    if not forces:
-        return (acc_s, acc_c) + _NAN29[2:]
-    n_s = alpha_s * acc_s + beta_s
+    if stick_on:  # the static state `_stick` solved: no acceleration, its own N_S (mom_s may be 0)
+        acc_s = acc_c = 0.0
+        if not forces:
+            return (acc_s, acc_c) + _NAN29[2:]
+        n_s = st4
+    else:
+        alpha_s = -i_s / (nr * mom_s)
+        beta_s = (tau - nr * mom_f0) / (nr * mom_s)
+        a11 = -mr_p - esz * alpha_s - enz * alpha_n
+        a12 = mr_kmig
+        b1 = f0z + esz * beta_s + enz * beta_n
+        cs = r_g * esy - spin_s
+        cn = r_g * eny - (spin_n - mu_rr)
+        a21 = cs * alpha_s + cn * alpha_n
+        a22 = j_spin
+        b2 = spin_f0 + m_pin - r_g * f0y - r_g * rhs7 / (nr * a) - cs * beta_s - cn * beta_n
+        det = a11 * a22 - a12 * a21
+        acc_s = (b1 * a22 - a12 * b2) / det
+        acc_c = (a11 * b2 - a21 * b1) / det
+        if not forces:
+            return (acc_s, acc_c) + _NAN29[2:]
+        n_s = alpha_s * acc_s + beta_s
     n_n = alpha_n * acc_s + beta_n
     f_pt = (rhs7 - i_c * acc_c) / (nr * a)
     f_gt = mr_a * acc_c - esy * n_s - eny * n_n - f_pt - f0y
@@ -281,9 +287,9 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
 @_compiled
 def solve_forces(w_s, w_c, tau, load, sign, pin_abs, gear_sign, K, S):
     """`Fu2018.solve_forces` while sliding: the other flank pair if a normal force comes out in tension."""
-    f = solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, K, S)
+    f = solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
     if f[3] < 0.0 or f[4] < 0.0:
-        g = solve(w_s, w_c, tau, load, -sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, K, S)
+        g = solve(w_s, w_c, tau, load, -sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
         if g[3] >= 0.0 and g[4] >= 0.0:
             f = g
     return f
@@ -348,13 +354,14 @@ def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
             n_ = x00 + s_ * x10
             if n_ > 0.0:
                 t0, t1, t2 = q00 + s_ * q10, q01 + s_ * q11_, q02 + s_ * q12
-                r_ = (t0 * t0 + t1 * t1 + t2 * t2) / (n_ * n_)
+                r_ = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2) / n_  # (|q|/N_S)²: N_S² may underflow
+                r_ *= r_
                 if r_ < best:
                     best, sig, n_s, qq0, qq1, qq2 = r_, s_, n_, t0, t1, t2
         if best == math.inf:
             continue
         f = solve(0.0, 0.0, tau, load, sg, pin_abs, gear_sign, True, True, qq0 / n_s, qq1 / n_s, qq2 / n_s, sig,
-                  K, S)
+                  n_s, K, S)
         if f[3] >= 0.0 and f[4] >= 0.0 and math.isfinite(f[3]):
             mag = math.sqrt(qq0 * qq0 + qq1 * qq1 + qq2 * qq2) / n_s
             return True, f, (mag / mu if mu > 0 else (0.0 if mag == 0.0 else math.inf))
@@ -389,8 +396,8 @@ def rosenbrock(ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load, h, K, S)
     else:
         ds = 1e-6 * max(1.0, abs(ws))
         dc = 1e-6 * max(1.0, abs(wc))
-        a = solve(ws + ds, wc, tau, load, sign, pin_abs, gsign, False, False, 0.0, 0.0, 0.0, 0.0, K, S)
-        b = solve(ws, wc + dc, tau, load, sign, pin_abs, gsign, False, False, 0.0, 0.0, 0.0, 0.0, K, S)
+        a = solve(ws + ds, wc, tau, load, sign, pin_abs, gsign, False, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
+        b = solve(ws, wc + dc, tau, load, sign, pin_abs, gsign, False, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
         j00, j10 = (a[0] - fs) / ds, (a[1] - fc) / ds
         j01, j11 = (b[0] - fs) / dc, (b[1] - fc) / dc
         age = 0.0
@@ -399,7 +406,7 @@ def rosenbrock(ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load, h, K, S)
     det = w00 * w11 - w01 * w10
     k1s = (w11 * fs - w01 * fc) / det
     k1c = (w00 * fc - w10 * fs) / det
-    f2 = solve(ws + h * k1s, wc + h * k1c, tau, load, sign, pin_abs, gsign, False, False, 0.0, 0.0, 0.0, 0.0, K, S)
+    f2 = solve(ws + h * k1s, wc + h * k1c, tau, load, sign, pin_abs, gsign, False, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
     r_s, r_c = f2[0] - 2.0 * k1s, f2[1] - 2.0 * k1c
     k2s = (w11 * r_s - w01 * r_c) / det
     k2c = (w00 * r_c - w10 * r_s) / det

@@ -71,36 +71,41 @@ def accumulate(start: float, increments: np.ndarray) -> np.ndarray:
     return np.cumsum(np.concatenate(([start], increments)))[1:]
 
 
-def _forward(power_out_w, power_dissipated_w):
-    return power_out_w / (power_out_w + power_dissipated_w)
+EFFICIENCY_MIN_POWER_W = 1e-6  # below this power through the mechanism the efficiency is not defined
+EFFICIENCY_MAX_STORED_RATE = 0.05  # nor while the stored energy changes by more than this of the power through
 
 
-def _backward(power_out_w, power_dissipated_w):
-    return 1.0 - power_dissipated_w / -power_out_w
+def efficiency(power_in_w: float, power_out_w: float, power_dissipated_w: float) -> float:
+    """Efficiency of the mechanism itself, from the power through it; NaN where it is not defined.
 
-
-def efficiency(power_out_w: float, power_dissipated_w: float) -> float:
-    """Efficiency of the mechanism itself, from the power through it (inertia excluded).
-
-    Forward (the screw delivers power to the load, P_out > 0): P_out / (P_out + P_diss).
-    Backward (the load drives the screw, P_out < 0): (|P_out| − P_diss) / |P_out|, which is ≤ 0
-    for a screw that must be driven even when back-driven (self-locking). NaN when no power
-    reaches the load. At constant speed these equal the port ratios P_out/P_in and P_in/P_out;
-    unlike the port ratios they never exceed 1 while the rotor's kinetic energy changes.
+    Defined only while power flows through the mechanism (in at one port, out at the other:
+    P_in P_out > 0), the power through, min(|P_in|, |P_out|), exceeds EFFICIENCY_MIN_POWER_W, the
+    stored energy changes by at most EFFICIENCY_MAX_STORED_RATE of it (|dE/dt| = |P_in − P_out −
+    P_diss|, the ledger's balance) and the friction absorbs power (P_diss ≥ 0: a reversal inside
+    a step can make its net friction work negative). Then forward (P_out > 0):
+    P_out / (P_out + P_diss); backward (P_out < 0): (|P_out| − P_diss) / |P_out|; both lie in
+    [0, 1] and equal the port ratios P_out/P_in and P_in/P_out at constant speed. NaN means
+    "undefined" (start-up, reversals, standstill, a self-locking screw driven back), not a fault.
     `efficiency_columns` is the same rule over arrays.
     """
+    through = min(abs(power_in_w), abs(power_out_w))
+    if not (power_in_w * power_out_w > 0.0 and through > EFFICIENCY_MIN_POWER_W and power_dissipated_w >= 0.0
+            and abs(power_in_w - power_out_w - power_dissipated_w) <= EFFICIENCY_MAX_STORED_RATE * through):
+        return math.nan
     if power_out_w > 0.0:
-        return _forward(power_out_w, power_dissipated_w)
-    if power_out_w < 0.0:
-        return _backward(power_out_w, power_dissipated_w)
-    return math.nan
+        return power_out_w / (power_out_w + power_dissipated_w)
+    return max(0.0, 1.0 - power_dissipated_w / -power_out_w)  # ≥ 0.95 |P_in|/|P_out| > 0 by the balance
 
 
-def efficiency_columns(power_out_w: np.ndarray, power_dissipated_w: np.ndarray) -> np.ndarray:
+def efficiency_columns(power_in_w: np.ndarray, power_out_w: np.ndarray, power_dissipated_w: np.ndarray) -> np.ndarray:
     """`efficiency` of every step of a run (arrays)."""
+    p_in, p_out, p_d = power_in_w, power_out_w, power_dissipated_w
+    through = np.minimum(np.abs(p_in), np.abs(p_out))
+    ok = ((p_in * p_out > 0) & (through > EFFICIENCY_MIN_POWER_W) & (p_d >= 0)
+          & (np.abs(p_in - p_out - p_d) <= EFFICIENCY_MAX_STORED_RATE * through))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(power_out_w > 0, _forward(power_out_w, power_dissipated_w),
-                        np.where(power_out_w < 0, _backward(power_out_w, power_dissipated_w), np.nan))
+        eff = np.where(p_out > 0, p_out / (p_out + p_d), np.maximum(0.0, 1.0 - p_d / -p_out))
+    return np.where(ok, eff, np.nan)
 
 
 def speed_ratio(screw_speed_rad_s: float, carrier_speed_rad_s: float) -> float:

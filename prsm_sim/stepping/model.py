@@ -122,8 +122,10 @@ class Model:
         """Names of the model's own state fields (`part_type`'s)."""
         return self.part_type._fields if self.part_type is not None else ()
 
-    def initial_state(self, nut_position_m: float = 0.0) -> State:
-        """At rest, nut at `nut_position_m` (x_nut = (L/2π) θ_S fixes the screw angle)."""
+    def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> State:
+        """At rest, nut at `nut_position_m` (x_nut = (L/2π) θ_S fixes the screw angle), in equilibrium
+        under the nut load `load_n` (a rigid model has nothing to deflect; `fu2018` sets its friction
+        state, `elastic` also pre-deflects its chain)."""
         return State(screw_angle_rad=nut_position_m / self.geo.lead_per_rad_m,
                      part=self.part_type() if self.part_type is not None else ())
 

@@ -154,7 +154,7 @@ class PackedOutputs(tuple):
 
     @property
     def efficiency(self) -> float:
-        return efficiency(self.power_out_w, self.power_dissipated_w)
+        return efficiency(self.power_in_w, self.power_out_w, self.power_dissipated_w)
 
     @property
     def speed_ratio(self) -> float:

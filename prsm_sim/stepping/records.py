@@ -175,8 +175,10 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
     efficiency : float
         Of the mechanism, from the power through it (`stepping.ledger.efficiency`):
         P_out / (P_out + P_diss) when the screw drives the load, 1 − P_diss / |P_out| when the
-        load drives the screw (≤ 0: self-locking), NaN when no power reaches the load. Equal to
-        the port ratios at constant speed, never above 1. NaN means "undefined", not a fault.
+        load drives the screw; defined only while power flows through (P_in P_out > 0) above
+        EFFICIENCY_MIN_POWER_W, with friction absorbing and the stored energy changing by at most
+        5 % of the power through; then in [0, 1] and equal to the port ratios at constant speed.
+        NaN otherwise: "undefined" (start-up, reversals, standstill), not a fault.
     speed_ratio : float
         ζ_PS = ω_C / ω_S (NaN at ω_S = 0).
     stored_energy_j : float

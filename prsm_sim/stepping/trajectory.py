@@ -220,7 +220,7 @@ def trajectory_from_columns(initial: State, final: State, stored0_j: float, *, d
         "carrier_angle_rad": th_c, "carrier_speed_rad_s": w_c, "roller_spin_rad_s": -gear_ratio * w_c,
         "nut_position_m": nut_x, "nut_velocity_m_s": nut_v, "nut_force_n": nut_force,
         "load_force_n": np.array(load_n, dtype=float), "slip_speed_m_s": slip, "power_in_w": w_in / h,
-        "power_out_w": p_out, "power_dissipated_w": p_d, "efficiency": efficiency_columns(p_out, p_d),
+        "power_out_w": p_out, "power_dissipated_w": p_d, "efficiency": efficiency_columns(w_in / h, p_out, p_d),
         "speed_ratio": speed_ratio_columns(w_s, w_c), "stored_energy_j": stored_j, "energy_flow_j": flow,
         "energy_residual_j": residual, "energy_fault": fault.astype(float),
     }
