@@ -250,7 +250,7 @@ def _run(case: dict, res: Result) -> None:
     reset_at = case.get("reset_at_s")
     elastic = case["model"] == "elastic"
     tail = max(1, int(round(0.5 / dt)))
-    hist_w, hist_cmd, hist_contact, hist_load = [], [], [], []
+    hist_w, hist_cmd, hist_contact, hist_load, hist_v = [], [], [], [], []
     # times at which what the plant sees changes besides the command and the load: faults start and end
     events = sorted({t for fd in case.get("faults", ()) for t in (fd["start_s"], fd["start_s"] + fd["duration_s"])})
     last_event = -math.inf
@@ -287,7 +287,7 @@ def _run(case: dict, res: Result) -> None:
             t_offset = t
             sim.reset()
             out, w_contact = None, None
-            hist_w.clear(), hist_cmd.clear(), hist_contact.clear(), hist_load.clear()
+            hist_w.clear(), hist_cmd.clear(), hist_contact.clear(), hist_load.clear(), hist_v.clear()
             x_prev, stored_prev = initial()
             stored0 = stored_prev
             v_prev, energy_in_prev, load_work_prev = 0.0, 0.0, 0.0
@@ -355,13 +355,16 @@ def _run(case: dict, res: Result) -> None:
         hist_cmd.append(cmd)
         hist_contact.append(delta)
         hist_load.append(f)
+        hist_v.append(v)
         x_prev, v_prev, stored_prev = x, v, stored
         energy_in_prev, load_work_prev = e_in, load_work
     if out is None:
         return
     # rest against a stop at the end: δ within the static deflection of the net force + 2 µm
     last = int(round(0.1 / dt))
-    if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 and hist_contact[-1] > 0.0:
+    # (screw and nut: an elastic nut can still ring on its chain while the screw is held)
+    if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 \
+            and max(abs(q) for q in hist_v[-last:]) < 1e-6 and hist_contact[-1] > 0.0:
         f = _load(case, sim.time_s)
         net = abs(f - out.nut_force_n)
         if hist_contact[-1] > net / k_stop + REST_SLACK_M:
