@@ -91,7 +91,7 @@ class Simulator:
         travel = params.geometry.travel_m
         self._limits = () if actuator is not None or travel is None else limits_of(None, travel)
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits else (-math.inf, math.inf)
-        self.thread_end_force_n = 0.0
+        self._end_force, self._end_step = 0.0, -1
         self._check_on_threads(nut_position_m)
         if initial_load_n is not None and not is_finite_number(initial_load_n):
             raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N) or None")
@@ -166,7 +166,7 @@ class Simulator:
                 raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N)")
             self._initial_load_n = float(initial_load_n)
         self.state = self.model.initial_state(self._initial_nut_position_m, self._initial_load_n)
-        self.thread_end_force_n = 0.0
+        self._end_force, self._end_step = 0.0, -1
         self.nstep = 0
         return self.state
 
@@ -239,21 +239,19 @@ class Simulator:
         x = self._packed
         if x is not None:  # the record is the outputs and the next packed state
             out = self._step_packed(x, command, load_n)
-            if out.nut_position_m > self._hi or out.nut_position_m < self._lo:  # ran past a thread end (NaN: no)
+            xn = out.nut_position_m
+            if xn > self._hi or xn < self._lo:  # the free step ran past a thread end (NaN: not)
                 out = self._at_end(self.model.unpack_state(x), out,
                                    lambda f: self._step_packed(x, command, load_n - f), lambda r: r.nut_position_m)
-            elif self.thread_end_force_n:
-                self.thread_end_force_n = 0.0
             self._packed = out
             self._before = x
         else:
             s0 = self._state
             new, out = self.model.step(s0, command, load_n)
-            if out.nut_position_m > self._hi or out.nut_position_m < self._lo:
+            xn = out.nut_position_m
+            if xn > self._hi or xn < self._lo:
                 new, out = self._at_end(s0, (new, out), lambda f: self.model.step(s0, command, load_n - f),
                                         lambda r: r[1].nut_position_m)
-            elif self.thread_end_force_n:
-                self.thread_end_force_n = 0.0
             self._state = new
             self._before = s0
         self.nstep += 1
@@ -296,8 +294,13 @@ class Simulator:
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
         f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
-        self.thread_end_force_n = f
+        self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
         return res
+
+    @property
+    def thread_end_force_n(self) -> float:
+        """The thread end's force on the nut over the last step, N along +x_nut (0: off the ends)."""
+        return self._end_force if self._end_step == self.nstep else 0.0
 
     def _deprecated_torque_nm(self, command, torque_nm):
         if command is not None:
