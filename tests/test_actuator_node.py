@@ -79,7 +79,7 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
     # the oracle: the same actuator offline, the node's gate emulated (refused command, interface switch)
     a = actuator_params_from_dict({"motor": {}, "sensors": {"encoder_counts_per_rev": 4096},
                                    "drive": {"mode": "velocity"}})
-    sim = Simulator(preset("s30"), "ideal", 1e-3, 0.0, actuator=a)
+    sim = Simulator(preset("s30"), "ideal", 1e-3, 0.0, actuator=a, initial_load_n=LOAD_N)  # the node starts loaded
     act = sim.model
     outs = []
     for cmd in velocities[:3] + [velocities[2]] + velocities[3:]:
@@ -176,7 +176,8 @@ def test_reset_while_paused_with_an_actuator_publishes_the_rest_state(tmp_path):
 
     a = actuator_params_from_dict({"motor": {}, "sensors": {"encoder_counts_per_rev": 4096},
                                    "drive": {"mode": "velocity"}})
-    s = Session(preset("s30"), "jones2016", 1e-3, a, nut_position_m=0.003, load_n=LOAD_N, interface="velocity")
+    s = Session(preset("s30"), "jones2016", 1e-3, a, nut_position_m=0.003, load_n=LOAD_N, initial_load_n=LOAD_N,
+                interface="velocity")  # as the node builds it: started (and reset) in equilibrium at its load
     s.step(20.0)
     s.reset()
     rest = s.rest_outputs()

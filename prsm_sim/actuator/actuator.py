@@ -124,6 +124,7 @@ class ActuatorState:
     coupling_nm: float = 0.0  # the compliant coupling's torque over the last step (its next linearisation point)
     reference_m: float = math.nan  # the drive's shaped position reference (`shape_reference`; NaN: not started)
     reference_m_s: float = 0.0  # its rate, the position loop's feed-forward
+    command_prev: float = math.nan  # the position command at the last loop update (its rate: the command's speed)
 
     @property
     def time_s(self) -> float:
@@ -288,7 +289,7 @@ class Actuator(Model):
         """Switch the command interface; the speed integrator restarts from the present torque (bumpless)."""
         check_interface(mode)
         return replace(state, mode=mode, integral_nm=state.torque_ref_nm if mode != "effort" else 0.0,
-                       reference_m=math.nan, reference_m_s=0.0)
+                       reference_m=math.nan, reference_m_s=0.0, command_prev=math.nan)
 
     def command_brake(self, state: ActuatorState, engage: bool) -> ActuatorState:
         """Engage or release the holding brake; refused (InputError, nothing changed) where unsupported."""
@@ -358,7 +359,7 @@ class Actuator(Model):
         sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
         volt = tau_st = f_stop = 0.0
         tau_c = st.coupling_nm
-        ref, ref_v = st.reference_m, st.reference_m_s
+        ref, ref_v, cmd_prev = st.reference_m, st.reference_m_s, st.command_prev
         tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
         loop_due = st.step % self.hold_steps == 0
         for j in range(self.n_sub):
@@ -374,7 +375,7 @@ class Actuator(Model):
                 x_meas = self._read_linear(self._nut_x(screw), enc, act, st.step * self.n_sub + j)
                 if act.drive_off:
                     tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
-                    ref, ref_v = math.nan, 0.0  # restarts from the command when the drive comes back
+                    ref, ref_v, cmd_prev = math.nan, 0.0, math.nan  # restarts from the command when the drive is back
                 else:
                     ff = ff_nm = 0.0
                     target = command
@@ -386,7 +387,9 @@ class Actuator(Model):
                         # the loops compare the nut now with the reference now; the torque that takes the
                         # reference to its next point over this update is fed forward
                         target, v0 = ref, ref_v
-                        ref, ref_v = shape_reference(ref, ref_v, command, self.drive.speed_limit_rad_s * p,
+                        rate = (command - cmd_prev) / h_loop if math.isfinite(cmd_prev) else 0.0
+                        cmd_prev = command
+                        ref, ref_v = shape_reference(ref, ref_v, command, rate, self.drive.speed_limit_rad_s * p,
                                                      self._accel_limit(tlim) * p, h_loop)
                         ff, ff_nm = v0 / p, self.J_drive * (ref_v - v0) / (p * h_loop)
                     d = drive_update(self.drive, st.mode, target, integ, w_meas, x_meas, p, tlim, h_loop, ff, ff_nm)
@@ -491,7 +494,8 @@ class Actuator(Model):
         *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
         meas = tuple(meas)
         nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
-                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, ref, ref_v)
+                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, ref, ref_v,
+                            cmd_prev)
         # the actuator block
         x = self._nut_x(screw)
         stop_e = stop_stored_j(self.limits, x)

@@ -19,34 +19,39 @@ class DriveOut(NamedTuple):
     speed_reference_rad_s: float
 
 
-def shape_reference(r_m: float, v_m_s: float, target_m: float, v_max_m_s: float, a_max_m_s2: float,
-                    h_s: float) -> tuple[float, float]:
-    """The drive's position reference one loop update on: it follows the command with |v| ≤ v_max and
-    |dv/dt| ≤ a_max, braking so as to stop at the command, never past it. Its rate is the position
-    loop's feed-forward: a command step then neither asks for more acceleration than a_max (no torque
-    kick) nor waits on the position error.
+def shape_reference(r_m: float, v_m_s: float, target_m: float, target_rate_m_s: float, v_max_m_s: float,
+                    a_max_m_s2: float, h_s: float) -> tuple[float, float]:
+    """The drive's position reference one loop update on: it follows the command (now at `target_m`,
+    moving at `target_rate_m_s`) with |v| ≤ v_max and |dv/dt| ≤ a_max, braking so as to meet it at its
+    own speed, never overshooting it. Its rate is the position loop's feed-forward: a command that
+    moves within those limits is followed exactly (no lag), and a command step neither asks for more
+    acceleration than a_max (no torque kick) nor waits on the position error.
 
-    Braking is planned on the loop's own grid: the speed u₁ at the end of this update is the largest
-    from which the remaining distance still suffices, h (u₀ + u₁)/2 + u₁²/(2 a) ≤ |e| (trapezoidal
-    position, speed falling by a h per update afterwards).
+    Braking is planned on the loop's own grid, in the frame moving with the command: the relative
+    speed u₁ at the end of this update is the largest from which the remaining distance still
+    suffices, h (u₀ + u₁)/2 + u₁²/(2 a) ≤ |e| (trapezoidal position, speed changing by a h per update).
     """
+    a, vt = a_max_m_s2, max(-v_max_m_s, min(v_max_m_s, target_rate_m_s))
+    dv = a * h_s
     e = target_m - r_m
-    if e == 0.0 and v_m_s == 0.0:
-        return r_m, 0.0
-    s = 1.0 if e > 0.0 else -1.0
-    a, u0, dist = a_max_m_s2, s * v_m_s, abs(e)
+    vr = v_m_s - vt
+    if e == 0.0 and vr == 0.0:
+        return r_m + h_s * vt, vt
+    s = (1.0 if e > 0.0 else -1.0) if e != 0.0 else (-1.0 if vr > 0.0 else 1.0)
+    u0, dist = s * vr, abs(e)
     c = 0.5 * h_s * u0 - dist
-    if c >= 0.0:
-        return target_m, 0.0  # even braking to rest over this update reaches the command: arrived
+    if c >= 0.0 and abs(vr) <= dv:
+        return target_m + h_s * vt, vt  # even braking to the command's speed meets it over this update
     if math.isinf(a):
-        u1 = min(v_max_m_s, 2.0 * dist / h_s - u0)
+        u1 = 2.0 * dist / h_s - u0
     else:
-        u1 = a * (-0.5 * h_s + math.sqrt(0.25 * h_s * h_s - 2.0 * c / a))
-        u1 = max(u0 - a * h_s, min(u0 + a * h_s, v_max_m_s, u1))
-    r1 = r_m + 0.5 * h_s * s * (u0 + u1)
-    if (target_m - r1) * s <= 0.0:
-        return target_m, 0.0
-    return r1, s * u1
+        u1 = a * (-0.5 * h_s + math.sqrt(max(0.0, 0.25 * h_s * h_s - 2.0 * c / a)))
+    v1 = max(v_m_s - dv, min(v_m_s + dv, vt + s * u1))  # the acceleration limit on the reference itself
+    v1 = max(-v_max_m_s, min(v_max_m_s, v1))
+    r1 = r_m + 0.5 * h_s * (v_m_s + v1)
+    if (target_m + h_s * vt - r1) * s <= 0.0 and abs(v1 - vt) <= dv:
+        return target_m + h_s * vt, vt
+    return r1, v1
 
 
 def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: float, speed_meas_rad_s: float,
