@@ -2,7 +2,7 @@
 
     prsm-bag info BAG [--json] [--parameters] [--check | --no-check]
     prsm-bag export BAG -t TOPIC [-t TOPIC ...] -o OUT [--start S] [--end S] [--resample HZ] [--method linear|hold] [--merge]
-    prsm-bag report BAG -o DIR [--json] [--dynamic-load-rating-n N] [--screw-joint NAME] [--nut-joint NAME]
+    prsm-bag report BAG [-o DIR] [--json] [--dynamic-load-rating-n N] [--screw-joint NAME] [--nut-joint NAME]
     prsm-bag report DIR|GLOB -o DIR [--address HOST:PORT]   (many bags → DIR/fleet.parquet; on Ray if installed)
     prsm-bag compare A_DIR B_DIR [--threshold 0.05] [--json] [--fail-on-regression]
     prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from prsm_ros.bag.reader import BagError, open_bag
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
@@ -153,6 +154,8 @@ def _report_options(args) -> dict:
 def _cmd_report(args) -> int:
     from prsm_ros.bag.fleet import fleet_report, is_fleet
     if is_fleet(args.bag):
+        if not args.output:
+            raise BagError("many bags: give the folder for the table with -o DIR")
         s = fleet_report(args.bag, args.output, _report_options(args), address=args.address)
         if args.json:
             _print_json(s)
@@ -166,11 +169,11 @@ def _cmd_report(args) -> int:
     _note(bag)
     topics = {"joint_states": args.joint_states_topic, "reference": args.reference_topic,
               "internal_loads": args.internal_loads_topic}
-    r = report(bag, args.output, dynamic_load_rating_n=args.dynamic_load_rating_n,
+    from prsm_ros.bag.report import default_output_dir
+    out = Path(args.output) if args.output else default_output_dir(bag.path)
+    r = report(bag, out, dynamic_load_rating_n=args.dynamic_load_rating_n,
                screw_joint=args.screw_joint, nut_joint=args.nut_joint, topics=topics, plots=not args.no_plots)
     _reading_notes(bag)
-    from pathlib import Path
-    out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     (out / "report.json").write_text(dumps(r), encoding="utf-8")
     if args.json:
@@ -265,11 +268,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("report", help="metrics and PNG plots into a folder (many bags: one Parquet table)")
     p.add_argument("bag", help="a bag, or a directory / glob of many bags")
-    p.add_argument("-o", "--output", required=True, help="folder for the plots and report.json")
+    p.add_argument("-o", "--output", help="folder for the plots and report.json (default: BAG_STEM_report/ beside "
+                   "the bag; many bags: required)")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
-    p.add_argument("--dynamic-load-rating-n", type=float, default=DEFAULT_DYNAMIC_LOAD_RATING_N, metavar="N",
-                   help=f"dynamic axial load rating C_a for the L10 life (default {DEFAULT_DYNAMIC_LOAD_RATING_N:g} N, "
-                        "a catalogue value for a ~30 mm × 5 mm lead roller screw; give your screw's)")
+    p.add_argument("--dynamic-load-rating-n", type=float, default=None, metavar="N",
+                   help="dynamic axial load rating C_a for the L10 life (default: the one the bag's parameters record, "
+                        f"else {DEFAULT_DYNAMIC_LOAD_RATING_N:g} N, a catalogue value for a ~30 mm × 5 mm lead roller screw)")
     p.add_argument("--screw-joint", default=SCREW_JOINT, help=f"JointState name of the screw (default {SCREW_JOINT})")
     p.add_argument("--nut-joint", default=NUT_JOINT, help=f"JointState name of the nut (default {NUT_JOINT})")
     p.add_argument("--joint-states-topic", help="JointState topic (default: /joint_states or the only one)")
