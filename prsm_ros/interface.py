@@ -10,7 +10,7 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 |------------------------|-----------------------------|-------------------------------|-----|
 | screw_torque           | ~/screw_torque              | std_msgs/Float64 (N·m)        | in  |
 | joint_commands         | ~/joint_commands            | sensor_msgs/JointState        | in  |
-| nut_position_reference | ~/nut_position_reference    | std_msgs/Float64 (m)          | in (recorded only) |
+| nut_position_reference | ~/nut_position_reference    | sensor_msgs/JointState (m, m/s) | in (recorded only) |
 | velocity_command       | ~/velocity_command          | std_msgs/Float64 (rad/s)      | in (command_interface velocity) |
 | position_command       | ~/position_command          | std_msgs/Float64 (m)          | in (command_interface position) |
 | inject_fault           | ~/inject_fault              | std_msgs/String ('kind=…,start_s=…') | in (with an actuator) |
@@ -30,6 +30,10 @@ Topics (names as the node declares them; `~` is the node, default `/prsm_actuato
 raised it, e.g. "energy_guard"), severity ("info", "warn", "error"), code (a stable identifier),
 message (one line for people), details (an object). Latched with a history of 100, so a late
 subscriber still gets the recent events; the recorder writes them into the bag.
+
+`~/nut_position_reference`: a controller's reference, recorded for the report: `nut_joint` with the
+reference position (m) and velocity (m/s), `header.stamp` = the stamp of the state it answers, so
+the report pairs each reference with that state (and the bag records it at that log time).
 
 `/clock` is published reliable, keep last 1: a reliable writer matches both the best-effort
 readers of rclcpp's TimeSource and reliable readers (a best-effort writer would match only the
@@ -52,6 +56,7 @@ element count and `data_offset` = 0; the shapes, element labels and units are on
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -124,7 +129,7 @@ TOPIC_DEFS: dict[str, TopicDef] = {t.key: t for t in (
     TopicDef("inject_fault", "~/inject_fault", "std_msgs/msg/String", qos(10), "in"),
     # the brake, owned like the commands (a service cannot tell who calls it)
     TopicDef("brake_command", "~/brake_command", "std_msgs/msg/Bool", qos(10), "in"),
-    TopicDef("nut_position_reference", "~/nut_position_reference", "std_msgs/msg/Float64", qos(10), "in"),
+    TopicDef("nut_position_reference", "~/nut_position_reference", "sensor_msgs/msg/JointState", qos(10), "in"),
     # keep-last 100: a reader that stalls up to 100 ms at 1 kHz loses no state
     TopicDef("joint_states", "joint_states", "sensor_msgs/msg/JointState", qos(100), "out"),
     TopicDef("ground_truth", "~/ground_truth/joint_states", "sensor_msgs/msg/JointState", qos(10), "out"),
@@ -314,6 +319,17 @@ class MessageBuilder:
     def float64(self, value: float):
         """std_msgs/Float64: a command or reference value as a controller publishes it."""
         return self._float64(data=float(value))
+
+    def reference(self, stamp_ns: int, position_m: float, velocity_m_s: float = math.nan):
+        """`~/nut_position_reference`: the nut reference answering the state stamped `stamp_ns`."""
+        fa = self._float_array
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        return self._joint_state(
+            header=self._header(stamp=self._time(sec=sec, nanosec=nanosec), frame_id=""), name=[NUT_JOINT],
+            position=fa(np.array((position_m,), dtype=np.float64)),
+            velocity=fa(np.array((velocity_m_s,), dtype=np.float64)),
+            effort=fa(np.array((math.nan,), dtype=np.float64)))  # no effort reference; not empty: a trailing empty
+            # sequence gets 4 bytes of end padding from rclpy that rosbags reads as a size mismatch
 
     def clock(self, time_s: float):
         return self._clock(clock=self.stamp(time_s))

@@ -131,7 +131,7 @@ def test_export_writes_the_recorded_values_per_field(tracking, tmp_path, capsys)
     assert len(rows) == 41  # 0 … 0.4 s at 100 Hz
     k = 25  # t = 0.25 s: the reference sent at the start of the step beginning at 0.25 s
     assert float(rows[k]["time_s"]) == pytest.approx(0.25)
-    assert float(rows[k]["/prsm_actuator/nut_position_reference:data"]) == ref[250]
+    assert float(rows[k]["/prsm_actuator/nut_position_reference:nut_joint.position"]) == ref[250]
 
 
 def test_report_metrics_agree_with_the_trajectory(tracking, tmp_path, capsys):
@@ -140,14 +140,13 @@ def test_report_metrics_agree_with_the_trajectory(tracking, tmp_path, capsys):
     assert rc == 0
     r = json.loads(out)
     assert json.loads((tmp_path / "rep" / "report.json").read_text()) == r
-    # tracking: at each joint-state time t the reference sent at t (the next step's) is x_ref(t);
-    # the last sample keeps the last reference
+    # tracking: the reference stamped t (sent at the start of the step from t) answers the state at t,
+    # which the bag holds as the previous row; the unrecorded initial state has none
     x = traj["nut_position_m"]
-    held = np.append(ref[1:], ref[-1])
-    assert r["tracking"]["rms_error_m"] == pytest.approx(float(np.sqrt(np.mean((held - x) ** 2))), rel=1e-12)
+    assert r["tracking"]["rms_error_m"] == pytest.approx(float(np.sqrt(np.mean((ref[1:] - x[:-1]) ** 2))), rel=1e-12)
     t = traj["time_s"][:-1]
     analytic = 1e-3 * np.sin(2 * math.pi * 2.0 * t)
-    assert np.allclose(held[:-1], analytic, rtol=0, atol=1e-15)  # the recorded reference is x_ref(t)
+    assert np.allclose(ref[1:], analytic, rtol=0, atol=1e-15)  # the recorded reference is x_ref(t)
     # peak tooth load: the largest |screw normal force| in the trajectory's per-tooth block
     layout = traj.layout
     if "per_tooth" in layout.offsets():

@@ -103,7 +103,7 @@ def test_compare_flags_the_slower_controller_as_a_regression(groups, embedded_ra
     assert c["a_failed"] == 1 and c["b_failed"] == 0
     m = c["metrics"]["tracking.rms_error_m"]
     assert m["better"] == "lower" and m["relative_change"] > 1.0 and m["p_value"] < 0.05 and m["regression"]
-    assert "tracking.rms_error_m" in c["regressions"] and "tracking.max_abs_error_m" in c["regressions"]
+    assert "tracking.rms_error_m" in c["regressions"] and "tracking.max_error_m" in c["regressions"]
     rc, out = _cli(["compare", str(groups / "b"), str(groups / "a"), "--json"])
     assert not any(r.startswith("tracking.") for r in json.loads(out)["regressions"])
     rc, text = _cli(["compare", str(groups / "a"), str(groups / "b"), "--fail-on-regression"])

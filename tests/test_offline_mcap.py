@@ -111,7 +111,7 @@ def test_offline_bag_without_rclpy_decodes_like_the_rclpy_bag(tmp_path):
         stamp = round(out.time_s * 1e9)
         command = round(max(out.time_s - 1e-3, 0.0) * 1e9)
         f.write(ids["screw_torque"], mapper.float64(traj["screw_torque_nm"][k]), command)
-        f.write(ids["nut_position_reference"], mapper.float64(ref[k]), command)
+        f.write(ids["nut_position_reference"], mapper.reference(command, ref[k]), command)
         for key, (_, msg) in zip(keys[2:6], mapper.messages(out)):
             f.write(ids[key], msg, stamp)
     f.finish()

@@ -29,18 +29,18 @@ _CONTROLLER = """
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64
+    from std_msgs.msg import Float64, Header
     rclpy.init()
     node = rclpy.create_node("pd_controller")
     state = {"x": None, "v": 0.0, "sent": []}
     def on_js(m):
-        state["x"], state["v"] = m.position[1], m.velocity[1]
+        state["x"], state["v"], state["stamp"] = m.position[1], m.velocity[1], m.header.stamp
     node.create_subscription(JointState, "/joint_states", on_js, 10)
     received = []  # the node's own count of commands received, from /diagnostics
     node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: received.append(
         int({kv.key: kv.value for kv in m.status[0].values}["commands_received"])), 10)
     tau_pub = node.create_publisher(Float64, "/prsm_actuator/screw_torque", 1)
-    ref_pub = node.create_publisher(Float64, "/prsm_actuator/nut_position_reference", 10)
+    ref_pub = node.create_publisher(JointState, "/prsm_actuator/nut_position_reference", 10)
     # discovery matches each direction on its own: wait for the node's states AND for the node to
     # listen to both our topics, or the first commands go nowhere on a busy machine
     end = time.monotonic() + 60
@@ -54,7 +54,7 @@ _CONTROLLER = """
         # s30: J ≈ 2.4e-4 kg·m², lead 0.8 mm/rad → 10 Hz, ζ 0.7 in nut-position terms; the 200 N
         # load torque (F·L/2π) fed forward
         tau = 200.0 * 0.0008 + 1170.0 * (ref - state["x"]) - 26.0 * state["v"]
-        ref_pub.publish(Float64(data=ref))
+        ref_pub.publish(JointState(header=Header(stamp=state["stamp"]), name=["nut_joint"], position=[ref], velocity=[0.0], effort=[0.0]))
         tau_pub.publish(Float64(data=tau))
         state["sent"].append(tau)
         time.sleep(0.005)
@@ -115,9 +115,9 @@ def test_node_run_records_an_mcap_that_checks_clean_and_reports(tmp_path, capsys
     tr = r["tracking"]
     # the 1 mm sine the controller sent, as sampled (a busy machine samples it coarsely): the span of
     # the recorded references, read from the bag here, and never more than the sine's 2 mm
-    refs = [m.msg.data for m in b.messages(["/prsm_actuator/nut_position_reference"])]
+    refs = [m.msg.position[0] for m in b.messages(["/prsm_actuator/nut_position_reference"])]
     assert tr["reference_span_m"] == pytest.approx(max(refs) - min(refs), rel=1e-12) and 0 < tr["reference_span_m"] <= 2e-3
-    assert 0 < tr["rms_error_m"] <= tr["max_abs_error_m"]
+    assert 0 < tr["rms_error_m"] <= tr["max_error_m"]
     assert r["efficiency"]["forward"] is not None and 0 < r["efficiency"]["forward"] < 1
     assert r["life"]["l10_revolutions"] > 0 and r["peak_loads"]
     assert {Path(p).name for p in r["plots"]} >= {"motion.png", "loads.png", "power.png", "internal_loads.png"}

@@ -6,7 +6,7 @@
     prsm-bag report DIR|GLOB -o DIR [--address HOST:PORT]   (many bags → DIR/fleet.parquet; on Ray if installed)
     prsm-bag compare A_DIR B_DIR [--threshold 0.05] [--json] [--fail-on-regression]
     prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
-    prsm-bag to-rrd BAG -o FILE.rrd
+    prsm-bag to-rrd BAG -o FILE.rrd [--screw-joint NAME] [--nut-joint NAME] [--joint-states-topic T]
     prsm-bag repair BAG OUT.mcap   (a killed recording's bag → a finished file every MCAP reader opens)
 
 BAG is an .mcap file (ours or any ROS 2 recorder's) or a rosbag2 directory holding one. Times
@@ -214,12 +214,16 @@ def _cmd_to_rrd(args) -> int:
     except ImportError as e:
         raise BagError(f"to-rrd needs the Rerun SDK (pip install 'prsm[bag]'): {e}") from None
     try:
-        summary = bag_to_rrd(bag.path, args.output)
+        summary = bag_to_rrd(bag.path, args.output, screw_joint=args.screw_joint, nut_joint=args.nut_joint,
+                             topics={"joint_states": args.joint_states_topic, "reference": args.reference_topic,
+                                     "internal_loads": args.internal_loads_topic})
     except (ValueError, LookupError) as e:
-        raise BagError(f"{bag.path.name}: {e}") from None
+        raise BagError(str(e)) from None  # the message names the file where it matters
     print(args.output)
-    if isinstance(summary, dict):
-        for k, v in summary.items():
+    for w in summary.get("warnings", []):
+        print(f"prsm-bag to-rrd: warning: {w}", file=sys.stderr)
+    for k, v in summary.items():
+        if k != "warnings":
             print(f"  {k}: {v}")
     return 0
 
@@ -237,6 +241,16 @@ def _cmd_repair(args) -> int:
 def _range_args(p) -> None:
     p.add_argument("--start", type=float, metavar="S", help="start, seconds from the bag's first message")
     p.add_argument("--end", type=float, metavar="S", help="end, seconds from the bag's first message")
+
+
+JOINT_OPTIONS = ("screw_joint", "nut_joint", "joint_states_topic", "reference_topic", "internal_loads_topic")
+
+
+def _joint_options(p, report_opts, *more: str) -> None:
+    """The joint and topic options of `report` (and `more` of its options) on another subcommand."""
+    for a in report_opts._actions:
+        if a.dest in JOINT_OPTIONS + more:
+            p._add_action(a)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -291,10 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=float, default=0.05, help="significance of the rank test (default 0.05)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON")
     p.add_argument("--fail-on-regression", action="store_true", help=f"exit {EXIT_REGRESSION} when a regression is flagged")
-    for a in report_opts._actions:  # the same per-bag options as report
-        if a.dest in ("dynamic_load_rating_n", "screw_joint", "nut_joint", "joint_states_topic", "reference_topic",
-                      "internal_loads_topic", "address"):
-            p._add_action(a)
+    _joint_options(p, report_opts, "dynamic_load_rating_n", "address")
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("play", help="republish onto ROS topics at a rate factor, with /clock")
@@ -312,6 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("to-rrd", help="convert to a Rerun .rrd recording")
     p.add_argument("bag")
     p.add_argument("-o", "--output", required=True, help="the .rrd file to write")
+    _joint_options(p, report_opts)
     p.set_defaults(func=_cmd_to_rrd)
 
     p = sub.add_parser("repair", help="rewrite an unfinished or damaged bag as a finished one (summary, footer)")

@@ -61,6 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rerun-target", default="", help="save: .rrd path; spawn: port; connect: address")
     p.add_argument("--gains", metavar="FILE", help="controller gains file, as prsm-sweep tune writes it (DIR/gains.yaml)")
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: yours, else one from the pid)")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object (and nothing else "
+                   "on stdout)")
     return p
 
 
@@ -104,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N, "
           f"{args.command_interface} commands"
           + (f"; gains {', '.join(f'{k} {v:g}' for k, v in gains.items())} from {args.gains}" if args.gains else ""),
-          flush=True)
+          file=sys.stderr if args.json else sys.stdout, flush=True)
 
     with tempfile.TemporaryDirectory(prefix="prsm_demo_") as tmp:
         node_log = Path(tmp) / "node.log"
@@ -135,7 +137,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     s = json.loads(lines[-1])
     dt_s = 1e-3
-    print(summary_text(s, dt_s, record))
+    if args.json:
+        from prsm_ros.cli.json_out import dumps
+        print(dumps({**s, "steps": round(s["sim_time_s"] / dt_s), "bag": str(record) if record else None,
+                          "time_mode": args.time_mode, "model": args.model, "preset": args.preset}))
+    else:
+        print(summary_text(s, dt_s, record))
     return 0 if s["completed"] else 1
 
 
@@ -170,7 +177,8 @@ def summary_text(s: dict, dt_s: float, record: Path | None) -> str:
     if not s["completed"]:
         lines.append("  (incomplete: the controller stopped before the end of the run)")
     if record is not None:
-        lines.append(f"bag: {record}   (inspect: prsm-bag info {record.name}; prsm-bag report {record.name})")
+        lines.append(f"bag: {record}\n  inspect: prsm-bag info {record.name}\n  report:  prsm-bag report {record.name}"
+                     f"   (plots and report.json in {record.stem}_report/)")
     return "\n".join(lines)
 
 

@@ -7,7 +7,8 @@ state, never a backlog), answers every state with a command in the node's comman
 (`--command-interface`: a screw torque on `/prsm_actuator/screw_torque`, a screw speed on
 `~/velocity_command` or the nut position itself on `~/position_command`, where the node's drive
 closes the loops) and publishes its reference on `/prsm_actuator/nut_position_reference`
-(so the reference lands in the node's bag). The reference runs on simulation time (the states'
+(so the reference lands in the node's bag), stamped with the stamp of the state it answers, so
+`prsm-bag report` pairs each reference with that state as this controller did. The reference runs on simulation time (the states'
 header stamps), so the loop behaves the same in realtime and lockstep modes. The node starts paused
 (`start_paused`): once both topics are matched the controller resumes it through `~/pause`, so no
 step runs before it listens, and in lockstep its first command starts the simulation; at the end it
@@ -98,8 +99,9 @@ def run(args: argparse.Namespace) -> dict:
     node = rclpy.create_node("prsm_demo_controller")
     cmd_topic = TOPICS[COMMAND_TOPICS[args.command_interface]]
     tau_pub = node.create_publisher(Float64, cmd_topic.resolved(), with_depth(cmd_topic.qos, 10))
-    ref_pub = node.create_publisher(Float64, TOPICS["nut_position_reference"].resolved(),
+    ref_pub = node.create_publisher(JointState, TOPICS["nut_position_reference"].resolved(),
                                     TOPICS["nut_position_reference"].qos)
+    ref_msg = JointState(name=[NUT_JOINT], position=[0.0], velocity=[0.0], effort=[math.nan])  # see MessageBuilder.reference
     pause = node.create_client(SetBool, resolve_name("~/pause"))
     track = Tracking()
     # callbacks run in this thread, inside spin_once: st has one owner and needs no lock
@@ -120,7 +122,10 @@ def run(args: argparse.Namespace) -> dict:
         st["last_ns"], st["t"], st["x"] = stamp_ns, t, x
         x_ref, v_ref, a_ref = reference(t, args.amplitude, args.frequency)
         track.add(x_ref - x)
-        if t >= args.duration:
+        ref_msg.header.stamp.sec, ref_msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        ref_msg.position[0], ref_msg.velocity[0] = x_ref, v_ref
+        if t >= args.duration:  # the last state is tracked too: its reference goes to the bag, no command
+            ref_pub.publish(ref_msg)
             st["done"] = True
             return
         if args.command_interface == "velocity":
@@ -130,7 +135,7 @@ def run(args: argparse.Namespace) -> dict:
         else:
             command = ctl.torque(x_ref - x, v_ref - v, a_ref, dt)
         tau_pub.publish(Float64(data=command))  # the command first: the reference only goes to the bag
-        ref_pub.publish(Float64(data=x_ref))
+        ref_pub.publish(ref_msg)
 
     state_sub = node.create_subscription(JointState, TOPICS["joint_states"].resolved(), on_state,
                                          state_reader_qos(TOPICS["joint_states"].qos), raw=True)

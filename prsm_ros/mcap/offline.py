@@ -8,7 +8,8 @@ hashes as rclpy's; see `prsm_ros.mcap.codec`). Per step (stamped with the step's
 stamps its outputs): `/joint_states`, `~/nut/wrench`, `~/internal_loads`, `/clock`; the applied
 torque as the `~/screw_torque` command the node would have received, stamped at the step's start
 (the simulation time at which the node takes a command); once at t = 0 the latched labels; and,
-when given, the controller's reference on `~/nut_position_reference`. `/diagnostics` (wall-clock
+when given, the controller's reference on `~/nut_position_reference` (stamped with the state it
+answers, the step's start). `/diagnostics` (wall-clock
 health of a live node) has no meaning offline and is not written.
 """
 
@@ -71,8 +72,8 @@ def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: s
             stamp = time_ns(out.time_s)
             command_stamp = time_ns(max(out.time_s - dt_s, 0.0))
             f.write(ids["screw_torque"], mapper.float64(torque[k]), command_stamp)
-            if reference_m is not None:
-                f.write(ids["nut_position_reference"], mapper.float64(reference_m[k]), command_stamp)
+            if reference_m is not None:  # it answers the state at the step's start
+                f.write(ids["nut_position_reference"], mapper.reference(command_stamp, reference_m[k]), command_stamp)
             for cid, (_, msg) in zip(step_ids, mapper.messages(out)):
                 f.write(cid, msg, stamp)
         f.finish()

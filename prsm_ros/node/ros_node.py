@@ -47,6 +47,7 @@ import functools
 import math
 import os
 import signal
+import struct
 import sys
 import threading
 import time
@@ -70,7 +71,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from prsm_sim import ModelError, PrsmError, Session
 
-from prsm_ros.cdr_read import float64_data
+from prsm_ros.cdr_read import float64_data, joint_state_stamp_effort0
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage
@@ -352,7 +353,8 @@ class PrsmNode(Node):
             self._refused(who, "not_owner", f"{self._topic_names[key]}: {reason}")
             return
         if key == "nut_position_reference":
-            self._record(key, raw)
+            # at the stamp of the state it answers, not at the moment it arrived (that races the steps)
+            self._record(key, raw, _reference_stamp_ns(raw))
             return
         reason, header_ns, malformed = self._offer(key, raw)
         if malformed:  # not this type's CDR: kept out of the bag
@@ -768,6 +770,14 @@ def _float64(raw: bytes) -> float:
         return float64_data(raw)
     except ValueError:
         return deserialize_message(raw, Float64).data
+
+
+def _reference_stamp_ns(raw: bytes) -> int | None:
+    """The header stamp of a reference's CDR bytes (JointState); None (record it now) when they do not parse."""
+    try:
+        return joint_state_stamp_effort0(raw)[0]
+    except (ValueError, IndexError, struct.error):
+        return None
 
 
 def _exit_now(code: int, message: str) -> None:

@@ -10,8 +10,10 @@ What a bag gives, in order of preference:
    other joints become series `series/inputs/joint_states/<joint>/<position|velocity|effort>`.
 
 Topics are found by `prsm_ros.bag.reader.resolve_topics` (type and name suffix, so a namespaced or
-remapped node still converts). The `…/nut_position_reference` and `…/screw_torque` commands
-(std_msgs/Float64) are plotted as inputs beside the outputs. Geometry comes from the run metadata (`prsm_run`
+remapped node still converts). The `…/nut_position_reference` (stamped: at the stamp of the state it
+answers; or a plain Float64) and `…/screw_torque` (std_msgs/Float64) inputs are plotted beside the
+outputs. Other joint names than `screw_joint` / `nut_joint` are given with `screw_joint=` /
+`nut_joint=`; when the joint states name neither, the summary warns that the scene cannot move. Geometry comes from the run metadata (`prsm_run`
 parameters_yaml, written by our recorder); a bag without it gets its `preset`, else a schematic
 geometry (preset s30), and the summary says so. Time: our bags are stamped with simulation time
 and keep it; a foreign bag's `sim_time` is the time since its first message.
@@ -38,6 +40,11 @@ _JOINT_COLUMNS = {  # joint → (position, velocity, effort) output names
     SCREW_JOINT: ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm"),
     NUT_JOINT: ("nut_position_m", "nut_velocity_m_s", "nut_force_n"),
 }
+
+
+def _joint_columns(screw_joint: str, nut_joint: str) -> dict[str, tuple[str, str, str]]:
+    """The joints of a bag that names them otherwise → the output names they stand for."""
+    return {screw_joint: _JOINT_COLUMNS[SCREW_JOINT], nut_joint: _JOINT_COLUMNS[NUT_JOINT]}
 _UNITS = {"nut_position_reference": "m", "screw_torque": "N·m"}
 
 
@@ -67,8 +74,11 @@ class _Conversion:
     """The rows of one bag on their way to a RecordingWriter: collected, batched, sent."""
 
     def __init__(self, writer: RecordingWriter, source: str, labels: dict | None, scalar_names: list[str],
-                 input_topics: set[str], *, ours: bool, batch_rows: int) -> None:
+                 input_topics: set[str], *, ours: bool, batch_rows: int, joints: dict | None = None) -> None:
         self.writer, self.source, self.labels = writer, source, labels
+        self.joints = joints if joints is not None else _JOINT_COLUMNS
+        self.joints_seen: set[str] = set()
+        self.names_seen: set[str] = set()
         self.scalar_names = scalar_names
         self.n_scalar = labels["segments"][0]["size"] if labels else 0
         self.i_time = scalar_names.index("time_s") if labels and "time_s" in scalar_names else None
@@ -90,7 +100,14 @@ class _Conversion:
         """One decoded bag message (prsm_ros.bag.reader.BagMessage)."""
         msg = m.msg
         if m.topic in self.input_topics:
-            self._input(m.topic.rstrip("/").rsplit("/", 1)[-1], self.sim_time(m.log_time_ns), float(msg.data))
+            name = m.topic.rstrip("/").rsplit("/", 1)[-1]
+            if hasattr(msg, "header"):  # a stamped reference: at the state it answers, the nut joint's position
+                names = list(msg.name)
+                k = names.index(NUT_JOINT) if NUT_JOINT in names else 0
+                value = float(msg.position[k]) if len(msg.position) > k else math.nan
+                self._input(name, self.sim_time(_stamp_ns(msg)), value)
+            else:
+                self._input(name, self.sim_time(m.log_time_ns), float(msg.data))
             return
         if self.source == "internal_loads":
             row = np.asarray(msg.data, dtype=float)
@@ -101,8 +118,10 @@ class _Conversion:
             row = {}
             for k, name in enumerate(msg.name):
                 vals = [seq[k] if k < len(seq) else math.nan for seq in (msg.position, msg.velocity, msg.effort)]
-                if name in _JOINT_COLUMNS:
-                    row.update(zip(_JOINT_COLUMNS[name], vals))
+                self.names_seen.add(name)
+                if name in self.joints:
+                    self.joints_seen.add(name)
+                    row.update(zip(self.joints[name], vals))
                 else:
                     for field, v in zip(("position", "velocity", "effort"), vals):
                         self._input(f"joint_states/{name}/{field}", t, v)
@@ -142,7 +161,8 @@ class _Conversion:
 
 
 def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | None = None,
-               scene_rate_hz: float = 30.0, batch_rows: int = 20_000) -> dict[str, Any]:
+               scene_rate_hz: float = 30.0, batch_rows: int = 20_000, screw_joint: str = SCREW_JOINT,
+               nut_joint: str = NUT_JOINT, topics: dict[str, str | None] | None = None) -> dict[str, Any]:
     """Convert a recorded MCAP bag into an .rrd with the default blueprint; returns a summary dict.
 
     Summary keys: bag, rrd, source ("internal_loads" | "joint_states"), model, geometry, rows,
@@ -166,7 +186,7 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
     if out.resolve() == bag.path.resolve():
         raise InputError(f"output {str(out)!r} would overwrite the bag")
     warnings = [bag.note] if bag.note else []
-    roles = resolve_topics(bag)
+    roles = resolve_topics(bag, topics)
     meta = bag.run_metadata
 
     labels = None
@@ -200,12 +220,18 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
                                  scene_rate_hz=scene_rate_hz)
         writer.log_static()
         conv = _Conversion(writer, source, labels, scalar_names, input_topics,
-                           ours=labels is not None or bool(meta), batch_rows=batch_rows)
+                           ours=labels is not None or bool(meta), batch_rows=batch_rows,
+                           joints=_joint_columns(screw_joint, nut_joint))
         for m in bag.messages(topics, progress=progress, desc=f"to-rrd {bag.path.name}"):
             conv.take(m)
         conv.finish()
         if writer.rows == 0:
             warnings.append(f"{data_topic} has no messages: the recording holds only the static scene")
+        elif source == "joint_states" and conv.joints_seen != {screw_joint, nut_joint}:
+            missing = sorted({screw_joint, nut_joint} - conv.joints_seen)
+            warnings.append(f"{data_topic} has no joint {' or '.join(repr(j) for j in missing)} (its joints: "
+                            f"{', '.join(sorted(conv.names_seen)) or 'none'}): the scene does not move with it; "
+                            "name the joints with --screw-joint / --nut-joint")
         writer.send_blueprint()
         rec.flush(timeout_sec=60.0)
         rec.disconnect()
