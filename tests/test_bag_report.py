@@ -178,3 +178,30 @@ def test_output_folder_defaults_to_one_beside_the_bag(braking, tmp_path, capsys)
     folder = tmp_path / "run_report"
     assert (folder / "report.json").is_file() and (folder / "motion.png").is_file()
     assert str(folder / "motion.png") in out
+
+
+def _rows(values, **extra):
+    return [{"bag": f"b{k}", "status": "ok", "error": None, "tracking.rms_error_m": v, "peak_loads.x.time_s": 0.1 * k,
+             "peak_loads.x.at.roller": float(k), "peak_loads.x.peak_abs": 10.0 + k, **extra} for k, v in enumerate(values)]
+
+
+def test_compare_says_too_few_bags_instead_of_a_verdict():
+    from prsm_ros.bag.compare import compare_rows, min_p_value, smallest_group, text
+    # two bags a group: the rank test's smallest two-sided p is 2 / C(4, 2) = 1/3, it can never reach 0.05
+    assert min_p_value(2, 2) == pytest.approx(1 / 3)
+    # equal groups: C(6, 3) = 20 gives 0.1, C(8, 4) = 70 gives 0.0286 < 0.05: four bags a group
+    assert smallest_group(0.05) == 4 and smallest_group(0.01) == 5  # C(10, 5) = 252: 0.0079
+    c = compare_rows(_rows([1e-4, 1.1e-4]), _rows([5.6e-4, 5.7e-4]))  # +462 %
+    assert c["verdict"] == "too few bags" and c["regressions"] == [] and c["smallest_group"] == 4
+    out = text({**c, "a": "A", "b": "B"})
+    assert "too few bags" in out and "at least 4 bags per group" in out and "regression(s)" not in out
+    # metrics only: not where or when a peak happened
+    assert set(c["metrics"]) == {"tracking.rms_error_m", "peak_loads.x.peak_abs"}
+    big = compare_rows(_rows([1e-4, 1.1e-4, 1.2e-4, 1.05e-4]), _rows([5.6e-4, 5.7e-4, 5.8e-4, 5.9e-4]))
+    assert big["verdict"] == "compared" and big["regressions"] == ["tracking.rms_error_m"]
+
+
+def test_bench_spread_beyond_fifty_percent_is_a_multiple_of_the_median():
+    from prsm_ros.bench.common import _spread
+    assert _spread(0.1) == "±5 %" and _spread(None) == ""
+    assert _spread(262.0) == "max − min 262× median"

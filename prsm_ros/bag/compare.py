@@ -7,6 +7,13 @@ assumed, robust to the odd outlier bag). A metric whose better direction is know
 errors and peak loads: lower; efficiency and life: higher) is flagged a regression when its
 median moves the wrong way by more than `threshold` (relative) and the rank test agrees
 (p < `alpha`), so one noisy bag does not raise a flag.
+
+With n_a and n_b bags the rank test cannot give a p-value below 2 / C(n_a + n_b, n_a) (every
+bag of one group beyond every bag of the other). When that floor is not below `alpha` no
+comparison can be significant: the verdict is "too few bags", with the smallest group size that
+could reach significance (`smallest_group`, equal groups), never "0 regressions". Only metrics
+are compared: figures of the run (errors, efficiencies, peaks, life, travel), not where or when a
+peak happened, sample counts, energies or the rating used.
 """
 
 from __future__ import annotations
@@ -21,7 +28,29 @@ from prsm_ros.bag.reader import BagError
 # better direction by metric name: −1 lower is better, +1 higher is better (first match wins)
 DIRECTIONS = (("error", -1), ("peak", -1), ("slip", -1), ("efficiency", +1), ("life.l10", +1))
 SKIP = ("duration_s", "samples", "complete", "dt_s", "wall_time_s", "life.dynamic_load_rating_n",
-        "life.cycle_duration_s")
+        "life.cycle_duration_s", "life.cycle_revolutions", "tracking.pairs", "tracking.reference_span_m")
+# parts of a flattened name that mark where or when a figure happened, or the bookkeeping behind it
+NOT_METRIC = (".time_s", ".at.", "_segments", "_energy_j", "_energy_change_j", "_energy_released_j")
+
+
+def is_metric(name: str) -> bool:
+    """A figure of the run worth comparing (not a peak's time or element, a count, or an energy sum)."""
+    return name not in SKIP and name not in ("bag", "status", "error") and not any(p in name for p in NOT_METRIC)
+
+
+def min_p_value(n_a: int, n_b: int) -> float:
+    """The smallest two-sided Mann-Whitney p-value two groups of these sizes can give (no ties)."""
+    if n_a < 1 or n_b < 1:
+        return 1.0
+    return min(1.0, 2.0 / math.comb(n_a + n_b, n_a))
+
+
+def smallest_group(alpha: float) -> int:
+    """The fewest bags per group (equal groups) with which the rank test can reach p < alpha."""
+    n = 1
+    while min_p_value(n, n) >= alpha:
+        n += 1
+    return n
 
 
 def direction(metric: str) -> int:
@@ -47,8 +76,10 @@ def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: f
     names = sorted({k for r in ok_a for k in r} & {k for r in ok_b for k in r})
     metrics = {}
     regressions = []
+    floor = min_p_value(len(ok_a), len(ok_b))
+    enough = floor < alpha
     for n in names:
-        if n in SKIP or n in ("bag", "status", "error"):
+        if not is_metric(n):
             continue
         va = np.array([r.get(n, math.nan) for r in ok_a], dtype=object)
         vb = np.array([r.get(n, math.nan) for r in ok_b], dtype=object)
@@ -63,7 +94,7 @@ def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: f
         p = float(mannwhitneyu(va, vb, alternative="two-sided").pvalue) if va.size > 1 and vb.size > 1 \
             and np.ptp(np.concatenate([va, vb])) > 0 else math.nan
         d = direction(n)
-        worse = d != 0 and change * d < -threshold and (not math.isnan(p) and p < alpha)
+        worse = enough and d != 0 and change * d < -threshold and (not math.isnan(p) and p < alpha)
         metrics[n] = {"a": {"n": int(va.size), "median": ma, "mean": float(va.mean()), "std": float(va.std())},
                       "b": {"n": int(vb.size), "median": mb, "mean": float(vb.mean()), "std": float(vb.std())},
                       "relative_change": change, "p_value": p,
@@ -71,7 +102,8 @@ def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: f
         if worse:
             regressions.append(n)
     return {"a_bags": len(a), "b_bags": len(b), "a_failed": len(a) - len(ok_a), "b_failed": len(b) - len(ok_b),
-            "threshold": threshold, "alpha": alpha, "metrics": metrics, "regressions": regressions}
+            "threshold": threshold, "alpha": alpha, "min_p_value": floor, "smallest_group": smallest_group(alpha),
+            "verdict": "compared" if enough else "too few bags", "metrics": metrics, "regressions": regressions}
 
 
 def compare(a_dir: str, b_dir: str, options: dict, *, threshold: float = 0.05, alpha: float = 0.05,
@@ -95,5 +127,10 @@ def text(c: dict) -> str:
         p = "-" if math.isnan(m["p_value"]) else f"{m['p_value']:.3g}"
         lines.append(f"{n:<{width}}  {m['a']['median']:>12.6g}  {m['b']['median']:>12.6g}  "
                      f"{m['relative_change']:>+9.1%}  {p:>7}{flag}")
-    lines.append(f"{len(c['regressions'])} regression(s)" + (": " + ", ".join(c["regressions"]) if c["regressions"] else ""))
+    if c["verdict"] == "too few bags":
+        lines.append(f"too few bags: with {c['a_bags'] - c['a_failed']} and {c['b_bags'] - c['b_failed']} readable bags "
+                     f"the rank test cannot go below p = {c['min_p_value']:.3g} (alpha {c['alpha']}); "
+                     f"record at least {c['smallest_group']} bags per group for a verdict")
+    else:
+        lines.append(f"{len(c['regressions'])} regression(s)" + (": " + ", ".join(c["regressions"]) if c["regressions"] else ""))
     return "\n".join(lines)

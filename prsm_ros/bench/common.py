@@ -82,12 +82,20 @@ def run(areas: Mapping[str, Measure], quick: bool) -> list[dict]:
     return figures
 
 
+def _spread(spread: float | None) -> str:
+    """(max − min) / median of the repeats as ± half of it in %, up to ±50 %; beyond, as a multiple of the
+    median (a first repeat that compiles, a quick run of two repeats on a busy machine): "±13100 %" says nothing."""
+    if not spread:
+        return ""
+    return f"±{spread * 50:.0f} %" if spread <= 1.0 else f"max − min {spread:.3g}× median"
+
+
 def table(figures: list[dict]) -> str:
     rows = [("area", "figure", "value", "target", "", "spread", "notes")]
     for f in figures:
         spread = f.get("spread")
         rows.append((f["area"], f["figure"], f"{_fmt(f['value'])} {f['unit']}".strip(), f["target"],
-                     "not judged" if f["ok"] is None else "ok" if f["ok"] else "MISSED", f"±{spread * 50:.0f} %" if spread else "", f.get("notes", "")))
+                     "not judged" if f["ok"] is None else "ok" if f["ok"] else "MISSED", _spread(spread), f.get("notes", "")))
     widths = [max(len(r[i]) for r in rows) for i in range(6)]
     lines = []
     for r in rows:
