@@ -205,3 +205,39 @@ def test_bench_spread_beyond_fifty_percent_is_a_multiple_of_the_median():
     from prsm_ros.bench.common import _spread
     assert _spread(0.1) == "±5 %" and _spread(None) == ""
     assert _spread(262.0) == "max − min 262× median"
+
+
+def test_foxglove_layout_round_trips_and_names_only_the_bags_topics(braking, actuated, tmp_path, capsys):
+    pytest.importorskip("foxglove.layouts")
+    from prsm_ros.bag.foxglove_layout import SCRIPT_PREFIX, referenced_topics
+    p = preset("s30")
+    traj, ref = pd_tracking(Simulator(p, MODEL, DT), amplitude_m=1e-3, frequency_hz=2.0, load_n=500.0, duration_s=0.05)
+    tracked = write_trajectory_mcap(tmp_path / "tracked.mcap", traj, p, MODEL, preset_name="s30", progress=False,
+                                    reference_m=ref)
+    for path in (tracked, actuated[0], braking[0]):
+        bag = open_bag(path)
+        rc, out, err = _cli(capsys, "layout", path)
+        assert rc == 0, err
+        layout = json.loads(out)
+        # round trip: the JSON read back and written again in the SDK's form is the same text
+        assert json.dumps(layout, separators=(",", ":"), ensure_ascii=True) == out.strip()
+        assert layout["version"] == 1 and layout["content"]["type"] == "tabs"
+        named = referenced_topics(layout)
+        outputs = {t for t in named if t.startswith(SCRIPT_PREFIX)}
+        assert named - outputs <= set(bag.topics), named - set(bag.topics)
+        tabs = [t["title"] for t in layout["content"]["tabs"]]
+        assert tabs[:2] == ["Motion", "Torque and force"] and "Rollers and teeth" in tabs and "Efficiency" in tabs
+        if path == tracked:  # the stamped reference: plotted, and the tracking error script reads the bag's topics
+            assert "/prsm_actuator/nut_position_reference" in named and outputs
+            script = next(iter(layout["userScripts"].values()))["sourceCode"]
+            assert '"/joint_states"' in script and '"/prsm_actuator/nut_position_reference"' in script
+        else:
+            assert "/prsm_actuator/nut_position_reference" not in named and not outputs
+        # per-roller loads: one series per roller, at the index the labels give
+        text = json.dumps(layout)
+        assert text.count("per_roller[") >= p.geometry.n_rollers
+    rc, out, _ = _cli(capsys, "layout", actuated[0], "-o", tmp_path / "layout.json")
+    assert rc == 0 and json.loads((tmp_path / "layout.json").read_text())["version"] == 1
+    assert "Actuator states" in (tmp_path / "layout.json").read_text()
+    rc, _, err = _cli(capsys, "layout", braking[0], "--nut-joint", "ball_joint")
+    assert rc == 1 and err.count("\n") == 1 and "'ball_joint'" in err

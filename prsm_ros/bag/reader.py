@@ -731,6 +731,8 @@ ROLES: dict[str, tuple[str, str, str]] = {
 }
 # Roles that may fall back to the only topic of their type when no name matches (other recorders).
 _BY_TYPE_ALONE = ("joint_states", "wrench")
+# Older types a role also accepts: the reference was a plain Float64 before it was stamped.
+_ALSO_TYPES = {"reference": ("std_msgs/msg/Float64",)}
 
 
 def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> dict[str, str | None]:
@@ -748,12 +750,13 @@ def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> 
             if t not in bag.topics:
                 raise BagError(f"{bag.path.name}: no topic {t!r} (given for {role}); "
                                f"topics: {', '.join(sorted(bag.topics)) or 'none'}")
-            if bag.topics[t].type != type_name:
+            if bag.topics[t].type not in (type_name, *_ALSO_TYPES.get(role, ())):
                 raise BagError(f"{bag.path.name}: topic {t!r} is {bag.topics[t].type}; {role} needs {type_name}")
             bag.require_decodable([t])
             out[role] = t
             continue
-        typed = [t for t in bag.topics_of_type(type_name) if not bag.topics[t].problem]
+        typed = [t for ty in (type_name, *_ALSO_TYPES.get(role, ())) for t in bag.topics_of_type(ty)
+                 if not bag.topics[t].problem]
         named = [t for t in typed if t == suffix or t.endswith(suffix)]
         if role in _BY_TYPE_ALONE and not named:
             others = [t for t in typed if not any(t.endswith(s) for r, (ty, s, _) in ROLES.items()

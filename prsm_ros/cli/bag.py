@@ -1,4 +1,4 @@
-"""`prsm-bag`: inspect, export, report on, replay and convert ROS 2 MCAP recordings.
+"""`prsm-bag`: inspect, export, report on, replay, lay out (Foxglove) and convert ROS 2 MCAP recordings.
 
     prsm-bag info BAG [--json] [--parameters] [--check | --no-check]
     prsm-bag export BAG -t TOPIC [-t TOPIC ...] -o OUT [--start S] [--end S] [--resample HZ] [--method linear|hold] [--merge]
@@ -6,6 +6,7 @@
     prsm-bag report DIR|GLOB -o DIR [--address HOST:PORT]   (many bags → DIR/fleet.parquet; on Ray if installed)
     prsm-bag compare A_DIR B_DIR [--threshold 0.05] [--json] [--fail-on-regression]
     prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
+    prsm-bag layout BAG [-o FILE.json] [--screw-joint NAME] [--nut-joint NAME]   (a Foxglove layout)
     prsm-bag to-rrd BAG -o FILE.rrd [--screw-joint NAME] [--nut-joint NAME] [--joint-states-topic T]
     prsm-bag repair BAG OUT.mcap   (a killed recording's bag → a finished file every MCAP reader opens)
 
@@ -238,6 +239,24 @@ def _cmd_repair(args) -> int:
     return 0
 
 
+def _cmd_layout(args) -> int:
+    bag = open_bag(args.bag)
+    _note(bag)
+    try:
+        from prsm_ros.bag.foxglove_layout import layout_json
+    except ImportError as e:
+        raise BagError(f"layout needs the Foxglove SDK (pip install 'prsm[foxglove]'): {e}") from None
+    text = layout_json(bag, screw_joint=args.screw_joint, nut_joint=args.nut_joint,
+                       topics={"joint_states": args.joint_states_topic, "reference": args.reference_topic,
+                               "internal_loads": args.internal_loads_topic})
+    if args.output:
+        Path(args.output).write_text(text + "\n", encoding="utf-8")
+        print(args.output)
+    else:
+        print(text)
+    return 0
+
+
 def _range_args(p) -> None:
     p.add_argument("--start", type=float, metavar="S", help="start, seconds from the bag's first message")
     p.add_argument("--end", type=float, metavar="S", help="end, seconds from the bag's first message")
@@ -257,7 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
     from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
     ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
                                  "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{info,export,report,compare,play,to-rrd,repair}")
+    sub = ap.add_subparsers(dest="command", required=True,
+                            metavar="{info,export,report,compare,play,layout,to-rrd,repair}")
 
     p = sub.add_parser("info", help="topics, counts, rates, duration, run metadata")
     p.add_argument("bag")
@@ -319,6 +339,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait-for-subscribers", action="store_true",
                    help="then wait (up to 30 s) until every played topic has a subscriber")
     p.set_defaults(func=_cmd_play)
+
+    p = sub.add_parser("layout", help="a Foxglove layout (JSON) for this bag's topics")
+    p.add_argument("bag")
+    p.add_argument("-o", "--output", metavar="FILE.json", help="write the layout here (default: stdout)")
+    _joint_options(p, report_opts)
+    p.set_defaults(func=_cmd_layout)
 
     p = sub.add_parser("to-rrd", help="convert to a Rerun .rrd recording")
     p.add_argument("bag")
