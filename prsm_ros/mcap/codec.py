@@ -108,3 +108,27 @@ class TypestoreCodec:
 
     def deserialize(self, data: bytes, msg_class) -> Any:
         return self.typestore.deserialize_cdr(data, msg_class.__msgtype__)
+
+class CdrNormaliser:
+    """CDR bytes with every alignment padding byte zero: decoded and encoded again by a rosbags typestore.
+
+    rclpy's serializer (and a controller's, for the commands the node records as received) leaves
+    the padding between fields uninitialised, so equal messages can differ in their bytes; a bag
+    that must be reproducible byte for byte (lockstep runs) writes them through this. Bytes the
+    typestore cannot read (a type it lacks, rclpy's trailing padding after an empty sequence) are
+    kept as they are.
+    """
+
+    def __init__(self, ros_distro: str | None = None) -> None:
+        from rosbags.serde import SerdeError
+
+        self.typestore = TypestoreCodec(ros_distro).typestore
+        self._errors = (SerdeError, ValueError, KeyError, IndexError)
+
+    def __call__(self, type_name: str, data: bytes) -> bytes:
+        ts = self.typestore
+        try:
+            return bytes(ts.serialize_cdr(ts.deserialize_cdr(data, type_name), type_name))
+        except self._errors:
+            return data
+

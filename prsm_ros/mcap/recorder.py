@@ -29,6 +29,7 @@ per hour would bound it, at the cost of one recording in several files.
 from __future__ import annotations
 
 import atexit
+import heapq
 import threading
 import time
 from collections import deque
@@ -52,6 +53,9 @@ YIELD_S = 5e-5
 MAX_WAKE_S = 0.01
 FLUSH_INTERVAL_S = 0.05  # see McapRecorder: the GIL held by a chunk's index, and the loss on SIGKILL
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
+# Deterministic files: how far (log time) a message may arrive behind the newest one and still be put
+# in order; a lockstep controller's reference comes one step behind the state it answers.
+REORDER_WINDOW_NS = 100_000_000
 
 
 class PackedChunkIndexes:
@@ -137,13 +141,19 @@ class McapFile:
     """
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE, codec=None) -> None:
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, codec=None, deterministic: bool = False) -> None:
         from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 
-        from prsm_ros.mcap.codec import RclpyCodec
+        from prsm_ros.mcap.codec import CdrNormaliser, RclpyCodec
 
         self._codec = codec if codec is not None else RclpyCodec()
         self._serialize = self._codec.serialize
+        # deterministic: padding zeroed, messages in (log time, channel, sequence) order (see `write`)
+        self.deterministic = bool(deterministic)
+        self._normalise = CdrNormaliser(self._codec.ros_distro) if deterministic else None
+        self._type_of: dict[int, str] = {}
+        self._pending: list[tuple[int, int, int, bytes]] = []
+        self._latest_ns = 0
         self.path = Path(path)
         records = {"rosbag2": mcap_schema.rosbag2_metadata(self._codec.ros_distro)}
         for name, data in (metadata or {}).items():
@@ -194,6 +204,7 @@ class McapFile:
             meta["topic_type_hash"] = type_hash
         cid = self._writer.register_channel(topic, mcap_schema.MESSAGE_ENCODING, sid, meta)
         self._channels[topic] = (cid, msg_class)
+        self._type_of[cid] = name
         self._sequence[cid] = 0
         return cid
 
@@ -205,19 +216,44 @@ class McapFile:
                            f"added: {', '.join(self._channels) or 'none'}") from None
 
     def write(self, channel_id: int, msg, stamp_ns: int) -> None:
-        """Serialize `msg` to CDR (bytes: already CDR) and add it at log_time = publish_time = stamp_ns."""
+        """Serialize `msg` to CDR (bytes: already CDR) and add it at log_time = publish_time = stamp_ns.
+
+        Deterministic files: the CDR padding is zeroed, and a message is held until the log times
+        have moved `REORDER_WINDOW_NS` past it, then written in (log time, channel, sequence) order,
+        so a message that arrives late (a reference stamped with the state it answers) lands where
+        its stamp puts it, whatever the threads' timing.
+        """
         seq = self._sequence[channel_id] + 1
         self._sequence[channel_id] = seq
         data = msg if type(msg) is bytes else self._serialize(msg)
         self.messages_written += 1  # counted once handed over: a stalled disk blocks inside add_message
-        self._writer.add_message(channel_id, stamp_ns, data, stamp_ns, seq)
+        if not self.deterministic:
+            self._writer.add_message(channel_id, stamp_ns, data, stamp_ns, seq)
+            return
+        heapq.heappush(self._pending, (stamp_ns, channel_id, seq, self._normalise(self._type_of[channel_id], data)))
+        self._latest_ns = max(self._latest_ns, stamp_ns)
+        self._release(self._latest_ns - REORDER_WINDOW_NS)
+
+    def _release(self, up_to_ns: int | None) -> None:
+        """Write the held messages with log time <= up_to_ns (all when None), in order."""
+        pending = self._pending
+        while pending and (up_to_ns is None or pending[0][0] <= up_to_ns):
+            t, cid, seq, data = heapq.heappop(pending)
+            self._writer.add_message(cid, t, data, t, seq)
 
     def flush(self) -> None:
-        """Close the chunk in progress (with its message index) and push it to the OS."""
+        """Close the chunk in progress (with its message index) and push it to the OS.
+
+        Deterministic files close chunks by size only (a flush on the wall clock would move their
+        boundaries from run to run): this then only pushes the bytes written so far to the OS."""
+        if self.deterministic:
+            self._stream.flush()
+            return
         self._writer.flush()
 
     def finish(self) -> None:
         """Last chunk, summary (schemas, channels, statistics, chunk and metadata indexes), footer."""
+        self._release(None)
         self._writer.finish()
         self._stream.close()
 
@@ -239,7 +275,9 @@ class McapRecorder:
 
     `metadata`: MCAP metadata records {name: {key: value}} written at the start of the file.
     `queue_size`: messages held for the writer thread; when full, `write` drops and counts.
-    `flush_interval_s`: wall time between forced chunk flushes. It bounds the loss on SIGKILL, and
+    `deterministic`: the same messages give the same bytes (`McapFile.write`: padding zeroed,
+    messages in log-time order), chunks closed by size only, so a lockstep run can be a golden
+    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between forced chunk flushes. It bounds the loss on SIGKILL, and
     each chunk's finishing work: its message index is built in Python (about 1 µs per message,
     more on a busy machine) holding the GIL, so the node's step thread waits for it. At the
     node's ~6,000 messages/s a 0.25 s chunk holds it for 1.5 ms or more, a 0.05 s chunk about
@@ -250,7 +288,7 @@ class McapRecorder:
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
                  queue_size: int = 100_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
-                 flush_interval_s: float = FLUSH_INTERVAL_S) -> None:
+                 flush_interval_s: float = FLUSH_INTERVAL_S, deterministic: bool = False) -> None:
         if not isinstance(queue_size, int) or queue_size < 1:
             raise ParamError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
         self.path = Path(path)
@@ -274,7 +312,7 @@ class McapRecorder:
         self._file: McapFile | None = None
         self._final_written = 0
         try:
-            self._file = McapFile(self.path, metadata=metadata, chunk_size=chunk_size)
+            self._file = McapFile(self.path, metadata=metadata, chunk_size=chunk_size, deterministic=deterministic)
         except OSError as e:
             self._fail(e)
         self._thread = threading.Thread(target=self._run, name=f"mcap-recorder:{self.path.name}", daemon=True)

@@ -114,6 +114,11 @@ COMMAND_TOPICS = {"screw_torque": "effort", "velocity_command": "velocity", "pos
                   "joint_commands": None, "nut_position_reference": None}
 
 
+# Topics whose content is wall-clock (health counters, commands' DDS source stamps): a lockstep bag leaves them
+# out so that it is the same bytes for the same run; they are still published.
+WALL_CLOCK_TOPICS = ("diagnostics", "command_echo")
+
+
 def _unmatched(pub) -> bool:
     """True when `pub` has no matched reader (or is destroyed, at shutdown: nobody to publish to either)."""
     try:
@@ -129,6 +134,7 @@ class PrsmNode(Node):
         self.param_sources = param_sources  # where the start-up names came from (main); None: all ours
         super().__init__(NODE_NAME, **node_kwargs)
         self.recorder = self.rerun = None
+        self._unrecorded: frozenset[str] = frozenset()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._resumed = threading.Event()
@@ -165,8 +171,10 @@ class PrsmNode(Node):
         self.scheduling = {"step_thread": "normal", "other_threads": "normal"}
         if cfg.time_mode == "realtime":
             self._prepare_realtime()
+        # lockstep: the bag is the same bytes for the same run (a golden file), so nothing wall-clock goes in
+        self._unrecorded = frozenset(WALL_CLOCK_TOPICS) if cfg.time_mode == "lockstep" else frozenset()
         channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile, k in self.sub)
-                    for k, name in self._topic_names.items()}
+                    for k, name in self._topic_names.items() if k not in self._unrecorded}
         self.recorder, self.rerun = open_sinks(cfg, self.get_fully_qualified_name(), channels, self.session.layout)
 
         for srv_type, name, callback in ((SetBool, "~/pause", self._srv_pause), (Trigger, "~/step", self._srv_step),
@@ -323,7 +331,7 @@ class PrsmNode(Node):
 
     def _record(self, key: str, data, stamp_ns: int | None = None) -> None:
         """Into the bag (lock held): with the step's batch when a step is being published, else at once."""
-        if self.recorder is None:
+        if self.recorder is None or key in self._unrecorded:
             return
         item = (self._topic_names[key], data, time_ns(self.session.time_s) if stamp_ns is None else stamp_ns)
         if self._batch is not None:

@@ -37,7 +37,7 @@ def open_recorder(cfg: NodeConfig, node_name: str, channels: dict):
         path = claim_record_path(cfg.record_path, node_name)
     except RecordPathError as e:
         raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {e}") from None
-    rec = McapRecorder(path, metadata=meta)
+    rec = McapRecorder(path, metadata=meta, deterministic=cfg.time_mode == "lockstep")  # lockstep: golden bytes
     if rec.error:
         rec.close()
         raise ConfigError(f"parameter record_path = {cfg.record_path!r}: {rec.error}")
