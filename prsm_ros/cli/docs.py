@@ -1,11 +1,13 @@
-"""Build the API reference and the user guide from the docstrings, with pdoc (the `docs` extra).
+"""Build the documentation site — the README, every docs/ page and the API reference — with pdoc.
 
     python -m prsm_ros.cli.docs -o site        # then open site/index.html
 
-The reference covers the library, `prsm_sim`. Its package page is the user guide
-(docs/guide.md, included by `prsm_sim`'s docstring) and `prsm_sim.models` carries the model
-reference (docs/model.md); pdoc renders the numpy-style docstrings and links every
-backticked name it knows. Errors print one line and exit with status 2.
+pdoc because the code's numpy-style docstrings are the reference already: it renders them with
+no configuration to keep in step with the code, and links every backticked name it knows. The
+prose pages go in as the docstrings of a generated package, `manual` (one module per page:
+`manual` is the README, `manual.node` docs/node.md, ...), so prose and API are one site with one
+search. The API covers the library, `prsm_sim`; its package page is the user guide and
+`prsm_sim.models` carries the model reference. Errors print one line and exit with status 2.
 """
 
 from __future__ import annotations
@@ -30,8 +32,28 @@ def modules() -> list[str]:
     return [PACKAGE] + [m.name for m in pkgutil.iter_modules(prsm_sim.__path__, f"{PACKAGE}.")]
 
 
+ROOT = Path(__file__).resolve().parents[2]
+MANUAL = "manual"
+
+
+def manual_package(folder: Path) -> Path:
+    """Write the `manual` package into `folder`: the README as its docstring, one module per docs/ page."""
+    pkg = folder / MANUAL
+    pkg.mkdir(parents=True, exist_ok=True)
+
+    def module(path: Path, source: Path) -> None:
+        path.write_text(f'"""\n.. include:: {source.as_posix()}\n"""\n', encoding="utf-8")
+
+    module(pkg / "__init__.py", ROOT / "README.md")
+    for page in sorted((ROOT / "docs").glob("*.md")):
+        module(pkg / f"{page.stem.replace('-', '_')}.py", page)
+    return pkg
+
+
 def build(output_dir: Path) -> list[Path]:
-    """Render the reference into `output_dir` (created if missing); returns the HTML files written."""
+    """Render the site into `output_dir` (created if missing); returns the HTML files written."""
+    import tempfile
+
     import pdoc
     import pdoc.render
 
@@ -40,7 +62,15 @@ def build(output_dir: Path) -> list[Path]:
     pdoc.render.configure(docformat="numpy", show_source=True, search=True,
                           footer_text=f"prsm {prsm_sim.__version__}")
     output_dir.mkdir(parents=True, exist_ok=True)
-    pdoc.pdoc(*modules(), output_directory=output_dir)
+    with tempfile.TemporaryDirectory(prefix="prsm_docs_") as tmp:
+        manual_package(Path(tmp))
+        sys.path.insert(0, tmp)
+        try:
+            pdoc.pdoc(MANUAL, *modules(), output_directory=output_dir)
+        finally:
+            sys.path.remove(tmp)
+            for name in [m for m in sys.modules if m == MANUAL or m.startswith(MANUAL + ".")]:
+                del sys.modules[name]
     return sorted(output_dir.rglob("*.html"))
 
 
