@@ -243,25 +243,31 @@ def test_foxglove_layout_round_trips_and_names_only_the_bags_topics(braking, act
     assert rc == 1 and err.count("\n") == 1 and "'ball_joint'" in err
 
 
-@pytest.fixture(scope="module")
-def other_names(tmp_path_factory):
-    """A third-party bag (rosbags writer) whose joints are called `spindle` and `carriage`."""
+def write_joint_state_bag(folder: Path, topics: dict[str, list[tuple]]) -> Path:
+    """A rosbag2 MCAP bag written by rosbags (a third-party writer): JointState messages (stamp ns, names,
+    positions, velocities, efforts[, log time ns]) per topic, logged at their stamp unless given; returns the file."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     JointState, Header, Time = (ts.types[n] for n in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
                                                       "builtin_interfaces/msg/Time"))
-    out = tmp_path_factory.mktemp("names") / "bag"
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        js = w.add_connection("/joint_states", JointState.__msgtype__, typestore=ts)
-        for k in range(50):
-            t = 1_000_000_000 + k * 10_000_000
-            msg = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id=""),
-                             name=["spindle", "carriage"], position=np.array([0.1 * k, 1e-4 * k]),
-                             velocity=np.array([10.0, 0.01]), effort=np.array([0.5, 400.0]))
-            w.write(js, t, ts.serialize_cdr(msg, JointState.__msgtype__))
-    return next(out.glob("*.mcap"))
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        for topic, msgs in topics.items():
+            conn = w.add_connection(topic, JointState.__msgtype__, typestore=ts)
+            for t, names, pos, vel, eff, *log in msgs:
+                msg = JointState(header=Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id=""), name=names,
+                                 position=np.array(pos), velocity=np.array(vel), effort=np.array(eff))
+                w.write(conn, log[0] if log else t, ts.serialize_cdr(msg, JointState.__msgtype__))
+    return next(folder.glob("*.mcap"))
+
+
+@pytest.fixture(scope="module")
+def other_names(tmp_path_factory):
+    """A third-party bag whose joints are called `spindle` and `carriage`."""
+    return write_joint_state_bag(tmp_path_factory.mktemp("names") / "bag", {"/joint_states": [
+        (1_000_000_000 + k * 10_000_000, ["spindle", "carriage"], [0.1 * k, 1e-4 * k], [10.0, 0.01], [0.5, 400.0])
+        for k in range(50)]})
 
 
 def test_to_rrd_takes_the_joint_options_and_warns_when_joints_are_missing(other_names, tmp_path, capsys):
@@ -281,25 +287,13 @@ def test_to_rrd_takes_the_joint_options_and_warns_when_joints_are_missing(other_
 
 def test_measured_against_ground_truth_paired_by_stamp(tmp_path):
     """Measured = truth + 2 µm on the nut (a bias), one sample late on the wire: the report pairs by stamp."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
-    JointState, Header, Time = (ts.types[n] for n in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header",
-                                                      "builtin_interfaces/msg/Time"))
-
     def state(k, bias):
-        t = k * 1_000_000
-        return JointState(header=Header(stamp=Time(sec=0, nanosec=t), frame_id=""), name=["screw_joint", "nut_joint"],
-                          position=np.array([0.01 * k, 1e-5 * k + bias]), velocity=np.array([10.0, 0.01]),
-                          effort=np.array([0.5, 400.0]))
-    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        meas = w.add_connection("/joint_states", JointState.__msgtype__, typestore=ts)
-        truth = w.add_connection("/prsm_actuator/ground_truth/joint_states", JointState.__msgtype__, typestore=ts)
-        for k in range(1, 100):
-            w.write(truth, k * 1_000_000, ts.serialize_cdr(state(k, 0.0), JointState.__msgtype__))
-            w.write(meas, (k + 1) * 1_000_000, ts.serialize_cdr(state(k, 2e-6), JointState.__msgtype__))
-    r = report(open_bag(next((tmp_path / "bag").glob("*.mcap"))), tmp_path / "rep", progress=False)
+        return (k * 1_000_000, ["screw_joint", "nut_joint"], [0.01 * k, 1e-5 * k + bias], [10.0, 0.01], [0.5, 400.0])
+    truth = [state(k, 0.0) for k in range(1, 100)]
+    measured = [(*state(k, 2e-6), (k + 1) * 1_000_000) for k in range(1, 100)]  # logged a step late
+    path = write_joint_state_bag(tmp_path / "bag", {"/prsm_actuator/ground_truth/joint_states": truth,
+                                                    "/joint_states": measured})
+    r = report(open_bag(path), tmp_path / "rep", progress=False)
     m = r["measurement"]
     assert m["nut_position_rms_error_m"] == pytest.approx(2e-6, rel=1e-6)
     assert m["nut_position_max_error_m"] == pytest.approx(2e-6, rel=1e-6) and m["screw_angle_rms_error_rad"] == 0.0
