@@ -105,9 +105,14 @@ def build_layout(bag: Bag, *, screw_joint: str = SCREW_JOINT, nut_joint: str = N
     truth = TOPIC_DEFS["ground_truth"].resolved()
     truth = truth if truth in bag.topics else None
 
+    stamped_topics: dict[str, bool] = {}
+
     def series(path: str, label: str, **kw):
         """One plotted message path; by header stamp where the topic has one (its log time otherwise)."""
-        stamped = _stamped(bag, path.split(".", 1)[0])
+        topic = path.split(".", 1)[0]
+        if topic not in stamped_topics:
+            stamped_topics[topic] = _stamped(bag, topic)
+        stamped = stamped_topics[topic]
         return fl.PlotSeries(value=path, label=label, timestamp_method="headerStamp" if stamped else None, **kw)
 
     def internal(name: str, label: str | None = None, **kw):
@@ -203,16 +208,10 @@ def _force_quantity(labels: dict, block: str) -> str | None:
     return None
 
 
-_STAMPED: dict[tuple[str, str], bool] = {}
-
-
 def _stamped(bag: Bag, topic: str) -> bool:
     """Whether `topic`'s messages carry a header (plot them by their stamp, the simulation time)."""
-    key = (str(bag.path), topic)
-    if key not in _STAMPED:
-        msg = _first(bag, topic) if topic in bag.topics else None
-        _STAMPED[key] = msg is not None and hasattr(msg, "header")
-    return _STAMPED[key]
+    msg = _first(bag, topic) if topic in bag.topics else None
+    return msg is not None and hasattr(msg, "header")
 
 
 def layout_json(bag: Bag, **options) -> str:
