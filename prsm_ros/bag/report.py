@@ -516,11 +516,12 @@ def _plots(out_dir: Path, joints: Series, truth: Series | None, internal, ref, e
     files: list[Path] = []
     lines, spans = _marks(internal, events)
 
-    def legend(a) -> None:
-        """Outside the axes on the right, so it never covers a curve or spills over the next panel."""
+    def legend(a, x: float = 1.01) -> None:
+        """Outside the axes on the right (beyond a right-hand axis: x), so it never covers a curve or
+        spills over the next panel."""
         handles, labels = a.get_legend_handles_labels()
         if handles:  # columns of at most LEGEND_ROWS entries: the height of a panel
-            a.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small",
+            a.legend(handles, labels, loc="upper left", bbox_to_anchor=(x, 1.0), fontsize="small",
                      borderaxespad=0.0, frameon=False, ncol=-(-len(handles) // LEGEND_ROWS))
 
     def mark(axes) -> None:
@@ -599,7 +600,7 @@ def _plots(out_dir: Path, joints: Series, truth: Series | None, internal, ref, e
             ax2 = ax[1].twinx()
             ax2.plot(s.t_s, s.values["slip_speed_m_s"] * 1e3, color="tab:red", alpha=0.6)
             ax2.set_ylabel("slip [mm/s]", color="tab:red")
-        legend(ax[1])
+        legend(ax[1], x=1.12 if "slip_speed_m_s" in s.values else 1.01)
         save(fig, ax, "power.png")
 
     panels = _force_panels(s, labels)
