@@ -536,8 +536,11 @@ def _plots(out_dir: Path, joints: Series, truth: Series | None, internal, ref, e
                 keys.setdefault(f"event {label}", Line2D([], [], color=colour, linestyle=":"))
             for _, _, label, colour in spans:
                 keys.setdefault(label, Patch(color=colour, alpha=0.25))
+            curves = axes[-1].get_legend()  # a second legend replaces the first: keep it as an artist
             axes[-1].legend(list(keys.values()), list(keys), loc="lower left", bbox_to_anchor=(1.01, 0.0),
                             fontsize="small", frameon=False, borderaxespad=0.0)
+            if curves is not None:
+                axes[-1].add_artist(curves)
 
     def save(fig, axes, name: str) -> None:
         axes[-1].set_xlabel("time [s]")
@@ -618,7 +621,7 @@ def _plots(out_dir: Path, joints: Series, truth: Series | None, internal, ref, e
         (("motor_current_a", "A"), ("motor_torque_nm", "N·m"), ("brake_torque_nm", "N·m"), ("stop_force_n", "N")))
         if a is not None and np.any(np.nan_to_num(a) != 0)]
     if act:
-        fig, ax = plt.subplots(len(act), 1, sharex=True, figsize=(width, 2.2 * len(act)), squeeze=False)
+        fig, ax = plt.subplots(len(act), 1, sharex=True, figsize=(width, max(3.4, 2.2 * len(act))), squeeze=False)
         for a, (label, unit, values) in zip(ax[:, 0], act):
             a.plot(s.t_s, values, label=label.rsplit("_", 1)[0].replace("_", " "))
             a.set_ylabel(f"[{unit}]")
