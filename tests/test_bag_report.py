@@ -298,3 +298,40 @@ def test_measured_against_ground_truth_paired_by_stamp(tmp_path):
     assert m["nut_position_rms_error_m"] == pytest.approx(2e-6, rel=1e-6)
     assert m["nut_position_max_error_m"] == pytest.approx(2e-6, rel=1e-6) and m["screw_angle_rms_error_rad"] == 0.0
     assert r["topics"]["ground_truth"] == "/prsm_actuator/ground_truth/joint_states"
+
+
+def test_legends_stay_beside_their_own_panel(monkeypatch, tmp_path):
+    """The fu2018 roller panel has 13 force curves: its legend must not reach into the next panel."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = preset("s30")
+    traj = Simulator(p, "fu2018", DT).run(np.full(100, 6.0), 5000.0)
+    path = write_trajectory_mcap(tmp_path / "fu.mcap", traj, p, "fu2018", preset_name="s30", progress=False)
+    figures = {}
+    real_close = plt.close
+
+    def keep(fig=None):
+        if fig is not None and hasattr(fig, "axes"):
+            figures[len(figures)] = fig
+        else:
+            real_close(fig)
+    monkeypatch.setattr(plt, "close", keep)
+    r = report(open_bag(path), tmp_path / "rep", progress=False)
+    names = [Path(f).name for f in r["plots"]]
+    fig = figures[names.index("internal_loads.png")]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    axes = fig.axes
+    assert len(axes) >= 2
+    for a in axes:
+        for leg in [c for c in a.get_children() if isinstance(c, matplotlib.legend.Legend)]:
+            box = leg.get_window_extent(renderer)
+            own = a.get_window_extent(renderer)
+            assert box.y0 >= own.y0 - 2 and box.y1 <= own.y1 + 2, "a legend taller than its panel"
+            for other in axes:
+                if other is not a:
+                    assert not box.overlaps(other.get_window_extent(renderer)), "a legend over another panel"
+    for f in figures.values():
+        real_close(f)
