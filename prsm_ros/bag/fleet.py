@@ -2,7 +2,7 @@
 
 Each bag is reported by the single-bag report (`prsm_ros.bag.report.report`, no plots) and its
 nested metrics are flattened to dotted column names (`tracking.rms_error_m`,
-`efficiency.energy_efficiency`, ...). With the `sweep` extra installed the bags are reported
+`efficiency.forward`, ...). With the `sweep` extra installed the bags are reported
 as Ray tasks (an embedded Ray, or a cluster with `address`); without it, one after another in
 this process: `.[bag]` does not need Ray. A bag that cannot be read is a row with status
 "failed" and its error, never the end of the report.
