@@ -64,3 +64,46 @@ def test_lockstep_report_tracking_equals_the_controllers_own(two_runs):
     bag = open_bag(tmp / "first.mcap")
     assert "/diagnostics" not in bag.topics and "/prsm_actuator/command_echo" not in bag.topics
     assert bag.topics["/joint_states"].count == 1000
+
+
+@pytest.mark.parametrize("type_name", ["sensor_msgs/msg/JointState", "geometry_msgs/msg/WrenchStamped",
+                                       "std_msgs/msg/Float64MultiArray", "sensor_msgs/msg/TimeReference",
+                                       "diagnostic_msgs/msg/DiagnosticArray"])
+def test_cdr_padding_is_zeroed_and_nothing_else_changes(type_name):
+    """Oracle: a byte is padding when flipping it leaves the decoded message unchanged (rosbags decodes
+    and encodes again); every such byte dirtied at once, the normaliser must give the clean bytes back."""
+    from prsm_ros.mcap.codec import CdrNormaliser, TypestoreCodec
+
+    ts = TypestoreCodec().typestore
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=3, nanosec=7)
+    header = T["std_msgs/msg/Header"](stamp=stamp, frame_id="a")
+    import numpy as np
+    msgs = {
+        "sensor_msgs/msg/JointState": T["sensor_msgs/msg/JointState"](
+            header=header, name=["screw_joint", "nut"], position=np.array([1.0, 2.0]), velocity=np.array([3.0, 4.0]),
+            effort=np.array([5.0, 6.0])),
+        "geometry_msgs/msg/WrenchStamped": T["geometry_msgs/msg/WrenchStamped"](header=header, wrench=T["geometry_msgs/msg/Wrench"](
+            force=T["geometry_msgs/msg/Vector3"](x=1.0, y=2.0, z=3.0), torque=T["geometry_msgs/msg/Vector3"](x=4.0, y=5.0, z=6.0))),
+        "std_msgs/msg/Float64MultiArray": T["std_msgs/msg/Float64MultiArray"](layout=T["std_msgs/msg/MultiArrayLayout"](
+            dim=[T["std_msgs/msg/MultiArrayDimension"](label="ab", size=2, stride=2)], data_offset=0), data=np.array([1.5, 2.5])),
+        "sensor_msgs/msg/TimeReference": T["sensor_msgs/msg/TimeReference"](header=header, time_ref=stamp, source="x"),
+        "diagnostic_msgs/msg/DiagnosticArray": T["diagnostic_msgs/msg/DiagnosticArray"](header=header, status=[
+            T["diagnostic_msgs/msg/DiagnosticStatus"](level=1, name="n", message="m", hardware_id="h", values=[
+                T["diagnostic_msgs/msg/KeyValue"](key="k", value="v")])]),
+    }
+    clean = bytes(ts.serialize_cdr(msgs[type_name], type_name))
+
+    def decodes_as_clean(data: bytes) -> bool:
+        try:
+            return bytes(ts.serialize_cdr(ts.deserialize_cdr(data, type_name), type_name)) == clean
+        except Exception:  # noqa: BLE001 — a flipped length: not padding
+            return False
+
+    padding = [i for i in range(4, len(clean)) if decodes_as_clean(clean[:i] + bytes([clean[i] ^ 0xA5]) + clean[i + 1:])]
+    assert padding, "the message has alignment padding to dirty"
+    dirty = bytearray(clean)
+    for i in padding:
+        dirty[i] ^= 0xA5
+    assert bytes(dirty) != clean
+    assert CdrNormaliser()(type_name, bytes(dirty)) == clean
