@@ -17,7 +17,7 @@ import pytest
 
 from prsm_sim import Simulator, preset
 from prsm_sim.actuator import ActuatorParams, Fault
-from prsm_ros.bag.cli import main
+from prsm_ros.cli.bag import main
 from prsm_ros.bag.reader import open_bag
 from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N, energy_efficiency, report
 from prsm_ros.cli.make_bags import pd_tracking
@@ -240,7 +240,7 @@ def test_foxglove_layout_round_trips_and_names_only_the_bags_topics(braking, act
     assert rc == 0 and json.loads((tmp_path / "layout.json").read_text())["version"] == 1
     assert "Actuator states" in (tmp_path / "layout.json").read_text()
     rc, _, err = _cli(capsys, "layout", braking[0], "--nut-joint", "ball_joint")
-    assert rc == 1 and err.count("\n") == 1 and "'ball_joint'" in err
+    assert rc == 2 and err.count("\n") == 1 and "'ball_joint'" in err
 
 
 def write_joint_state_bag(folder: Path, topics: dict[str, list[tuple]]) -> Path:
@@ -282,7 +282,7 @@ def test_to_rrd_takes_the_joint_options_and_warns_when_joints_are_missing(other_
                         "--nut-joint", "carriage", "-o", tmp_path)
     assert rc == 0 and json.loads(out)["efficiency"]["forward"] == pytest.approx(400 * 0.01 / (0.5 * 10.0))
     rc, out, err = _cli(capsys, "report", other_names, "--no-plots", "-o", tmp_path)
-    assert rc == 1 and err.count("\n") == 1 and err.count(other_names.name) <= 1 and "--screw-joint" in err
+    assert rc == 2 and err.count("\n") == 1 and err.count(other_names.name) <= 1 and "--screw-joint" in err
 
 
 def test_measured_against_ground_truth_paired_by_stamp(tmp_path):
