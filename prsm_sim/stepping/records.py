@@ -5,7 +5,7 @@ Rerun sink are written once for all models. Internal loads differ by model (the 
 `jones2016` model has no normal forces; `fu2018` has per-tooth loads), so they travel as a
 flat float vector with a model-specific `InternalLayout` that labels every element.
 
-Sign convention (the one place it is stated; see README "Sign convention"):
+Sign convention (the one place it is stated; docs/node.md "Sign convention" says it for users):
 right-hand threads, z along the screw axis. Screw angle, speed and torque are positive
 right-handed about +z. The nut position `nut_position_m` is measured along the direction a
 positive screw rotation drives the nut: x_nut = (L / 2π) θ_S (for right-hand threads this
