@@ -110,6 +110,7 @@ class TypestoreCodec:
     def deserialize(self, data: bytes, msg_class) -> Any:
         return self.typestore.deserialize_cdr(data, msg_class.__msgtype__)
 
+
 # bytes of each primitive in CDR (its alignment too)
 _PRIMITIVE_SIZE = {"bool": 1, "byte": 1, "char": 1, "int8": 1, "uint8": 1, "int16": 2, "uint16": 2, "int32": 4,
                    "uint32": 4, "float32": 4, "int64": 8, "uint64": 8, "float64": 8}
