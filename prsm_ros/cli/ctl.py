@@ -20,7 +20,7 @@ any ROS 2 tool. `--node` is the node's full name (default /prsm_actuator; with a
 2 a user error, a refusal by the node, or no node of that name within `--timeout` seconds
 (one line on stderr saying which), 130 on Ctrl-C.
 
-Each `ros2` command the README would use has a verb here; e.g. `ros2 param set /prsm_actuator
+Each `ros2` command the docs would use has a verb here; e.g. `ros2 param set /prsm_actuator
 load_force 500.0` is `prsm-ctl param set load_force 500.0`, `ros2 service call
 /prsm_actuator/pause std_srvs/srv/SetBool "{data: false}"` is `prsm-ctl resume`.
 
@@ -562,7 +562,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="seconds to wait for the node, a service or a reader (default 10)")
     common.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="one JSON object per line")
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0], parents=[common],
-                                 epilog="See the module help: python -m prsm_ros.cli.ctl --help; README 'Driving the node'.")
+                                 epilog="See the module help: python -m prsm_ros.cli.ctl --help; README.md and docs/ros.md.")
     sub = ap.add_subparsers(dest="verb", required=True, metavar="VERB")
     sub.add_parser("pause", parents=[common], help="pause stepping (~/pause true)")
     sub.add_parser("resume", parents=[common], help="resume stepping (~/pause false)")

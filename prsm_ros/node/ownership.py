@@ -9,7 +9,7 @@ of the message info's `publisher_gid` (the first 12 bytes of the writer GUID: on
 use several topics, each with its own writer, and still be one owner).
 
 This is a guard against mistakes (two controllers started on one actuator), not against an
-attacker: anyone on the domain can call `~/release_control` (README, "Threat model").
+attacker: anyone on the domain can call `~/release_control` (docs/security.md).
 """
 
 from __future__ import annotations

@@ -133,7 +133,7 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
               "e.g. \"{motor: {}, sensors: {encoder_counts_per_rev: 4096}, stops: {max_position_m: 0.3}}\"",
               read_only=True),
     NodeParam("faults", "", "", "faults injected from the start: 'kind=jam,start_s=1,duration_s=0.5,value=30; …' "
-              "(kinds: see README Actuator); at runtime: ~/inject_fault", read_only=True),
+              "(kinds: see docs/actuator.md); at runtime: ~/inject_fault", read_only=True),
     NodeParam("max_effort", 50.0, "N·m", "screw torque limit; larger commands are saturated and counted",
               lo=0.0, hi=1e6, lo_open=True),
     NodeParam("initial_nut_position", 0.0, "m", "nut position at start and after ~/reset", lo=-1e3, hi=1e3),

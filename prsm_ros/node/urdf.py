@@ -3,14 +3,14 @@
 No ROS import: the text is built from the parameters (prsm_sim.Params, ActuatorParams) and the
 node's names; the node publishes it on `robot_description` and `prsm-node --urdf` prints it.
 
-Kinematic tree (z along the screw axis, as in the README's sign convention):
+Kinematic tree (z along the screw axis, as in the sign convention of docs/node.md):
 
     base_link ──screw_joint (continuous, axis +z)──▶ screw_link
               └─nut_joint (prismatic, axis −z)─────▶ nut_link
 
 The joints are the node's two `joint_states` joints and carry the same coordinates: screw angle
 positive right-handed about +z; nut position x_nut = (L/2π) θ_S, positive where a positive screw
-rotation drives the nut, which for right-hand threads is the body's −z (the README's sign
+rotation drives the nut, which for right-hand threads is the body's −z (docs/node.md's sign
 convention; the Rerun view draws the nut at z = −x_nut). Hence the prismatic axis (0, 0, −1): a
 positive `nut_joint` position puts `nut_link` at z = −x_nut, and the URDF, the joint states and
 the 3D view agree.
@@ -26,7 +26,7 @@ drive's or motor's speed limit; the nut's effort the axial force that torque mak
 
 The `<ros2_control>` block declares the topic-based system
 (`joint_state_topic_hardware_interface/JointStateTopicSystem`) with the node's topic names and the
-active command interface, as the README's ros2_control section describes.
+active command interface, as docs/actuator.md's ros2_control section describes.
 """
 
 from __future__ import annotations
