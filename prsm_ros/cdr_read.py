@@ -1,4 +1,4 @@
-"""Read the few fields a controller needs straight from CDR bytes (raw subscriptions; issue 15).
+"""Read the few fields a controller needs straight from CDR bytes (raw subscriptions).
 
 A 1 kHz controller in Python spends more on building an rclpy message object per sample (every
 field goes through a checked setter) than on its own law, and a reader that falls behind acts on

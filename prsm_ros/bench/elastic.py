@@ -2,7 +2,7 @@
 
 Batch path (`Simulator.run`) and per-step path (`Simulator.step`, the node's), `s30` under a
 5 kN load with a torque that reverses (backlash-free chain, so the run is about stepping cost),
-each beside its floor (issue 13: ≥ 100× batch, goal ≥ 300×; ≥ 20× per step), with the compiled
+each beside its floor (≥ 100× batch, goal ≥ 300×; ≥ 20× per step), with the compiled
 kernel (the default) and, side by side on the head of the same run, the pure-Python reference path.
 The accuracy figure is the run's deviation from the same equations at a 10× finer output step
 (inputs held per 1 ms), relative to the reference's range, on the nut position and the carrier speed. Nothing here

@@ -1,4 +1,4 @@
-"""Node benchmark (issue 4 item 7): realtime pacing and CPU, and lockstep round trips over DDS.
+"""Node benchmark: realtime pacing and CPU, and lockstep round trips over DDS.
 
     python -m prsm_ros.bench.node [--quick]      # or: prsm-bench --only node
 

@@ -1,4 +1,4 @@
-"""Benchmarks of the realtime loop a controller sees (issue 15), and the step cost beside MuJoCo's.
+"""Benchmarks of the realtime loop a controller sees, and the step cost beside MuJoCo's.
 
     prsm-bench --only realtime [--quick]        # or: python -m prsm_ros.bench.realtime
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from prsm_ros.bench.common import BenchError, area_main, figure, paced_loop
 
-THROUGHPUT_TARGET = 50_000.0  # messages/s (issue 5)
+THROUGHPUT_TARGET = 50_000.0  # messages/s
 
 
 def _run_outputs(model: str, steps: int):

@@ -1,6 +1,6 @@
 """Soak benchmark: a long `fast`-mode node run with recording on, watched for memory growth.
 
-Target (issue 7): 1 h of simulated time at 1 kHz in `fast` mode with recording, memory growth
+Target: 1 h of simulated time at 1 kHz in `fast` mode with recording, memory growth
 < 20 MB. The node runs in its own process on an isolated domain; this process sends one torque
 command (held: cmd_timeout 0), reads the node's simulation time from /diagnostics, and samples
 the node's resident set size from /proc. Growth is the RSS at the end minus the RSS once 5 % of

@@ -53,7 +53,7 @@ def state_reader_qos(qos):
 
     The node offers `joint_states` keep-last 100 so that loggers lose nothing; a controller that
     reads such a queue in order acts, whenever it falls behind once, on states up to 100 ms old, and
-    a position loop at 8 Hz bandwidth goes unstable with that delay (issue 15: tracking error
+    a position loop at 8 Hz bandwidth goes unstable with that delay (tracking error
     hundreds of mm, torque at max_effort)."""
     from rclpy.qos import HistoryPolicy, QoSProfile
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=qos.reliability,

@@ -1,4 +1,4 @@
-"""Time series of a PRSM run in Rerun, sent column-wise with `send_columns` (DESIGN.md "Rerun").
+"""Time series of a PRSM run in Rerun, sent column-wise with `send_columns`.
 
 Every scalar output goes to `series/<name>` (one entity per quantity, so each plot has one unit)
 and every quantity of the internal loads' (roller, quantity) and (quantity,) blocks to

@@ -7,7 +7,7 @@
 A background thread wakes every `flush_period_s` (0.25 s: the viewer lags by at most that), takes
 what the loop queued, sends the scalar series of every step with `send_columns` (one call per
 entity per batch) and draws the 3D scene for the first step of each 1/scene_rate_hz of simulation
-time (DESIGN.md "Rerun"). The cost is per batch more than per step, so the period sets it:
+time. The cost is per batch more than per step, so the period sets it:
 `prsm-bench --only rerun` measures it beside a 1 kHz loop. It logs
 through an explicit `RecordingStream`, never the global one. The loop is never blocked: a full
 queue drops the step and counts it in `dropped`; a Rerun failure sets `error` and the loop runs on.

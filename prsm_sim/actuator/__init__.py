@@ -1,4 +1,4 @@
-"""The actuator around the screw: drive, motor, coupling, sensors, end stops, brake, faults (issue 14)."""
+"""The actuator around the screw: drive, motor, coupling, sensors, end stops, brake, faults."""
 
 from prsm_sim.actuator.actuator import ACTUATOR_QUANTITIES, MEASURED_QUANTITIES, Actuator, ActuatorState, Ledger
 from prsm_sim.actuator.faults import FaultEvent

@@ -1,4 +1,4 @@
-"""Holding brake on the screw shaft: engage/release ramps and a set-valued friction torque (issue 14)."""
+"""Holding brake on the screw shaft: engage/release ramps and a set-valued friction torque."""
 
 from __future__ import annotations
 

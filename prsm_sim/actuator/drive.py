@@ -1,4 +1,4 @@
-"""The servo drive's control law: effort, velocity (PI) and position (P → PI cascade) (issue 14).
+"""The servo drive's control law: effort, velocity (PI) and position (P → PI cascade).
 
 Pure: `drive_update` maps the drive's memory, the command and the measured feedback to the
 screw-side torque reference and the new memory. Loops run in screw coordinates.

@@ -1,4 +1,4 @@
-"""Fault injection: which faults are active, what they change, and their start/clear events (issue 14).
+"""Fault injection: which faults are active, what they change, and their start/clear events.
 
 Friction faults act on the screw model's parameters (a surge or a loss of lubrication scales
 its friction; the actuator switches to a model built with the scaled parameters while the

@@ -1,4 +1,4 @@
-"""The motor and its current loop over one sub-step, with the electrical energy it draws (issue 14).
+"""The motor and its current loop over one sub-step, with the electrical energy it draws.
 
 Equivalent first-order current loop i' = ω_c (i_ref − i), stepped exactly for i_ref held over
 the sub-step: i(t) = a + b e^(−ω_c t), a = i_ref, b = i0 − i_ref. The torque applied to the

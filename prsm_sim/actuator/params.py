@@ -1,4 +1,4 @@
-"""Frozen, validated parameter groups of the actuator around the screw (issue 14).
+"""Frozen, validated parameter groups of the actuator around the screw.
 
 The defaults are ideal: no motor (the command is the screw torque itself), a drive in
 `effort` mode, ideal sensors, no end stops, no brake and no faults. An `Actuator` built from

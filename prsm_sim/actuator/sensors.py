@@ -1,4 +1,4 @@
-"""Sensors around the screw: motor encoder, nut linear encoder, nut load cell (issue 14).
+"""Sensors around the screw: motor encoder, nut linear encoder, nut load cell.
 
 Pure functions of (true values, sensor parameters, step index). Noise and dropout draw from
 a counter-based generator: each draw is a hash of (seed, step, stream), so a step needs no
