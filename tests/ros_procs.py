@@ -44,10 +44,10 @@ def ros_test_env(salt: str = "", **extra: str) -> dict[str, str]:
 
 
 class NodeProcess:
-    """`prsm-node` as a child process (python -m prsm_ros.node.ros_node), output captured to files."""
+    """`prsm-node` as a child process (python -m prsm_ros.cli.node), output captured to files."""
 
     def __init__(self, env: dict[str, str], params: dict[str, Any] | None = None, *, workdir: Path,
-                 extra_args: list[str] | None = None, module: str = "prsm_ros.node.ros_node",
+                 extra_args: list[str] | None = None, module: str = "prsm_ros.cli.node",
                  cwd: Path | None = None) -> None:
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)

@@ -70,7 +70,7 @@ def test_a_node_params_file_is_bounded_before_rcl_reads_it(tmp_path):
     """Was: a 9 MB params file kept the node from starting for > 100 s (rcl parses it all)."""
     big = tmp_path / "big.yaml"
     big.write_text("prsm_actuator:\n  ros__parameters:\n" + "    # padding\n" * (TEXT_FILE_MAX_BYTES // 12))
-    res = subprocess.run([sys.executable, "-m", "prsm_ros.node.ros_node", "--ros-args", "--params-file", str(big)],
+    res = subprocess.run([sys.executable, "-m", "prsm_ros.cli.node", "--ros-args", "--params-file", str(big)],
                          capture_output=True, text=True, timeout=120, cwd=tmp_path,
                          env={**os.environ, "PYTHONPATH": str(ROOT), "RERUN": "off"})
     assert res.returncode == 2, res.stderr
@@ -117,7 +117,7 @@ def test_export_resampling_and_time_windows_are_bounded(tmp_path, capsys):
     (["prsm_ros.cli.bag", "info", "{fifo}"], "a FIFO, not an MCAP file"),
     (["prsm_ros.cli.sim", "params", "--params", "{fifo}"], "a FIFO, not a parameter file"),
     (["prsm_ros.cli.sweep", "run", "{fifo}", "-o", "out"], "a FIFO, not a study file"),
-    (["prsm_ros.node.ros_node", "--ros-args", "--params-file", "{fifo}"], "a FIFO, not a parameters file"),
+    (["prsm_ros.cli.node", "--ros-args", "--params-file", "{fifo}"], "a FIFO, not a parameters file"),
 ])
 def test_a_fifo_is_refused_not_waited_on(tmp_path, argv, expected):
     fifo = tmp_path / "f.mcap"

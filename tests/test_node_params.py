@@ -147,7 +147,7 @@ def _start(tmp_path, *ros_args: str):
     import subprocess
     import sys
     from ros_procs import CEILING_FACTOR
-    return subprocess.run([sys.executable, "-m", "prsm_ros.node.ros_node", "--urdf", "--ros-args", *ros_args],
+    return subprocess.run([sys.executable, "-m", "prsm_ros.cli.node", "--urdf", "--ros-args", *ros_args],
                           env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=60 * CEILING_FACTOR)
 
 

@@ -28,7 +28,7 @@ from prsm_sim import preset  # noqa: E402
 from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, ros_test_env  # noqa: E402
 
 ENV = ros_test_env("test_urdf")
-NODE = [sys.executable, "-m", "prsm_ros.node.ros_node"]
+NODE = [sys.executable, "-m", "prsm_ros.cli.node"]
 SHELL_ENV = {**ENV, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
 
 

@@ -108,7 +108,7 @@ def demo_loop(model: str, sim_seconds: float, time_mode: str, *, record: bool = 
                   "record_path": str(Path(tmp) / f"{time_mode}.mcap"), "cmd_timeout": 0.0, "load_force": load_n,
                   "start_paused": True, "realtime_priority": priority}
         with open(Path(tmp) / "node.log", "wb") as log:
-            node = start_module("prsm_ros.node.ros_node", ros_args(params), env, stdout=log, stderr=subprocess.STDOUT)
+            node = start_module("prsm_ros.cli.node", ros_args(params), env, stdout=log, stderr=subprocess.STDOUT)
             try:
                 ctl = start_module("prsm_ros.cli.demo_controller",
                                    ["--duration", repr(sim_seconds), "--preset", preset, "--load", repr(load_n),

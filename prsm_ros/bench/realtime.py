@@ -69,7 +69,7 @@ def stop_procs(procs: list[subprocess.Popen]) -> None:
         p.wait(timeout=10)
 
 
-NODE_MODULE = "prsm_ros.node.ros_node"
+NODE_MODULE = "prsm_ros.cli.node"
 FLOOR_MODULE = "prsm_ros.bench.rclpy_floor"  # the node's DDS traffic and nothing else (its module doc)
 
 

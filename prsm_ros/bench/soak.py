@@ -42,7 +42,7 @@ def soak(sim_seconds: float, *, model: str = "jones2016", timeout_s: float = 360
         bag = Path(tmp) / "soak.mcap"
         params = {"time_mode": "fast", "model": model, "record": True, "record_path": str(bag), "cmd_timeout": 0.0,
                   "load_force": 500.0, "internal_loads_rate": 100.0, "diagnostics_rate": 2.0}
-        node_proc = start_module("prsm_ros.node.ros_node", ros_args(params), env, cwd=tmp,
+        node_proc = start_module("prsm_ros.cli.node", ros_args(params), env, cwd=tmp,
                                  stdout=open(Path(tmp) / "node.out", "wb"), stderr=open(Path(tmp) / "node.err", "wb"))
         os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
         ctx = rclpy.Context()

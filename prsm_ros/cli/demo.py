@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="prsm_demo_") as tmp:
         node_log = Path(tmp) / "node.log"
         with open(node_log, "wb") as log:
-            node = start_module("prsm_ros.node.ros_node", ros_args(node_params), env, stdout=log, stderr=subprocess.STDOUT)
+            node = start_module("prsm_ros.cli.node", ros_args(node_params), env, stdout=log, stderr=subprocess.STDOUT)
             ctl = start_module("prsm_ros.cli.demo_controller",
                                ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
                                 "--wall-timeout", repr(60.0 + 20 * args.duration),
