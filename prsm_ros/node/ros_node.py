@@ -187,6 +187,7 @@ class PrsmNode(Node):
         self._warned_at: dict[str, float] = {}
         self.publish_failures = 0
         self._energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
+        self._model_failure_reported = False  # likewise
         self._step_wall_max_s = 0.0
         self._publish(self.pub["labels"], "labels", self.mapper.labels())
         self._publish(self.pub["robot_description"], "robot_description",
@@ -451,7 +452,7 @@ class PrsmNode(Node):
                 try:
                     out = self.session.step()
                 except ModelError as e:
-                    self.get_logger().error(str(e), throttle_duration_sec=WARN_THROTTLE_S)
+                    self._report_model_failure(str(e))
                     break
                 done += 1
                 if out.energy_fault and not self._energy_fault_reported:
@@ -478,6 +479,16 @@ class PrsmNode(Node):
         self._publish(self.pub["events"], "events", event_message(out.time_s, "energy_guard", "error",
                                                                    "energy_balance", text, details))
         self.get_logger().error(text)
+
+    def _report_model_failure(self, reason: str) -> None:
+        """The model failed (Session's ModelError): stepping stops until ~/reset; /diagnostics says
+        ERROR with the reason while it lasts, and one ~/events entry (so the bag) says when and why."""
+        self.get_logger().error(reason, throttle_duration_sec=WARN_THROTTLE_S)
+        if self._model_failure_reported:
+            return
+        self._model_failure_reported = True
+        self._publish(self.pub["events"], "events", event_message(self.session.time_s, "model", "error",
+                                                                   "model_failure", reason, {"model": self.config.model}))
 
     def _count_readers(self) -> None:
         """Note which per-step topics have no matched reader now (lock held; `_publish` skips them on DDS)."""
@@ -629,7 +640,7 @@ class PrsmNode(Node):
             self.session.reset(self.config.initial_nut_position)
             self.echo.reset()
             self.superseded.reset()
-            self._energy_fault_reported = False
+            self._energy_fault_reported = self._model_failure_reported = False
             self.pacer.restart()
             if self.session.paused:  # nothing steps while paused: a controller still sees the reset now
                 self._publish_rest_state()
