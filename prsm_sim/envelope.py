@@ -4,10 +4,13 @@ A case is plain data (a dict that round-trips through YAML/JSON): model, step, h
 driven (bare screw torque, or the actuator's drive in effort, velocity or position), a controller
 (PID hold, sine tracking, bang-bang reversals at the torque limit), a load (zero, constant of
 either sign, steps, sign changes, pressing into a stop), end stops, thread ends, backlash and
-preload (elastic), brake engage/release, bounded injected faults, and a reset mid-run.
+preload (elastic), brake engage/release, bounded injected faults, and a pause and a reset
+mid-run. A case runs through `prsm_sim.Session`, the node's own stepping layer (command gate,
+brake, pause, reset), so what the envelope checks is what the node runs.
 `case_from_seed(seed)` draws one; `run_case(case)` runs it and returns what it broke:
 
-- a valid closed loop never raises;
+- a valid closed loop never raises; a pause stops time and a state saved while paused
+  (`Session.get_state`) continues in a fresh session exactly where it stopped;
 - every state is finite; the model's energy guard never trips, and the actuator's ledger
   (energy in = load work + dissipated + Δstored) closes within the guard's limit;
 - an impact goes no further past a stop or thread end than the work allows: ½ k δ² ≤ W, W the
@@ -25,6 +28,7 @@ failing ones; tests/test_envelope.py draws them with hypothesis.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 
@@ -33,10 +37,9 @@ import numpy as np
 from prsm_sim.actuator import (ACTUATOR_QUANTITIES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
                                StopParams)
 from prsm_sim.control import PositionController
-from prsm_sim.errors import InputError
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.presets import preset
-from prsm_sim.simulator import Simulator
+from prsm_sim.session import Session
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
 MODELS = ("ideal", "jones2016", "fu2018", "elastic")
@@ -119,6 +122,8 @@ def draw_case(rng, seed: int | None = None) -> dict:
         if rng.random() < 0.35:
             case["faults"] = [_fault(rng, duration, model, case["overrides"])]
     case["reset_at_s"] = float(np.round(rng.uniform(0.3, 0.7) * duration, 4)) if rng.random() < 0.15 else None
+    # drawn last, so every other draw of a seed stays what it was before pauses were drawn
+    case["pause_at_s"] = float(np.round(rng.uniform(0.1, 0.9) * duration, 4)) if rng.random() < 0.25 else None
     return case
 
 
@@ -148,14 +153,31 @@ class Result:
     steps: int = 0
     max_penetration_m: float = 0.0
     error: str | None = None
+    # with run_case(record=True): what was asked of the session, in order (("step", command, load_n),
+    # ("brake", engage), ("pause",), ("resume",), ("reset",)), and after each step the true state
+    # (screw angle, screw speed, nut position, nut velocity): a replay through another driver (the
+    # node in lockstep) must reproduce the states
+    actions: list[tuple] | None = None
+    states: list[tuple[float, float, float, float]] | None = None
 
     @property
     def ok(self) -> bool:
         return not self.violations
 
 
+def session_interface(case: dict) -> str:
+    """The Session's command interface of a case (a bare screw takes torque: "effort")."""
+    return "effort" if case["interface"] == "torque" else case["interface"]
+
+
+def initial_load_n(case: dict) -> float | None:
+    """The load the case starts pre-deflected at (equilibrium start), or None: at rest, unloaded."""
+    return _load(case, 0.0) if case.get("initial_load") else None
+
+
 def build(case: dict):
-    """(Simulator, the actuator parameters or None, params) for a case."""
+    """(Session, the actuator parameters or None, params) for a case; the gate's effort limit is the
+    loop's own torque limit, so the gate passes every command the controller gives unchanged."""
     p = preset(case.get("preset", "s30"))
     if case.get("overrides"):
         p = p.with_overrides(case["overrides"])
@@ -166,9 +188,10 @@ def build(case: dict):
         brake = BrakeParams(holding_torque_nm=b["holding_torque_nm"]) if b else BrakeParams()
         act = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode=case["interface"]), stops=stops, brake=brake,
                              faults=tuple(Fault(**f) for f in case.get("faults", ())))
-    f0 = _load(case, 0.0) if case.get("initial_load") else None
-    sim = Simulator(p, case["model"], case["dt_s"], case["start_m"], actuator=act, initial_load_n=f0)
-    return sim, act, p
+    session = Session(p, case["model"], case["dt_s"], act, nut_position_m=case["start_m"],
+                      initial_load_n=initial_load_n(case), interface=session_interface(case),
+                      max_effort_nm=TORQUE_LIMIT_NM)
+    return session, act, p
 
 
 def _load(case: dict, t: float) -> float:
@@ -225,9 +248,10 @@ class _Controller:
         return self.pid.torque(xr - x, vr - v, ar, self.dt)
 
 
-def run_case(case: dict) -> Result:
-    """Run one case and check the envelope's invariants (module doc); never raises."""
-    res = Result()
+def run_case(case: dict, record: bool = False) -> Result:
+    """Run one case and check the envelope's invariants (module doc); never raises. `record`:
+    keep the session's actions and the states they gave (`Result.actions`, `Result.states`)."""
+    res = Result(actions=[] if record else None, states=[] if record else None)
     try:
         _run(case, res)
     except Exception as e:  # a valid closed loop must not raise: that is itself the finding
@@ -237,8 +261,10 @@ def run_case(case: dict) -> Result:
 
 
 def _run(case: dict, res: Result) -> None:
-    sim, act, p = build(case)
+    session, act, p = build(case)
+    sim = session.simulator
     dt = sim.dt_s
+    actions = res.actions if res.actions is not None else _Discard()
     n = int(round(case["duration_s"] / dt))
     ctl = _Controller(case, p, dt)
     geo = p.geometry
@@ -248,6 +274,7 @@ def _run(case: dict, res: Result) -> None:
     k_stop = limits[0].stiffness_n_m if limits else 1e8
     brake = case.get("brake")
     reset_at = case.get("reset_at_s")
+    pause_at = case.get("pause_at_s")
     elastic = case["model"] == "elastic"
     tail = max(1, int(round(0.5 / dt)))
     hist_w, hist_cmd, hist_contact, hist_load, hist_v = [], [], [], [], []
@@ -279,13 +306,20 @@ def _run(case: dict, res: Result) -> None:
     energy_in_prev = load_work_prev = 0.0
     w_contact = None  # energy available since first contact
     t_offset = 0.0
-    engaged = released = did_reset = False
+    engaged = released = did_reset = did_pause = False
     for i in range(n):
         t = sim.time_s + t_offset
+        if pause_at is not None and not did_pause and t >= pause_at:
+            did_pause = True
+            session = _pause_and_continue(case, session, actions, res)
+            sim = session.simulator
+            if res.violations:
+                return
         if reset_at is not None and not did_reset and t >= reset_at:
             did_reset = True
             t_offset = t
-            sim.reset()
+            session.reset()
+            actions.append(("reset",))
             out, w_contact = None, None
             hist_w.clear(), hist_cmd.clear(), hist_contact.clear(), hist_load.clear(), hist_v.clear()
             x_prev, stored_prev = initial()
@@ -295,22 +329,25 @@ def _run(case: dict, res: Result) -> None:
             engaged = released = False
             t = t_offset
         if brake and act is not None:
-            try:
-                if not engaged and t >= brake["engage_s"]:
-                    engaged, last_event = True, t
-                    sim.state = sim.model.command_brake(sim.state, True)
-                elif engaged and not released and t >= brake["release_s"]:
-                    released, last_event = True, t
-                    sim.state = sim.model.command_brake(sim.state, False)
-            except InputError:
-                pass  # a refused request (e.g. release while a drive fault holds the torque off) is the library's answer
+            # a refused request (e.g. release while a drive fault holds the torque off) is the library's answer
+            if not engaged and t >= brake["engage_s"]:
+                engaged, last_event = True, t
+                session.brake(True)
+                actions.append(("brake", True))
+            elif engaged and not released and t >= brake["release_s"]:
+                released, last_event = True, t
+                session.brake(False)
+                actions.append(("brake", False))
         f = _load(case, t - (t_offset if did_reset else 0.0))
         cmd = ctl.command(t, x_prev, v_prev, f)
         while events and events[0] <= sim.time_s:
             last_event = max(last_event, events.pop(0) + t_offset)
-        out = sim.step(float(cmd), f)
+        out = session.step(float(cmd), f)
+        actions.append(("step", float(cmd), f))
         res.steps += 1
         x, v = nut(out), out.nut_velocity_m_s
+        if res.states is not None:
+            res.states.append((out.screw_angle_rad, out.screw_speed_rad_s, x, v))
         scal = (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_speed_rad_s, x, v, out.nut_force_n,
                 out.energy_residual_j)
         if not all(math.isfinite(q) for q in scal):
@@ -335,7 +372,7 @@ def _run(case: dict, res: Result) -> None:
             # work of the screw torque and of the external load over the step
             e_in = energy_in_prev + out.power_in_w * dt
             load_work = load_work_prev + f * (x - x_prev)
-            stop_f = sim.thread_end_force_n
+            stop_f = session.simulator.thread_end_force_n
         delta = contact_of(x)
         res.max_penetration_m = max(res.max_penetration_m, delta)
         if delta > 0.0:
@@ -386,3 +423,29 @@ def _run(case: dict, res: Result) -> None:
         if ptp >= P2P_LIMIT_RAD_S and reversals >= 2:
             res.violations.append(f"screw speed rings {ptp:.3f} rad/s peak to peak against a stop "
                                   "under a constant command")
+
+
+class _Discard(list):
+    """The action list of a run that keeps none."""
+
+    def append(self, item) -> None:
+        pass
+
+
+def _pause_and_continue(case: dict, session: Session, actions, res: Result) -> Session:
+    """Pause as a node's user does: time stands still, the state is saved and restored into a fresh
+    session built from the case (what a paused node's state could be carried to), then resume.
+    Returns the session the run goes on with; a pause that moved time or lost state is a violation."""
+    session.pause()
+    actions.append(("pause",))
+    t, k = session.time_s, session.nstep
+    saved = session.get_state()
+    fresh, _, _ = build(case)
+    fresh.set_state(saved)
+    same = json.dumps(fresh.get_state(), sort_keys=True) == json.dumps(saved, sort_keys=True)  # NaN == NaN here
+    if not (fresh.paused and fresh.time_s == t and fresh.nstep == k and same):
+        res.violations.append(f"a pause at t = {t:.4f} s did not keep the state (restored at t = {fresh.time_s:.4f} s, "
+                              f"step {fresh.nstep} of {k})")
+    fresh.resume()
+    actions.append(("resume",))
+    return fresh

@@ -121,3 +121,16 @@ def test_a_case_round_trips_and_repeats():
     a, b = run_case(c), run_case(json.loads(json.dumps(c)))
     assert a.violations == b.violations and a.steps == b.steps
     assert np.isclose(a.max_penetration_m, b.max_penetration_m, rtol=0, atol=0)
+
+
+def test_a_pause_mid_run_changes_nothing():
+    """Through `Session`: paused, time stands still and the state saved then (get_state) continues in a
+    fresh session exactly as the unpaused run goes on (the Session contract: set_state continues bit
+    for bit); with an actuator, a brake engaged and released and a reset after the pause."""
+    c = case_from_seed(35)
+    assert c["pause_at_s"] and c["reset_at_s"] and c["brake"] and c["interface"] == "effort"
+    paused, straight = run_case(c, record=True), run_case(dict(c, pause_at_s=None), record=True)
+    assert paused.ok and straight.ok
+    assert ("pause",) in paused.actions and ("pause",) not in straight.actions
+    assert [a for a in paused.actions if a[0] not in ("pause", "resume")] == straight.actions
+    assert paused.states == straight.states and len(paused.states) == paused.steps

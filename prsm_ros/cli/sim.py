@@ -313,6 +313,17 @@ def _write_csv(path: str, traj) -> None:
         raise CliError(f"cannot write CSV {path}: {e.strerror or e}") from None
 
 
+def _envelope_on_node(case: dict, args) -> dict:
+    """The case replayed into prsm-node in lockstep (prsm_ros.sweep.envelope_node); the node's output in -o."""
+    from pathlib import Path
+
+    from prsm_ros.sweep.envelope_node import replay_on_node
+    try:
+        return replay_on_node(case, Path(args.output) / f"node-{case.get('seed')}")
+    except RuntimeError as e:
+        raise CliError(f"--node: {e}") from None
+
+
 def cmd_envelope(args) -> None:
     from pathlib import Path
 
@@ -330,15 +341,21 @@ def cmd_envelope(args) -> None:
             if not isinstance(case, dict):
                 raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")
         r = run_one(case)
+        node = _envelope_on_node(case, args) if args.node else None
         if args.json:
-            print(dumps({"case": case, **r}))
+            print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
         else:
             print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
                   f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
                   + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
-        if not r["ok"]:
+            if node is not None:
+                print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
+                      + ("the same states" if node["ok"] else f"DIFFERS at {node['mismatch']}"))
+        if not r["ok"] or (node is not None and not node["ok"]):
             raise SystemExit(1)
         return
+    if args.node:
+        raise CliError("--node: replays one case; give --seed N or --case FILE")
     if not (isinstance(args.runs, int) and args.runs >= 1):
         raise CliError(f"--runs {args.runs!r}: must be a whole number >= 1")
     bar = None
@@ -415,6 +432,8 @@ def build_parser() -> argparse.ArgumentParser:
     env.add_argument("--workers", type=int, help="CPUs of the embedded Ray (default: all)")
     env.add_argument("--seed", type=int, help="run the one case of this seed here and report it")
     env.add_argument("--case", metavar="FILE.yaml", help="run a case (or a failure file) here and report it")
+    env.add_argument("--node", action="store_true", help="with --seed/--case: also replay it into prsm-node in "
+                                                          "lockstep and compare the states step by step")
     env.add_argument("--no-progress", action="store_true", help="no progress bar")
     env.set_defaults(func=cmd_envelope)
     return ap
