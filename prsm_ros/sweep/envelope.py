@@ -2,7 +2,7 @@
 
     prsm-sim envelope --runs 10000 -o envelope-out [--address HOST:PORT] [--workers N] [--first-seed S]
     prsm-sim envelope --seed 31                  # one case, run here: its case and what it broke
-    prsm-sim envelope --case envelope-out/failures/seed-31.yaml
+    prsm-sim envelope --case envelope-out/failures/seed-31.yaml [--node]   # --node: also through prsm-node
 
 Cases are drawn from consecutive seeds (`case_from_seed`), run in batches as Ray tasks (an
 embedded Ray on this machine by default, or a cluster by address), and every case that breaks an
