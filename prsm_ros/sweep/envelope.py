@@ -34,7 +34,8 @@ def _run_batch(seeds: list[int]) -> list[dict]:
 def failure_yaml(case: dict, violations: list[str]) -> str:
     """The YAML of a failing case: the case, what it broke, and the command that reproduces it."""
     import yaml
-    doc = {"reproduce": f"prsm-sim envelope --seed {case['seed']}", "violations": violations, "case": case}
+    doc = {"reproduce": f"prsm-sim envelope --seed {case['seed']}",
+           "reproduce_on_node": f"prsm-sim envelope --seed {case['seed']} --node", "violations": violations, "case": case}
     return yaml.safe_dump(doc, sort_keys=False)
 
 

@@ -428,8 +428,7 @@ def _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K):
     w_in, w_out = tau * dth, load * K[FU.p] * dth
     d_e = _stored(ws1, wc1, K) - _stored(ws, wc, K)
     diss = 0.5 * h * (f0[2] + f1[2])
-    return abs(w_in - w_out - d_e - diss) > (K[FU.balance_tol] * (abs(w_in) + abs(w_out) + abs(d_e) + abs(diss))
-                                             + K[FU.balance_floor])
+    return abs(w_in - w_out - d_e - diss) > K[FU.balance_tol] * (abs(w_in) + abs(w_out)) + K[FU.balance_floor]
 
 
 
@@ -476,7 +475,9 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
             wsb, wcb, fb1, fb0, mb = rosenbrock(wsa, wca, fa1[28], _pin_sum(fa1), fa1[12], NO_MEMORY, tau, load,
                                                 0.5 * hs, K, S)
             err = math.sqrt((fb1[8] - f1[8]) ** 2 + (fb1[9] - f1[9]) ** 2 + (fb1[10] - f1[10]) ** 2)
-            if err > slip_tol + 1e-6 * math.sqrt(fb1[8] ** 2 + fb1[9] ** 2 + fb1[10] ** 2):
+            if err > slip_tol + 1e-6 * math.sqrt(fb1[8] ** 2 + fb1[9] ** 2 + fb1[10] ** 2) \
+                    or _books_open(ws, wc, wsa, wca, fa0, fa1, 0.5 * hs, tau, load, K) \
+                    or _books_open(wsa, wca, wsb, wcb, fb0, fb1, 0.5 * hs, tau, load, K):
                 hs *= 0.5
                 continue
             two = True
