@@ -317,10 +317,10 @@ def _envelope_on_node(case: dict, args) -> dict:
     """The case replayed into prsm-node in lockstep (prsm_ros.sweep.envelope_node); the node's output in -o."""
     from pathlib import Path
 
-    from prsm_ros.sweep.envelope_node import replay_on_node
+    from prsm_ros.sweep.envelope_node import ReplayError, replay_on_node
     try:
         return replay_on_node(case, Path(args.output) / f"node-{case.get('seed')}")
-    except RuntimeError as e:
+    except ReplayError as e:
         raise CliError(f"--node: {e}") from None
 
 

@@ -24,10 +24,15 @@ from pathlib import Path
 from typing import Any
 
 from prsm_sim.envelope import TORQUE_LIMIT_NM, initial_load_n, run_case, session_interface
+from prsm_sim.errors import PrsmError
 
 NODE = "/prsm_actuator"
 COMMAND_TOPIC = {"effort": "screw_torque", "velocity": "velocity_command", "position": "position_command"}
 WAIT_S = 60.0  # ceiling on waiting for one answer of the node (a busy machine only makes it slower)
+
+
+class ReplayError(PrsmError, RuntimeError):
+    """The node exited, did not answer, or refused a replayed request."""
 
 
 def node_parameters(case: dict) -> dict[str, Any]:
@@ -58,7 +63,7 @@ def replay_on_node(case: dict, workdir: Path, env: dict[str, str] | None = None)
     `env`: the node's environment (default: this one with localhost discovery, on the user's
     ROS_DOMAIN_ID or one of this process's own, `ros_env.isolated_env`). Returns {"steps", "compared", "ok", "mismatch"
     (None or where the node's state first differs), "violations" (the offline run's)}; the node's
-    output is kept in `workdir`. RuntimeError when the node exits or does not answer.
+    output is kept in `workdir`. ReplayError when the node exits, does not answer or refuses.
     """
     from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
@@ -106,10 +111,10 @@ def _replay(case: dict, rec, env: dict[str, str], proc, workdir: Path) -> tuple[
             end = time.monotonic() + WAIT_S
             while not done():
                 if proc.poll() is not None:
-                    raise RuntimeError(f"prsm-node exited with {proc.returncode} waiting for {what} "
+                    raise ReplayError(f"prsm-node exited with {proc.returncode} waiting for {what} "
                                        f"(its output: {workdir})")
                 if time.monotonic() > end:
-                    raise RuntimeError(f"no {what} from prsm-node within {WAIT_S:g} s (its output: {workdir})")
+                    raise ReplayError(f"no {what} from prsm-node within {WAIT_S:g} s (its output: {workdir})")
                 executor.spin_once(timeout_sec=0.01)
 
         state_key = "ground_truth" if case["interface"] != "torque" else "joint_states"
@@ -123,7 +128,7 @@ def _replay(case: dict, rec, env: dict[str, str], proc, workdir: Path) -> tuple[
         spin_until(lambda: pub.get_subscription_count() > 0 and sub.get_publisher_count() > 0,
                    "a match of the command and state topics")
         if pub.get_subscription_count() != 1:  # another node on this domain would answer too
-            raise RuntimeError(f"{pub.get_subscription_count()} nodes listen on {pub.topic_name}: another ROS graph "
+            raise ReplayError(f"{pub.get_subscription_count()} nodes listen on {pub.topic_name}: another ROS graph "
                                f"shares ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}")
 
         def call(name: str, srv, request):
@@ -140,7 +145,7 @@ def _replay(case: dict, rec, env: dict[str, str], proc, workdir: Path) -> tuple[
             req = SetParametersAtomically.Request(parameters=[Parameter("load_force", value=float(f)).to_parameter_msg()])
             res = call("set_parameters_atomically", SetParametersAtomically, req).result
             if not res.successful:
-                raise RuntimeError(f"load_force = {f}: {res.reason}")
+                raise ReplayError(f"load_force = {f}: {res.reason}")
 
         load = initial_load_n(case) or 0.0
         compared = 0

@@ -428,7 +428,8 @@ def _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K):
     w_in, w_out = tau * dth, load * K[FU.p] * dth
     d_e = _stored(ws1, wc1, K) - _stored(ws, wc, K)
     diss = 0.5 * h * (f0[2] + f1[2])
-    return abs(w_in - w_out - d_e - diss) > K[FU.balance_tol] * (abs(w_in) + abs(w_out)) + K[FU.balance_floor]
+    return abs(w_in - w_out - d_e - diss) > (K[FU.balance_tol] * (abs(w_in) + abs(w_out) + abs(d_e) + abs(diss))
+                                             + K[FU.balance_floor])
 
 
 
