@@ -56,7 +56,7 @@ def run_lockstep(tmp_path, model: str, torques: list[float]) -> dict[str, list]:
 
 
 def offline(model: str, torques: list[float]):
-    sim = Simulator(preset("s30"), model, dt_s=1e-3)
+    sim = Simulator(preset("s30"), model, dt_s=1e-3, initial_load_n=LOAD_N)  # the node starts loaded at load_force
     return [sim.step(tau, LOAD_N) for tau in torques for _ in range(STEPS_PER_COMMAND)]
 
 
