@@ -72,7 +72,7 @@ def replay_on_node(case: dict, workdir: Path, env: dict[str, str] | None = None)
     workdir.mkdir(parents=True, exist_ok=True)
     env = env or isolated_env(RERUN="off")
     with open(workdir / "node.stdout", "wb") as out, open(workdir / "node.stderr", "wb") as err:
-        proc = start_module("prsm_ros.node.ros_node", ros_args(node_parameters(case)), env, cwd=workdir,
+        proc = start_module("prsm_ros.cli.node", ros_args(node_parameters(case)), env, cwd=workdir,
                             stdout=out, stderr=err)
     try:
         mismatch, compared = _replay(case, rec, env, proc, workdir)
