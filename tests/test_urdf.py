@@ -21,8 +21,7 @@ from pathlib import Path
 
 import pytest
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
-
-yourdfpy = pytest.importorskip("yourdfpy")
+import yourdfpy  # likewise
 
 from prsm_sim import preset  # noqa: E402
 from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, ros_test_env  # noqa: E402
