@@ -7,12 +7,14 @@ nothing changes (checked against the core run offline, as in test_node_lockstep)
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from prsm_sim import Simulator, preset  # noqa: E402
-from prsm_ros.node.parameters import NodeConfig, params_template  # noqa: E402
+from prsm_ros.node.parameters import ConfigError, NodeConfig, params_template  # noqa: E402
 from ros_procs import NodeProcess, RosClient, ros_test_env  # noqa: E402
 
 ENV = ros_test_env("test_node_params")
@@ -186,3 +188,21 @@ def test_fault_values_are_bounded_like_commands():
         with pytest.raises(Exception, match="parameter faults: ") as e:
             NodeConfig.from_values({"faults": spec})
         assert says in str(e.value)
+
+
+def test_nested_faults_are_checked_and_bounded_under_their_own_name():
+    base = {"faults.j.kind": "jam", "faults.j.value": 30}
+    cfg = NodeConfig.from_values({**base, "faults.j.start_s": "2", "faults.j.duration_s": "inf"})
+    assert cfg.with_actuator and [(f.kind, f.start_s, f.duration_s, f.value) for f in cfg.actuator.faults] == \
+        [("jam", 2.0, math.inf, 30.0)]
+    for extra, says in (({"faults.j.value": 1e300}, "parameter faults.j: fault.value = 1e+300: jam allows |value| <= 1e+06 N·m"),
+                        ({"faults.j.roller": 1}, "parameter faults.j: fault.roller = 1: model 'jones2016' treats all "
+                                                 "rollers alike"),
+                        ({"faults.j.kind": "jammed"}, "parameter faults.j: fault.kind = 'jammed': must be one of"),
+                        ({"faults.j.start_s": "soon"}, "parameter faults.j.start_s = 'soon': must be a number")):
+        with pytest.raises(ConfigError) as e:
+            NodeConfig.from_values({**base, **extra})
+        assert str(e.value).startswith(says), str(e.value)
+    # a fault without a kind is refused, naming it
+    with pytest.raises(ConfigError, match=r"^parameter faults.k: fault.kind = None: is required"):
+        NodeConfig.from_values({"faults.k.value": 3.0})

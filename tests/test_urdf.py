@@ -165,3 +165,64 @@ def test_joint_and_frame_names_from_parameters(tmp_path):
     u = load(desc[-1].data)
     assert set(u.joint_names) == {"left_screw", "left_nut"} and u.base_link == "left_base"
     assert wrench[0].header.frame_id == u.joint_map["left_nut"].child == "left_nut_link"
+
+
+def test_a_nested_fault_from_a_shell_command_line_jams_the_running_node(tmp_path):
+    """`-p faults.<name>.<field>:=…` typed in a shell reaches the running node: the jam starts at
+    t = 0 on ~/events with the values given (the string list's form adds a second fault)."""
+    import json
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    line = (f"exec {shlex.join(NODE)} --ros-args -p model:=ideal -p time_mode:=lockstep -p record:=false "
+            "-p faults.stuck.kind:=jam -p faults.stuck.start_s:=0.0 -p faults.stuck.value:=30 "
+            "-p faults.stuck.duration_s:=.inf -p faults:=\"kind=friction_surge,value=2\"")
+    (tmp_path / "run").mkdir()
+    with open(tmp_path / "run" / "stderr", "wb") as err:
+        proc = subprocess.Popen(["bash", "-c", line], env=SHELL_ENV, cwd=tmp_path / "run", stdout=subprocess.DEVNULL,
+                                stderr=err)
+    try:
+        with RosClient(ENV) as cli:
+            events = cli.subscribe("/prsm_actuator/events", String)
+            cli.publisher("/prsm_actuator/joint_commands", JointState)
+            cli.wait_for_node()
+            cli.publish("/prsm_actuator/joint_commands", JointState(name=["screw_joint"], effort=[1.0]))
+            starts = lambda: [d for d in map(json.loads, (m.data for m in events)) if d.get("code") == "fault_start"]
+            cli.spin_until(lambda: len(starts()) >= 2, 10.0, "two fault_start events")
+    finally:
+        proc.send_signal(2)
+        rc = proc.wait(timeout=20 * CEILING_FACTOR)
+    assert rc == 0, (tmp_path / "run" / "stderr").read_text()
+    jam = next(d for d in starts() if d["details"]["kind"] == "jam")
+    assert jam["details"]["value"] == 30.0 and jam["details"]["duration_s"] is None and jam["time_s"] == 0.0
+    assert {d["details"]["kind"] for d in starts()} == {"jam", "friction_surge"}
+
+
+def test_nested_faults_in_a_params_file_combine_with_the_string_list(tmp_path):
+    """Nested YAML under ros__parameters (dotted keys beside the `faults` string) as the node reads them."""
+    import rclpy
+    from rclpy.node import Node
+    from prsm_ros.node.declare import declare_parameters
+    path = tmp_path / "faults.yaml"
+    path.write_text("prsm_actuator:\n  ros__parameters:\n    faults: 'kind=sensor_bias,sensor=motor_encoder,value=0.1'\n"
+                    "    faults.b:\n      kind: jam\n      start_s: 1.5\n      duration_s: 0.25\n      value: 40.0\n"
+                    "    faults.a: {kind: lubrication_loss, value: 3}\n", encoding="utf-8")
+    ctx = rclpy.Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=ctx)
+    try:
+        node = Node("prsm_actuator", context=ctx, start_parameter_services=False, enable_rosout=False)
+        cfg = declare_parameters(node)
+        assert cfg.with_actuator
+        got = [(f.kind, f.start_s, f.duration_s, f.value, f.sensor, f.roller) for f in cfg.actuator.faults]
+        # the string list first, then the nested faults by name
+        assert got == [("sensor_bias", 0.0, math.inf, 0.1, "motor_encoder", None), ("lubrication_loss", 0.0, math.inf, 3.0, None, None),
+                       ("jam", 1.5, 0.25, 40.0, None, None)]
+        assert node.get_parameter("faults.b.value").value == 40.0
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_an_unknown_fault_field_is_refused_in_one_line(tmp_path):
+    r = shell(f"{shlex.join(NODE)} --urdf --ros-args -p faults.j.kind:=jam -p faults.j.vlaue:=30", tmp_path)
+    assert r.returncode == 2 and r.stdout == "" and r.stderr.count("\n") == 1
+    assert "unknown parameter faults.j.vlaue" in r.stderr and "did you mean faults.j.value?" in r.stderr

@@ -12,8 +12,9 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
-from prsm_ros.node.parameters import (ACTUATOR_PREFIX, PHYSICS_PREFIX, RCLPY_PARAMETERS, ConfigError, NodeConfig,
-                                      NodeParam, ParamSources, check_preset, check_value, nearest_hint,
+from prsm_ros.node.parameters import (ACTUATOR_PREFIX, FAULT_FIELDS, FAULTS_PREFIX, PHYSICS_PREFIX, RCLPY_PARAMETERS, ConfigError, NodeConfig,
+                                      NodeParam, ParamSources, check_preset, check_value, fault_field_names,
+                                      is_fault_field, nearest_hint,
                                       node_parameters, physics_parameters, physics_type, physics_unit,
                                       unknown_parameter)
 
@@ -33,9 +34,27 @@ def declare_parameters(node: Node) -> NodeConfig:
             additional_constraints=f"{physics_type(base, key).__name__}; validated by prsm_sim.Params",
             dynamic_typing=True)
         values[key] = _declare(node, key, default, desc)
+    values.update(_declare_faults(node))
     # the actuator.* names given at start-up apply (they override the `actuator` mapping)
     given = {k for k in _overrides(node) if k.startswith(ACTUATOR_PREFIX) and k in values}
     return NodeConfig.from_values(values, given)
+
+
+def _declare_faults(node: Node) -> dict[str, Any]:
+    """Declare the `faults.<name>.<field>` names given at start-up (rclpy knows no names ahead of time).
+
+    A fault with a name that is not one of its fields takes no part: that name is refused by
+    check_unknown_overrides with the nearest valid one, before the fault's other fields are judged."""
+    given = [k for k in _overrides(node) if k.startswith(FAULTS_PREFIX)]
+    broken = {k.split(".")[1] for k in given if not is_fault_field(k)}
+    out = {}
+    for k in sorted(filter(is_fault_field, given)):
+        desc = ParameterDescriptor(description=f"fault {k.split('.')[1]}: {k.split('.')[2]} (prsm_sim.actuator.Fault)",
+                                   read_only=True, dynamic_typing=True)
+        value = node.declare_parameter(k, _overrides(node)[k].value, desc).value
+        if k.split(".")[1] not in broken:
+            out[k] = value
+    return out
 
 
 def _overrides(node: Node) -> dict:
@@ -65,6 +84,7 @@ def check_unknown_overrides(node: Node, sources: ParamSources | None) -> None:
     about (multi-node files are normal); rclpy's own parameters pass. `sources` None: every name
     given is this node's (a node built in-process with parameter_overrides)."""
     known = sorted(node.list_parameters([], 0).names)
+    known += sorted({n for k in _overrides(node) for n in fault_field_names(k)} - set(known))
     for k in sorted(n for n in _overrides(node) if not node.has_parameter(n)):
         if k in RCLPY_PARAMETERS:
             continue
@@ -99,6 +119,9 @@ def usage() -> str:
         unit = f" [{p.unit}]" if p.unit and p.unit != "1" else ""
         lines.append(f"  {p.name} = {p.default!r}{unit}: {p.description}; {p.allowed}"
                      + (" (read-only)" if p.read_only else ""))
+    lines.append(f"  {FAULTS_PREFIX}<name>.<field>: a fault injected from the start, one group per fault under a "
+                 "name of your choice; fields " + ", ".join(FAULT_FIELDS) + " as in the faults string "
+                 "(read-only; they add to it)")
     lines.append("  physics.<group>.<name>: any prsm_sim parameter, default from the preset "
                  "(see prsm-node --params-template)")
     return "\n".join(lines)

@@ -19,6 +19,12 @@ None (no stop on that side, gains tuned from the inertia, no load-cell filter). 
 at start-up (`-p`, a params file) apply; they override the same field of the `actuator` string
 form (a YAML mapping, still accepted); a given name with a value other than its default, or a
 `fitted: true`, runs the actuator.
+
+Faults injected from the start are nested the same way, one group per fault under a name of the
+user's choosing: `faults.<name>.<field>` with the fields of `prsm_sim.actuator.Fault` (kind,
+start_s, duration_s, value, sensor, roller). rclpy needs every parameter declared, so these are
+found among the names given at start-up and declared read-only; they add to the faults of the
+`faults` string list and of the `actuator` mapping.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from typing import Any
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
 from prsm_sim.actuator import (COMMAND_INTERFACES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
-                                SensorParams, StopParams, actuator_params_from_dict, parse_faults)
+                                SensorParams, StopParams, actuator_params_from_dict, fault_from_dict, parse_faults)
 from prsm_sim.params import parse_float
 
 from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
@@ -39,6 +45,8 @@ TIME_MODES = ("realtime", "fast", "lockstep")
 RERUN_MODES = ("off", "save", "spawn", "connect")
 PHYSICS_PREFIX = "physics."
 ACTUATOR_PREFIX = "actuator."
+FAULTS_PREFIX = "faults."
+FAULT_FIELDS = tuple(f.name for f in fields(Fault))  # faults.<name>.<field>
 # the groups of the actuator, each a frozen dataclass of prsm_sim.actuator (drive.mode is `command_interface`)
 ACTUATOR_GROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sensors": SensorParams,
                                     "stops": StopParams, "brake": BrakeParams}
@@ -262,7 +270,8 @@ class NodeConfig:
         v = self.values
         nested = {p.name: p.default for p in actuator_parameters() if p.name in self.actuator_given}
         asked = any((n.endswith(".fitted") and v[n]) or not _same(v[n], d) for n, d in nested.items())
-        return bool(v["actuator"].strip() or v["faults"].strip()) or v["command_interface"] != "effort" or asked
+        faults = bool(v["faults"].strip()) or any(k.startswith(FAULTS_PREFIX) for k in v)
+        return bool(v["actuator"].strip()) or faults or v["command_interface"] != "effort" or asked
 
     @classmethod
     def from_values(cls, values: dict[str, Any], given: frozenset[str] | set[str] | None = None) -> NodeConfig:
@@ -273,6 +282,7 @@ class NodeConfig:
         out: dict[str, Any] = {}
         for p in node_parameters():
             out[p.name] = check_value(p, values.get(p.name, p.default))
+        out.update((k, v) for k, v in values.items() if is_fault_field(k))  # the nested faults (read-only)
         base = preset(out["preset"])
         phys = {k[len(PHYSICS_PREFIX):]: v for k, v in values.items() if k.startswith(PHYSICS_PREFIX)}
         try:
@@ -340,9 +350,6 @@ def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str
     try:
         a = actuator_params_from_dict(data)
         faults = a.faults + parse_faults(values["faults"])
-        for f in faults:
-            check_fault(f, params, values["model"], a.motor is not None)
-            bound_fault(f)
     except ParamError as e:
         text_e = str(e)
         if text_e.startswith("fault"):
@@ -351,7 +358,52 @@ def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str
         nested = any(n.startswith(f"{ACTUATOR_PREFIX}{group}.") for n in given)
         raise ConfigError(f"parameter actuator.{e}" if nested and group in ACTUATOR_GROUPS
                           else f"parameter actuator: {e}") from None
+    named = nested_faults(values)
+    for label, f in [("faults", f) for f in faults] + [(FAULTS_PREFIX + n, f) for n, f in named.items()]:
+        try:
+            check_fault(f, params, values["model"], a.motor is not None)
+            bound_fault(f)
+        except ParamError as e:
+            raise ConfigError(f"parameter {label}: {e}") from None
+    faults += tuple(named.values())
     return replace(a, faults=faults, drive=replace(a.drive, mode=values["command_interface"]))
+
+
+def is_fault_field(name: str) -> bool:
+    """`faults.<name>.<field>` with a field of prsm_sim.actuator.Fault."""
+    parts = name.split(".")
+    return len(parts) == 3 and parts[0] + "." == FAULTS_PREFIX and parts[1] != "" and parts[2] in FAULT_FIELDS
+
+
+def fault_field_names(name: str) -> list[str]:
+    """The valid names of the fault group `name` (under faults.) lies in: the known names for a typo's hint."""
+    parts = name.split(".")
+    if len(parts) < 2 or parts[0] + "." != FAULTS_PREFIX or not parts[1]:
+        return []
+    return [f"{FAULTS_PREFIX}{parts[1]}.{k}" for k in FAULT_FIELDS]
+
+
+def nested_faults(values: dict[str, Any]) -> dict[str, Fault]:
+    """The faults given as `faults.<name>.<field>` in `values`, name → Fault in name order; ConfigError naming the fault."""
+    groups: dict[str, dict[str, Any]] = {}
+    for k, v in values.items():
+        if is_fault_field(k):
+            _, name, key = k.split(".")
+            if key in ("sensor", "roller") and (v == "" or (isinstance(v, float) and math.isnan(v))):
+                v = None  # the string list's "not given": no sensor, all rollers
+            elif key not in ("kind", "sensor") and isinstance(v, str):
+                try:
+                    v = parse_float(v, f"parameter {k}")  # YAML 1.1 reads "1e-5" and rcl "inf" as strings
+                except ParamError as e:
+                    raise ConfigError(str(e)) from None
+            groups.setdefault(name, {})[key] = v
+    out = {}
+    for name in sorted(groups):
+        try:
+            out[name] = fault_from_dict(groups[name])
+        except ParamError as e:
+            raise ConfigError(f"parameter {FAULTS_PREFIX}{name}: {e}") from None
+    return out
 
 
 # What a fault's value may be, like a command's bound: a larger one is a mistake or an attack,
@@ -482,6 +534,9 @@ def params_template(preset_name: str = DEFAULT_PRESET, node_name: str = "prsm_ac
     lines.append("    # the actuator (prsm_sim.actuator), one name per field: uncomment what you set; any of them "
                  "runs the actuator")
     lines += [f"    # {line}" for line in nested]
+    lines.append(f"    # faults injected from the start, one group {FAULTS_PREFIX}<name>.<field> per fault (fields "
+                 f"{', '.join(FAULT_FIELDS)}; read-only; they add to `faults`), e.g.:")
+    lines.append("    # faults: {jam1: {kind: jam, start_s: 2.0, duration_s: 0.5, value: 30.0}}")
     for key, value in physics_parameters(check_preset(preset_name)).items():
         unit = physics_unit(key)
         text = yaml.safe_dump({key: value}, default_flow_style=True).strip()[1:-1]
