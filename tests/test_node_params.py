@@ -195,7 +195,8 @@ def test_nested_faults_are_checked_and_bounded_under_their_own_name():
     cfg = NodeConfig.from_values({**base, "faults.j.start_s": "2", "faults.j.duration_s": "inf"})
     assert cfg.with_actuator and [(f.kind, f.start_s, f.duration_s, f.value) for f in cfg.actuator.faults] == \
         [("jam", 2.0, math.inf, 30.0)]
-    for extra, says in (({"faults.j.value": 1e300}, "parameter faults.j: fault.value = 1e+300: jam allows |value| <= 1e+06 N·m"),
+    for extra, says in (({"faults.j.value": 1e300},
+                         "parameter faults.j: fault.value = 1e+300: jam allows |value| <= 1e+06 N·m"),
                         ({"faults.j.roller": 1}, "parameter faults.j: fault.roller = 1: model 'jones2016' treats all "
                                                  "rollers alike"),
                         ({"faults.j.kind": "jammed"}, "parameter faults.j: fault.kind = 'jammed': must be one of"),

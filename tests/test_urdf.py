@@ -203,7 +203,8 @@ def test_nested_faults_in_a_params_file_combine_with_the_string_list(tmp_path):
     from rclpy.node import Node
     from prsm_ros.node.declare import declare_parameters
     path = tmp_path / "faults.yaml"
-    path.write_text("prsm_actuator:\n  ros__parameters:\n    faults: 'kind=sensor_bias,sensor=motor_encoder,value=0.1'\n"
+    path.write_text("prsm_actuator:\n  ros__parameters:\n"
+                    "    faults: 'kind=sensor_bias,sensor=motor_encoder,value=0.1'\n"
                     "    faults.b:\n      kind: jam\n      start_s: 1.5\n      duration_s: 0.25\n      value: 40.0\n"
                     "    faults.a: {kind: lubrication_loss, value: 3}\n", encoding="utf-8")
     ctx = rclpy.Context()
@@ -214,7 +215,8 @@ def test_nested_faults_in_a_params_file_combine_with_the_string_list(tmp_path):
         assert cfg.with_actuator
         got = [(f.kind, f.start_s, f.duration_s, f.value, f.sensor, f.roller) for f in cfg.actuator.faults]
         # the string list first, then the nested faults by name
-        assert got == [("sensor_bias", 0.0, math.inf, 0.1, "motor_encoder", None), ("lubrication_loss", 0.0, math.inf, 3.0, None, None),
+        assert got == [("sensor_bias", 0.0, math.inf, 0.1, "motor_encoder", None),
+                       ("lubrication_loss", 0.0, math.inf, 3.0, None, None),
                        ("jam", 1.5, 0.25, 40.0, None, None)]
         assert node.get_parameter("faults.b.value").value == 40.0
         node.destroy_node()

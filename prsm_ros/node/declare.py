@@ -12,11 +12,10 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
-from prsm_ros.node.parameters import (ACTUATOR_PREFIX, FAULT_FIELDS, FAULTS_PREFIX, PHYSICS_PREFIX, RCLPY_PARAMETERS, ConfigError, NodeConfig,
-                                      NodeParam, ParamSources, check_preset, check_value, fault_field_names,
-                                      is_fault_field, nearest_hint,
-                                      node_parameters, physics_parameters, physics_type, physics_unit,
-                                      unknown_parameter)
+from prsm_ros.node.parameters import (ACTUATOR_PREFIX, FAULT_FIELDS, FAULTS_PREFIX, PHYSICS_PREFIX, RCLPY_PARAMETERS,
+                                      ConfigError, NodeConfig, NodeParam, ParamSources, check_preset, check_value,
+                                      fault_field_names, is_fault_field, nearest_hint, node_parameters,
+                                      physics_parameters, physics_type, physics_unit, unknown_parameter)
 
 
 def declare_parameters(node: Node) -> NodeConfig:

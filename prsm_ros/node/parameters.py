@@ -384,7 +384,8 @@ def fault_field_names(name: str) -> list[str]:
 
 
 def nested_faults(values: dict[str, Any]) -> dict[str, Fault]:
-    """The faults given as `faults.<name>.<field>` in `values`, name → Fault in name order; ConfigError naming the fault."""
+    """The faults given as `faults.<name>.<field>` in `values`: name → Fault, in name order.
+    ConfigError naming the fault."""
     groups: dict[str, dict[str, Any]] = {}
     for k, v in values.items():
         if is_fault_field(k):
