@@ -215,16 +215,17 @@ def _cmd_to_rrd(args) -> int:
     except ImportError as e:
         raise BagError(f"to-rrd needs the Rerun SDK (pip install 'prsm[bag]'): {e}") from None
     try:
-        summary = bag_to_rrd(bag.path, args.output, screw_joint=args.screw_joint, nut_joint=args.nut_joint,
+        summary = bag_to_rrd(bag, args.output, screw_joint=args.screw_joint, nut_joint=args.nut_joint,
                              topics={"joint_states": args.joint_states_topic, "reference": args.reference_topic,
                                      "internal_loads": args.internal_loads_topic})
     except (ValueError, LookupError) as e:
         raise BagError(str(e)) from None  # the message names the file where it matters
+    _reading_notes(bag)
     print(args.output)
-    for w in summary.get("warnings", []):
+    for w in summary["warnings"]:
         print(f"prsm-bag to-rrd: warning: {w}", file=sys.stderr)
     for k, v in summary.items():
-        if k != "warnings":
+        if k not in ("warnings", "notes"):  # notes: printed by _note / _reading_notes
             print(f"  {k}: {v}")
     return 0
 

@@ -160,21 +160,23 @@ class _Conversion:
             self.writer.send_input(name, np.array(ts), np.array(vs), unit)
 
 
-def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | None = None,
+def bag_to_rrd(bag, rrd_path, *, progress: bool = True, params: Params | None = None,
                scene_rate_hz: float = 30.0, batch_rows: int = 20_000, screw_joint: str = SCREW_JOINT,
                nut_joint: str = NUT_JOINT, topics: dict[str, str | None] | None = None) -> dict[str, Any]:
     """Convert a recorded MCAP bag into an .rrd with the default blueprint; returns a summary dict.
 
     Summary keys: bag, rrd, source ("internal_loads" | "joint_states"), model, geometry, rows,
-    scene_frames, duration_s, topics (used), inputs, warnings (e.g. an unfinished bag's note).
-    The bag is opened with `prsm_ros.bag.reader` (so an unfinished recording converts as far as it
-    goes); a bag that cannot be used raises its `BagError`, an unusable output (or RERUN=off in the
-    environment, which would make the SDK write nothing) ValueError, and a conversion that fails
-    half-way removes its partial output.
+    scene_frames, duration_s, topics (used), inputs, warnings (what the conversion could not do),
+    notes (what reading the bag recovered or skipped: an unfinished file, malformed messages; the
+    `Bag`'s own notes, so a caller that prints those itself leaves this key out).
+    `bag`: a path, opened with `prsm_ros.bag.reader` (so an unfinished recording converts as far as
+    it goes), or an open `Bag`; a bag that cannot be used raises its `BagError`, an unusable output
+    (or RERUN=off in the environment, which would make the SDK write nothing) ValueError, and a
+    conversion that fails half-way removes its partial output.
     """
     import rerun as rr
 
-    from prsm_ros.bag.reader import open_bag, resolve_topics
+    from prsm_ros.bag.reader import Bag, open_bag, resolve_topics
 
     if rerun_forced_off():  # the SDK would silently write nothing
         raise InputError("the environment variable RERUN=off turns the Rerun SDK off, so no .rrd can be written; "
@@ -182,10 +184,11 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
     out = Path(rrd_path)
     if not out.parent.is_dir():
         raise InputError(f"output directory {str(out.parent)!r} does not exist")
-    bag = open_bag(bag_path)
+    if not isinstance(bag, Bag):
+        bag = open_bag(bag)
     if out.resolve() == bag.path.resolve():
         raise InputError(f"output {str(out)!r} would overwrite the bag")
-    warnings = [bag.note] if bag.note else []
+    warnings: list[str] = []
     roles = resolve_topics(bag, topics)
     meta = bag.run_metadata
 
@@ -239,9 +242,8 @@ def bag_to_rrd(bag_path, rrd_path, *, progress: bool = True, params: Params | No
         rec.disconnect()
         out.unlink(missing_ok=True)
         raise
-    warnings.extend(bag.reading_notes())  # malformed messages, damaged chunks: skipped while reading
     used = ([roles["labels"]] if labels is not None else []) + topics
     return {"bag": str(bag.path), "rrd": str(out), "source": source, "model": model, "geometry": geometry,
             "rows": writer.rows, "scene_frames": writer.scene_frames,
             "duration_s": conv.t_span[1] - conv.t_span[0] if writer.rows else 0.0, "topics": used,
-            "inputs": list(writer.inputs), "warnings": warnings}
+            "inputs": list(writer.inputs), "warnings": warnings, "notes": [*bag.notes, *bag.reading_notes()]}
