@@ -51,5 +51,8 @@ def session_from_config(config: dict[str, Any]):
     params = Params.from_dict(config["params"])
     act = None if config["actuator"] is None else actuator_params_from_dict(config["actuator"])
     s = config["session"]
+    # starts in equilibrium at its load, as prsm-node does at its load_force: an FMU built with a
+    # load sits still under it from the first step instead of ringing in from an unloaded chain
     return Session(params, config["model"], config["dt_s"], act, nut_position_m=s["nut_position_m"],
-                   load_n=s["load_n"], interface=s["interface"], max_effort_nm=s["max_effort_nm"])
+                   load_n=s["load_n"], initial_load_n=s["load_n"], interface=s["interface"],
+                   max_effort_nm=s["max_effort_nm"])
