@@ -134,6 +134,28 @@ def test_substeps_equal_a_session_loop(tmp_path, case):
     assert logs == []
 
 
+def test_an_fmu_built_with_a_load_starts_in_equilibrium_under_it(tmp_path):
+    """Oracle: static equilibrium (docs/model.md §4.4, starting in equilibrium): the frictionless holding
+    torque F L/2π keeps the thread force within 1 % of F from the first step; a drive in the FMU's
+    velocity interface starts holding that torque itself (its speed integrator, `make_config` puts the
+    drive in the interface's mode as prsm-node does)."""
+    f = 2000.0
+    p = preset("s30")
+    core, logs = make_core(tmp_path / "bare", make_config(p, "elastic", DT, None, interface="effort", load_n=f))
+    assert core.get("load_force_n") == f
+    core.set("screw_torque_nm", p.geometry.lead_per_rad_m * f)
+    forces = []
+    for i in range(50):
+        assert core.do_step(i * DT, DT) is None
+        forces.append(core.get("nut_force_n"))
+    assert np.max(np.abs(np.array(forces) / f - 1.0)) < 0.01
+    cfg = make_config(p, "elastic", DT, ActuatorParams(motor=MotorParams()), interface="velocity", load_n=f)
+    assert cfg["actuator"]["drive"]["mode"] == "velocity"
+    core, logs = make_core(tmp_path / "velocity", cfg)
+    assert core.session.simulator.state.integral_nm == pytest.approx(p.geometry.lead_per_rad_m * f, rel=1e-12)
+    assert logs == []
+
+
 def test_a_step_that_is_not_a_whole_multiple_is_refused(tmp_path):
     core, logs = make_core(tmp_path, config_for("jones2016", "bare"))
     reason = core.do_step(0.0, 1.5 * DT)
@@ -287,7 +309,7 @@ def check_fmu(fmus, fmi: int, model: str, case: str) -> None:
     assert_rows_equal(got, session_loop(cfg, cmd, load))
     # the batch path of the library, same inputs held K steps each: equal to rounding
     actuator = None if case == "bare" else session_from_config(cfg).actuator_params
-    sim = Simulator(preset("s30"), model, DT, actuator=actuator)
+    sim = Simulator(preset("s30"), model, DT, actuator=actuator, initial_load_n=LOAD_N)  # the FMU starts loaded
     if case != "bare":
         sim.state = sim.model.set_mode(sim.state, "velocity")
     traj = sim.run(np.repeat(cmd, K), np.repeat(load, K))
