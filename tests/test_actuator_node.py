@@ -8,6 +8,7 @@ shaped exactly as ros2_control's JointStateTopicSystem::write() packs them.
 
 from __future__ import annotations
 
+import pytest
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
 from prsm_sim import Simulator, preset  # noqa: E402
@@ -127,6 +128,7 @@ def test_bare_node_refuses_a_velocity_interface_at_runtime(tmp_path):
         assert proc.stop() == 0, proc.stderr
 
 
+@pytest.mark.slow
 def test_prsm_demo_tracks_in_velocity_and_position_modes(tmp_path):
     """The drive closes the loops: the demo's 20 mm profile tracked to well under a millimetre
     (seen: RMS 0.012 mm in velocity, 0.016 mm in position mode, lockstep)."""

@@ -231,3 +231,7 @@ def test_a_command_refused_by_the_owner_rule_says_so(tmp_path, capsys):
             assert proc.stop() == 0, proc.stderr
     finally:
         os.environ.update({k: v for k, v in saved.items() if v is not None})
+
+
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow

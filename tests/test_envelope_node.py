@@ -7,6 +7,7 @@ must publish the same true states bit for bit.
 
 from __future__ import annotations
 
+import pytest
 import json
 import subprocess
 import sys
@@ -39,3 +40,7 @@ def test_the_command_replays_a_failure_file_through_the_node(tmp_path):
     assert p.returncode == 0, p.stderr
     doc = json.loads(p.stdout)
     assert doc["ok"] and doc["node"]["ok"] and doc["node"]["compared"] == doc["steps"] > 200
+
+
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow

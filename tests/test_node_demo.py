@@ -125,3 +125,7 @@ def test_prsm_demo_takes_a_gains_file(tmp_path, capsys):
     assert demo_main(["--gains", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "controller.bandwith_hz: unknown gain" in err
+
+
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow

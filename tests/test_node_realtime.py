@@ -280,3 +280,7 @@ def test_a_stalled_reader_loses_nothing_within_the_queue_and_only_the_oldest_bey
 
 if __name__ == "__main__":
     raise SystemExit(pytest.main([__file__, "-q"]))
+
+
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
