@@ -71,8 +71,12 @@ class Session:
         Nut load, N, held until `step(load_n=...)` or `load_n` changes it.
     initial_load_n : float, optional
         Start (and return on `reset`) in equilibrium under this nut load, N, and with it as the load
-        in force (`Simulator`'s `initial_load_n`: a deflected `elastic` chain, a drive holding it);
-        None: at rest and unloaded, and a reset keeps the load in force.
+        in force (`Simulator`'s `initial_load_n`: a deflected `elastic` chain, an actuator's drive
+        train at the holding torque (L/2π) F); None: at rest and unloaded, and a reset keeps the load
+        in force. The session's `interface`, whatever the actuator's `drive.mode`, decides what holds
+        it, also after `set_interface` before the first step and after `reset`: in velocity and
+        position the drive's speed loop (a zero speed command, or the start's position, keeps it);
+        in effort the command, which keeps it when it is the holding torque (the gate starts at 0 N·m).
     kernel : {"compiled", "reference"}
         As for `Simulator`.
     interface : {"effort", "velocity", "position"}

@@ -179,6 +179,56 @@ def test_actuator_drive_holds_the_initial_load(mode):
     assert abs(outs[-1].nut_position_m) < 1e-6
 
 
+def _held(s, command: float, load_n: float, n: int = 100) -> tuple[float, float]:
+    """The largest relative thread-force error and nut speed (m/s) over `n` steps of a held command."""
+    outs = [s.step(command) for _ in range(n)]
+    f = np.array([o.nut_force_n for o in outs])
+    return float(np.max(np.abs(f / load_n - 1.0))), float(np.max(np.abs([o.nut_velocity_m_s for o in outs])))
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+@pytest.mark.parametrize("interface", ["velocity", "position"])
+def test_session_interface_decides_the_drive_that_holds_the_initial_load(model, interface):
+    """Oracle: the static equilibrium of the loaded start (docs/model.md, starting in equilibrium): at rest
+    under F the threads carry F, so with the drive holding still (speed command 0, or the start's position)
+    the thread force stays within 1 % of F over the first 0.1 s and the nut does not move. The actuator's
+    parameters keep the library's default drive.mode "effort": the session's interface, not the parameters,
+    decides which loop holds the start (it started unheld, back-driven at 11–16 rad/s, the thread force
+    6–12 % off F, before the start loaded the drive train in every mode). The same after switching from an
+    effort start before the first step, and after a reset from a run under another load."""
+    from prsm_sim import Session
+    from prsm_sim.actuator import DriveParams
+    f0 = 2000.0
+    act = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode="effort"))
+    hold = 0.0  # the speed command, or the nut's start position
+    s = Session(preset("s30"), model, 1e-3, act, interface=interface, initial_load_n=f0)
+    err, v = _held(s, hold, f0)
+    assert err < 0.01 and v < 1e-6
+    for _ in range(50):
+        s.step(hold, load_n=-f0)  # away from the start: a reset has something to undo
+    s.reset()
+    assert s.load_n == f0
+    err, v = _held(s, hold, f0)
+    assert err < 0.01 and v < 1e-6
+    s = Session(preset("s30"), model, 1e-3, act, interface="effort", initial_load_n=f0)
+    assert s.set_interface(interface) is None
+    err, v = _held(s, hold, f0)
+    assert err < 0.01 and v < 1e-6
+
+
+def test_effort_start_holds_under_the_holding_torque_through_a_compliant_coupling():
+    """Effort mode: the command is the torque, so the start is in equilibrium under the holding torque
+    F L/2π (static balance of the frictionless screw, docs/model.md, starting in equilibrium): thread
+    force within 1 % of F over 0.1 s. The motor current and the coupling's twist start at that torque
+    (an untwisted coupling first passed no torque to the screw: 3.9 % off F, the screw back-driven)."""
+    from prsm_sim import Session
+    p, f0 = preset("s30"), 2000.0
+    act = ActuatorParams(motor=MotorParams(coupling_stiffness_nm_rad=2000.0))
+    s = Session(p, "jones2016", 1e-3, act, interface="effort", initial_load_n=f0)
+    err, v = _held(s, p.geometry.lead_per_rad_m * f0, f0)
+    assert err < 0.01 and v < 1e-6
+
+
 # -- sensors and drive ---------------------------------------------------------------------------------
 @pytest.mark.parametrize("dt", [1e-3, 2.5e-4])
 def test_load_cell_filter_acts_on_its_noise(dt):

@@ -137,8 +137,8 @@ def test_substeps_equal_a_session_loop(tmp_path, case):
 def test_an_fmu_built_with_a_load_starts_in_equilibrium_under_it(tmp_path):
     """Oracle: static equilibrium (docs/model.md §4.4, starting in equilibrium): the frictionless holding
     torque F L/2π keeps the thread force within 1 % of F from the first step; a drive in the FMU's
-    velocity interface starts holding that torque itself (its speed integrator, `make_config` puts the
-    drive in the interface's mode as prsm-node does)."""
+    velocity interface starts holding that torque itself (its speed integrator), whatever the actuator's
+    drive.mode (here the default, effort): a zero speed command keeps the thread force within 1 % of F."""
     f = 2000.0
     p = preset("s30")
     core, logs = make_core(tmp_path / "bare", make_config(p, "elastic", DT, None, interface="effort", load_n=f))
@@ -150,9 +150,15 @@ def test_an_fmu_built_with_a_load_starts_in_equilibrium_under_it(tmp_path):
         forces.append(core.get("nut_force_n"))
     assert np.max(np.abs(np.array(forces) / f - 1.0)) < 0.01
     cfg = make_config(p, "elastic", DT, ActuatorParams(motor=MotorParams()), interface="velocity", load_n=f)
-    assert cfg["actuator"]["drive"]["mode"] == "velocity"
+    assert cfg["actuator"]["drive"]["mode"] == "effort"  # the actuator as given: the interface decides
     core, logs = make_core(tmp_path / "velocity", cfg)
     assert core.session.simulator.state.integral_nm == pytest.approx(p.geometry.lead_per_rad_m * f, rel=1e-12)
+    core.set("screw_speed_command_rad_s", 0.0)
+    forces = []
+    for i in range(100):
+        assert core.do_step(i * DT, DT) is None
+        forces.append(core.get("nut_force_n"))
+    assert np.max(np.abs(np.array(forces) / f - 1.0)) < 0.01
     assert logs == []
 
 

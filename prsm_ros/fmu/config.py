@@ -8,11 +8,10 @@ model is looked up in `prsm_sim.MODELS`, every value is validated by the library
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 from prsm_sim import ParamError, Params, Session, __version__
-from prsm_sim.actuator import COMMAND_INTERFACES, ActuatorParams, actuator_params_from_dict, actuator_params_to_dict
+from prsm_sim.actuator import ActuatorParams, actuator_params_from_dict, actuator_params_to_dict
 
 CONFIG_NAME = "prsm_fmu.json"
 CONFIG_FORMAT = "prsm-fmu-config/1"
@@ -26,9 +25,6 @@ def make_config(params: Params, model: str, dt_s: float, actuator: ActuatorParam
     No command watchdog: an FMU's inputs hold their value until set again (FMI), and every step
     hands the held command to the session, so a timeout could never fire.
     """
-    # the drive runs in the FMU's interface (the node's rule), so a loaded start holds the load
-    if actuator is not None and interface in COMMAND_INTERFACES:  # (a bad interface: the session names it)
-        actuator = replace(actuator, drive=replace(actuator.drive, mode=interface))
     config = {
         "format": CONFIG_FORMAT, "prsm_version": __version__, "fmi": int(fmi), "preset": preset_name,
         "params": params.to_dict(), "model": model, "dt_s": float(dt_s),

@@ -262,21 +262,29 @@ class Actuator(Model):
     # -- state ---------------------------------------------------------------------------
     def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> ActuatorState:
         """At rest with the nut at `nut_position_m`, in equilibrium under the nut load `load_n`: the screw
-        model pre-deflected at it (`Model.initial_state`) and, in velocity and position mode, the drive
-        already holding it with the frictionless holding torque (L/2π) F (its speed integrator, the
-        motor current and a compliant coupling's twist), the load cell reading it."""
+        model pre-deflected at it (`Model.initial_state`), the drive train carrying the frictionless
+        holding torque (L/2π) F (the torque reference, the motor current and a compliant coupling's
+        twist, as far as the motor's peak torque allows), the load cell reading it.
+
+        The drive train is loaded in every mode, so the mode decides only who keeps it there: in
+        velocity and position mode the drive's speed integrator starts at the holding torque (and
+        `set_mode` carries it into either of them, so the interface chosen after this start holds it
+        too); in effort mode the command is the torque, and the start stays in equilibrium while it
+        is the holding torque (any other command moves the current towards it at the current loop's
+        bandwidth)."""
         screw = self._model(fl.NONE).initial_state(nut_position_m, load_n)
         th = screw.screw_angle_rad
         mode = self.actuator.drive.mode
         m = self.actuator.motor
-        hold = self.p * load_n if mode != "effort" else 0.0
+        hold = self.p * load_n
         if m is not None:  # as far as the drive can
             lim = self.ratio * m.peak_torque_nm
             hold = max(-lim, min(lim, hold))
         th_r = th if self.rigid or hold == 0.0 else th + hold / m.coupling_stiffness_nm_rad
         i_a = 0.0 if m is None else hold / (self.ratio * m.torque_constant_nm_a)
-        st = ActuatorState(screw=screw, mode=mode, motor_angle_rad=th_r, current_a=i_a, integral_nm=hold,
-                           torque_ref_nm=hold, coupling_nm=0.0 if self.rigid else hold)
+        st = ActuatorState(screw=screw, mode=mode, motor_angle_rad=th_r, current_a=i_a,
+                           integral_nm=hold if mode != "effort" else 0.0, torque_ref_nm=hold,
+                           coupling_nm=0.0 if self.rigid else hold)
         sample = self._sample(th_r, 0.0, screw, float(load_n))
         enc = self._encoder_screw_angle(th_r * self.ratio, th)
         *meas, filt = self._measure(0, (), 0.0, sample, sample, fl.NONE, first=True)
