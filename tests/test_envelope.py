@@ -92,6 +92,31 @@ FOUND = {
      'brake': {'holding_torque_nm': 16.71, 'engage_s': 0.0684, 'release_s': 0.1264},
      'faults': [{'kind': 'drive_fault', 'start_s': 0.102, 'duration_s': 0.2585, 'value': 0.0}],
      'reset_at_s': None},
+    # the load reversed and the stop pressed the nut back harder than the screw's static friction holds: the
+    # stop solve kept the stuck side of that jump, and the nut rested 2.45 µm deeper than its stop force
+    "a hold the stop over-presses": {'seed': 106744,
+     'preset': 's30',
+     'model': 'fu2018',
+     'dt_s': 0.001,
+     'duration_s': 0.481,
+     'interface': 'effort',
+     'controller': 'bangbang',
+     'overrides': {},
+     'start_m': 0.0066,
+     'stops': {'min_position_m': -0.0434,
+               'max_position_m': 0.0101,
+               'stiffness_n_m': 10000000.0,
+               'damping_n_s_m': 200000.0},
+     'thread_ends': True,
+     'target_m': 0.002335,
+     'amplitude_m': 0.00585,
+     'frequency_hz': 5.31,
+     'load': {'kind': 'square', 'value_n': -6449.8, 'period_s': 0.25},
+     'initial_load': False,
+     'brake': {'holding_torque_nm': 18.66, 'engage_s': 0.0504, 'release_s': 0.0964},
+     'faults': [],
+     'reset_at_s': None,
+     'pause_at_s': None},
 }
 
 

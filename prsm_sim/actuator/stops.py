@@ -11,10 +11,21 @@ with F: at rest the force is then exactly k δ, the static law) as well as one t
 damper acts on the mean rate: on the end speed instead, a nut that rattles on a compliant chain
 (speeds alternating from step to step) would draw energy from it.
 
+Where the plant's step jumps with the force the residual jumps across zero and has no root: a screw
+held by its static friction up to a force F_b slips at once just past it (fu2018's regularised running
+friction is far below μN at small slip), so the nut moves a finite distance for F = F_b + 0. The solve
+then takes the side of the jump on which the stop absorbs more work. A hold the stop presses harder than
+the friction can take (k δ > F_b) gives way: the nut slides out until it is held where the force is k δ
+(the stuck side would leave it resting deeper than the force it reports); a drive pressing the nut past
+k δ plus the friction slides it in likewise. Sliding is refused only where the stop would give out
+energy doing so (k δ past the band's edge by less than half the spring force of the one-step slip), so
+at rest the force is off k δ by at most that half.
+
 Energy: the work the nut does on the stop over a step is F Δx_N; the stop stores ½ k δ²; the rest,
 F Δx_N − Δ(½ k δ²) = ½ k Δδ² + c Δδ²/h (in contact over the whole step) is ≥ 0 in every case
-(entering, leaving, clipped at zero), so the stop only absorbs energy (a 1e8 N/m stop on a ~100 kg
-reflected mass rings at ~1000 rad/s, beyond an explicit step).
+(entering, leaving, clipped at zero; on a jump, on the side taken whenever either side's is), so the
+stop only absorbs energy (a 1e8 N/m stop on a ~100 kg reflected mass rings at ~1000 rad/s, beyond an
+explicit step).
 
 The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2.
 """
@@ -103,6 +114,7 @@ def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float]
     if t0 <= 0.0:
         return 0.0, free
     lo, r_lo, hi, r_hi = 0.0, -t0, math.inf, math.inf
+    res_lo = res_hi = free
     f = t0 / (1.0 + (k + c / h_s) * max(compliance_m_n, 0.0))
     best = (math.inf, 0.0, free)
     prev = (0.0, -t0)
@@ -115,9 +127,9 @@ def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float]
         if abs(r) <= REL_TOL * (f + 1e-3) + k * POSITION_TOL_M:
             return -sgn * f, res
         if r < 0.0:
-            lo, r_lo = f, r
+            lo, r_lo, res_lo = f, r, res
         else:
-            hi, r_hi = f, r
+            hi, r_hi, res_hi = f, r, res
         # secant through the last two points, kept inside the bracket (else bisection / doubling), and
         # bisection whenever the bracket did not halve (a root on a jump: the secant creeps up one side)
         # (the residual's slope is at least 1: f − r always lands on the root's far side)
@@ -127,10 +139,26 @@ def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float]
         if not (lo < nxt < hi) or (math.isfinite(width) and width > 0.5 * last_width):
             nxt = 0.5 * (lo + hi) if math.isfinite(hi) else 2.0 * lo + t0
         if math.isfinite(width) and width <= BRACKET_TOL * (hi + 1e-3):
-            break  # bracketed to a ppm: the root sits on a jump (stick/slip), any force inside it holds
+            # bracketed to a ppm: the root sits on a jump (stick/slip) and neither side meets the law. The
+            # side on which the stop absorbs more (module doc): an over-pressed hold slides, and the stop
+            # never gives out energy where either side spares it (equal: the nearer side)
+            x0 = penetration(limit, x0_m)
+            a_lo = absorbed_j(limit, lo, x0, penetration(limit, nut_position(res_lo)))
+            a_hi = absorbed_j(limit, hi, x0, penetration(limit, nut_position(res_hi)))
+            if a_lo != a_hi:
+                return (-sgn * lo, res_lo) if a_lo > a_hi else (-sgn * hi, res_hi)
+            break
         last_width = width
         f = nxt
     return -sgn * best[1], best[2]
+
+
+def absorbed_j(limit: Limit, force_n: float, d0_m: float, d1_m: float) -> float:
+    """The work a stop pushing out with `force_n` (≥ 0) takes from the nut while its penetration goes from
+    d0 to d1 (m, negative outside), less the rise of its stored ½ k δ² (J): ≥ 0 for a stop that only absorbs."""
+    k = limit.stiffness_n_m
+    e0, e1 = max(d0_m, 0.0), max(d1_m, 0.0)
+    return force_n * (d1_m - d0_m) - 0.5 * k * (e1 * e1 - e0 * e0)
 
 
 def stop_stored_j(limits: tuple[Limit, ...], x_m: float) -> float:

@@ -1,0 +1,130 @@
+"""End stops held against stick/slip: at rest the stop's force is its own law k δ, and the stop only absorbs.
+
+The stop force is solved implicitly on the plant's own step (prsm_sim/actuator/stops.py). Where the
+plant's response jumps with the force (a screw that sticks up to its static friction and slips past it),
+the solve's residual has no root and one side of the jump must be taken. Checked against independent
+numbers: the stop law at rest F = k δ (its rate term gone), the static equilibrium of the nut (the stop
+carries the load less what the threads hold; Coulomb: a hold needs |drive − F| ≤ F_s) and the stop's
+energy balance (the work the nut does on it less its stored ½ k δ² never falls).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from prsm_sim import Simulator, preset
+from prsm_sim.actuator import ACTUATOR_QUANTITIES, ActuatorParams, DriveParams, MotorParams, StopParams
+from prsm_sim.actuator.stops import Limit, absorbed_j, penetration, solve
+
+H_S = 1e-3
+V_STICK_M_S = 1e-5  # a slide slower than this at the step's end is held where the friction can hold it
+
+
+class DryFrictionNut:
+    """A nut of mass M pushed toward the limit by P (along the limit's sign) against Coulomb friction with a
+    static capacity F_s above its kinetic F_k (a Stribeck drop): held while |P − F| ≤ F_s, else sliding
+    with the kinetic friction against its motion (semi-implicit Euler: x1 = x0 + h v1) until the slide
+    reverses or creeps to a halt where the friction can hold it. From rest, a force just past the
+    capacity slides the nut (F_s − F_k) h²/M at once: the step's end position jumps with the force."""
+
+    def __init__(self, limit: Limit, push_n=5000.0, static_n=500.0, kinetic_n=400.0, mass_kg=100.0):
+        self.lim, self.p, self.fs, self.fk, self.m = limit, push_n, static_n, kinetic_n, mass_kg
+
+    def advance(self, x0, v0):
+        """advance(F): the step from (x0, v0) under the stop's force F (signed along +x), as (x1, v1)."""
+        s = self.lim.sign
+
+        def step(f_stop):
+            drive = self.p + s * f_stop  # what pushes the nut into the limit, along the limit's sign
+            u0 = s * v0
+            if u0 == 0.0 and abs(drive) <= self.fs:
+                return x0, 0.0  # held
+            moving = u0 if u0 != 0.0 else drive
+            u1 = u0 + H_S * (drive - math.copysign(self.fk, moving)) / self.m
+            if u0 != 0.0 and (u0 * u1 < 0.0 or abs(u1) < V_STICK_M_S) and abs(drive) <= self.fs:
+                return x0, 0.0  # the slide stops within the step (or creeps to a halt) and the friction holds it
+            return x0 + s * H_S * u1, s * u1
+        return step
+
+    def run(self, x0, v0, steps):
+        """Steps under the stop alone (the solve on every step): (x, v, stop force along +x, absorbed J) per step."""
+        rows = []
+        for _ in range(steps):
+            step = self.advance(x0, v0)
+            free = step(0.0)
+            f, (x1, v1) = solve(self.lim, H_S, x0, free, step, lambda r: r[0], H_S * H_S / self.m)
+            rows.append((x1, v1, f, absorbed_j(self.lim, -self.lim.sign * f, penetration(self.lim, x0),
+                                                penetration(self.lim, x1))))
+            x0, v0 = x1, v1
+        return np.array(rows)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+@pytest.mark.parametrize("pressed_by", ["stop", "drive"])
+def test_a_hold_off_the_stop_law_gives_way_until_at_rest_f_equals_k_delta(sign, pressed_by):
+    """Held at rest δ0 into a stop whose law k δ0 is past what the hold takes (the stop over-presses a drive of
+    P plus static friction F_s, or a drive of P presses past k δ0 plus F_s): the nut slides until it is held
+    where the stop's force is its law, F = k δ, within the Coulomb band |P − F| ≤ F_s."""
+    k, c = 1e7, 2e5
+    lim = Limit(0.01 * sign, sign, k, c, False)
+    nut = DryFrictionNut(lim)
+    over = 24.5  # N past the band's edge, less than the jump's own rate term c (F_s − F_k) h/M = 200 N
+    edge = nut.p + nut.fs if pressed_by == "stop" else nut.p - nut.fs
+    d0 = (edge + (over if pressed_by == "stop" else -over)) / k
+    rows = nut.run(lim.position_m + sign * d0, 0.0, 150)
+    x, v, f, absorbed = rows.T
+    # it moved: out of an over-pressed hold, further in under an over-pressing drive
+    assert sign * (x[-1] - x[0]) < 0.0 if pressed_by == "stop" else sign * (x[-1] - x[0]) > 0.0
+    # at rest at the end, held (Coulomb) where the stop's force is its static law k δ
+    assert np.all(v[-5:] == 0.0)
+    depth = penetration(lim, x[-1])
+    assert depth > 0.0
+    assert -sign * f[-1] == pytest.approx(k * depth, rel=1e-9)
+    assert abs(nut.p - k * depth) <= nut.fs * (1 + 1e-12)
+    # the stop only absorbs, every step
+    assert np.all(absorbed >= -1e-15)
+
+
+def test_a_hold_within_half_the_jump_of_the_stop_law_stays_held_and_the_stop_gives_no_energy():
+    """k δ0 just past the band's edge (2 N, less than ½ k of the slip the jump takes: (F_s − F_k) h²/M = 1 µm,
+    5 N): sliding out would have the stop push harder than its mean spring force while it relaxes, giving
+    out energy; the nut stays held, off the law by less than that half jump."""
+    k = 1e7
+    lim = Limit(0.01, 1.0, k, 2e5, False)
+    nut = DryFrictionNut(lim)
+    edge = nut.p + nut.fs
+    jump_m = (nut.fs - nut.fk) * H_S**2 / nut.m
+    rows = nut.run(lim.position_m + (edge + 2.0) / k, 0.0, 5)
+    x, v, f, absorbed = rows.T
+    assert np.all(v == 0.0) and np.all(x == x[0])
+    assert np.all(absorbed >= 0.0)
+    assert 0.0 < k * penetration(lim, x[-1]) - (-f[-1]) <= 0.5 * k * jump_m
+
+
+Q = {n: i for i, (n, _) in enumerate(ACTUATOR_QUANTITIES)}
+
+
+def test_fu2018_pressed_into_a_stop_then_pulled_back_rests_at_the_stop_law():
+    """fu2018 in effort mode (10 N·m) drives the nut into a 1e7 N/m stop under a load pushing it in (−6449.8 N),
+    then the load reverses (+6449.8 N): the stop now presses the nut back harder than the screw's static
+    friction can hold. At rest the stop's force is k δ, and it carries the load less what the threads hold
+    (the nut's static equilibrium). Before, the nut stayed 2.5 µm deeper than the force it reported."""
+    k = 1e7
+    stops = StopParams(min_position_m=-0.05, max_position_m=0.0035, stiffness_n_m=k, damping_n_s_m=2e5)
+    sim = Simulator(preset("s30"), "fu2018", 1e-3, actuator=ActuatorParams(motor=MotorParams(),
+                    drive=DriveParams(mode="effort"), stops=stops))
+    rows = []
+    for i in range(250):
+        load = -6449.8 if i < 100 else 6449.8
+        o = sim.step(10.0, load)
+        blk = sim.layout.view(o.internal, "actuator")
+        rows.append((o.screw_speed_rad_s, float(blk[Q["stop_force_n"]]), float(blk[Q["stop_penetration_m"]]),
+                     load - o.nut_force_n))
+    w, force, depth, net = np.array(rows).T
+    assert np.all(w[-20:] == 0.0)  # at rest: the screw is held by its static friction
+    assert depth[-1] > 0.0
+    assert -force[-1] == pytest.approx(k * depth[-1], rel=1e-9)  # the stop law at rest
+    assert force[-1] == pytest.approx(net[-1], rel=1e-9)  # the nut's static equilibrium
