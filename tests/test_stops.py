@@ -71,7 +71,9 @@ def test_a_hold_off_the_stop_law_gives_way_until_at_rest_f_equals_k_delta(sign, 
     k, c = 1e7, 2e5
     lim = Limit(0.01 * sign, sign, k, c, False)
     nut = DryFrictionNut(lim)
-    over = 24.5  # N past the band's edge, less than the jump's own rate term c (F_s − F_k) h/M = 200 N
+    # N past the band's edge: less than the slip's own rate term c (F_s − F_k) h/M = 200 N, so the stuck side
+    # has the smaller residual (a nearest-side choice would keep the hold off its law)
+    over = 24.5
     edge = nut.p + nut.fs if pressed_by == "stop" else nut.p - nut.fs
     d0 = (edge + (over if pressed_by == "stop" else -over)) / k
     rows = nut.run(lim.position_m + sign * d0, 0.0, 150)
