@@ -113,7 +113,7 @@ def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float]
     t0 = law(free)
     if t0 <= 0.0:
         return 0.0, free
-    lo, r_lo, hi, r_hi = 0.0, -t0, math.inf, math.inf
+    lo, hi = 0.0, math.inf
     res_lo = res_hi = free
     f = t0 / (1.0 + (k + c / h_s) * max(compliance_m_n, 0.0))
     best = (math.inf, 0.0, free)
@@ -127,9 +127,9 @@ def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float]
         if abs(r) <= REL_TOL * (f + 1e-3) + k * POSITION_TOL_M:
             return -sgn * f, res
         if r < 0.0:
-            lo, r_lo, res_lo = f, r, res
+            lo, res_lo = f, res
         else:
-            hi, r_hi, res_hi = f, r, res
+            hi, res_hi = f, res
         # secant through the last two points, kept inside the bracket (else bisection / doubling), and
         # bisection whenever the bracket did not halve (a root on a jump: the secant creeps up one side)
         # (the residual's slope is at least 1: f − r always lands on the root's far side)
