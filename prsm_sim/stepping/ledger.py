@@ -6,8 +6,9 @@ is that balance and the guard's verdict for one step; it takes floats (the per-s
 `stepping.packed.make_finisher`) or arrays of per-step values (the batch path, `ledger_columns`,
 which accumulates it with cumulative sums in the per-step path's order).
 
-Energy guard (every model): the cumulative residual and the energy that has flowed (∫|P_in| dt)
-travel in the state; `energy_fault` flags a run whose books do not close (|residual| >
+Energy guard (every model): the cumulative residual and the energy that has flowed through the
+mechanism (each step's larger port work: the screw's while it drives, the load's while it drives the
+screw back) travel in the state; `energy_fault` flags a run whose books do not close (|residual| >
 ENERGY_GUARD_REL of the flow once the flow exceeds ENERGY_GUARD_MIN_FLOW_J). A few flops per step;
 stepping goes on (the caller decides what a fault means).
 """
@@ -25,14 +26,16 @@ ENERGY_GUARD_MIN_FLOW_J = 1.0  # below this flow the ratio is not judged (start-
 def ledger_step(flow0_j, residual0_j, torque_nm, dtheta_rad, work_out_j, dissipated_j, stored0_j, stored1_j):
     """One step of the energy ledger and the guard's verdict: (W_in, flow, residual, fault).
 
-    W_in = τ Δθ_S is exact for a torque held over the step; the flow grows by |W_in| and the residual by
+    W_in = τ Δθ_S is exact for a torque held over the step; the flow grows by max(|W_in|, |W_out|) (the
+    energy enters by the port that does the larger work) and the residual by
     the step's miss W_in − W_out − (E₁ − E₀) − W_diss (zero for books that close); the verdict is
     |residual| > ENERGY_GUARD_REL · flow once the flow exceeds ENERGY_GUARD_MIN_FLOW_J. Floats (the
     per-step path), or arrays of steps element by element (`ledger_columns`: from zero books, the
     increments).
     """
     work_in_j = torque_nm * dtheta_rad
-    flow_j = flow0_j + abs(work_in_j)
+    a, b = abs(work_in_j), abs(work_out_j)
+    flow_j = flow0_j + 0.5 * (a + b + abs(a - b))  # + max(a, b), written so that it also runs on arrays
     residual_j = residual0_j + (work_in_j - work_out_j - (stored1_j - stored0_j) - dissipated_j)
     fault = (flow_j > ENERGY_GUARD_MIN_FLOW_J) & (abs(residual_j) > ENERGY_GUARD_REL * flow_j)
     return work_in_j, flow_j, residual_j, fault

@@ -55,7 +55,8 @@ class State:
     dissipated_j : float
         Work dissipated by friction since the start, J.
     energy_flow_j, energy_residual_j : float
-        Energy guard: ∫|P_in| dt, and the cumulative residual work_in − work_out − Δ(stored
+        Energy guard: the energy through the mechanism, Σ max(|ΔW_in|, |ΔW_out|) over the steps
+        (the larger port work of each), and the cumulative residual work_in − work_out − Δ(stored
         energy) − dissipated, both since the state was made.
     part : tuple
         The model's own memory, a NamedTuple of the model's `part_type` (empty for `ideal` and
@@ -185,8 +186,8 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
         Energy the model stores at the step's end (kinetic; potential too in models with
         springs), J.
     energy_flow_j, energy_residual_j : float
-        Energy guard (`stepping.ledger`): ∫|P_in| dt and work_in − work_out − Δstored − dissipated,
-        both cumulative since the run started, J.
+        Energy guard (`stepping.ledger`): Σ max(|ΔW_in|, |ΔW_out|) (each step's larger port work) and
+        work_in − work_out − Δstored − dissipated, both cumulative since the run started, J.
     energy_fault : float
         1.0 while |energy_residual_j| > 1e-3 · energy_flow_j once the flow exceeds 1 J (the
         model's energy books do not close: do not trust its results), else 0.0.
