@@ -117,6 +117,28 @@ FOUND = {
      'faults': [],
      'reset_at_s': None,
      'pause_at_s': None},
+    # a load stepping the nut back and forth on a held elastic screw, the drive faulted: the guard's flow counted
+    # the screw port alone, so books closed to 5e-5 of the load's work tripped it
+    "a load driving a held screw": {'seed': 105780,
+     'preset': 's30',
+     'model': 'elastic',
+     'dt_s': 0.001,
+     'duration_s': 0.682,
+     'interface': 'effort',
+     'controller': 'hold',
+     'overrides': {},
+     'start_m': 0.13028,
+     'stops': None,
+     'thread_ends': True,
+     'target_m': 0.129108,
+     'amplitude_m': 0.0032,
+     'frequency_hz': 2.4,
+     'load': {'kind': 'steps', 'value_n': -5051.2, 'period_s': 0.124},
+     'initial_load': False,
+     'brake': None,
+     'faults': [{'kind': 'drive_fault', 'start_s': 0.1095, 'duration_s': 0.1406, 'value': 0.0}],
+     'reset_at_s': None,
+     'pause_at_s': None},
 }
 
 
