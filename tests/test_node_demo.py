@@ -28,7 +28,7 @@ def test_prsm_demo_tracks_the_profile_and_records_a_bag(tmp_path):
     bag = tmp_path / "demo.mcap"
     exe = Path(sys.executable).parent / "prsm-demo"
     res = subprocess.run([str(exe), "--time-mode", "lockstep", "--duration", "1.0", "--record", str(bag)],
-                         env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+                         env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stdout + res.stderr
     out = res.stdout
     assert f"ROS_DOMAIN_ID={ENV['ROS_DOMAIN_ID']}" in out  # the user's (here: the test's) domain is kept
@@ -117,7 +117,7 @@ def test_prsm_demo_takes_a_gains_file(tmp_path, capsys):
     gains.write_text(gains_document({"bandwidth_hz": 20.0, "damping": 1.3}, "tuned elsewhere"), encoding="utf-8")
     exe = Path(sys.executable).parent / "prsm-demo"
     res = subprocess.run([str(exe), "--time-mode", "lockstep", "--duration", "0.3", "--no-record", "--gains", str(gains)],
-                         env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+                         env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "gains            bandwidth 20 Hz, damping 1.3, integral ratio 10, torque limit 50 N·m" in res.stdout
     bad = tmp_path / "bad.yaml"

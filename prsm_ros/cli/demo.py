@@ -33,6 +33,9 @@ from pathlib import Path
 
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
+# How long the controller waits for the node to come up. A first start on a fresh install compiles the
+# numba kernels (tens of seconds on a busy two-core machine); the wait ends early if the node process dies.
+NODE_START_CEILING_S = 600.0
 TIME_MODES = ("realtime", "lockstep")  # fast: the node does not wait for the controller (refused in main)
 
 
@@ -114,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
             node = start_module("prsm_ros.cli.node", ros_args(node_params), env, stdout=log, stderr=subprocess.STDOUT)
             ctl = start_module("prsm_ros.cli.demo_controller",
                                ["--duration", repr(args.duration), "--preset", args.preset, "--load", repr(args.load),
+                                "--connect-timeout", repr(NODE_START_CEILING_S),
                                 "--wall-timeout", repr(60.0 + 20 * args.duration),
                                 "--command-interface", args.command_interface,
                                 "--realtime-priority", str(realtime_priority)]

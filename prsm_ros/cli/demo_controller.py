@@ -200,7 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what to command: screw torque (effort), screw speed (velocity) or nut position (position)")
     p.add_argument("--realtime-priority", type=int, default=0,
                    help="SCHED_FIFO priority of every thread of the controller where the OS allows (0: normal)")
-    p.add_argument("--connect-timeout", type=float, default=20.0, help="wall seconds to wait for the node")
+    p.add_argument("--connect-timeout", type=float, default=120.0,
+                   help="wall seconds to wait for the node (a first start compiles its kernels)")
     p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
     return p
 
