@@ -45,6 +45,10 @@ import numpy as np
 
 from prsm_sim.life import life_from_samples
 
+from prsm_ros.bag.figures import (
+    LONG_RUN_S, MARK_COLOURS, SPAN_COLOURS, Context, Marks, RunData, force_text, actuator_figure, busiest_window,
+    internal_loads_figure, load_distribution_figure, load_distribution_summary, load_steps, loads_figure,
+    motion_figure, power_figure)
 from prsm_ros.bag.reader import Bag, BagError, resolve_topics
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, TOPIC_DEFS, parse_labels, unpack_internal
 
@@ -191,7 +195,7 @@ def _spans(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
     if not on.any():
         return []
     edges = np.flatnonzero(np.diff(np.concatenate(([0], on.astype(np.int8), [0]))))
-    return [(float(t[a]), float(t[min(b, t.size - 1)])) for a, b in zip(edges[::2], edges[1::2])]
+    return [(float(t[a]), float(t[min(b, t.size - 1)])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def _runs(mask: np.ndarray) -> int:
@@ -200,15 +204,10 @@ def _runs(mask: np.ndarray) -> int:
     return int(np.sum(np.diff(np.concatenate(([0], m))) == 1))
 
 
-def energy_efficiency(t: np.ndarray, p_in: np.ndarray, p_out: np.ndarray, p_diss: np.ndarray | None = None,
-                      speeds: tuple[np.ndarray, ...] = ()) -> dict:
-    """Forward and backward efficiencies from energies (module docstring); None where no such power flowed.
-
-    Sample k stands for the interval from t[k−1] to t[k] (our powers are step averages over it; the
-    first sample has none). `p_diss`: the dissipated power, so the stored-energy change is what
-    remains of the balance; without it only quasi-steady samples count, judged by `speeds` (each
-    a 1-D array over t whose relative change between samples must stay below STEADY_SPEED_CHANGE).
-    """
+def energy_terms(t: np.ndarray, p_in: np.ndarray, p_out: np.ndarray, p_diss: np.ndarray | None = None,
+                 speeds: tuple[np.ndarray, ...] = ()) -> dict:
+    """Per-sample energies (J) of `energy_efficiency`: e_in, e_out, e_diss (0 where a sample does not
+    count), the forward and backward masks, and `tiny`, the flow below which nothing flowed."""
     t = np.asarray(t, dtype=float)
     p_in, p_out = np.asarray(p_in, dtype=float), np.asarray(p_out, dtype=float)
     dt = np.zeros_like(t)
@@ -226,10 +225,23 @@ def energy_efficiency(t: np.ndarray, p_in: np.ndarray, p_out: np.ndarray, p_diss
             counted &= change < STEADY_SPEED_CHANGE
         e_diss = np.where(counted, p_in - p_out, 0.0) * dt  # ΔT ≈ 0 over a quasi-steady sample
     e_in, e_out = np.where(counted, p_in * dt, 0.0), np.where(counted, p_out * dt, 0.0)
-    fwd = counted & (p_in > 0) & (p_out > 0)
-    bwd = counted & (p_in < 0) & (p_out < 0)
     # flows at round-off level (a speed of 1e-16 rad/s at rest) are no flow
     tiny = NEGLIGIBLE_ENERGY_FRACTION * float(np.sum(np.abs(e_in)) + np.sum(np.abs(e_out)))
+    return {"e_in": e_in, "e_out": e_out, "e_diss": e_diss, "tiny": tiny,
+            "forward": counted & (p_in > 0) & (p_out > 0), "backward": counted & (p_in < 0) & (p_out < 0)}
+
+
+def energy_efficiency(t: np.ndarray, p_in: np.ndarray, p_out: np.ndarray, p_diss: np.ndarray | None = None,
+                      speeds: tuple[np.ndarray, ...] = ()) -> dict:
+    """Forward and backward efficiencies from energies (module docstring); None where no such power flowed.
+
+    Sample k stands for the interval from t[k−1] to t[k] (our powers are step averages over it; the
+    first sample has none). `p_diss`: the dissipated power, so the stored-energy change is what
+    remains of the balance; without it only quasi-steady samples count, judged by `speeds` (each
+    a 1-D array over t whose relative change between samples must stay below STEADY_SPEED_CHANGE).
+    """
+    e = energy_terms(t, p_in, p_out, p_diss, speeds)
+    fwd, bwd, tiny, e_in, e_out, e_diss = e["forward"], e["backward"], e["tiny"], e["e_in"], e["e_out"], e["e_diss"]
     out_f, diss_f, in_f = float(e_out[fwd].sum()), float(e_diss[fwd].sum()), float(e_in[fwd].sum())
     in_b, diss_b, out_b = float(-e_in[bwd].sum()), float(e_diss[bwd].sum()), float(-e_out[bwd].sum())
     return {
@@ -245,7 +257,8 @@ def energy_efficiency(t: np.ndarray, p_in: np.ndarray, p_out: np.ndarray, p_diss
 
 def _peaks(series: Series, labels: dict, unit: str, *, blocks_excluded=ACTUATOR_BLOCKS,
            name_has: str | None = None) -> dict[str, dict]:
-    """Peak |value| of every mechanism block quantity with `unit` (and `name_has` in its name): value, time, element."""
+    """Peak |value| of every mechanism block quantity with `unit` (and `name_has` in its name): value, time
+    (None for a quantity constant over the run), element."""
     out: dict[str, dict] = {}
     for seg in labels["segments"]:
         if "quantities" not in seg or seg["name"] in blocks_excluded:
@@ -260,9 +273,14 @@ def _peaks(series: Series, labels: dict, unit: str, *, blocks_excluded=ACTUATOR_
             flat = int(np.nanargmax(a))
             idx = np.unravel_index(flat, a.shape)
             dims = [d for d in seg["dims"] if d != "quantity"]
+            over_time = a.reshape(a.shape[0], -1)
+            with np.errstate(invalid="ignore"):
+                moved = float(np.nanmax(np.nanmax(over_time, axis=0) - np.nanmin(over_time, axis=0)))
             out[f"{seg['name']}.{quantity['name']}"] = {
-                "peak_abs": float(a[idx]), "unit": unit, "time_s": float(series.t_s[idx[0]]),
-                "at": {d: int(i) for d, i in zip(dims, idx[1:])},
+                # a quantity that never changed has no instant of its peak: time None
+                "peak_abs": float(a[idx]), "unit": unit,
+                "time_s": float(series.t_s[idx[0]]) if moved > 1e-9 * float(a[idx]) else None,
+                "at": {d: int(i) for d, i in zip(dims, idx[1:], strict=True)},
             }
     return out
 
@@ -337,52 +355,63 @@ def report(bag: Bag, out_dir=None, *, dynamic_load_rating_n: float | None = None
     result["tracking"], ref = _tracking(bag, roles, joints, nut_joint, progress)
     err = ref - x if ref is not None else None
 
-    # efficiency
-    if internal is not None and "power_in_w" in internal[0].values:
-        s = internal[0]
-        eff = energy_efficiency(s.t_s, s.values["power_in_w"], s.values["power_out_w"], s.values.get("power_dissipated_w"))
-        eff["source"] = f"{roles['internal_loads']} power_in_w, power_out_w, power_dissipated_w"
-    else:
-        eff = energy_efficiency(t, tau * w, f_nut * v, speeds=(w, v))
-        eff["source"] = f"{roles['joint_states']} τ_S·ω_S and F_nut·v_nut, quasi-steady samples"
+    eff, terms = _efficiency(internal, roles, t, tau, w, f_nut, v)
     result["efficiency"] = eff
-
-    # slip, internal loads, actuator
-    result["slip"] = None
-    result["peak_loads"] = None
-    result["actuator"] = None
-    if internal is not None:
-        s, labels = internal
-        slip = {}
-        if "slip_speed_m_s" in s.values:
-            sv = s.values["slip_speed_m_s"]
-            slip = {"max_slip_speed_m_s": float(np.nanmax(np.abs(sv))), "mean_slip_speed_m_s": float(np.nanmean(np.abs(sv)))}
-        slip["peaks"] = _peaks(s, labels, "m/s", name_has="slip")
-        result["slip"] = slip
-        result["peak_loads"] = _peaks(s, labels, "N")
-        result["model"] = result["model"] or labels.get("model")
-        result["actuator"] = _actuator(internal)
-
-    # measured against ground truth, paired by stamp
-    result["measurement"] = None
-    if truth is not None:
-        m = {}
-        for key in ("nut_position_m", "screw_angle_rad", "nut_force_n"):
-            d = joints.values[key] - _match(joints.stamp_ns, truth, key)
-            d = d[np.isfinite(d)]
-            if d.size:
-                m[key.rsplit("_", 1)[0] + "_rms_error_" + key.rsplit("_", 1)[1]] = float(np.sqrt(np.mean(d**2)))
-                m[key.rsplit("_", 1)[0] + "_max_error_" + key.rsplit("_", 1)[1]] = float(np.max(np.abs(d)))
-        result["measurement"] = m or None
-
-    result["life"] = _life(bag, t, f_nut, w, dynamic_load_rating_n, roles, screw_joint, nut_joint)
+    result.update(_internal_blocks(internal))
+    result["model"] = result["model"] or (internal[1].get("model") if internal is not None else None)
+    result["measurement"] = _measurement(joints, truth)
+    result["life"] = _life(bag, t, f_nut, w, dynamic_load_rating_n, roles, screw_joint, nut_joint, joints)
     result["events"] = _events(bag)
+    result["load_distribution"] = load_distribution_summary(*internal) if internal is not None else None
+    result["plots"] = []
     if plots:
         out = Path(out_dir) if out_dir is not None else default_output_dir(bag.path)
-        result["plots"] = [str(p) for p in _plots(out, joints, truth, internal, ref, err, result["events"])]
-    else:
-        result["plots"] = []
+        data = RunData(t=t, joints=joints.values, reference_m=ref, error_m=err, internal=internal, efficiency=eff,
+                       truth=None if truth is None else {k: _match(joints.stamp_ns, truth, k) for k in
+                                                         ("nut_position_m", "screw_speed_rad_s", "nut_force_n")})
+        result["plots"] = [str(p) for p in _plots(out, data, terms, _context(bag, result, joints, internal, roles),
+                                                  result["events"])]
     return result
+
+
+def _efficiency(internal, roles: dict, t, tau, w, f_nut, v) -> tuple[dict, dict]:
+    """The efficiency block (from ~/internal_loads' powers when recorded) and its per-sample energy terms."""
+    if internal is not None and "power_in_w" in internal[0].values:
+        s = internal[0]
+        args = (s.t_s, s.values["power_in_w"], s.values["power_out_w"], s.values.get("power_dissipated_w"))
+        eff = energy_efficiency(*args)
+        eff["source"] = f"{roles['internal_loads']} power_in_w, power_out_w, power_dissipated_w"
+        return eff, energy_terms(*args)
+    eff = energy_efficiency(t, tau * w, f_nut * v, speeds=(w, v))
+    eff["source"] = f"{roles['joint_states']} τ_S·ω_S and F_nut·v_nut, quasi-steady samples"
+    return eff, energy_terms(t, tau * w, f_nut * v, speeds=(w, v))
+
+
+def _internal_blocks(internal) -> dict:
+    """slip, peak_loads and actuator from ~/internal_loads (None each when it is not recorded)."""
+    if internal is None:
+        return {"slip": None, "peak_loads": None, "actuator": None}
+    s, labels = internal
+    slip = {}
+    if "slip_speed_m_s" in s.values:
+        sv = s.values["slip_speed_m_s"]
+        slip = {"max_slip_speed_m_s": float(np.nanmax(np.abs(sv))), "mean_slip_speed_m_s": float(np.nanmean(np.abs(sv)))}
+    slip["peaks"] = _peaks(s, labels, "m/s", name_has="slip")
+    return {"slip": slip, "peak_loads": _peaks(s, labels, "N"), "actuator": _actuator(internal)}
+
+
+def _measurement(joints: Series, truth: Series | None) -> dict | None:
+    """Measured against ground truth, paired by stamp: RMS and max error of position, angle and force."""
+    if truth is None:
+        return None
+    m = {}
+    for key in ("nut_position_m", "screw_angle_rad", "nut_force_n"):
+        d = joints.values[key] - _match(joints.stamp_ns, truth, key)
+        d = d[np.isfinite(d)]
+        if d.size:
+            m[key.rsplit("_", 1)[0] + "_rms_error_" + key.rsplit("_", 1)[1]] = float(np.sqrt(np.mean(d**2)))
+            m[key.rsplit("_", 1)[0] + "_max_error_" + key.rsplit("_", 1)[1]] = float(np.max(np.abs(d)))
+    return m or None
 
 
 def _tracking(bag: Bag, roles: dict, joints: Series, nut_joint: str, progress: bool):
@@ -450,8 +479,9 @@ def _actuator(internal) -> dict | None:
     }
 
 
-def _life(bag: Bag, t, f_nut, w, rating_given, roles, screw_joint, nut_joint) -> dict | None:
-    """L10 over the samples that carry both an effort and a velocity, with the rating's source."""
+def _life(bag: Bag, t, f_nut, w, rating_given, roles, screw_joint, nut_joint, joints: Series) -> dict | None:
+    """L10 over the samples that carry both an effort and a velocity, with the rating's source, and the
+    nut travel it stands for (L10 revolutions × the recorded nut path per screw revolution)."""
     usable = np.isfinite(f_nut) & np.isfinite(w)
     if usable.sum() < 2:
         return None
@@ -463,9 +493,17 @@ def _life(bag: Bag, t, f_nut, w, rating_given, roles, screw_joint, nut_joint) ->
     else:
         rating, source = DEFAULT_DYNAMIC_LOAD_RATING_N, "default (the bag records no rating; give --dynamic-load-rating-n)"
     life = life_from_samples(t[usable], f_nut[usable], w[usable], rating)
-    return {**life.to_dict(), "rating_source": source,
-            "load_source": f"|{nut_joint} effort| on {roles['joint_states']}",
-            "speed_source": f"{screw_joint} velocity on {roles['joint_states']}"}
+    # the lead as the run shows it: nut path over screw turns (both summed as |steps|)
+    x, theta = joints.values["nut_position_m"], joints.values["screw_angle_rad"]
+    turns = float(np.nansum(np.abs(np.diff(theta)))) / (2 * math.pi)
+    per_rev = float(np.nansum(np.abs(np.diff(x)))) / turns if turns > 0 else math.nan
+    out = {**life.to_dict(), "rating_source": source,
+           "load_source": f"|{nut_joint} effort| on {roles['joint_states']}",
+           "speed_source": f"{screw_joint} velocity on {roles['joint_states']}",
+           "nut_travel_per_revolution_m": per_rev}
+    rev = out.get("l10_revolutions")
+    out["l10_travel_km"] = rev * per_rev / 1e3 if rev is not None and math.isfinite(per_rev) else None
+    return out
 
 
 def _events(bag: Bag) -> list[dict]:
@@ -484,171 +522,97 @@ def _events(bag: Bag) -> list[dict]:
     return out
 
 
-LEGEND_ROWS = 7
-EVENT_COLOURS = {"error": "tab:red", "warn": "tab:orange", "info": "tab:gray"}
-
-
-def _marks(internal, events: list[dict]) -> tuple[list[tuple[float, str, str]], list[tuple[float, float, str, str]]]:
-    """What every plot marks: event lines (time, label, colour) and shaded spans (start, end, label, colour)."""
-    lines = [(float(e["time_s"]), str(e.get("code", "event")), EVENT_COLOURS.get(e.get("severity"), "tab:gray"))
+def _marks(internal, events: list[dict]) -> Marks:
+    """What every plot marks: event lines and load steps (time, label, colour), and shaded spans
+    (start, end, label, colour) where the actuator block records the brake, an end stop or a fault."""
+    lines = [(float(e["time_s"]), str(e.get("code", "event")), MARK_COLOURS.get(e.get("severity"), "dimgray"))
              for e in events if isinstance(e.get("time_s"), (int, float)) and math.isfinite(e["time_s"])]
     spans = []
     if internal is not None:
         t = internal[0].t_s
-        for name, label, colour, on in (("brake_level", "brake", "tab:purple", lambda a: a > 0),
-                                        ("stop_force_n", "end stop", "tab:brown", lambda a: a != 0),
-                                        ("faults_active", "fault", "tab:red", lambda a: a > 0)):
+        lines += load_steps(t, internal[0].values.get("load_force_n"))
+        for name, label, on in (("brake_level", "brake", lambda a: a > 0), ("stop_force_n", "end stop", lambda a: a != 0),
+                                ("faults_active", "fault", lambda a: a > 0)):
             a = _block_quantity(internal, "actuator", name)
             if a is not None:
-                spans += [(a0, a1, label, colour) for a0, a1 in _spans(t, on(np.nan_to_num(a)))]
-    return lines, spans
+                spans += [(a0, a1, label, SPAN_COLOURS[label]) for a0, a1 in _spans(t, on(np.nan_to_num(a)))]
+    return Marks(lines=tuple(sorted(lines)), spans=tuple(spans))
 
 
-def _plots(out_dir: Path, joints: Series, truth: Series | None, internal, ref, err, events) -> list[Path]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-    from matplotlib.lines import Line2D
+def _context(bag: Bag, r: dict, joints: Series, internal, roles: dict) -> Context:
+    """The run as every figure's title names it: bag, model, preset, load and controller."""
+    import yaml
+    meta = bag.run_metadata
+    try:
+        node = yaml.safe_load(meta.get("node_parameters_yaml") or "") or {}
+    except yaml.YAMLError:
+        node = {}
+    node = node if isinstance(node, dict) else {}
+    load = internal[0].values.get("load_force_n") if internal is not None else None
+    if load is None:
+        load, what = joints.values["nut_force_n"], "nut force"
+    else:
+        what = "applied"
+    finite = load[np.isfinite(load)]
+    if not finite.size:
+        load_text = "not recorded"
+    elif np.ptp(finite) <= 1e-6 * max(1.0, float(np.max(np.abs(finite)))):
+        load_text = force_text(float(finite[0]))
+    else:
+        load_text = f"{force_text(float(finite.min()))} … {force_text(float(finite.max()))} ({what})"
+    torque = roles.get("screw_torque")
+    if node.get("command_interface"):
+        controller = f"{node['command_interface']} commands to the node"
+    elif torque and bag.topics.get(torque) is not None and bag.topics[torque].count:
+        controller = f"screw torque commands on {torque}"
+    else:
+        controller = "not recorded"
+    if roles.get("reference") and r.get("tracking"):
+        controller += " (position reference recorded)"
+    example = bag.metadata.get("prsm_example", {}).get("description", "")
+    return Context(bag=bag.path.name, model=r.get("model") or "unknown", preset=r.get("preset") or "unknown",
+                   load=load_text, controller=controller, description=example)
 
+
+def _window(d: RunData, t0: float, t1: float) -> RunData:
+    """The run's data over [t0, t1] (the zoom figures)."""
+    k = (d.t >= t0) & (d.t <= t1)
+
+    def cut(v):
+        return None if v is None else v[k]
+    internal = None
+    if d.internal is not None:
+        s, labels = d.internal
+        ki = (s.t_s >= t0) & (s.t_s <= t1)
+        internal = (Series(s.t_s[ki], {n: a[ki] for n, a in s.values.items()}), labels)
+    return RunData(t=d.t[k], joints={n: a[k] for n, a in d.joints.items()}, reference_m=cut(d.reference_m),
+                   error_m=cut(d.error_m), internal=internal, efficiency=d.efficiency,
+                   truth=None if d.truth is None else {n: a[k] for n, a in d.truth.items()})
+
+
+def _plots(out_dir: Path, d: RunData, terms: dict, ctx: Context, events: list[dict]) -> list[Path]:
+    """Every figure of the run, written to `out_dir` (module docstring of prsm_ros.bag.figures)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    t = joints.t_s
-    files: list[Path] = []
-    lines, spans = _marks(internal, events)
-
-    def legend(a, x: float = 1.01) -> None:
-        """Outside the axes on the right (beyond a right-hand axis: x), so it never covers a curve or
-        spills over the next panel."""
-        handles, labels = a.get_legend_handles_labels()
-        if handles:  # columns of at most LEGEND_ROWS entries: the height of a panel
-            a.legend(handles, labels, loc="upper left", bbox_to_anchor=(x, 1.0), fontsize="small",
-                     borderaxespad=0.0, frameon=False, ncol=-(-len(handles) // LEGEND_ROWS))
-
-    def mark(axes) -> None:
-        for a in axes:
-            for t0, t1, _, colour in spans:
-                a.axvspan(t0, t1, color=colour, alpha=0.12, linewidth=0)
-            for te, _, colour in lines:
-                a.axvline(te, color=colour, linestyle=":", linewidth=1.0)
-        if lines or spans:  # one key for the marks, under the top panel's legend
-            keys = {}
-            for _, label, colour in lines:
-                keys.setdefault(f"event {label}", Line2D([], [], color=colour, linestyle=":"))
-            for _, _, label, colour in spans:
-                keys.setdefault(label, Patch(color=colour, alpha=0.25))
-            curves = axes[-1].get_legend()  # a second legend replaces the first: keep it as an artist
-            axes[-1].legend(list(keys.values()), list(keys), loc="lower left", bbox_to_anchor=(1.01, 0.0),
-                            fontsize="small", frameon=False, borderaxespad=0.0)
-            if curves is not None:
-                axes[-1].add_artist(curves)
-
-    def save(fig, axes, name: str) -> None:
-        axes[-1].set_xlabel("time [s]")
-        mark(axes)
-        fig.tight_layout()
-        path = out_dir / name
-        fig.savefig(path, dpi=110, bbox_inches="tight")
-        plt.close(fig)
-        files.append(path)
-
-    def truth_of(key):
-        return None if truth is None else _match(joints.stamp_ns, truth, key)
-
-    width = 9.5
-    n = 3 if err is not None else 2
-    fig, ax = plt.subplots(n, 1, sharex=True, figsize=(width, 2.4 * n))
-    ax[0].plot(t, joints.values["nut_position_m"] * 1e3, label="nut position" + (" (measured)" if truth else ""))
-    if truth is not None:
-        ax[0].plot(t, truth_of("nut_position_m") * 1e3, label="ground truth", linestyle="-.", linewidth=1.0)
-    if ref is not None:
-        ax[0].plot(t, ref * 1e3, label="reference", linestyle="--")
-    ax[0].set_ylabel("x_nut [mm]")
-    legend(ax[0])
-    ax[1].plot(t, joints.values["screw_speed_rad_s"], label="screw speed" + (" (measured)" if truth else ""))
-    if truth is not None:
-        ax[1].plot(t, truth_of("screw_speed_rad_s"), label="ground truth", linestyle="-.", linewidth=1.0)
-        legend(ax[1])
-    ax[1].set_ylabel("ω_S [rad/s]")
-    if err is not None:
-        ax[2].plot(t, err * 1e6, label="reference − nut position")
-        ax[2].set_ylabel("error [µm]")
-    save(fig, ax, "motion.png")
-
-    fig, ax = plt.subplots(2, 1, sharex=True, figsize=(width, 4.8))
-    ax[0].plot(t, joints.values["screw_torque_nm"], label="screw torque")
-    ax[0].set_ylabel("torque [N·m]")
-    legend(ax[0])
-    ax[1].plot(t, joints.values["nut_force_n"], label="nut force" + (" (load cell)" if truth else " (thread)"))
-    if truth is not None:
-        ax[1].plot(t, truth_of("nut_force_n"), label="ground truth", linestyle="-.", linewidth=1.0)
-    if internal is not None and "load_force_n" in internal[0].values:
-        ax[1].plot(internal[0].t_s, internal[0].values["load_force_n"], label="load force", linestyle="--")
-    ax[1].set_ylabel("force [N]")
-    legend(ax[1])
-    save(fig, ax, "loads.png")
-
-    if internal is None:
+    marks = _marks(d.internal, events)
+    files = [motion_figure(out_dir / "motion.png", d, ctx, marks), loads_figure(out_dir / "loads.png", d, ctx, marks)]
+    if d.t[-1] - d.t[0] > LONG_RUN_S:
+        t0, t1 = busiest_window(d.t, d.joints["screw_speed_rad_s"], d.joints["nut_force_n"])
+        zoom = _window(d, t0, t1)
+        files += [motion_figure(out_dir / "motion_zoom.png", zoom, ctx, marks, t_range=(t0, t1)),
+                  loads_figure(out_dir / "loads_zoom.png", zoom, ctx, marks, t_range=(t0, t1))]
+    if d.internal is None:
         return files
-    s, labels = internal
+    s, labels = d.internal
     if "power_in_w" in s.values:
-        fig, ax = plt.subplots(2, 1, sharex=True, figsize=(width, 4.8))
-        for k in ("power_in_w", "power_out_w", "power_dissipated_w"):
-            ax[0].plot(s.t_s, s.values[k], label=k.removesuffix("_w").replace("_", " "))
-        ax[0].set_ylabel("power [W]")
-        legend(ax[0])
-        ax[1].plot(s.t_s, s.values["efficiency"], label="instantaneous efficiency")
-        ax[1].set_ylabel("efficiency [1]")
-        if "slip_speed_m_s" in s.values:
-            ax[1].plot([], [], color="tab:red", alpha=0.6, label="slip speed (right axis)")
-            ax2 = ax[1].twinx()
-            ax2.plot(s.t_s, s.values["slip_speed_m_s"] * 1e3, color="tab:red", alpha=0.6)
-            ax2.set_ylabel("slip [mm/s]", color="tab:red")
-        legend(ax[1], x=1.12 if "slip_speed_m_s" in s.values else 1.01)
-        save(fig, ax, "power.png")
-
-    panels = _force_panels(s, labels)
-    if panels:
-        fig, ax = plt.subplots(len(panels), 1, sharex=True, figsize=(width, 2.6 * len(panels)), squeeze=False)
-        for a, (name, curves) in zip(ax[:, 0], panels):
-            for label, values in curves:
-                a.plot(s.t_s, values, label=label)
-            a.set_ylabel(f"{name}\nmax |F| [N]")
-            legend(a)
-        save(fig, list(ax[:, 0]), "internal_loads.png")
-
-    act = [(label, unit, a) for label, unit, a in (
-        (name, unit, _block_quantity(internal, "actuator", name)) for name, unit in
+        files.append(power_figure(out_dir / "power.png", d, ctx, marks, terms))
+    files.append(internal_loads_figure(out_dir / "internal_loads.png", d, ctx, marks, ACTUATOR_BLOCKS))
+    act = [(name, unit, a) for name, unit, a in (
+        (name, unit, _block_quantity(d.internal, "actuator", name)) for name, unit in
         (("motor_current_a", "A"), ("motor_torque_nm", "N·m"), ("brake_torque_nm", "N·m"), ("stop_force_n", "N")))
         if a is not None and np.any(np.nan_to_num(a) != 0)]
-    if act:
-        fig, ax = plt.subplots(len(act), 1, sharex=True, figsize=(width, max(3.4, 2.2 * len(act))), squeeze=False)
-        for a, (label, unit, values) in zip(ax[:, 0], act):
-            a.plot(s.t_s, values, label=label.rsplit("_", 1)[0].replace("_", " "))
-            a.set_ylabel(f"[{unit}]")
-            legend(a)
-        save(fig, list(ax[:, 0]), "actuator.png")
-    return files
-
-
-def _force_panels(s: Series, labels: dict) -> list[tuple[str, list[tuple[str, np.ndarray]]]]:
-    """One panel per mechanism block with a force quantity that is not zero throughout: (block, curves)."""
-    panels = []
-    for seg in labels["segments"]:
-        if "quantities" not in seg or seg["name"] in ACTUATOR_BLOCKS:
-            continue
-        arr = s.values[seg["name"]]
-        names = [q["name"] for q in seg["quantities"]]
-        curves = []
-        for q in seg["quantities"]:
-            if q["unit"] != "N":
-                continue
-            vals = np.abs(arr[..., names.index(q["name"])]).reshape(arr.shape[0], -1)
-            peak = np.nanmax(vals, axis=1) if vals.shape[1] else np.zeros(arr.shape[0])
-            if np.any(np.nan_to_num(peak) != 0):
-                curves.append((q["name"].removesuffix("_n").replace("_", " "), peak))
-        if curves:
-            panels.append((seg["name"], curves))
-    return panels
+    files.append(actuator_figure(out_dir / "actuator.png", d, ctx, marks, act))
+    files.append(load_distribution_figure(out_dir / "load_distribution.png", s, labels, ctx))
+    return [f for f in files if f is not None]
 
 
 def _fmt(v, unit: str = "", scale: float = 1.0, digits: int = 4) -> str:
@@ -657,6 +621,48 @@ def _fmt(v, unit: str = "", scale: float = 1.0, digits: int = 4) -> str:
     if isinstance(v, float) and math.isinf(v):
         return "infinite"
     return f"{v * scale:.{digits}g}{(' ' + unit) if unit else ''}"
+
+
+def _peak_lines(peaks: dict | None) -> list[str]:
+    """Peaks of the internal loads that moved; constant ones by value, the ones zero throughout in one line."""
+    if not peaks:
+        return ["peak internal loads: not recorded"]
+    lines, zero = ["peak internal loads:"], []
+    for name, p in peaks.items():
+        where = ", ".join(f"{d} {i}" for d, i in p["at"].items())
+        if p["peak_abs"] == 0:
+            zero.append(name)
+        elif p["time_s"] is None:
+            lines.append(f"  {name}: {_fmt(p['peak_abs'], 'N')} throughout")
+        else:
+            lines.append(f"  {name}: {_fmt(p['peak_abs'], 'N')} at t = {_fmt(p['time_s'], 's')}"
+                         + (f" ({where})" if where else ""))
+    if zero:
+        lines.append(f"  zero throughout: {', '.join(zero)}")
+    return lines
+
+
+def readable(v: float | None, unit: str) -> str:
+    """A large count for people: grouped digits below a million, else a mantissa and a power of ten."""
+    if v is None or not math.isfinite(v):
+        return "n/a" if v is None or math.isnan(v) else "infinite"
+    if abs(v) < 1e6:
+        return f"{v:,.0f} {unit}" if abs(v) >= 100 else f"{v:.3g} {unit}"
+    exp = int(math.floor(math.log10(abs(v))))
+    sup = str(exp).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
+    return f"{v / 10 ** exp:.3g}·10{sup} {unit}"
+
+
+def _life_line(life: dict | None) -> str:
+    if life is None:
+        return "L10 life: n/a (the joint states carry no nut effort and screw velocity)"
+    hours = life["l10_hours"]
+    years = f" ≈ {readable(hours / 8766.0, 'years')} running" if hours is not None and hours > 2 * 8766 else ""
+    return (f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')} from {life['rating_source']}, "
+            f"F_m = {_fmt(life['mean_load_n'], 'N')}): {readable(life['l10_travel_km'], 'km')} of nut travel "
+            f"({readable(life['l10_revolutions'], 'screw revolutions')}), {readable(hours, 'h')}{years} at the "
+            f"recorded duty cycle (the {_fmt(life['cycle_duration_s'], 's')} record repeated "
+            f"{readable(life['l10_cycles'], 'times')})")
 
 
 def summary_text(r: dict) -> str:
@@ -689,13 +695,7 @@ def summary_text(r: dict) -> str:
         lines.append("slip: " + "; ".join(parts))
     else:
         lines.append("slip: not recorded (needs ~/internal_loads with its labels)")
-    if r.get("peak_loads"):
-        lines.append("peak internal loads:")
-        for name, p in r["peak_loads"].items():
-            where = ", ".join(f"{d} {i}" for d, i in p["at"].items())
-            lines.append(f"  {name}: {_fmt(p['peak_abs'], 'N')} at t = {_fmt(p['time_s'], 's')}" + (f" ({where})" if where else ""))
-    else:
-        lines.append("peak internal loads: not recorded")
+    lines += _peak_lines(r.get("peak_loads"))
     a = r.get("actuator")
     if a:
         lines.append(f"actuator: peak |stop force| {_fmt(a['peak_abs_stop_force_n'], 'N')} ({_fmt(a['stop_contact_s'], 's')} "
@@ -707,14 +707,13 @@ def summary_text(r: dict) -> str:
         lines.append(f"measured vs ground truth: nut position RMS {_fmt(m.get('nut_position_rms_error_m'), 'µm', 1e6)} "
                      f"(max {_fmt(m.get('nut_position_max_error_m'), 'µm', 1e6)}), nut force RMS "
                      f"{_fmt(m.get('nut_force_rms_error_n'), 'N')}")
-    life = r["life"]
-    if life is None:
-        lines.append("L10 life: n/a (the joint states carry no nut effort and screw velocity)")
-    else:
-        lines.append(f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')} from {life['rating_source']}, "
-                     f"F_m = {_fmt(life['mean_load_n'], 'N')}): {_fmt(life['l10_revolutions'], 'revolutions')} = "
-                     f"{_fmt(life['l10_hours'], 'h')} at the recorded cycle ({_fmt(life['l10_cycles'], 'cycles')} of "
-                     f"{_fmt(life['cycle_duration_s'], 's')})")
+    lines.append(_life_line(r["life"]))
+    dist = r.get("load_distribution")
+    if dist:
+        lines.append(f"load along the nut ({dist['rollers']} rollers × {dist['threads']} threads, {dist['source']}): "
+                     f"largest thread {dist['max_over_uniform_at_peak']:.3g}× the uniform share at the peak "
+                     f"({_fmt(dist['peak_axial_force_n'], 'N')} at t = {_fmt(dist['peak_time_s'], 's')}), "
+                     f"{dist['max_over_uniform_averaged']:.3g}× averaged over the run")
     for ev in r.get("events", []):
         lines.append(f"event t = {_fmt(ev.get('time_s'), 's')} [{ev.get('severity', '?')}] {ev.get('source', '?')}/"
                      f"{ev.get('code', '?')}: {ev.get('message', '')}")
