@@ -155,17 +155,19 @@ def test_each_figure_in_its_category_and_no_empty_panels(actuated, tmp_path):
 
 
 def test_plots_mark_faults_and_leave_out_empty_panels(actuated, braking, tmp_path):
-    from prsm_ros.bag.report import _force_panels, _internal_series, _marks
+    from prsm_ros.bag.figures import force_panels
+    from prsm_ros.bag.report import ACTUATOR_BLOCKS, _internal_series, _marks
     from prsm_ros.bag.reader import resolve_topics
     path, _ = actuated
     bag = open_bag(path)
     internal = _internal_series(bag, resolve_topics(bag), False)
-    lines, spans = _marks(internal, [{"time_s": 0.02, "code": "ownership_taken", "severity": "info"}])
-    assert lines == [(0.02, "ownership_taken", "tab:gray")]
+    marks = _marks(internal, [{"time_s": 0.02, "code": "ownership_taken", "severity": "info"}])
+    lines, spans = marks.lines, marks.spans
+    assert lines == ((0.02, "ownership_taken", "dimgray"),)  # a constant load: no load step
     fault = [(a, b) for a, b, label, _ in spans if label == "fault"]
     assert len(fault) == 1 and fault[0][0] == pytest.approx(0.051, abs=1.5 * DT)
-    for _, curves in _force_panels(*internal):
-        assert all(np.any(c != 0) for _, c in curves)
+    for _, _, values in force_panels(*internal, ACTUATOR_BLOCKS):
+        assert np.any(values != 0)
     r = report(open_bag(braking[0]), tmp_path / "bare", progress=False)
     assert "actuator.png" not in {Path(p).name for p in r["plots"]} and r["actuator"] is None
 

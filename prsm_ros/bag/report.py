@@ -658,8 +658,8 @@ def _life_line(life: dict | None) -> str:
         return "L10 life: n/a (the joint states carry no nut effort and screw velocity)"
     hours = life["l10_hours"]
     years = f" ≈ {readable(hours / 8766.0, 'years')} running" if hours is not None and hours > 2 * 8766 else ""
-    return (f"L10 life (C_a = {_fmt(life['dynamic_load_rating_n'], 'N')} from {life['rating_source']}, "
-            f"F_m = {_fmt(life['mean_load_n'], 'N')}): {readable(life['l10_travel_km'], 'km')} of nut travel "
+    return (f"L10 life (C_a = {force_text(life['dynamic_load_rating_n'])} from {life['rating_source']}, "
+            f"F_m = {force_text(life['mean_load_n'])}): {readable(life['l10_travel_km'], 'km')} of nut travel "
             f"({readable(life['l10_revolutions'], 'screw revolutions')}), {readable(hours, 'h')}{years} at the "
             f"recorded duty cycle (the {_fmt(life['cycle_duration_s'], 's')} record repeated "
             f"{readable(life['l10_cycles'], 'times')})")
@@ -691,7 +691,7 @@ def summary_text(r: dict) -> str:
         parts = []
         if "max_slip_speed_m_s" in s:
             parts.append(f"max {_fmt(s['max_slip_speed_m_s'], 'mm/s', 1e3)}, mean {_fmt(s['mean_slip_speed_m_s'], 'mm/s', 1e3)}")
-        parts += [f"{name} peak {_fmt(p['peak_abs'], 'mm/s', 1e3)}" for name, p in s["peaks"].items()]
+        parts += [f"{name} peak {_fmt(p['peak_abs'], 'mm/s', 1e3)}" for name, p in s["peaks"].items() if p["peak_abs"]]
         lines.append("slip: " + "; ".join(parts))
     else:
         lines.append("slip: not recorded (needs ~/internal_loads with its labels)")
