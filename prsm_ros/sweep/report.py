@@ -71,20 +71,62 @@ def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "._-" else "_" for c in name)
 
 
-def plots(df, inputs: list[str], metrics: list[str], sens: dict, out: Path) -> list[str]:
-    """Histogram per metric, scatter per (input, metric), tornado per metric → PNG paths."""
+# unit of a name by its suffix (longest first), where the name is not an output with a unit of its own
+_SUFFIX_UNITS = (("_n_s_m", "N·s/m"), ("_nm_s_rad", "N·m·s/rad"), ("_m2_s", "m²/s"), ("_kg_m3", "kg/m³"),
+                 ("_kgm2", "kg·m²"), ("_n_per_m", "N/m"), ("_rad_s", "rad/s"), ("_m_s", "m/s"), ("_revolutions", "rev"),
+                 ("_hours", "h"), ("_deg", "°"), ("_rad", "rad"), ("_nm", "N·m"), ("_kg", "kg"), ("_pa", "Pa"),
+                 ("_rel", "1"), ("_n", "N"), ("_m", "m"), ("_j", "J"), ("_w", "W"), ("_s", "s"))
+
+
+def unit_of(name: str) -> str:
+    """The unit of a study input (`group.field`) or metric (`output[@selector]`, a summary figure); "" unknown."""
+    from prsm_sim import OUTPUT_FIELDS
+    base = name.partition("@")[0]
+    own = dict(OUTPUT_FIELDS)
+    if base in own:
+        return own[base]
+    field = base.rsplit(".", 1)[-1]
+    if field.startswith("mu_") or field in ("gear_ratio", "poisson_ratio", "breakaway_ratio"):
+        return "1"
+    return next((u for suffix, u in _SUFFIX_UNITS if field.endswith(suffix)), "")
+
+
+def axis_label(name: str) -> str:
+    unit = unit_of(name)
+    return f"{name} [{unit}]" if unit else name
+
+
+FIGSIZE_IN = (7.0, 4.6)
+DPI = 110
+MAX_TICKS = 6
+
+
+def plots(df, inputs: list[str], metrics: list[str], sens: dict, out: Path, context: str = "") -> list[str]:
+    """Histogram per metric, scatter per (input, metric), tornado per metric → PNG paths.
+
+    Each figure is titled (what it shows, over how many runs, and `context`: model, preset, scenario)
+    and its axes name their quantity with its unit; ticks are capped at MAX_TICKS so they never overlap.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
     ok = df[df["status"] == "ok"]
     d = out / "plots"
     d.mkdir(exist_ok=True)
     written = []
 
-    def save(fig, name):
+    def figure(height_in: float = FIGSIZE_IN[1]):
+        fig, ax = plt.subplots(figsize=(FIGSIZE_IN[0], height_in))
+        ax.grid(True, alpha=0.4, linewidth=0.6)
+        ax.xaxis.set_major_locator(MaxNLocator(MAX_TICKS))
+        return fig, ax
+
+    def save(fig, ax, name, title):
+        ax.set_title(title + (f"\n{context}" if context else ""), fontsize="medium", loc="left")
         path = d / f"{_safe(name)}.png"
         fig.tight_layout()
-        fig.savefig(path, dpi=80)
+        fig.savefig(path, dpi=DPI)
         plt.close(fig)
         written.append(str(path))
 
@@ -92,27 +134,32 @@ def plots(df, inputs: list[str], metrics: list[str], sens: dict, out: Path) -> l
         v = ok[m].to_numpy(dtype=float)
         v = v[np.isfinite(v)]
         if v.size:
-            fig, ax = plt.subplots(figsize=(5, 3.5))
-            ax.hist(v, bins=min(30, max(5, v.size // 5)))
-            ax.set_xlabel(m)
+            fig, ax = figure()
+            ax.hist(v, bins=min(30, max(5, v.size // 5)), color="tab:blue", edgecolor="white")
+            ax.set_xlabel(axis_label(m))
             ax.set_ylabel("runs")
-            save(fig, f"hist_{m}")
+            ax.yaxis.set_major_locator(MaxNLocator(MAX_TICKS, integer=True))
+            save(fig, ax, f"hist_{m}", f"Distribution of {m} over {v.size} runs")
         for k in inputs:
             if ok[k].dtype == object:
                 continue
-            fig, ax = plt.subplots(figsize=(5, 3.5))
-            ax.scatter(ok[k].to_numpy(dtype=float), ok[m].to_numpy(dtype=float), s=8)
-            ax.set_xlabel(k)
-            ax.set_ylabel(m)
-            save(fig, f"scatter_{k}__{m}")
+            fig, ax = figure()
+            ax.scatter(ok[k].to_numpy(dtype=float), ok[m].to_numpy(dtype=float), s=12, color="tab:blue")
+            ax.set_xlabel(axis_label(k))
+            ax.set_ylabel(axis_label(m))
+            ax.yaxis.set_major_locator(MaxNLocator(MAX_TICKS))
+            rho = next((r["spearman_rho"] for r in sens.get(m, []) if r["input"] == k), None)
+            save(fig, ax, f"scatter_{k}__{m}", f"{m} against {k} ({len(ok)} runs"
+                 + (f", Spearman ρ = {rho:+.2f})" if rho is not None else ")"))
         if sens.get(m):
             rows = sens[m][::-1]
-            fig, ax = plt.subplots(figsize=(5, 0.5 + 0.4 * len(rows)))
-            ax.barh([r["input"] for r in rows], [r["spearman_rho"] for r in rows])
+            fig, ax = figure(1.6 + 0.45 * len(rows))
+            ax.barh([r["input"] for r in rows], [r["spearman_rho"] for r in rows],
+                    color=["tab:red" if r["spearman_rho"] < 0 else "tab:blue" for r in rows])
             ax.set_xlim(-1, 1)
             ax.axvline(0, color="k", lw=0.5)
-            ax.set_xlabel(f"Spearman ρ with {m}")
-            save(fig, f"tornado_{m}")
+            ax.set_xlabel(f"Spearman ρ with {m} [1]")
+            save(fig, ax, f"tornado_{m}", f"Sensitivity of {m} (rank correlation, {len(ok)} runs)")
     return written
 
 
@@ -132,7 +179,10 @@ def build(out: Path, make_plots: bool = True) -> dict:
     report["runs_planned"] = len(run_specs(norm))
     if len(norm["scenarios"]) > 1:
         report["by_scenario"] = {s: statistics(g, metrics) for s, g in df.groupby("scenario")}
-    report["plots"] = plots(df, [k for k in inputs if k != "scenario"], metrics, sens, out) if make_plots else []
+    scenarios = ", ".join(map(str, norm.get("scenarios", [])))
+    context = f"model {norm.get('model')}, preset {norm.get('preset')}, scenario {scenarios}"
+    report["plots"] = (plots(df, [k for k in inputs if k != "scenario"], metrics, sens, out, context)
+                       if make_plots else [])
     return report
 
 
