@@ -92,6 +92,18 @@ def joint_state_stamp_effort0(b: bytes) -> tuple[int, float | None]:
     return _stamp_ns(b), (struct.unpack_from("<d", b, at)[0] if count else None)
 
 
+def joint_state_position(b: bytes, name: str) -> tuple[int, float]:
+    """(header stamp ns, position of joint `name`, else of the first joint) of a CDR sensor_msgs/JointState.
+
+    Raises IndexError when it carries no position."""
+    names = joint_state_names(b)
+    k = names.index(name) if name in names else 0
+    _, ((p_at, p_n), _, _) = _joint_state_arrays(b)
+    if k >= p_n:
+        raise IndexError(f"no position for joint {k} in a state of {p_n} positions")
+    return _stamp_ns(b), struct.unpack_from("<d", b, p_at + 8 * k)[0]
+
+
 def joint_state_at(b: bytes, index: int) -> tuple[int, float, float]:
     """(header stamp ns, position[index], velocity[index]) of a CDR sensor_msgs/JointState.
 

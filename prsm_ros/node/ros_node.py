@@ -359,6 +359,8 @@ class PrsmNode(Node):
         if key == "nut_position_reference":
             # at the stamp of the state it answers, not at the moment it arrived (that races the steps)
             self._record(key, raw, _reference_stamp_ns(raw))
+            if self.rerun is not None:  # the live recording shows it too, as a bag's conversion does
+                self.rerun.submit_reference(raw, self._joints["position"])
             return
         reason, header_ns, malformed = self._offer(key, raw)
         if malformed:  # not this type's CDR: kept out of the bag

@@ -10,9 +10,9 @@ What a bag gives, in order of preference:
    other joints become series `series/inputs/joint_states/<joint>/<position|velocity|effort>`.
 
 Topics are found by `prsm_ros.bag.reader.resolve_topics` (type and name suffix, so a namespaced or
-remapped node still converts). The `…/nut_position_reference` (stamped: at the stamp of the state it
-answers; or a plain Float64) and `…/screw_torque` (std_msgs/Float64) inputs are plotted beside the
-outputs. Other joint names than `screw_joint` / `nut_joint` are given with `screw_joint=` /
+remapped node still converts). The `…/nut_position_reference` input (stamped: at the stamp of the state it
+answers; or a plain Float64) is plotted beside the outputs, as the live recording does; the `…/screw_torque`
+command is not (it is the applied screw torque, already a series). Other joint names than `screw_joint` / `nut_joint` are given with `screw_joint=` /
 `nut_joint=`; when the joint states name neither, the summary warns that the scene cannot move. Geometry comes from the run metadata (`prsm_run`
 parameters_yaml, written by our recorder); a bag without it gets its `preset`, else a schematic
 geometry (preset s30), and the summary says so. Time: our bags are stamped with simulation time
@@ -121,9 +121,9 @@ class _Conversion:
                 self.names_seen.add(name)
                 if name in self.joints:
                     self.joints_seen.add(name)
-                    row.update(zip(self.joints[name], vals))
+                    row.update(zip(self.joints[name], vals, strict=True))
                 else:
-                    for field, v in zip(("position", "velocity", "effort"), vals):
+                    for field, v in zip(("position", "velocity", "effort"), vals, strict=True):
                         self._input(f"joint_states/{name}/{field}", t, v)
         self.rows.append((t, row))
         self.t_span = [min(self.t_span[0], t), max(self.t_span[1], t)]
@@ -174,8 +174,6 @@ def bag_to_rrd(bag, rrd_path, *, progress: bool = True, params: Params | None = 
     (or RERUN=off in the environment, which would make the SDK write nothing) ValueError, and a
     conversion that fails half-way removes its partial output.
     """
-    import rerun as rr
-
     from prsm_ros.bag.reader import Bag, open_bag, resolve_topics
 
     if rerun_forced_off():  # the SDK would silently write nothing
@@ -190,8 +188,24 @@ def bag_to_rrd(bag, rrd_path, *, progress: bool = True, params: Params | None = 
         raise InputError(f"output {str(out)!r} would overwrite the bag")
     warnings: list[str] = []
     roles = resolve_topics(bag, topics)
-    meta = bag.run_metadata
+    src = _source(bag, roles, warnings)
+    run_params, geometry = _params_from(bag.run_metadata, params)
+    # the reference only: the recorded torque command is the applied screw torque, plotted once
+    input_topics = {roles["reference"]} if roles["reference"] else set()
+    used_topics = [src["data_topic"], *sorted(input_topics)]
+    writer, conv = _write(out, bag, src, run_params, input_topics, used_topics, progress=progress,
+                          scene_rate_hz=scene_rate_hz, batch_rows=batch_rows,
+                          joints=_joint_columns(screw_joint, nut_joint))
+    warnings += _conversion_warnings(writer, conv, src, screw_joint, nut_joint)
+    used = ([roles["labels"]] if src["labels"] is not None else []) + used_topics
+    return {"bag": str(bag.path), "rrd": str(out), "source": src["source"], "model": src["model"],
+            "geometry": geometry, "rows": writer.rows, "scene_frames": writer.scene_frames,
+            "duration_s": conv.t_span[1] - conv.t_span[0] if writer.rows else 0.0, "topics": used,
+            "inputs": list(writer.inputs), "warnings": warnings, "notes": [*bag.notes, *bag.reading_notes()]}
 
+
+def _source(bag, roles: dict, warnings: list[str]) -> dict[str, Any]:
+    """What the conversion reads: internal loads with their labels, else the joint states."""
     labels = None
     if roles["internal_loads"] and roles["labels"]:
         for m in bag.messages([roles["labels"]]):
@@ -200,41 +214,36 @@ def bag_to_rrd(bag, rrd_path, *, progress: bool = True, params: Params | None = 
     elif roles["internal_loads"]:
         warnings.append(f"{roles['internal_loads']} has no labels topic beside it: read the joint states instead")
     if labels is not None:
-        source, data_topic = "internal_loads", roles["internal_loads"]
-        layout: InternalLayout = labels["layout_obj"]
-        model = labels["model"]
-        scalar_names = [e["label"] for e in labels["elements"][: labels["segments"][0]["size"]]]
-    elif roles["joint_states"]:
-        source, data_topic = "joint_states", roles["joint_states"]
-        layout, model = InternalLayout(blocks=()), meta.get("model")
-        scalar_names = ["time_s"] + [c for cols in _JOINT_COLUMNS.values() for c in cols]
-    else:
-        raise InputError(f"{bag.path.name}: nothing to convert — no …/internal_loads with labels and no joint "
-                         f"states topic (topics: {', '.join(sorted(bag.topics)) or 'none'})")
-    run_params, geometry = _params_from(meta, params)
-    input_topics = {roles[r] for r in ("reference", "screw_torque") if roles[r]}
-    topics = [data_topic, *sorted(input_topics)]
+        return {"source": "internal_loads", "data_topic": roles["internal_loads"], "labels": labels,
+                "layout": labels["layout_obj"], "model": labels["model"],
+                "scalar_names": [e["label"] for e in labels["elements"][: labels["segments"][0]["size"]]]}
+    if roles["joint_states"]:
+        return {"source": "joint_states", "data_topic": roles["joint_states"], "labels": None,
+                "layout": InternalLayout(blocks=()), "model": bag.run_metadata.get("model"),
+                "scalar_names": ["time_s"] + [c for cols in _JOINT_COLUMNS.values() for c in cols]}
+    raise InputError(f"{bag.path.name}: nothing to convert — no …/internal_loads with labels and no joint "
+                     f"states topic (topics: {', '.join(sorted(bag.topics)) or 'none'})")
+
+
+def _write(out: Path, bag, src: dict, run_params: Params, input_topics: set[str], topics: list[str], *,
+           progress: bool, scene_rate_hz: float, batch_rows: int, joints: dict) -> tuple[RecordingWriter, _Conversion]:
+    """The recording: static scene, every message of `topics`, the blueprint; no half-written file on failure."""
+    import rerun as rr
 
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
     rec.save(out)
     try:
+        model = src["model"]
         rec.send_recording_name(f"{bag.path.name} · {model or 'unknown model'}")
-        writer = RecordingWriter(rec, run_params, layout, model or "unknown", scalar_names=scalar_names,
+        writer = RecordingWriter(rec, run_params, src["layout"], model or "unknown", scalar_names=src["scalar_names"],
                                  scene_rate_hz=scene_rate_hz)
         writer.log_static()
-        conv = _Conversion(writer, source, labels, scalar_names, input_topics,
-                           ours=labels is not None or bool(meta), batch_rows=batch_rows,
-                           joints=_joint_columns(screw_joint, nut_joint))
+        conv = _Conversion(writer, src["source"], src["labels"], src["scalar_names"], input_topics,
+                           ours=src["labels"] is not None or bool(bag.run_metadata), batch_rows=batch_rows,
+                           joints=joints)
         for m in bag.messages(topics, progress=progress, desc=f"to-rrd {bag.path.name}"):
             conv.take(m)
         conv.finish()
-        if writer.rows == 0:
-            warnings.append(f"{data_topic} has no messages: the recording holds only the static scene")
-        elif source == "joint_states" and conv.joints_seen != {screw_joint, nut_joint}:
-            missing = sorted({screw_joint, nut_joint} - conv.joints_seen)
-            warnings.append(f"{data_topic} has no joint {' or '.join(repr(j) for j in missing)} (its joints: "
-                            f"{', '.join(sorted(conv.names_seen)) or 'none'}): the scene does not move with it; "
-                            "name the joints with --screw-joint / --nut-joint")
         writer.send_blueprint()
         rec.flush(timeout_sec=60.0)
         rec.disconnect()
@@ -242,8 +251,16 @@ def bag_to_rrd(bag, rrd_path, *, progress: bool = True, params: Params | None = 
         rec.disconnect()
         out.unlink(missing_ok=True)
         raise
-    used = ([roles["labels"]] if labels is not None else []) + topics
-    return {"bag": str(bag.path), "rrd": str(out), "source": source, "model": model, "geometry": geometry,
-            "rows": writer.rows, "scene_frames": writer.scene_frames,
-            "duration_s": conv.t_span[1] - conv.t_span[0] if writer.rows else 0.0, "topics": used,
-            "inputs": list(writer.inputs), "warnings": warnings, "notes": [*bag.notes, *bag.reading_notes()]}
+    return writer, conv
+
+
+def _conversion_warnings(writer: RecordingWriter, conv: _Conversion, src: dict, screw_joint: str,
+                         nut_joint: str) -> list[str]:
+    if writer.rows == 0:
+        return [f"{src['data_topic']} has no messages: the recording holds only the static scene"]
+    if src["source"] == "joint_states" and conv.joints_seen != {screw_joint, nut_joint}:
+        missing = sorted({screw_joint, nut_joint} - conv.joints_seen)
+        return [f"{src['data_topic']} has no joint {' or '.join(repr(j) for j in missing)} (its joints: "
+                f"{', '.join(sorted(conv.names_seen)) or 'none'}): the scene does not move with it; "
+                "name the joints with --screw-joint / --nut-joint"]
+    return []

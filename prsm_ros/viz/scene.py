@@ -21,6 +21,7 @@ Entity tree (static = logged once, per frame = at the scene rate):
     world/nut/carrier/forces/<family>         per frame Arrows3D, one per roller, force ON the roller
     world/nut/carrier/tooth_loads/<quantity>  per frame Points3D, one per tooth contact, coloured by load
     loads/<block>/<quantity>                  per frame Tensor roller × tooth (the heat map)
+    loads/along_nut/<block>/<quantity>        per frame BarChart: the mean over rollers per tooth, N
 
 Forces come from the model's `InternalLayout`, looked up by name, never assumed. In a block with
 dims (roller, quantity), quantities `<prefix>_<radial|tangential|axial>[_force]_n` (at least two
@@ -76,6 +77,24 @@ _COLORS = {"screw": (150, 150, 160, 255), "thread": (90, 90, 100, 255), "nut": (
 _VECTOR = re.compile(r"^(?P<prefix>.+?)_(?P<axis>radial|tangential|axial)(?P<suffix>_force)?_n$")
 _AXES = ("radial", "tangential", "axial")
 _NORMAL = re.compile(r"^(?P<side>screw|nut)_.*normal.*_n$")
+
+
+def along_nut_path(block: str, quantity: str) -> str:
+    """The bar chart of a per-tooth force along the nut (beside its heat map, not under it: a TensorView
+    shows everything under its origin)."""
+    return f"{LOADS}/along_nut/{block}/{quantity}"
+
+
+def heat_map_range(loads: np.ndarray) -> np.ndarray:
+    """Colour range (frames × 2) of roller × tooth frames: each frame's own min → max, so the shares
+    along the nut read at any load; a frame of equal loads gets [0, 2 × value] (the middle colour:
+    equal shares, not the top of the scale) and an unloaded one [0, 1]."""
+    lo = loads.min(axis=(1, 2))
+    hi = loads.max(axis=(1, 2))
+    flat = (hi - lo) <= 1e-9 * np.maximum(np.abs(hi), 1e-300)
+    lo = np.where(flat, 0.0, lo)
+    hi = np.where(flat, np.where(np.abs(hi) > 0, 2 * np.abs(hi), 1.0), hi)
+    return np.stack([lo, hi], axis=-1)
 
 
 def roller_path(q: int) -> str:
@@ -249,8 +268,10 @@ class Scene:
                 colors=[c["roller"], c["stripe"]]), static=True)
         for f in self.families:
             rec.log(f"{FORCES}/{f.name}", rr.Arrows3D.from_fields(radii=[r_r / 8]), static=True)
-        for _, _, q, _ in self.tooth:
+        for block, _, q, _ in self.tooth:
             rec.log(f"{TOOTH_LOADS}/{q}", rr.Points3D.from_fields(radii=[pitch / 5]), static=True)
+            rec.log(along_nut_path(block, q), rr.BarChart.from_fields(
+                abscissa=np.arange(1, self.geo.n_teeth + 1, dtype=np.float64), color=(31, 119, 180, 255)), static=True)
         rec.log(ABOUT, rr.TextDocument(self.about(), media_type=rr.MediaType.MARKDOWN), static=True)
 
     def about(self) -> str:
@@ -265,7 +286,9 @@ class Scene:
                 f"nut r_N = {g.nut_radius_m:g} m\n"
                 f"- arrows: force on each roller at its contact; length r_R·log10(1 + |F|/1 N), "
                 f"colour log10|F| blue (0.1 N) → red (10 kN)\n"
-                f"- force arrows: {fams}\n- per-tooth loads (heat maps, tooth points): {teeth}\n"
+                f"- force arrows: {fams}\n- per-tooth loads (heat maps, tooth points): {teeth}; a heat map's "
+                f"colours span that frame's min → max (one middle colour: equal shares), the bars 'along the "
+                f"nut' give the values in N (mean over the rollers, tooth 1 … {g.n_teeth})\n"
                 f"- timeline `{TIMELINE}`: simulation time\n")
 
     # -- per frame -----------------------------------------------------------------------
@@ -365,14 +388,11 @@ class Scene:
                 rec.send_columns(f"{TOOTH_LOADS}/{q}", indexes=index, columns=rr.Points3D.columns(
                     positions=pos.reshape(-1, 3), colors=color_by_magnitude(loads).reshape(-1, 4)
                 ).partition(np.full(n, nr * nt)))
-            lo = np.minimum(loads.min(axis=(1, 2)), 0.0)
-            hi = loads.max(axis=(1, 2))
-            # each frame's own colour range (min(0, …) … max): the distribution reads at a glance at
-            # any load; the magnitudes are in the series and on the tooth points
-            ranges = np.stack([lo, np.where(hi > lo, hi, lo + 1.0)], axis=-1)
             rec.send_columns(f"{LOADS}/{block_name}/{q}", indexes=index,
                              columns=[tensor_column(loads, ("roller", "tooth")),
-                                      *rr.Tensor.columns(value_range=ranges)])
+                                      *rr.Tensor.columns(value_range=heat_map_range(loads))])
+            rec.send_columns(along_nut_path(block_name, q), indexes=index,
+                             columns=[tensor_column(loads.mean(axis=1), ("tooth",), rr.BarChart.descriptor_values())])
 
 
 class _ArrowBatch:
@@ -388,8 +408,9 @@ class _ArrowBatch:
 _TENSOR_TYPE = None
 
 
-def tensor_column(frames: np.ndarray, dim_names: tuple[str, ...]) -> rr.ComponentColumn:
-    """`Tensor:data` for a stack of frames (frames × shape), one tensor per row, built in one go.
+def tensor_column(frames: np.ndarray, dim_names: tuple[str, ...], descriptor=None) -> rr.ComponentColumn:
+    """`Tensor:data` (or another TensorData component: `descriptor`, e.g. a BarChart's values) for a
+    stack of frames (frames × shape), one tensor per row, built in one go.
 
     Rerun 0.41's Python `Tensor` converts one tensor per call (≈ 0.4 ms each, the largest share of
     live logging) and refuses batches in `Tensor.columns`. The Arrow layout is taken from Rerun's
@@ -423,7 +444,7 @@ def tensor_column(frames: np.ndarray, dim_names: tuple[str, ...]) -> rr.Componen
     buffer = pa.Array.from_buffers(union_t, n, [None, pa.py_buffer(np.full(n, code, dtype=np.int8)),
                                                 pa.py_buffer(np.arange(n, dtype=np.int32))], children=children)
     data = pa.StructArray.from_arrays([shape_arr, names_arr, buffer], fields=list(struct_t))
-    return rr.ComponentColumn(rr.Tensor.descriptor_data(), _ArrowBatch(data))
+    return rr.ComponentColumn(descriptor if descriptor is not None else rr.Tensor.descriptor_data(), _ArrowBatch(data))
 
 
 def scene_frame_indices(time_s: np.ndarray, rate_hz: float, last_slot: int) -> tuple[np.ndarray, int]:

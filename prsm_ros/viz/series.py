@@ -5,6 +5,10 @@ and every quantity of the internal loads' (roller, quantity) and (quantity,) blo
 `series/<block>/<quantity>`, with one line per roller (or one line). Inputs read back from a bag that are not model
 outputs (a controller's nut position reference, say) go to `series/inputs/<name>`.
 
+Units follow `prsm-bag report`: lengths in mm (`nut_position_mm`, the reference, deflections) and slip
+speeds in mm/s (`slip_speed_mm_s`, `…_slip_…_mm_s`), so a figure and the viewer read the same numbers;
+the entity name carries the unit shown (`shown`). The 3D scene stays in metres (REP 103).
+
 All rows carry the `sim_time` timeline: a duration, the simulation time of the step's end, in
 integer nanoseconds rounded like `prsm_ros.messages.time_ns`, so a bag and a live run of the same
 steps land on the same instants. Nothing here logs one value per call: a batch of steps is one
@@ -27,6 +31,15 @@ INPUTS_ROOT = f"{SERIES_ROOT}/inputs"
 UNITS: dict[str, str] = dict(OUTPUT_FIELDS)
 
 
+def shown(name: str, unit: str) -> tuple[str, str, float]:
+    """(entity name, unit, scale) a quantity is shown with: m → mm, a slip's m/s → mm/s, else as it is."""
+    if unit == "m" and name.endswith("_m"):
+        return name[:-2] + "_mm", "mm", 1e3
+    if unit == "m/s" and "slip" in name and name.endswith("_m_s"):
+        return name[:-4] + "_mm_s", "mm/s", 1e3
+    return name, unit, 1.0
+
+
 def sim_time_index(time_s: np.ndarray) -> rr.TimeColumn:
     """The `sim_time` index column for step-end times in seconds (rounded to whole nanoseconds)."""
     ns = np.round(np.asarray(time_s, dtype=float) * 1e9).astype(np.int64)
@@ -34,11 +47,12 @@ def sim_time_index(time_s: np.ndarray) -> rr.TimeColumn:
 
 
 def scalar_path(name: str) -> str:
-    return f"{SERIES_ROOT}/{name}"
+    """The entity of a scalar output (by its OUTPUT_FIELDS name), in the unit it is shown with."""
+    return f"{SERIES_ROOT}/{shown(name, UNITS.get(name, ''))[0]}"
 
 
-def block_path(block: str, quantity: str) -> str:
-    return f"{SERIES_ROOT}/{block}/{quantity}"
+def block_path(block: str, quantity: str, unit: str = "") -> str:
+    return f"{SERIES_ROOT}/{block}/{shown(quantity, unit)[0]}"
 
 
 def input_path(name: str) -> str:
@@ -62,13 +76,17 @@ class SeriesEntity:
 
 def series_entities(scalar_names: Iterable[str], layout: InternalLayout) -> list[SeriesEntity]:
     """What `send_series` writes for these scalar columns and this layout (time_s is the index, not a series)."""
-    out = [SeriesEntity(scalar_path(n), UNITS.get(n, ""), (f"{n} [{UNITS.get(n, '?')}]",))
-           for n in scalar_names if n != "time_s"]
+    out = []
+    for n in scalar_names:
+        if n != "time_s":
+            name, unit, _ = shown(n, UNITS.get(n, ""))
+            out.append(SeriesEntity(scalar_path(n), unit, (f"{name} [{unit or '?'}]",)))
     for b in series_blocks(layout):
         for q, unit in b.quantities:
+            name, shown_unit, _ = shown(q, unit)
             names = (tuple(f"{b.dims[0]} {i}" for i in range(b.shape[0])) if len(b.dims) == 2
-                     else (f"{q} [{unit}]",))
-            out.append(SeriesEntity(block_path(b.name, q), unit, names))
+                     else (f"{name} [{shown_unit}]",))
+            out.append(SeriesEntity(block_path(b.name, q, unit), shown_unit, names))
     return out
 
 
@@ -93,25 +111,30 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
     for name, values in columns.items():
         if name == "time_s":
             continue
+        scale = shown(name, UNITS.get(name, ""))[2]
         rec.send_columns(scalar_path(name), indexes=index,
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)))
+                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float) * scale))
     if internal is not None and layout.size:
         internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
         offsets = layout.offsets()
         for b in series_blocks(layout):
             block = internal[:, offsets[b.name]: offsets[b.name] + b.size].reshape((n,) + b.shape)
-            for k, (q, _) in enumerate(b.quantities):
-                rec.send_columns(block_path(b.name, q), indexes=index,
-                                 columns=rr.Scalars.columns(scalars=np.ascontiguousarray(block[..., k])))
+            for k, (q, unit) in enumerate(b.quantities):
+                scale = shown(q, unit)[2]
+                rec.send_columns(block_path(b.name, q, unit), indexes=index,
+                                 columns=rr.Scalars.columns(scalars=np.ascontiguousarray(block[..., k]) * scale))
     return n
 
 
 def log_input_style(rec: rr.RecordingStream, name: str, unit: str = "") -> None:
+    """The legend of an input, in the unit it is shown with (a reference in m is shown in mm)."""
+    unit = shown(name + "_m", unit)[1] if unit == "m" else unit
     rec.log(input_path(name), rr.SeriesLines(names=[f"{name} [{unit}]" if unit else name]), static=True)
 
 
-def send_input(rec: rr.RecordingStream, name: str, time_s: np.ndarray, values: np.ndarray) -> None:
+def send_input(rec: rr.RecordingStream, name: str, time_s: np.ndarray, values: np.ndarray, unit: str = "") -> None:
     """A recorded input stream (e.g. a controller's reference) beside the outputs, at its own times."""
+    scale = 1e3 if unit == "m" else 1.0
     if len(time_s):
         rec.send_columns(input_path(name), indexes=[sim_time_index(time_s)],
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)))
+                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float) * scale))

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import struct
 import threading
 import time
 import uuid
@@ -171,7 +172,7 @@ class RecordingWriter:
         if name not in self.inputs:
             self._series.log_input_style(self.rec, name, unit)
             self.inputs.append(name)
-        self._series.send_input(self.rec, name, time_s, values)
+        self._series.send_input(self.rec, name, time_s, values, unit)
 
     def blueprint(self):
         from prsm_ros.viz.blueprint import default_blueprint
@@ -216,6 +217,7 @@ class RerunSink:
         self.batches = 0
         self.flush_time_s = 0.0  # wall time the background thread spent on batches
         self._queue: deque[Outputs] = deque()
+        self._inputs: deque[tuple[str, float, float, str]] = deque()  # (name, time s, value, unit)
         self._closed = False
         self._thread: threading.Thread | None = None
         self._wake = threading.Event()
@@ -284,7 +286,43 @@ class RerunSink:
         self._queue.append(out)
         self.submitted += 1
 
+    def submit_input(self, name: str, time_s: float, value: float, unit: str = "") -> None:
+        """Queue one sample of an input the run does not output (the controller's nut position reference),
+        plotted beside the outputs at its own time as `bag_to_rrd` does; O(1), bounded like `submit`."""
+        if self.writer is None or self._closed or self.error is not None:
+            return
+        if len(self._inputs) >= self.queue_size:
+            self.dropped += 1
+            return
+        self._inputs.append((name, float(time_s), float(value), unit))
+
+    def submit_reference(self, raw: bytes, joint: str) -> None:
+        """A nut position reference as CDR bytes of a sensor_msgs/JointState (the node's
+        `~/nut_position_reference`): `joint`'s position at the header stamp, the state it answers."""
+        from prsm_ros.cdr_read import joint_state_position
+        try:
+            stamp_ns, x = joint_state_position(raw, joint)
+        except (ValueError, IndexError, struct.error):
+            return  # the recorder keeps what does not parse; the viewer has nothing to draw
+        self.submit_input("nut_position_reference", stamp_ns * 1e-9, x, "m")
+
+    def _drain_inputs(self) -> None:
+        n = len(self._inputs)
+        by_name: dict[tuple[str, str], tuple[list[float], list[float]]] = {}
+        for _ in range(n):
+            name, t, v, unit = self._inputs.popleft()
+            ts, vs = by_name.setdefault((name, unit), ([], []))
+            ts.append(t)
+            vs.append(v)
+        for (name, unit), (ts, vs) in by_name.items():
+            self.writer.send_input(name, np.array(ts), np.array(vs), unit)
+
     def _drain(self) -> None:
+        if self._inputs and self.error is None:
+            try:
+                self._drain_inputs()
+            except Exception as e:  # never propagate into the node: report and stop logging
+                self.error = f"rerun logging failed: {type(e).__name__}: {e}"
         n = len(self._queue)
         if n == 0 or self.error is not None:
             return
