@@ -19,6 +19,7 @@ from prsm_ros.bag.reader import BagError  # noqa: E402
 from prsm_ros.mcap.offline import write_trajectory_mcap  # noqa: E402
 from prsm_ros.viz.from_bag import bag_to_rrd  # noqa: E402
 from prsm_ros.viz.sink import RerunSink  # noqa: E402
+from prsm_ros.viz.series import block_path, scalar_path  # noqa: E402
 
 N = 1200
 RATE_HZ = 30.0
@@ -53,14 +54,16 @@ def test_our_bag_converts_to_a_verified_rrd_with_every_step(ours):
     assert summary["duration_s"] == pytest.approx(traj["time_s"][-1] - traj["time_s"][0])
     rows = rrd_rows(rrd)
     for name, _ in OUTPUT_FIELDS[1:]:
-        assert rows[(f"/series/{name}", "Scalars:scalars")] == N, name
+        assert rows[(f"/{scalar_path(name)}", "Scalars:scalars")] == N, name
     for block in ("per_roller", "carrier"):  # (roller, quantity) and (quantity,) blocks are series
         b = next(b for b in traj.layout.blocks if b.name == block)
-        for q, _ in b.quantities:
-            assert rows[(f"/series/{block}/{q}", "Scalars:scalars")] == N, q
+        for q, unit in b.quantities:
+            assert rows[(f"/{block_path(block, q, unit)}", "Scalars:scalars")] == N, q
     assert not any(e.startswith("/series/per_tooth") for e in entities(rows))  # heat maps, not series
     assert rows[("/series/inputs/nut_position_reference", "Scalars:scalars")] == N
-    assert rows[("/series/inputs/screw_torque", "Scalars:scalars")] == N
+    # one series per quantity: the recorded torque command is the applied screw torque, not drawn twice
+    assert not any(e.startswith("/series/inputs/screw_torque") for e in entities(rows))
+    assert rows[("/loads/along_nut/per_tooth/nut_normal_force_n", "BarChart:values")] == frames
     assert rows[("/world/nut/carrier/forces/screw_normal_force", "Arrows3D:vectors")] == frames
     assert rows[("/loads/per_tooth/nut_normal_force_n", "Tensor:data")] == frames
     assert has_blueprint(rrd)
@@ -81,9 +84,9 @@ def test_series_match_the_bag_as_rosbags_reads_it(ours):
             t_bag.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
             nut.append(msg.position[list(msg.name).index("nut_joint")])
             torque.append(msg.effort[list(msg.name).index("screw_joint")])
-    t, vals = rrd_component(rrd, "/series/nut_position_m", "Scalars:scalars")
+    t, vals = rrd_component(rrd, "/series/nut_position_mm", "Scalars:scalars")  # in mm, as the report shows it
     np.testing.assert_array_equal(t, t_bag)
-    np.testing.assert_array_equal(np.array(vals).ravel(), nut)
+    np.testing.assert_array_equal(np.array(vals).ravel(), np.array(nut) * 1e3)
     _, vals = rrd_component(rrd, "/series/screw_torque_nm", "Scalars:scalars")
     np.testing.assert_array_equal(np.array(vals).ravel(), torque)
 
@@ -138,7 +141,7 @@ def test_joint_states_only_bag_gives_series_and_screw_nut_motion(joint_states_on
     assert summary["geometry"].startswith("schematic")
     assert summary["duration_s"] == pytest.approx(2.99)
     rows = rrd_rows(rrd)
-    for name in ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm", "nut_position_m",
+    for name in ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm", "nut_position_mm",
                  "nut_velocity_m_s", "nut_force_n"):
         assert rows[(f"/series/{name}", "Scalars:scalars")] == 300, name
     assert rows[("/series/inputs/joint_states/wrist/position", "Scalars:scalars")] == 300
@@ -147,9 +150,9 @@ def test_joint_states_only_bag_gives_series_and_screw_nut_motion(joint_states_on
     assert rows[("/world/nut", "Transform3D:translation")] == frames
     assert ("/world/nut/carrier", "Transform3D:quaternion") not in rows  # no carrier angle in this bag
     assert not any(e.startswith("/world/nut/carrier/forces") for e in entities(rows))
-    t, vals = rrd_component(rrd, "/series/nut_position_m", "Scalars:scalars")
+    t, vals = rrd_component(rrd, "/series/nut_position_mm", "Scalars:scalars")
     assert t[0] == 0 and t[-1] == 2_990_000_000  # a foreign bag's sim_time starts at its first message
-    np.testing.assert_allclose(np.array(vals).ravel(), 0.005 / (2 * np.pi) * 0.1 * np.arange(300))
+    np.testing.assert_allclose(np.array(vals).ravel(), 1e3 * 0.005 / (2 * np.pi) * 0.1 * np.arange(300))
     assert has_blueprint(rrd)
 
 

@@ -48,14 +48,14 @@ def test_node_run_in_save_mode_records_every_step(tmp_path):
 
     res = rrd_verify(rrd)
     assert res.returncode == 0, res.stderr
-    t_ns, nut = rrd_component(rrd, "/series/nut_position_m", "Scalars:scalars")
+    t_ns, nut = rrd_component(rrd, "/series/nut_position_mm", "Scalars:scalars")
     n = len(t_ns)
     assert n > 1000
     np.testing.assert_array_equal(t_ns, np.arange(1, n + 1) * 1_000_000)  # every step, none dropped
     by_time = dict(zip(t_ns.tolist(), np.array(nut).ravel().tolist()))
     for m in states:
         stamp = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-        assert by_time[stamp] == m.position[1]
+        assert by_time[stamp] == m.position[1] * 1e3  # shown in mm
     rows = rrd_rows(rrd)
     assert rows[("/series/screw_torque_nm", "Scalars:scalars")] == n
     frames = len({(k + 1) * 30 // 1000 for k in range(n)})

@@ -124,7 +124,8 @@ def test_blueprint_has_heat_maps_only_for_per_tooth_layouts_and_no_empty_plots()
     assert sum(c == "Tensor" for c, _ in _views(default_blueprint(all_scalars, jones))) == 0
     few = _views(default_blueprint(["time_s", "nut_position_m", "screw_torque_nm"], InternalLayout(blocks=()),
                                    scene=False))
-    assert [name for c, name in few if c == "TimeSeries"] == ["Nut position [m]", "Screw torque [N·m]"]
+    assert [name for c, name in few if c == "TimeSeries"] == ["Nut position [mm]", "Screw torque [N·m]"]
+    assert sum(c == "BarChart" for c, _ in fu_views) == 2  # the load along the nut beside each heat map
     assert not any(c == "3D" for c, _ in few)
 
 

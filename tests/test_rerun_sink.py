@@ -28,6 +28,7 @@ from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pyt
 import rerun as rr  # the test extra installs it; a missing install must fail, not skip
 from prsm_ros.viz.scene import arrow_length_m  # noqa: E402
 from prsm_ros.viz.sink import RerunSink  # noqa: E402
+from prsm_ros.viz.series import block_path, scalar_path  # noqa: E402
 
 N_STEPS = 1500
 RATE_HZ = 30.0
@@ -71,9 +72,9 @@ def test_save_mode_file_verifies_and_holds_every_step(jones_run):
     assert "verified without error" in res.stdout + res.stderr
     rows = rrd_rows(path)
     for name, _ in OUTPUT_FIELDS[1:]:
-        assert rows[(f"/series/{name}", "Scalars:scalars")] == N_STEPS, name
-    for q, _ in sim.layout.blocks[0].quantities:
-        assert rows[(f"/series/per_roller/{q}", "Scalars:scalars")] == N_STEPS, q
+        assert rows[(f"/{scalar_path(name)}", "Scalars:scalars")] == N_STEPS, name
+    for q, unit in sim.layout.blocks[0].quantities:
+        assert rows[(f"/{block_path('per_roller', q, unit)}", "Scalars:scalars")] == N_STEPS, q
     frames = expected_frames(outs)
     assert sink.stats()["scene_frames"] == frames == 46
     assert rows[("/world/screw", "Transform3D:quaternion")] == frames
@@ -91,9 +92,9 @@ def test_save_mode_file_verifies_and_holds_every_step(jones_run):
 
 def test_series_equal_the_simulator_outputs(jones_run):
     path, _, _, outs, _ = jones_run
-    for name in ("nut_position_m", "screw_torque_nm", "speed_ratio"):
-        t_ns, vals = rrd_component(path, f"/series/{name}", "Scalars:scalars")
-        want = np.array([getattr(o, name) for o in outs])
+    for name, scale in (("nut_position_m", 1e3), ("screw_torque_nm", 1.0), ("speed_ratio", 1.0)):
+        t_ns, vals = rrd_component(path, f"/{scalar_path(name)}", "Scalars:scalars")
+        want = np.array([getattr(o, name) for o in outs]) * scale  # lengths in mm, as the report shows them
         np.testing.assert_array_equal(t_ns, [round(o.time_s * 1e9) for o in outs])
         np.testing.assert_allclose(np.array(vals).ravel(), want, rtol=0, atol=0, equal_nan=True)
 
@@ -135,8 +136,8 @@ def test_friction_arrows_oppose_slip_at_the_documented_length(jones_run):
     t_arrow, vectors = rrd_component(path, "/world/nut/carrier/forces/screw_friction", "Arrows3D:vectors")
     slip = {}
     for axis in ("radial", "tangential", "axial"):
-        t, vals = rrd_component(path, f"/series/per_roller/screw_slip_{axis}_m_s", "Scalars:scalars")
-        slip[axis] = dict(zip(t.tolist(), vals))
+        t, vals = rrd_component(path, f"/series/per_roller/screw_slip_{axis}_mm_s", "Scalars:scalars")
+        slip[axis] = dict(zip(t.tolist(), (np.asarray(v) * 1e-3 for v in vals)))  # shown in mm/s
     checked = 0
     for t, vec in zip(t_arrow.tolist(), vectors):
         v_s = np.array([slip[a][t][0] for a in ("radial", "tangential", "axial")])  # roller 0, carrier frame
@@ -199,7 +200,7 @@ def test_full_queue_drops_and_counts(tmp_path):
     run_into(sink, "jones2016", n=50, preset_name="jones2016")
     assert sink.dropped == 40 and sink.submitted == 10
     assert rrd_verify(path).returncode == 0
-    assert rrd_rows(path)[("/series/nut_position_m", "Scalars:scalars")] == 10
+    assert rrd_rows(path)[("/series/nut_position_mm", "Scalars:scalars")] == 10
 
 
 def _fds_on(path) -> list[str]:
@@ -280,7 +281,7 @@ def test_a_script_that_never_closes_still_leaves_a_finished_file(tmp_path):
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=env)
     assert res.returncode == 0, res.stderr
     assert rrd_verify(path).returncode == 0
-    assert rrd_rows(path)[("/series/nut_position_m", "Scalars:scalars")] == 300
+    assert rrd_rows(path)[("/series/nut_position_mm", "Scalars:scalars")] == 300
 
 
 def test_off_mode_starts_and_imports_nothing():
@@ -368,7 +369,7 @@ def _received(port: int, path) -> dict:
         while time.monotonic() < end:
             time.sleep(0.5)
             rows = rrd_rows(path) if path.exists() else {}
-            if rows.get(("/series/nut_position_m", "Scalars:scalars"), 0) >= 300:
+            if rows.get(("/series/nut_position_mm", "Scalars:scalars"), 0) >= 300:
                 break
         return rows
     finally:
@@ -396,7 +397,7 @@ def test_connect_mode_streams_every_step_to_a_server(grpc_server, tmp_path, targ
     run_into(sink, "jones2016", n=300, preset_name="jones2016")
     assert sink.error is None
     rows = _received(grpc_server, tmp_path / "received.rrd")
-    assert rows[("/series/nut_position_m", "Scalars:scalars")] == 300
+    assert rows[("/series/nut_position_mm", "Scalars:scalars")] == 300
     assert rows[("/world/nut", "Transform3D:translation")] == 10
     assert "/viewport" in entities(rows)  # the blueprint went along
 
@@ -407,7 +408,7 @@ def test_spawn_mode_uses_a_viewer_already_on_the_port(grpc_server, tmp_path):
     sink = RerunSink("spawn", str(grpc_server), params, Simulator(params, "jones2016").layout, "jones2016")
     run_into(sink, "jones2016", n=300, preset_name="jones2016")
     assert sink.error is None
-    assert _received(grpc_server, tmp_path / "received.rrd")[("/series/nut_position_m", "Scalars:scalars")] == 300
+    assert _received(grpc_server, tmp_path / "received.rrd")[("/series/nut_position_mm", "Scalars:scalars")] == 300
 
 
 def _listener_pid(port: int) -> int | None:
@@ -434,7 +435,7 @@ def test_spawn_mode_starts_a_native_viewer(tmp_path, monkeypatch):
         viewer = _listener_pid(port)
         run_into(sink, "jones2016", n=300, preset_name="jones2016")
         assert sink.error is None and viewer is not None
-        assert _received(port, tmp_path / "received.rrd")[("/series/nut_position_m", "Scalars:scalars")] == 300
+        assert _received(port, tmp_path / "received.rrd")[("/series/nut_position_mm", "Scalars:scalars")] == 300
     finally:
         if viewer is not None:
             os.kill(viewer, 9)

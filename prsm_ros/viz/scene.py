@@ -270,8 +270,12 @@ class Scene:
             rec.log(f"{FORCES}/{f.name}", rr.Arrows3D.from_fields(radii=[r_r / 8]), static=True)
         for block, _, q, _ in self.tooth:
             rec.log(f"{TOOTH_LOADS}/{q}", rr.Points3D.from_fields(radii=[pitch / 5]), static=True)
-            rec.log(along_nut_path(block, q), rr.BarChart.from_fields(
-                abscissa=np.arange(1, self.geo.n_teeth + 1, dtype=np.float64), color=(31, 119, 180, 255)), static=True)
+            # the bars' x (tooth 1 … N_T) and colour, static; their values come per frame
+            rec.log(along_nut_path(block, q), [
+                rr.components.TensorDataBatch(np.arange(1, self.geo.n_teeth + 1, dtype=np.float64)).described(
+                    rr.BarChart.descriptor_abscissa()),
+                rr.components.ColorBatch([(31, 119, 180, 255)]).described(rr.BarChart.descriptor_color())],
+                static=True)
         rec.log(ABOUT, rr.TextDocument(self.about(), media_type=rr.MediaType.MARKDOWN), static=True)
 
     def about(self) -> str:
