@@ -49,26 +49,25 @@ def _reported(path: Path, out: Path) -> tuple[dict, dict]:
     return r, kept
 
 
-@pytest.fixture(scope="module")
-def elastic(tmp_path_factory):
-    """A loaded elastic run: its thread loads are the solved, non-uniform distribution."""
-    tmp = tmp_path_factory.mktemp("el")
-    path, p = _bag(tmp, "elastic", 60, 20.0, 20_000.0)
+def _reported_run(tmp_path_factory, model: str, steps: int, torque_nm: float, load_n: float):
+    tmp = tmp_path_factory.mktemp(model)
+    path, p = _bag(tmp, model, steps, torque_nm, load_n)
     yield (path, p, tmp / "rep", *_reported(path, tmp / "rep"))
     import matplotlib.pyplot as plt
     plt.close("all")
+
+
+@pytest.fixture(scope="module")
+def elastic(tmp_path_factory):
+    """A loaded elastic run: its thread loads are the solved, non-uniform distribution."""
+    yield from _reported_run(tmp_path_factory, "elastic", 60, 20.0, 20_000.0)
 
 
 @pytest.fixture(scope="module")
 def fu(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("fu")
-    path, p = _bag(tmp, "fu2018", 80, 6.0, 5_000.0)
-    yield (path, p, tmp / "rep", *_reported(path, tmp / "rep"))
-    import matplotlib.pyplot as plt
-    plt.close("all")
+    yield from _reported_run(tmp_path_factory, "fu2018", 80, 6.0, 5_000.0)
 
 
-@pytest.mark.slow
 def test_load_distribution_of_an_elastic_run_is_not_uniform_and_balances_the_force(elastic):
     path, p, out, r, figures = elastic
     assert (out / "load_distribution.png").is_file() and str(out / "load_distribution.png") in r["plots"]

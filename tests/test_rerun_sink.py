@@ -137,7 +137,7 @@ def test_friction_arrows_oppose_slip_at_the_documented_length(jones_run):
     slip = {}
     for axis in ("radial", "tangential", "axial"):
         t, vals = rrd_component(path, f"/series/per_roller/screw_slip_{axis}_mm_s", "Scalars:scalars")
-        slip[axis] = dict(zip(t.tolist(), (np.asarray(v) * 1e-3 for v in vals)))  # shown in mm/s
+        slip[axis] = dict(zip(t.tolist(), (np.asarray(v) * 1e-3 for v in vals), strict=True))  # shown in mm/s
     checked = 0
     for t, vec in zip(t_arrow.tolist(), vectors):
         v_s = np.array([slip[a][t][0] for a in ("radial", "tangential", "axial")])  # roller 0, carrier frame

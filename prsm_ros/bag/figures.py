@@ -21,6 +21,7 @@ normal makes the same angle with the axis, so the axial components are in the no
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,7 +58,7 @@ class Context:
     def title(self, what: str) -> str:
         head = (f"{what} — {self.bag}\nmodel {self.model}, preset {self.preset}, load {self.load}, "
                 f"controller: {self.controller}")
-        return head + (f"\n{self.description}" if self.description else "")
+        return head + ("\n" + "\n".join(textwrap.wrap(self.description, 120)) if self.description else "")
 
 
 @dataclass(frozen=True)
@@ -259,8 +260,8 @@ def thread_loads(s, labels: dict) -> dict | None:
     return {"loads_n": loads, "axial_n": np.nan_to_num(axial), "source": source}
 
 
-def load_distribution_summary(s, labels: dict) -> dict | None:
-    """Peak instant, the largest thread load over the uniform share (at the peak and averaged), source."""
+def _distribution(s, labels: dict) -> dict | None:
+    """`thread_loads` at the peak instant and averaged over the loaded samples, with the uniform shares."""
     d = thread_loads(s, labels)
     if d is None or not np.any(d["axial_n"] > 0):
         return None
@@ -268,27 +269,34 @@ def load_distribution_summary(s, labels: dict) -> dict | None:
     k = int(np.argmax(axial))
     n_r, n_t = loads.shape[1:]
     loaded = axial > 0
-    avg = loads[loaded].mean(axis=0)
-    return {"peak_time_s": float(s.t_s[k]), "peak_axial_force_n": float(axial[k]),
-            "max_over_uniform_at_peak": float(loads[k].max() / (axial[k] / (n_r * n_t))),
-            "max_over_uniform_averaged": float(avg.max() / (axial[loaded].mean() / (n_r * n_t))),
-            "rollers": int(n_r), "threads": int(n_t), "source": d["source"]}
+    return {**d, "k": k, "rollers": int(n_r), "threads": int(n_t),
+            "average_n": loads[loaded].mean(axis=0),  # roller × tooth
+            "uniform_peak_n": axial[k] / (n_r * n_t), "uniform_average_n": axial[loaded].mean() / (n_r * n_t)}
+
+
+def load_distribution_summary(s, labels: dict) -> dict | None:
+    """Peak instant, the largest thread load over the uniform share (at the peak and averaged), source."""
+    d = _distribution(s, labels)
+    if d is None:
+        return None
+    k = d["k"]
+    return {"peak_time_s": float(s.t_s[k]), "peak_axial_force_n": float(d["axial_n"][k]),
+            "max_over_uniform_at_peak": float(d["loads_n"][k].max() / d["uniform_peak_n"]),
+            "max_over_uniform_averaged": float(d["average_n"].max() / d["uniform_average_n"]),
+            "rollers": d["rollers"], "threads": d["threads"], "source": d["source"]}
 
 
 def load_distribution_figure(path: Path, s, labels: dict, ctx: Context) -> Path | None:
     """`load_distribution.png`: load per thread along the nut (rollers as a band) against the uniform share."""
-    d = thread_loads(s, labels)
-    if d is None or not np.any(d["axial_n"] > 0):
+    d = _distribution(s, labels)
+    if d is None:
         return None
-    loads, axial = d["loads_n"], d["axial_n"]
-    k = int(np.argmax(axial))
-    n_r, n_t = loads.shape[1:]
-    loaded = axial > 0
-    avg = loads[loaded].mean(axis=0)  # roller × tooth, over the loaded samples
+    loads, axial, avg, k = d["loads_n"], d["axial_n"], d["average_n"], d["k"]
+    n_r, n_t = d["rollers"], d["threads"]
+    uniform_peak, uniform_avg = d["uniform_peak_n"], d["uniform_average_n"]
     x = np.arange(1, n_t + 1)
     fig, ax = new_figure(2, height_in=2.9, sharex=True)
     top, share = ax[0, 0], ax[1, 0]
-    uniform_peak, uniform_avg = axial[k] / (n_r * n_t), axial[loaded].mean() / (n_r * n_t)
     # the uniform share drawn first and thicker, so curves that sit on it stay visible over it
     top.axhline(uniform_peak, color="black", linestyle="--", linewidth=1.6, zorder=1,
                 label="uniform share F/(N_R N_T) at the peak")
@@ -347,11 +355,7 @@ def motion_figure(path: Path, d: RunData, ctx: Context, marks: Marks, t_range=No
         a[2].plot(d.t, d.error_m * 1e6, color=C_FOURTH, label="reference − nut position")
         a[2].axhline(0.0, color="black", linewidth=0.6)
         a[2].set_ylabel("tracking error [µm]")
-    for x in a:
-        legend(x)
-    if t_range is not None:
-        a[0].set_xlim(*t_range)
-    return save(fig, list(a), path, ctx.title(_zoomed("Motion", t_range)), marks, t_range=t_range)
+    return _save_timed(fig, list(a), path, ctx, "Motion", marks, t_range)
 
 
 def loads_figure(path: Path, d: RunData, ctx: Context, marks: Marks, t_range=None) -> Path:
@@ -367,15 +371,17 @@ def loads_figure(path: Path, d: RunData, ctx: Context, marks: Marks, t_range=Non
         a[1].plot(d.internal[0].t_s, d.internal[0].values["load_force_n"], color=C_SECOND, linestyle="--",
                   label="applied load")
     a[1].set_ylabel("force [N]")
-    for x in a:
-        legend(x)
+    return _save_timed(fig, list(a), path, ctx, "Torque and force", marks, t_range)
+
+
+def _save_timed(fig, axes, path: Path, ctx: Context, what: str, marks: Marks, t_range) -> Path:
+    """Legends, the zoom window (when given) and the title of a time figure, then `save`."""
+    for a in axes:
+        legend(a)
     if t_range is not None:
-        a[0].set_xlim(*t_range)
-    return save(fig, list(a), path, ctx.title(_zoomed("Torque and force", t_range)), marks, t_range=t_range)
-
-
-def _zoomed(what: str, t_range) -> str:
-    return what if t_range is None else f"{what}, zoom on the busiest window {t_range[0]:.4g}–{t_range[1]:.4g} s"
+        axes[0].set_xlim(*t_range)
+        what = f"{what}, zoom on the busiest window {t_range[0]:.4g}–{t_range[1]:.4g} s"
+    return save(fig, axes, path, ctx.title(what), marks, t_range=t_range)
 
 
 def running_efficiency(terms: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -466,7 +472,9 @@ def internal_loads_figure(path: Path, d: RunData, ctx: Context, marks: Marks, ex
         low.set_xlabel("time [s]")
     flat[0].legend(loc="lower right", fontsize="x-small", frameon=True)
     used = list(flat[:len(panels)])
-    what = "Internal loads (blue: mean, band: min–max across the rollers or teeth)"
+    alike = all(np.nanmax(np.nanmax(v, axis=1) - np.nanmin(v, axis=1)) <= 1e-9 * np.nanmax(v) for _, _, v in panels)
+    what = "Internal loads (blue: mean, band: min–max across the rollers or teeth" + (
+        "; every roller and tooth carries the same: the band has no width)" if alike else ")")
     mark(used, marks)
     return save(fig, used, path, ctx.title(what))
 

@@ -665,6 +665,12 @@ def _life_line(life: dict | None) -> str:
             f"{readable(life['l10_cycles'], 'times')})")
 
 
+def _distribution_line(d: dict) -> str:
+    return (f"load along the nut ({d['rollers']} rollers × {d['threads']} threads, {d['source']}): largest thread "
+            f"{d['max_over_uniform_at_peak']:.3g}× the uniform share at the peak ({force_text(d['peak_axial_force_n'])} "
+            f"at t = {_fmt(d['peak_time_s'], 's')}), {d['max_over_uniform_averaged']:.3g}× averaged over the run")
+
+
 def summary_text(r: dict) -> str:
     """The report as a few readable lines (stdout)."""
     lines = [f"bag: {r['bag']}" + ("" if r["complete"] else "  (unfinished file)")]
@@ -708,12 +714,8 @@ def summary_text(r: dict) -> str:
                      f"(max {_fmt(m.get('nut_position_max_error_m'), 'µm', 1e6)}), nut force RMS "
                      f"{_fmt(m.get('nut_force_rms_error_n'), 'N')}")
     lines.append(_life_line(r["life"]))
-    dist = r.get("load_distribution")
-    if dist:
-        lines.append(f"load along the nut ({dist['rollers']} rollers × {dist['threads']} threads, {dist['source']}): "
-                     f"largest thread {dist['max_over_uniform_at_peak']:.3g}× the uniform share at the peak "
-                     f"({_fmt(dist['peak_axial_force_n'], 'N')} at t = {_fmt(dist['peak_time_s'], 's')}), "
-                     f"{dist['max_over_uniform_averaged']:.3g}× averaged over the run")
+    if r.get("load_distribution"):
+        lines.append(_distribution_line(r["load_distribution"]))
     for ev in r.get("events", []):
         lines.append(f"event t = {_fmt(ev.get('time_s'), 's')} [{ev.get('severity', '?')}] {ev.get('source', '?')}/"
                      f"{ev.get('code', '?')}: {ev.get('message', '')}")
