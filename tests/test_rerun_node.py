@@ -37,9 +37,15 @@ def test_node_run_in_save_mode_records_every_step(tmp_path):
         try:
             states = client.subscribe(f"{NS}/joint_states", JointState, qos=QoSProfile(depth=10_000))
             client.publisher(f"{NS}/prsm_actuator/screw_torque", Float64)
+            client.publisher(f"{NS}/prsm_actuator/nut_position_reference", JointState)
             client.wait_for_node(proc)
             client.publish(f"{NS}/prsm_actuator/screw_torque", Float64(data=1.0))
             client.spin_until(lambda: len(states) > 800, timeout=20, what="800 joint states")
+            # a reference answering the latest state, as a controller stamps it: the live recording plots it
+            answered = states[-1]
+            reference = JointState(name=["screw_joint", "nut_joint"], position=[0.0, 0.0123])
+            reference.header.stamp = answered.header.stamp
+            client.publish(f"{NS}/prsm_actuator/nut_position_reference", reference)
             client.publish(f"{NS}/prsm_actuator/screw_torque", Float64(data=-1.0))
             client.spin_for(0.4)
         finally:
@@ -63,4 +69,7 @@ def test_node_run_in_save_mode_records_every_step(tmp_path):
     assert rows[("/loads/per_tooth/screw_normal_force_n", "Tensor:data")] == frames
     _, torque = rrd_component(rrd, "/series/screw_torque_nm", "Scalars:scalars")
     assert {1.0, -1.0} <= set(np.array(torque).ravel().tolist())  # both commands reached the recording
+    t_ref, ref = rrd_component(rrd, "/series/inputs/nut_position_reference", "Scalars:scalars")
+    stamp = answered.header.stamp.sec * 1_000_000_000 + answered.header.stamp.nanosec
+    assert t_ref.tolist() == [stamp] and np.array(ref).ravel().tolist() == [pytest.approx(12.3)]  # in mm
     assert has_blueprint(rrd)
