@@ -256,9 +256,9 @@ def test_to_rrd_subcommand_writes_a_recording(tracking, tmp_path, capsys):
     res = rrd_verify(rrd)  # the rerun CLI accepts the file
     assert res.returncode == 0, res.stderr
     # oracle: the simulated trajectory in the bag, every step, on simulation time, bit for bit
-    t, vals = rrd_component(rrd, "/series/nut_position_m", "Scalars:scalars")
+    t, vals = rrd_component(rrd, "/series/nut_position_mm", "Scalars:scalars")  # in mm, as the report shows it
     np.testing.assert_array_equal(t, np.round(traj["time_s"] * 1e9).astype(np.int64))
-    np.testing.assert_array_equal(np.ravel(vals), traj["nut_position_m"])
+    np.testing.assert_array_equal(np.ravel(vals), traj["nut_position_m"] * 1e3)
     rc, _, err = _cli(capsys, "to-rrd", tmp_path / "t.rrd", "-o", tmp_path / "u.rrd")
     assert rc == 2 and "not an MCAP file" in err
 

@@ -171,7 +171,7 @@ def test_rerun_save_writes_an_rrd_that_the_rerun_cli_verifies(tmp_path):
     res = rrd_verify(rrd)
     assert res.returncode == 0, res.stderr
     rows = rrd_rows(rrd)
-    assert rows[("/series/nut_position_m", "Scalars:scalars")] == 200, sorted(rows)[:20]
+    assert rows[("/series/nut_position_mm", "Scalars:scalars")] == 200, sorted(rows)[:20]
 
 
 # the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
