@@ -167,3 +167,21 @@ def test_load_steps_are_marked_with_the_new_load():
     assert load_steps(t, f) == [(0.5, "load → 2 kN", "black")]
     assert load_steps(t, np.full(t.size, 300.0)) == []  # constant: nothing to mark
     assert load_steps(t, 1000.0 * t) == []  # a ramp varies continuously: no step
+
+
+def test_marks_at_mode_switches_thread_end_contact_and_events():
+    from prsm_sim.actuator import ACTUATOR_QUANTITIES
+    from prsm_ros.bag.report import Series, _marks
+    t = np.arange(1, 101) * 1e-3
+    names = [n for n, _ in ACTUATOR_QUANTITIES]
+    block = np.zeros((t.size, len(names)))
+    block[50:, names.index("mode")] = 1.0  # effort → velocity at t = 0.051 s
+    block[70:80, names.index("thread_end")] = 1.0  # pressing on a thread end for 10 steps
+    labels = {"segments": [{"name": "actuator", "dims": ["quantity"],
+                            "quantities": [{"name": n, "unit": u} for n, u in ACTUATOR_QUANTITIES]}]}
+    internal = (Series(t, {"actuator": block}), labels)
+    marks = _marks(internal, [{"time_s": 0.02, "code": "thread_end_reached", "severity": "warn"}])
+    assert (0.02, "thread_end_reached", "darkorange") in marks.lines
+    assert (pytest.approx(0.051), "mode → velocity", "dimgray") in [(a, b, c) for a, b, c in marks.lines]
+    assert [(a, b, label) for a, b, label, _ in marks.spans] == [(pytest.approx(0.071), pytest.approx(0.081),
+                                                                  "thread end")]

@@ -41,7 +41,7 @@ DPI = 110
 # data colours (one per quantity within a figure); the marks use colours outside this set
 C_MAIN, C_SECOND, C_THIRD, C_FOURTH = "tab:blue", "tab:orange", "tab:green", "tab:purple"
 MARK_COLOURS = {"error": "darkred", "warn": "darkorange", "info": "dimgray", "load": "black"}
-SPAN_COLOURS = {"brake": "gold", "end stop": "sienna", "fault": "salmon"}
+SPAN_COLOURS = {"brake": "gold", "end stop": "sienna", "thread end": "tan", "fault": "salmon"}
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,8 @@ def mark(axes, marks: Marks, *, t_range: tuple[float, float] | None = None) -> N
                      textcoords="offset points", rotation=90, va="top", ha="left", fontsize="x-small", color=colour)
     keys: dict[str, object] = {}
     for _, label, colour in lines:
-        keys.setdefault("load step" if label.startswith("load") else f"event {label}",
+        keys.setdefault("load step" if label.startswith("load") else "mode switch" if label.startswith("mode")
+                        else f"event {label}",
                         Line2D([], [], color=colour, linestyle=":"))
     for _, _, label, colour in spans:
         keys.setdefault(label, Patch(color=colour, alpha=0.4))

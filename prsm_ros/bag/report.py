@@ -522,17 +522,26 @@ def _events(bag: Bag) -> list[dict]:
     return out
 
 
+COMMAND_MODES = {0: "effort", 1: "velocity", 2: "position"}  # the actuator block's `mode`
+
+
 def _marks(internal, events: list[dict]) -> Marks:
-    """What every plot marks: event lines and load steps (time, label, colour), and shaded spans
-    (start, end, label, colour) where the actuator block records the brake, an end stop or a fault."""
+    """What every plot marks: event lines (`~/events`: faults, thread ends, parameter changes…), load
+    steps and command-mode switches (time, label, colour), and shaded spans (start, end, label, colour)
+    where the actuator block records the brake, an end stop, a thread end or a fault."""
     lines = [(float(e["time_s"]), str(e.get("code", "event")), MARK_COLOURS.get(e.get("severity"), "dimgray"))
              for e in events if isinstance(e.get("time_s"), (int, float)) and math.isfinite(e["time_s"])]
     spans = []
     if internal is not None:
         t = internal[0].t_s
         lines += load_steps(t, internal[0].values.get("load_force_n"))
+        mode = _block_quantity(internal, "actuator", "mode")
+        if mode is not None:  # a switch of the command interface (effort, velocity, position)
+            switched = np.flatnonzero(np.diff(np.nan_to_num(mode)) != 0) + 1
+            lines += [(float(t[k]), f"mode → {COMMAND_MODES.get(int(mode[k]), int(mode[k]))}", MARK_COLOURS["info"])
+                      for k in switched]
         for name, label, on in (("brake_level", "brake", lambda a: a > 0), ("stop_force_n", "end stop", lambda a: a != 0),
-                                ("faults_active", "fault", lambda a: a > 0)):
+                                ("thread_end", "thread end", lambda a: a > 0), ("faults_active", "fault", lambda a: a > 0)):
             a = _block_quantity(internal, "actuator", name)
             if a is not None:
                 spans += [(a0, a1, label, SPAN_COLOURS[label]) for a0, a1 in _spans(t, on(np.nan_to_num(a)))]
