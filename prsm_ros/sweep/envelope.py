@@ -42,7 +42,7 @@ def failure_yaml(case: dict, violations: list[str]) -> str:
 def run_envelope(runs: int, out: Path, *, first_seed: int = 0, address: str | None = None,
                  workers: int | None = None, progress=None) -> dict:
     """Run `runs` cases from `first_seed` on Ray; write failures and the summary under `out`."""
-    from prsm_ros.sweep.runner import connect, disconnect
+    from prsm_ros.ray_runner import connect, disconnect
     from prsm_sim.envelope import case_from_seed
 
     out.mkdir(parents=True, exist_ok=True)

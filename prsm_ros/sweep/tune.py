@@ -117,7 +117,7 @@ def _trainable(config: dict, norm: dict, metric: str, objective: str) -> None:
 def run_tune(norm: dict, ts: dict, storage: Path, *, address: str | None = None, workers: int | None = None) -> dict:
     """Search (Ray Tune's experiment folder under `storage`), then compare the best and the demo's
     default gains on held-out draws."""
-    from prsm_ros.sweep.runner import connect, disconnect
+    from prsm_ros.ray_runner import connect, disconnect
     ray, owned, tmp = connect(address, workers)
     try:
         from ray import tune
