@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from prsm_sim import __version__
 from prsm_sim.errors import PrsmError
 
 from prsm_ros.json_out import dumps
@@ -98,6 +99,7 @@ def cmd_tune(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     ray_opts = argparse.ArgumentParser(add_help=False)
     ray_opts.add_argument("--address", metavar="HOST:PORT", help="run on this Ray cluster (default: an embedded Ray)")
