@@ -64,7 +64,7 @@ def page_steps(markdown: str) -> list[dict]:
     """The page's blocks as steps: kind (shell, python, file, skip), body, expected output (or None)."""
     blocks = fenced_blocks(markdown)
     steps: list[dict] = []
-    for k, (info, body, line) in enumerate(blocks):
+    for info, body, line in blocks:
         lang = info.split()[0] if info else ""
         first = body.split("\n", 1)[0].strip()
         if lang == "text" and steps and steps[-1].get("expects") is None and steps[-1]["kind"] in ("shell", "python") \
@@ -220,7 +220,7 @@ def test_every_block_of_the_page_runs_as_written(page, tmp_path, monkeypatch, ca
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     out, err = proc.communicate()
-                    raise AssertionError(f"{where}: still running after {BLOCK_TIMEOUT_S} s\n{err[-3000:]}")
+                    raise AssertionError(f"{where}: still running after {BLOCK_TIMEOUT_S} s\n{err[-3000:]}") from None
                 assert proc.returncode == 0, f"{where}: exit status {proc.returncode}\n{out[-2000:]}\n{err[-4000:]}"
             elif step["kind"] == "python":
                 buf = io.StringIO()

@@ -397,7 +397,7 @@ def test_an_fmu_of_another_prsm_version_is_refused_at_instantiation(fmus, tmp_pa
     with pytest.raises(Exception, match="instantiate"):
         instantiate_fmu(extract(str(other)), md, debug_logging=True,
                         logger=lambda *a: messages.append(a[-1].decode()))
-    assert any(f"built by prsm 0.0.1" in m and f"has prsm {__version__}" in m for m in messages), messages
+    assert any("built by prsm 0.0.1" in m and f"has prsm {__version__}" in m for m in messages), messages
 
 
 def test_cli_builds_an_fmu_that_validates(tmp_path):

@@ -25,7 +25,7 @@ from prsm_sim.physics.contact import contact_for
 from test_rerun_support import RERUN_BIN, entities, has_blueprint, rrd_component, rrd_rows, rrd_verify
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
-import rerun as rr  # the test extra installs it; a missing install must fail, not skip
+import rerun as rr  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 from prsm_ros.viz.scene import arrow_length_m  # noqa: E402
 from prsm_ros.viz.sink import RerunSink  # noqa: E402
 

@@ -13,7 +13,7 @@ import os
 import platform
 import sys
 import time
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
