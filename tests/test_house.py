@@ -200,3 +200,16 @@ def test_the_checks_find_what_they_look_for():
     names = "if model == 'elastic': pass\nif m.name in ('fu2018', 'ideal'): pass\nif s in 'elastic': pass\n" \
             "if kind == 'coulomb': pass\n"
     assert _model_name_comparisons(ast.parse(names)) == [1, 2]
+
+
+def test_pytestmark_sits_above_the_tests():
+    """A module's `pytestmark` (its tier, its fixtures) is read where the module starts, before any test."""
+    late = []
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        body = ast.parse(path.read_text(encoding="utf-8")).body
+        first_def = next((n.lineno for n in body if isinstance(n, (ast.FunctionDef, ast.ClassDef))), None)
+        for n in body:
+            if (isinstance(n, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "pytestmark" for t in n.targets)
+                    and first_def is not None and n.lineno > first_def):
+                late.append(f"{path.relative_to(ROOT)}:{n.lineno}")
+    assert not late, "pytestmark below the first test; move it to the top:\n  " + "\n  ".join(late)
