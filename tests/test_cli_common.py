@@ -124,3 +124,29 @@ def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(t
     err = capsys.readouterr().err
     assert f"prsm-demo: interrupted: the bag so far is in {bag}" in err
     assert stopped.exists(), "the node was not stopped with SIGINT"
+
+
+DEPRECATED = {"prsm_ros.cli.json_out": "prsm_ros.json_out", "prsm_ros.cli.param_files": "prsm_ros.param_files"}
+
+
+@pytest.mark.parametrize("module", sorted(DEPRECATED))
+def test_compatibility_modules_warn_and_nothing_in_the_project_imports_them(module, monkeypatch):
+    """The old homes of the JSON and parameter-file helpers still work for users, warn with the
+    version that removes them (CHANGES.md says the same), and no module of the project uses them."""
+    import ast
+    import importlib
+    monkeypatch.delitem(sys.modules, module, raising=False)
+    with pytest.warns(DeprecationWarning, match=f"{module} is deprecated and is removed in prsm 0.2.0"):
+        mod = importlib.import_module(module)
+    new = importlib.import_module(DEPRECATED[module])
+    assert all(getattr(mod, n) is getattr(new, n) for n in mod.__all__)
+    assert f"`{module}`" in (ROOT / "CHANGES.md").read_text(encoding="utf-8").split("\n## ")[1]
+    users = []
+    for path in sorted([*(ROOT / "prsm_sim").rglob("*.py"), *(ROOT / "prsm_ros").rglob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+                     if isinstance(node, ast.ImportFrom) else [])
+            if module in names:
+                users.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not users, f"{module} is imported by {users}; import {DEPRECATED[module]}"

@@ -63,9 +63,6 @@ CONTROLLER_KEYS = ("bandwidth_hz", "damping", "integral_ratio", "max_torque_nm",
 REFERENCE_KEYS = ("amplitude_m", "frequency_hz")
 TOP_KEYS = ("preset", "params", "model", "scenario", "duration_s", "dt_s", "set", "vary", "samples", "seed",
             "metrics", "runs_per_task", "trajectories", "life", "tune", "actuator")
-# not part of the study's identity: how it is executed and what is kept besides the table
-EXECUTION_KEYS = ("runs_per_task", "trajectories", "tune")
-
 SELECTORS = ("final", "mean", "max", "min", "rms")
 COLUMN_NAMES = tuple(n for n, _ in OUTPUT_FIELDS)
 # run-level figures (no @selector): the summary of `prsm-sim run --json` and the study's own
