@@ -32,7 +32,7 @@ def _workers(v: str) -> int:
 
 
 def cmd_run(args) -> int:
-    from prsm_ros.sweep import runner, study
+    from prsm_ros.sweep import execute, runner, study
     raw, norm, ex = study.load(args.study)
     out = Path(args.output)
     text = read_text_file(args.study, what="study file", error=study.StudyError)  # the file load() accepted
@@ -51,6 +51,8 @@ def cmd_run(args) -> int:
         rate = f" ({s['ran'] / s['wall_time_s']:.1f} runs/s incl. Ray start)" if s["ran"] else ""
         print(f"study {s['study']}: {s['runs']} runs, {s['ran']} run now{rate}, "
               f"{s['skipped']} already recorded, {s['failed']} failed → {out / runner.RUNS}")
+        for line in execute.undefined_text(s["undefined"]):
+            print(f"  {line}")
     return 0
 
 

@@ -129,7 +129,9 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
         summary["wall_time_s"] = time.perf_counter() - t0
     else:
         consolidate(out)
-    summary["failed"] = sum(1 for r in recorded_rows(out) if r["status"] != "ok")
+    rows = recorded_rows(out)
+    summary["failed"] = sum(1 for r in rows if r["status"] != "ok")
+    summary["undefined"] = execute.undefined(rows, norm["metrics"])
     return summary
 
 
