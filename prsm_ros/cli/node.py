@@ -16,7 +16,7 @@ import rclpy.executors
 import rclpy.signals
 from rclpy.node import Node
 
-from prsm_sim import PrsmError, __version__
+from prsm_sim import PrsmError
 
 from prsm_ros.messages import NODE_NAME
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage
@@ -46,9 +46,6 @@ def main(argv: list[str] | None = None) -> int:
     user = args[1:args.index("--ros-args")] if "--ros-args" in args else args[1:]
     if "-h" in user or "--help" in user:
         print(usage())
-        return 0
-    if "--version" in user:
-        print(f"prsm-node {__version__}")
         return 0
     if "--params-template" in user:
         i = user.index("--params-template")

@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from prsm_sim.errors import PrsmError
-from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, Simulator, __version__
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.jones2016 import steady_state
@@ -410,6 +410,7 @@ def _envelope_one(args) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from prsm_sim import __version__
     ap = argparse.ArgumentParser(prog="prsm-sim", description="Offline planetary roller screw simulation.")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
