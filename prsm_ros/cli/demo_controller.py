@@ -144,34 +144,7 @@ def run(args: argparse.Namespace) -> dict:
     # after the middleware's threads exist, so that they are raised too (a state must not wait in a socket)
     scheduling = raise_process_threads(args.realtime_priority)
     try:
-        deadline = time.monotonic() + args.connect_timeout
-        # matched both ways and the pause service up: the node waits, paused, for us to resume it,
-        # so no step runs before we listen (in lockstep a first state sent before then is lost for good)
-        while (tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0
-               or not pause.service_is_ready()):
-            if time.monotonic() > deadline:
-                print(f"prsm-demo controller: no node listening on {cmd_topic.resolved()} with {pause.srv_name} "
-                      f"after {args.connect_timeout:g} s", file=sys.stderr)
-                break
-            executor.spin_once(timeout_sec=0.05)
-        else:
-            resumed = pause.call_async(SetBool.Request(data=False))
-            executor.spin_until_future_complete(resumed, timeout_sec=max(0.0, deadline - time.monotonic()))
-            if not resumed.done():
-                print(f"prsm-demo controller: {pause.srv_name} did not answer within {args.connect_timeout:g} s",
-                      file=sys.stderr)
-            else:
-                tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
-                kicked = time.monotonic()
-                wall_limit = kicked + args.wall_timeout
-                while not st["done"] and time.monotonic() < wall_limit:
-                    executor.spin_once(timeout_sec=0.1)
-                    if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
-                        tau_pub.publish(Float64(data=0.0))
-                        kicked = time.monotonic()
-                # pause the node where the run ends, so the bag stops with the tracked profile rather
-                # than with the load pushing an uncontrolled nut (not waited for beyond a few seconds)
-                executor.spin_until_future_complete(pause.call_async(SetBool.Request(data=True)), timeout_sec=5.0)
+        _drive(executor, tau_pub, state_sub, pause, st, args, cmd_topic.resolved())
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -184,6 +157,40 @@ def run(args: argparse.Namespace) -> dict:
             "completed": st["done"], "scheduling": scheduling,
             "gains": {"bandwidth_hz": ctl.bandwidth_hz, "damping": ctl.damping, "integral_ratio": ctl.integral_ratio,
                       "max_torque_nm": ctl.max_torque_nm}}
+
+
+def _drive(executor, tau_pub, state_sub, pause, st: dict, args, cmd_name: str) -> None:
+    """Wait for the node (matched both ways, its pause service up), resume it, spin until the run is done
+    (`st["done"]`) or the wall limit, then pause it again."""
+    from std_msgs.msg import Float64
+    from std_srvs.srv import SetBool
+    deadline = time.monotonic() + args.connect_timeout
+    # matched both ways and the pause service up: the node waits, paused, for us to resume it,
+    # so no step runs before we listen (in lockstep a first state sent before then is lost for good)
+    while (tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0
+           or not pause.service_is_ready()):
+        if time.monotonic() > deadline:
+            print(f"prsm-demo controller: no node listening on {cmd_name} with {pause.srv_name} "
+                  f"after {args.connect_timeout:g} s", file=sys.stderr)
+            return
+        executor.spin_once(timeout_sec=0.05)
+    resumed = pause.call_async(SetBool.Request(data=False))
+    executor.spin_until_future_complete(resumed, timeout_sec=max(0.0, deadline - time.monotonic()))
+    if not resumed.done():
+        print(f"prsm-demo controller: {pause.srv_name} did not answer within {args.connect_timeout:g} s",
+              file=sys.stderr)
+        return
+    tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
+    kicked = time.monotonic()
+    wall_limit = kicked + args.wall_timeout
+    while not st["done"] and time.monotonic() < wall_limit:
+        executor.spin_once(timeout_sec=0.1)
+        if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
+            tau_pub.publish(Float64(data=0.0))
+            kicked = time.monotonic()
+    # pause the node where the run ends, so the bag stops with the tracked profile rather
+    # than with the load pushing an uncontrolled nut (not waited for beyond a few seconds)
+    executor.spin_until_future_complete(pause.call_async(SetBool.Request(data=True)), timeout_sec=5.0)
 
 
 def build_parser() -> argparse.ArgumentParser:
