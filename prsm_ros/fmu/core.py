@@ -40,7 +40,7 @@ from collections.abc import Callable
 import numpy as np
 
 from prsm_sim import InputError, ModelError, ParamError, PrsmError, __version__
-from prsm_sim.actuator import ACTUATOR_QUANTITIES
+from prsm_sim.actuator import ACTUATOR_QUANTITIES, MEASURED_QUANTITIES
 from prsm_ros.fmu.config import CONFIG_NAME, check_version, session_from_config
 from prsm_ros.limits import MAX_RUN_STEPS
 
@@ -100,15 +100,16 @@ _FLAG_OUTPUTS = (
     ("at_stop", "1", "1 while the nut presses on an end stop, else 0"),
     ("brake_engaged", "1", "1 while the holding brake is commanded engaged, else 0"),
 )
-_MEASURED_OUTPUTS = (  # (FMU name, unit, description, index into MEASURED_QUANTITIES)
-    ("measured_motor_angle_rad", "rad", "motor encoder angle (screw side) as measured", 0),
-    ("measured_screw_angle_rad", "rad", "screw angle as measured", 1),
-    ("measured_screw_speed_rad_s", "rad/s", "screw speed as measured", 2),
-    ("measured_nut_position_m", "m", "nut position as measured", 3),
-    ("measured_nut_velocity_m_s", "m/s", "nut velocity as measured", 4),
-    ("measured_nut_force_n", "N", "nut force as measured by the load cell", 5),
+_MEASURED_OUTPUTS = (  # (FMU name, unit, description, the quantity's name in MEASURED_QUANTITIES)
+    ("measured_motor_angle_rad", "rad", "motor encoder angle (screw side) as measured", "motor_angle_rad"),
+    ("measured_screw_angle_rad", "rad", "screw angle as measured", "screw_angle_rad"),
+    ("measured_screw_speed_rad_s", "rad/s", "screw speed as measured", "screw_speed_rad_s"),
+    ("measured_nut_position_m", "m", "nut position as measured", "nut_position_m"),
+    ("measured_nut_velocity_m_s", "m/s", "nut velocity as measured", "nut_velocity_m_s"),
+    ("measured_nut_force_n", "N", "nut force as measured by the load cell", "nut_force_n"),
 )
 _ACTUATOR_NAMES = tuple(n for n, _ in ACTUATOR_QUANTITIES)
+_MEASURED_NAMES = tuple(n for n, _ in MEASURED_QUANTITIES)
 # Tunable parameters with an actuator: FMU name → (group, field, unit, description); the drive's gains
 # start at the values it was tuned to (DriveParams.tuned), so setting one changes only that one.
 _DRIVE_TUNABLES = {
@@ -360,9 +361,9 @@ class SlaveCore:
             row["peak_tooth_load_n"] = float(np.abs(view("per_tooth")).max())
         if s.actuator is not None:
             a = dict(zip(_ACTUATOR_NAMES, view("actuator").tolist()))
-            m = view("measured").tolist()
-            for n, _, _, i in _MEASURED_OUTPUTS:
-                row[n] = m[i]
+            m = dict(zip(_MEASURED_NAMES, view("measured").tolist()))
+            for n, _, _, q in _MEASURED_OUTPUTS:
+                row[n] = m[q]
             row["motor_current_a"] = a["motor_current_a"]
             row["motor_torque_nm"] = a["motor_torque_nm"]
             row["stop_force_n"] = a["stop_force_n"]
