@@ -416,6 +416,20 @@ class SlaveCore:
         self.inputs = inputs
 
 
+def life_cycle():
+    """The slave's enterInitializationMode, exitInitializationMode and terminate, passed to its core
+    (which then refuses a doStep out of FMI's order)."""
+    def enter_initialization_mode(slave) -> None:
+        slave.core.enter_initialization()
+
+    def exit_initialization_mode(slave) -> None:
+        slave.core.exit_initialization()
+
+    def terminate(slave) -> None:
+        slave.core.terminate()
+    return enter_initialization_mode, exit_initialization_mode, terminate
+
+
 def attach(slave, statuses: dict, experiment) -> SlaveCore:
     """The `SlaveCore` of a pythonfmu or pythonfmu3 slave, logging through it (`statuses` maps "ok",
     "warning", "error" to its status enum), with the slave's description and default experiment

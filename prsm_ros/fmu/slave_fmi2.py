@@ -13,7 +13,7 @@ from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
-from prsm_ros.fmu.core import UNITS, attach, state_from_bytes
+from prsm_ros.fmu.core import UNITS, attach, life_cycle, state_from_bytes
 
 _STATUS = {"ok": Fmi2Status.ok, "warning": Fmi2Status.warning, "error": Fmi2Status.error}
 _CAUSALITY = {"input": Fmi2Causality.input, "output": Fmi2Causality.output, "parameter": Fmi2Causality.parameter}
@@ -33,17 +33,9 @@ class PrsmActuator(Fmi2Slave):
                                         getter=getter, setter=setter))
             self._units[v.name] = v.unit
 
-    # never raises: an exception here is fatal and, in pythonfmu's wrapper, frees the slave (core's notes)
+    # FMI's order of calls, kept by the core; deserialising never raises (see prsm_ros.fmu.core)
+    enter_initialization_mode, exit_initialization_mode, terminate = life_cycle()
     _fmu_state_from_bytes = staticmethod(state_from_bytes)
-
-    def enter_initialization_mode(self):
-        self.core.enter_initialization()
-
-    def exit_initialization_mode(self):
-        self.core.exit_initialization()
-
-    def terminate(self):
-        self.core.terminate()
 
     def do_step(self, current_time, step_size):
         return self.core.do_step(current_time, step_size) is None

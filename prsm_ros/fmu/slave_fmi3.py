@@ -10,7 +10,7 @@ from pythonfmu3 import Fmi3Causality, Fmi3Slave, Fmi3Status, Fmi3StepResult, Fmi
 from pythonfmu3.default_experiment import DefaultExperiment
 from pythonfmu3.unit import Unit
 
-from prsm_ros.fmu.core import UNITS, attach, state_from_bytes
+from prsm_ros.fmu.core import UNITS, attach, life_cycle, state_from_bytes
 
 _STATUS = {"ok": Fmi3Status.ok, "warning": Fmi3Status.warning, "error": Fmi3Status.error}
 _CAUSALITY = {"input": Fmi3Causality.input, "output": Fmi3Causality.output, "parameter": Fmi3Causality.parameter}
@@ -45,17 +45,9 @@ class PrsmActuator(Fmi3Slave):
                 v.set("start", repr(self.core.get(v.get("name"))))
         return root
 
-    # never raises: an exception here is fatal and, in pythonfmu's wrapper, frees the slave (core's notes)
+    # FMI's order of calls, kept by the core; deserialising never raises (see prsm_ros.fmu.core)
+    enter_initialization_mode, exit_initialization_mode, terminate = life_cycle()
     _fmu_state_from_bytes = staticmethod(state_from_bytes)
-
-    def enter_initialization_mode(self):
-        self.core.enter_initialization()
-
-    def exit_initialization_mode(self):
-        self.core.exit_initialization()
-
-    def terminate(self):
-        self.core.terminate()
 
     def do_step(self, current_time, step_size):
         if self.core.do_step(current_time, step_size) is not None:
