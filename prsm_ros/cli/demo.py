@@ -84,10 +84,10 @@ def _refusal(args) -> str | None:
     return None
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _prepare(args) -> tuple[str | None, dict | None, dict]:
+    """(why the options cannot run or None, the --gains file's gains, the ROS environment of the run)."""
     why = _refusal(args)
-    gains = None
+    gains, env = None, {}
     if why is None and args.gains:
         from prsm_ros.sweep.gains import load_gains
         from prsm_sim.errors import InputError
@@ -100,6 +100,12 @@ def main(argv: list[str] | None = None) -> int:
             env = isolated_env(args.domain_id)
         except ValueError as e:
             why = f"--domain-id: {e}"
+    return why, gains, env
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    why, gains, env = _prepare(args)
     if why is not None:
         print(f"prsm-demo: error: {why}", file=sys.stderr)
         return 2

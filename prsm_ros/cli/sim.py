@@ -190,24 +190,7 @@ def cmd_run(args) -> None:
     summary = {"preset": p.name, "model": args.model, "scenario": args.scenario, "dt_s": args.dt,
                "load_n": spec.load_n, "torque_nm": spec.torque_nm, "speed_reference_rad_s": spec.speed_rad_s,
                **summarise(traj)}
-    if args.csv:
-        try:
-            _write_csv(args.csv, traj)
-        except KeyboardInterrupt:
-            _interrupted(f"while writing {args.csv}: the run ended ({len(traj)} steps) but the CSV is incomplete")
-        summary["csv"] = args.csv
-    if args.mcap:
-        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
-        try:
-            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
-                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
-        except OSError as e:
-            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
-        except KeyboardInterrupt:
-            kept = f"{args.csv} is complete; " if args.csv else ""
-            _interrupted(f"while writing {args.mcap}: {kept}the MCAP holds the steps written so far, without its "
-                         f"index (prsm-bag repair {args.mcap} rebuilds it)")
-        summary["mcap"] = args.mcap
+    summary.update(_write_outputs(args, traj, p, n))
     f = summary["final"]
     text = "\n".join([
         f"{p.name} / {args.model} / {args.scenario}: {summary['steps']} steps of {args.dt} s",
@@ -222,6 +205,30 @@ def cmd_run(args) -> None:
           f"(residual {summary['energy_guard']['residual_j']:.6g} J of {summary['energy_guard']['flow_j']:.6g} J); "
           "do not trust these results"] if summary["energy_guard"]["fault"] else []))
     _emit(args, summary, text)
+
+
+def _write_outputs(args, traj, p: Params, n: int) -> dict:
+    """Write the run's --csv and --mcap files; {"csv": path, "mcap": path} of those written."""
+    written: dict[str, str] = {}
+    if args.csv:
+        try:
+            _write_csv(args.csv, traj)
+        except KeyboardInterrupt:
+            _interrupted(f"while writing {args.csv}: the run ended ({len(traj)} steps) but the CSV is incomplete")
+        written["csv"] = args.csv
+    if args.mcap:
+        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
+        try:
+            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
+                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
+        except OSError as e:
+            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
+        except KeyboardInterrupt:
+            kept = f"{args.csv} is complete; " if args.csv else ""
+            _interrupted(f"while writing {args.mcap}: {kept}the MCAP holds the steps written so far, without its "
+                         f"index (prsm-bag repair {args.mcap} rebuilds it)")
+        written["mcap"] = args.mcap
+    return written
 
 
 def _interrupted(what: str) -> None:
