@@ -150,3 +150,15 @@ def test_compatibility_modules_warn_and_nothing_in_the_project_imports_them(modu
             if module in names:
                 users.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert not users, f"{module} is imported by {users}; import {DEPRECATED[module]}"
+
+
+def test_the_demo_controller_shows_the_simulated_time_as_the_run_goes(capsys):
+    """prsm-demo's progress: the controller rewrites one stderr line every quarter simulated second."""
+    from prsm_ros.cli.demo_controller import PROGRESS_EVERY_S, show_progress
+    st = {"shown": -1.0}
+    for k in range(2001):  # 2 s at 1 ms
+        show_progress(st, k * 1e-3, 2.0)
+    err = capsys.readouterr().err
+    updates = err.split("\r")[1:]
+    assert len(updates) == round(2.0 / PROGRESS_EVERY_S) + 1
+    assert updates[0] == "prsm-demo: 0.00 of 2 s simulated" and updates[-1] == "prsm-demo: 2.00 of 2 s simulated\n"

@@ -158,7 +158,7 @@ def _run(args, env: dict, record: Path | None) -> tuple[bytes, int | None, int |
                                 "--connect-timeout", repr(NODE_START_CEILING_S),
                                 "--wall-timeout", repr(60.0 + 20 * args.duration),
                                 "--command-interface", args.command_interface,
-                                "--realtime-priority", str(realtime_priority)]
+                                "--realtime-priority", str(realtime_priority), "--progress"]
                                + (["--gains", str(Path(args.gains).resolve())] if args.gains else []),
                                env, stdout=subprocess.PIPE)
             try:

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> dict:
     pause = node.create_client(SetBool, resolve_name("~/pause"))
     track = Tracking()
     # callbacks run in this thread, inside spin_once: st has one owner and needs no lock
-    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_ns": None, "nut": None}
+    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_ns": None, "nut": None, "shown": -1.0}
 
     def on_state(raw: bytes) -> None:
         if st["done"]:
@@ -124,6 +124,8 @@ def run(args: argparse.Namespace) -> dict:
         track.add(x_ref - x)
         ref_msg.header.stamp.sec, ref_msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         ref_msg.position[0], ref_msg.velocity[0] = x_ref, v_ref
+        if args.progress:
+            show_progress(st, t, args.duration)
         if t >= args.duration:  # the last state is tracked too: its reference goes to the bag, no command
             ref_pub.publish(ref_msg)
             st["done"] = True
@@ -193,6 +195,18 @@ def _drive(executor, tau_pub, state_sub, pause, st: dict, args, cmd_name: str) -
     executor.spin_until_future_complete(pause.call_async(SetBool.Request(data=True)), timeout_sec=5.0)
 
 
+PROGRESS_EVERY_S = 0.25  # simulated seconds between progress updates (a line on stderr, rewritten in place)
+
+
+def show_progress(st: dict, t: float, duration_s: float) -> None:
+    """The run's simulated time on stderr, every PROGRESS_EVERY_S, and a newline when it ends."""
+    if t - st["shown"] < PROGRESS_EVERY_S and t < duration_s:
+        return
+    st["shown"] = t
+    end = "\n" if t >= duration_s else ""
+    print(f"\rprsm-demo: {min(t, duration_s):.2f} of {duration_s:g} s simulated", end=end, file=sys.stderr, flush=True)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m prsm_ros.cli.demo_controller", description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to track (s)")
@@ -210,6 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--connect-timeout", type=float, default=120.0,
                    help="wall seconds to wait for the node (a first start compiles its kernels)")
     p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
+    p.add_argument("--progress", action="store_true", help="show the simulated time on stderr as the run goes")
     return p
 
 
