@@ -11,8 +11,8 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import re
 import sys
-import tomllib
 from pathlib import Path
 
 import pytest
@@ -20,7 +20,13 @@ import pytest
 from prsm_sim import __version__
 
 ROOT = Path(__file__).resolve().parent.parent
-SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]
+# [project.scripts] of pyproject.toml, read as text (tomllib is Python 3.11+; the package runs on 3.10)
+_SECTION = (ROOT / "pyproject.toml").read_text(encoding="utf-8").split("[project.scripts]\n", 1)[1].split("\n[", 1)[0]
+SCRIPTS = dict(re.findall(r'^([\w-]+) = "([\w.:]+)"', _SECTION, re.M))
+
+
+def test_the_scripts_are_read():
+    assert {"prsm-sim", "prsm-node", "prsm-fmu", "prsm-ctl"} <= set(SCRIPTS), SCRIPTS
 
 
 @pytest.mark.parametrize("command", sorted(SCRIPTS))
