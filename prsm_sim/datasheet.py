@@ -89,7 +89,7 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
                       no_load_torque_nm=idle["tail_torque_nm"],
                       static_load_rating_n=float(params.ratings.static_load_rating_n),
                       dynamic_load_rating_n=float(params.ratings.dynamic_load_rating_n),
-                      axial_stiffness_n_per_um=stiffness * 1e-6, conditions=conditions)
+                      axial_stiffness_n_per_um=float(stiffness) * 1e-6, conditions=conditions)
 
 
 # -- a catalogue row ---------------------------------------------------------------------------
