@@ -1,0 +1,181 @@
+"""A parameter set calibrated to a catalogue row: geometry by rule, then friction and rating factors fitted.
+
+docs/model.md "From a datasheet". `params_from_datasheet` gives the geometry; this module then
+fits, each by a one-dimensional root search on the model's own datasheet (`model_datasheet`), so
+the fitted size reproduces its row:
+
+- the rating factors f_0 and f_c (`ratings.static_factor`, `ratings.dynamic_factor`) to C_0a and C_a
+  (the ratings are proportional to them: one step);
+- the screw–roller friction coefficient (`friction.mu_screw_roller`) to the mean of the listed
+  efficiencies η and η′ (both fall with it alike, so one coefficient fits their mean; their
+  difference is the model's);
+- the no-load drag (`NO_LOAD_KEY`, the drag law's torque coefficient) to the listed no-load torque;
+  the drag also lowers η, so the friction is fitted once more after it.
+
+Everything else (material, thread-form ratios, the other friction laws, the drag law's other
+coefficients) comes from the base parameter set: a second size of a product line is its own row
+with the first size's calibrated file as the base.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from prsm_sim.datasheet import Datasheet, ModelSheet, datasheet_load_n, model_datasheet, params_from_datasheet
+from prsm_sim.datasheet import DEFAULT_SPEED_RAD_S, RUN_S, _steady
+from prsm_sim.params import ParamError, Params
+
+MU_MAX = 0.45  # upper end of the screw–roller friction search
+EFFICIENCY_TOL = 2e-4  # root tolerance on the fitted mean efficiency
+NO_LOAD_KEY: str | None = None  # the drag law's torque coefficient fitted to the no-load torque
+
+
+@dataclass(frozen=True)
+class FittedValue:
+    """One fitted parameter: the key, its value, the sheet figure it matches and how well."""
+
+    key: str
+    value: float
+    figure: str
+    target: float
+    achieved: float
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The result of `calibrate`: the parameter set, what was assumed, what was fitted, the comparison."""
+
+    params: Params
+    assumptions: list[str]
+    fitted: list[FittedValue]
+    sheet: Datasheet
+    model: str
+    model_sheet: ModelSheet
+    notes: list[str] = field(default_factory=list)
+
+    def comparison(self) -> list[dict[str, Any]]:
+        """Each figure the sheet lists beside the model's, with the ratio model / sheet."""
+        ms = self.model_sheet.to_dict()
+        rows = []
+        for name in ("efficiency_forward", "efficiency_backward", "no_load_torque_nm", "static_load_rating_n",
+                     "dynamic_load_rating_n"):
+            listed = getattr(self.sheet, name)
+            if listed is not None:
+                rows.append({"figure": name, "sheet": listed, "model": float(ms[name]),
+                             "ratio": float(ms[name]) / listed})
+        return rows
+
+
+def _efficiencies(params: Params, model: str, dt_s: float) -> tuple[float, float]:
+    f = datasheet_load_n(params)
+    fwd = _steady(params, model, dt_s, f, DEFAULT_SPEED_RAD_S, RUN_S)["tail_efficiency"]
+    bwd = _steady(params, model, dt_s, -f, DEFAULT_SPEED_RAD_S, RUN_S)["tail_efficiency"]
+    return fwd, bwd
+
+
+def _root(fn: Callable[[float], float], lo: float, hi: float, tol: float) -> float | None:
+    """A root of a monotone fn on [lo, hi] by bisection on the secant (Illinois method); None if not bracketed."""
+    f_lo, f_hi = fn(lo), fn(hi)
+    if not (math.isfinite(f_lo) and math.isfinite(f_hi)) or f_lo * f_hi > 0:
+        return None
+    side = 0
+    for _ in range(60):
+        x = hi - f_hi * (hi - lo) / (f_hi - f_lo) if f_hi != f_lo else 0.5 * (lo + hi)
+        fx = fn(x)
+        if not math.isfinite(fx):
+            x, fx = 0.5 * (lo + hi), fn(0.5 * (lo + hi))
+        if abs(fx) < tol or hi - lo < 1e-12:
+            return x
+        if fx * f_hi > 0:
+            hi, f_hi = x, fx
+            if side == -1:
+                f_lo /= 2
+            side = -1
+        else:
+            lo, f_lo = x, fx
+            if side == 1:
+                f_hi /= 2
+            side = 1
+    return x
+
+
+def fit_ratings(params: Params, sheet: Datasheet) -> tuple[Params, list[FittedValue]]:
+    """Scale f_0 and f_c so the derived ratings equal the sheet's (ratings ∝ their factor)."""
+    r, out, over = params.ratings, [], {}
+    for figure, factor in (("static_load_rating_n", "static_factor"), ("dynamic_load_rating_n", "dynamic_factor")):
+        listed = getattr(sheet, figure)
+        if listed is None:
+            continue
+        over[f"ratings.{factor}"] = getattr(r, factor) * listed / getattr(r, figure)
+    if not over:
+        return params, out
+    over.update({"ratings.static_load_rating_n": None, "ratings.dynamic_load_rating_n": None})
+    p = params.with_overrides(over)
+    for key, value in over.items():
+        if value is not None:
+            figure = "static_load_rating_n" if key.endswith("static_factor") else "dynamic_load_rating_n"
+            out.append(FittedValue(key, value, figure, getattr(sheet, figure), getattr(p.ratings, figure)))
+    return p, out
+
+
+def fit_friction(params: Params, sheet: Datasheet, model: str, dt_s: float) -> tuple[Params, FittedValue | None, str]:
+    """μ_SR so the model's mean of (η, η′) is the sheet's mean of the efficiencies it lists."""
+    listed = [v for v in (sheet.efficiency_forward, sheet.efficiency_backward) if v is not None]
+    if not listed:
+        return params, None, "no efficiency listed: friction.mu_screw_roller kept from the base"
+    target = sum(listed) / len(listed)
+    use = [sheet.efficiency_forward is not None, sheet.efficiency_backward is not None]
+
+    def mean_eff(mu: float) -> float:
+        e = _efficiencies(params.with_overrides({"friction.mu_screw_roller": mu}), model, dt_s)
+        vals = [x for x, u in zip(e, use) if u]
+        return sum(vals) / len(vals) - target
+
+    mu = _root(mean_eff, 0.0, MU_MAX, EFFICIENCY_TOL)
+    if mu is None:
+        return params, None, (f"efficiency {target:.4g} out of reach with friction.mu_screw_roller in [0, {MU_MAX}]: "
+                              "the other losses of the base already exceed it; kept from the base")
+    p = params.with_overrides({"friction.mu_screw_roller": mu})
+    return p, FittedValue("friction.mu_screw_roller", mu, "mean listed efficiency", target, target + mean_eff(mu)), ""
+
+
+def fit_no_load(params: Params, sheet: Datasheet, model: str, dt_s: float,
+                key: str | None) -> tuple[Params, FittedValue | None, str]:
+    """The drag coefficient `key` so the model's no-load torque is the sheet's (the torque ∝ the coefficient)."""
+    if sheet.no_load_torque_nm is None:
+        return params, None, "no no-load torque listed: the drag kept from the base"
+    if key is None:
+        return params, None, f"model {model!r} has no drag coefficient to fit: no-load torque not calibrated"
+    group, name = key.split(".")
+    value = getattr(getattr(params, group), name)
+    t0 = model_datasheet(params, model).no_load_torque_nm
+    for _ in range(3):  # proportional, up to the drag's small share in the carrier's speed
+        if not (t0 > 0 and value > 0):
+            return params, None, f"no-load torque {t0:.3g} N·m with {key} = {value!r}: cannot scale it to the sheet's"
+        value *= sheet.no_load_torque_nm / t0
+        params = params.with_overrides({key: value})
+        t0 = model_datasheet(params, model).no_load_torque_nm
+        if abs(t0 / sheet.no_load_torque_nm - 1) < 1e-3:
+            break
+    return params, FittedValue(key, value, "no_load_torque_nm", sheet.no_load_torque_nm, t0), ""
+
+
+def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: float = 1e-3,
+              no_load_key: str | None = NO_LOAD_KEY) -> Calibration:
+    """A parameter set for `sheet` on `model`, its friction and rating factors fitted (module docstring)."""
+    if model == "ideal":
+        raise ParamError("model = 'ideal': it takes its efficiencies as parameters (ideal.*); calibrate a model "
+                         "with friction laws (fu2018, elastic, jones2016)")
+    params, assumed = params_from_datasheet(sheet, base)
+    params, fitted = fit_ratings(params, sheet)
+    notes = []
+    params, fv, note = fit_friction(params, sheet, model, dt_s)
+    params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_key)
+    if nv is not None:  # the drag lowers η too: fit the friction once more with it in place
+        params, fv, note = fit_friction(params, sheet, model, dt_s)
+    fitted += [v for v in (fv, nv) if v is not None]
+    notes += [n for n in (note, note2) if n]
+    return Calibration(params=params, assumptions=assumed, fitted=fitted, sheet=sheet, model=model,
+                       model_sheet=model_datasheet(params, model, dt_s=dt_s), notes=notes)
