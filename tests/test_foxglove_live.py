@@ -94,6 +94,8 @@ def test_node_serves_joint_states_live(tmp_path):
     with NodeProcess(ENV, params, workdir=tmp_path / "node") as proc:
         try:
             channel, got, info = receive(f"ws://127.0.0.1:{port}", "/joint_states", n=5)
+            # a latched topic, published at start-up before this client came: sent again on subscribing
+            desc_channel, desc, _ = receive(f"ws://127.0.0.1:{port}", "/robot_description", n=1)
         finally:
             code = proc.stop()
         assert code == 0, proc.stderr
@@ -105,6 +107,7 @@ def test_node_serves_joint_states_live(tmp_path):
         assert list(msg.name) == ["screw_joint", "nut_joint"]
         assert len(msg.position) == 2
         assert msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec == log_time  # stamped in sim time
+    assert decode(desc_channel, desc[0][1]).data.startswith("<?xml")
     times = [t for t, _ in got]
     assert times == sorted(times) and len(set(times)) == len(times)
 

@@ -11,7 +11,6 @@ starts again from the first message until Ctrl-C (exit 130).
 from __future__ import annotations
 
 import sys
-import threading
 import time
 
 from prsm_ros.bag.reader import Bag, BagError, open_bag
@@ -19,16 +18,6 @@ from prsm_ros.live.foxglove_server import DEFAULT_HOST, ChannelSpec, FoxgloveLiv
 
 DEFAULT_PORT = 8765  # Foxglove's own default for a WebSocket connection
 TIME_EVERY_NS = 10_000_000  # the viewer's clock is set at most every 10 ms of bag time
-
-
-class _FirstSubscription:
-    """A foxglove ServerListener that notes the first subscription."""
-
-    def __init__(self) -> None:
-        self.event = threading.Event()
-
-    def on_subscribe(self, client, channel) -> None:
-        self.event.set()
 
 
 def bag_channels(bag: Bag) -> list[ChannelSpec]:
@@ -46,15 +35,13 @@ def _spec(schema, channel) -> ChannelSpec:
                        message_encoding=channel.message_encoding, schema_encoding=schema.encoding if schema else "")
 
 
-def play_once(bag: Bag, live: FoxgloveLive, rate: float, stop: threading.Event | None = None) -> int:
+def play_once(bag: Bag, live: FoxgloveLive, rate: float) -> int:
     """Send every message of `bag` once, paced at `rate` × real time; returns how many were sent."""
     start_wall = time.monotonic()
     first = None
     last_time = -TIME_EVERY_NS
     n = 0
     for schema, channel, message in bag.raw_messages():
-        if stop is not None and stop.is_set():
-            break
         t = message.log_time
         first = t if first is None else first
         delay = start_wall + (t - first) * 1e-9 / rate - time.monotonic()
@@ -72,15 +59,14 @@ def play_once(bag: Bag, live: FoxgloveLive, rate: float, stop: threading.Event |
 def serve(bag: Bag, host: str, port: int, *, rate: float = 1.0, loop: bool = False, wait: bool = True,
           out=sys.stdout) -> int:
     """Serve `bag` until it has been played (each pass once, or until Ctrl-C with `loop`); returns the messages sent."""
-    listener = _FirstSubscription()
-    with FoxgloveLive(host, port, name=f"prsm-bag serve {bag.path.name}", time=True, listener=listener) as live:
+    with FoxgloveLive(host, port, name=f"prsm-bag serve {bag.path.name}", time=True) as live:
         for spec in bag_channels(bag):
             live.add_channel(spec)
         print(f"serving {bag.path} on {live.url} (Foxglove: Open connection → Foxglove WebSocket)", file=out,
               flush=True)
         if wait:
             print("waiting for a client to subscribe (Ctrl-C to stop)", file=out, flush=True)
-            while not listener.event.wait(0.2):
+            while not live.subscribed.wait(0.2):
                 pass
         total = passes = 0
         while True:
