@@ -145,3 +145,18 @@ def test_bag_serve_sends_the_bags_bytes(tmp_path):
     expected = [(m.log_time_ns, m.data) for m in open_bag(bag_path).messages(["/joint_states"], decode=False)][:10]
     assert got == expected  # playback starts at the first subscription: nothing missed, the bag's own bytes
     assert list(decode(channel, got[0][1]).name) == ["screw_joint", "nut_joint"]
+
+
+def test_bag_serve_refuses_bad_input_in_one_line(capsys):
+    from prsm_ros.cli import bag
+    bag_path = str(ROOT / "bags" / "step_response.mcap")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        taken = str(s.getsockname()[1])
+        for args, why in ((["--rate", "0"], "--rate 0.0: must be a number > 0"),
+                          (["--port", "70000"], "--port 70000: must be 0..65535"),
+                          (["--port", taken], "in use")):
+            assert bag.main(["serve", bag_path, *args]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and why in err, err
