@@ -179,3 +179,13 @@ def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: fl
     notes += [n for n in (note, note2) if n]
     return Calibration(params=params, assumptions=assumed, fitted=fitted, sheet=sheet, model=model,
                        model_sheet=model_datasheet(params, model, dt_s=dt_s), notes=notes)
+
+
+def predict(sheet: Datasheet, calibrated: Params, model: str = "fu2018", *, dt_s: float = 1e-3) -> ModelSheet:
+    """The model's datasheet for another size of the line: the row's geometry by rule, all else from `calibrated`.
+
+    Only the row's geometry (d₀, lead, starts, nut length and diameter, rollers) enters; its listed
+    efficiencies, torque and ratings are what the prediction is compared with.
+    """
+    params, _ = params_from_datasheet(sheet, calibrated)
+    return model_datasheet(params, model, dt_s=dt_s)

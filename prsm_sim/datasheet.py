@@ -47,6 +47,9 @@ class ModelSheet:
 
 
 def _steady(params: Params, model: str, dt_s: float, load_n: float, speed_rad_s: float, duration_s: float) -> dict:
+    # a steady state away from the thread ends: at a coarse lead the run travels farther than the nut can
+    if params.geometry.thread_ends:
+        params = params.with_overrides({"geometry.thread_ends": False})
     sim = Simulator(params, model, dt_s)
     traj = run_scenario(sim, ScenarioSpec("datasheet", load_n, speed_rad_s=speed_rad_s), duration_s)
     s = summarise(traj, TAIL_FRACTION)
@@ -68,7 +71,8 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
 
     Efficiencies: steady state of the speed loop at `speed_rad_s` with the load `load_n` resisting
     the motion (forward, screw drives nut) and aiding it (backward, the load drives the screw),
-    each the tail mean of a `RUN_S` run: η = P_out / P_in of the mechanism. No-load torque: the
+    each the tail mean of a `RUN_S` run on a screw without thread ends (the nut would run off a
+    coarse-lead screw): η = P_out / P_in of the mechanism. No-load torque: the
     tail mean of the screw torque at zero load and 1 rad/s. Axial stiffness: the nut's (thread
     contacts and teeth, no shaft or housing) at `load_n`. Ratings: the parameter set's.
     """
