@@ -106,7 +106,9 @@ def _root(fn: Callable[[float], float], lo: float, hi: float, tol: float) -> flo
 
 def fit_ratings(params: Params, sheet: Datasheet) -> tuple[Params, list[FittedValue]]:
     """Scale f_0 and f_c so the derived ratings equal the sheet's (ratings ∝ their factor)."""
-    r, out, over = params.ratings, [], {}
+    r = params.ratings
+    out: list[FittedValue] = []
+    over: dict[str, float | None] = {}
     for figure, factor in (("static_load_rating_n", "static_factor"), ("dynamic_load_rating_n", "dynamic_factor")):
         listed = getattr(sheet, figure)
         if listed is None:
@@ -123,18 +125,28 @@ def fit_ratings(params: Params, sheet: Datasheet) -> tuple[Params, list[FittedVa
     return p, out
 
 
-def _fit_mu(params: Params, model: str, dt_s: float, target: float, use: tuple[bool, bool]) -> tuple[float | None, tuple]:
+def _fit_mu(params: Params, model: str, dt_s: float, target: float,
+            use: tuple[bool, bool]) -> tuple[float | None, tuple[float, float]]:
     """μ_SR so the mean of the listed efficiencies (`use`: which of η, η′) is `target`; and (η, η′) there."""
-    seen: dict[float, tuple] = {}
+    seen: dict[float, tuple[float, float]] = {}
 
     def mean_eff(mu: float) -> float:
         e = _efficiencies(params.with_overrides({"friction.mu_screw_roller": mu}), model, dt_s)
         seen[mu] = e
-        vals = [x for x, u in zip(e, use) if u]
+        vals = [x for x, u in zip(e, use, strict=True) if u]
         return sum(vals) / len(vals) - target
 
     mu = _root(mean_eff, 0.0, MU_MAX, EFFICIENCY_TOL)
-    return mu, (seen.get(mu) if mu is not None else (math.nan, math.nan))
+    return mu, seen.get(mu, (math.nan, math.nan)) if mu is not None else (math.nan, math.nan)
+
+
+def _listed_efficiencies(sheet: Datasheet) -> tuple[tuple[bool, bool], float | None, float | None]:
+    """(which of η, η′ the sheet lists; their mean; η − η′ where both are listed)."""
+    ef, eb = sheet.efficiency_forward, sheet.efficiency_backward
+    use = (ef is not None, eb is not None)
+    listed = [v for v in (ef, eb) if v is not None]
+    mean = sum(listed) / len(listed) if listed else None
+    return use, mean, (ef - eb if ef is not None and eb is not None else None)
 
 
 def fit_friction(params: Params, sheet: Datasheet, model: str, dt_s: float) -> tuple[Params, list[FittedValue], str]:
@@ -145,26 +157,24 @@ def fit_friction(params: Params, sheet: Datasheet, model: str, dt_s: float) -> t
     rolling friction: `LEAD_INDEPENDENT_KEYS`) that stays: they widen η − η′ at a given mean, the
     screw–roller sliding hardly does (docs/model.md §4.2).
     """
-    use = (sheet.efficiency_forward is not None, sheet.efficiency_backward is not None)
-    listed = [v for v, u in zip((sheet.efficiency_forward, sheet.efficiency_backward), use) if u]
-    if not listed:
+    use, target, gap = _listed_efficiencies(sheet)
+    if target is None:
         return params, [], "no efficiency listed: friction kept from the base"
-    target = sum(listed) / len(listed)
     base_values = {k: _get(params, k) for k in LEAD_INDEPENDENT_KEYS}
     scaled = lambda s: params.with_overrides({k: s * v for k, v in base_values.items()})
-    fits: dict[float, tuple] = {}
+    fits: dict[float, tuple[float | None, tuple[float, float]]] = {}
 
     def gap_error(s: float) -> float:
-        mu, e = _fit_mu(scaled(s), model, dt_s, target, use)
-        fits[s] = (mu, e)
-        return (e[0] - e[1]) - (sheet.efficiency_forward - sheet.efficiency_backward) if mu is not None else math.nan
+        fits[s] = _fit_mu(scaled(s), model, dt_s, target, use)
+        mu, e = fits[s]
+        return e[0] - e[1] - gap if mu is not None and gap is not None else math.nan
 
     share = 1.0
-    if all(use) and any(base_values.values()):
+    if gap is not None and any(base_values.values()):
         s = _root(gap_error, 0.0, 1.0, GAP_TOL)
-        share = s if s is not None else min((0.0, 1.0), key=lambda x: abs(fits[x][1][0] - fits[x][1][1]
-                                                                           - (sheet.efficiency_forward
-                                                                              - sheet.efficiency_backward)))
+        # not bracketed: the end of [0, 1] whose η − η′ comes nearer the sheet's
+        share = s if s is not None else min((0.0, 1.0), key=lambda x: abs(gap_error(x)) if x not in fits
+                                            else abs(fits[x][1][0] - fits[x][1][1] - gap))
     if share not in fits:
         fits[share] = _fit_mu(scaled(share), model, dt_s, target, use)
     mu, e = fits[share]
@@ -172,11 +182,10 @@ def fit_friction(params: Params, sheet: Datasheet, model: str, dt_s: float) -> t
         return params, [], (f"efficiency {target:.4g} out of reach with friction.mu_screw_roller in [0, {MU_MAX}]: "
                             "the base's other losses already exceed it; friction kept from the base")
     p = scaled(share).with_overrides({"friction.mu_screw_roller": mu})
-    vals = [x for x, u in zip(e, use) if u]
+    vals = [x for x, u in zip(e, use, strict=True) if u]
     out = [FittedValue("friction.mu_screw_roller", mu, "mean listed efficiency", target, sum(vals) / len(vals))]
-    if all(use):
-        out += [FittedValue(k, _get(p, k), "efficiency_forward - efficiency_backward",
-                            sheet.efficiency_forward - sheet.efficiency_backward, e[0] - e[1])
+    if gap is not None:
+        out += [FittedValue(k, _get(p, k), "efficiency_forward - efficiency_backward", gap, e[0] - e[1])
                 for k in LEAD_INDEPENDENT_KEYS]
     return p, out, ""
 

@@ -80,4 +80,4 @@ def test_no_load_torque_of_the_line_follows_the_catalogue(predictions):
     for key, (r, ms) in predictions.items():
         assert ms.no_load_torque_nm / r["no_load_torque_nm"] == pytest.approx(1.0, abs=0.5), key
     d30 = sorted((k[1], ms.no_load_torque_nm) for k, (_, ms) in predictions.items() if k[0] == 30.0)
-    assert all(b[1] > a[1] for a, b in zip(d30, d30[1:]))
+    assert all(b[1] > a[1] for a, b in zip(d30, d30[1:], strict=False))

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import csv
 import io
-import math
 import os
 import sys
 from pathlib import Path
@@ -118,7 +117,7 @@ def plot(records: list[dict[str, Any]], path: str | Path) -> None:
     panels = (("efficiency_forward", "η (forward)", 1.0), ("efficiency_backward", "η′ (backward)", 1.0),
               ("no_load_torque_nm", "no-load torque, N·m", 1.0), ("static_load_rating_n", "static rating C₀a, kN", 1e-3))
     cmap = plt.get_cmap("tab10")
-    for ax, (name, label, scale) in zip(axes.flat, panels):
+    for ax, (name, label, scale) in zip(axes.flat, panels, strict=True):
         for k, (d0, n) in enumerate(sizes):
             rs = sorted((r for r in records if (r["d0_mm"], r["starts"]) == (d0, n)), key=lambda r: r["lead_mm"])
             lead = [r["lead_mm"] for r in rs]
