@@ -185,8 +185,8 @@ LIMITS = [
     "from lead 2 to 15 mm at d₀ 30 mm), so the prediction runs high at fine and low at coarse leads.",
     "- T₀: the catalogue lists a starting torque (a breakaway figure); the model's is the steady torque at "
     "1 rad/s, fitted equal on the fitted size. Without a no-load drag in the model it is zero.",
-    "- The tests (tests/test_validation.py) hold the fitted-size round trip and the predictions of a subset "
-    "of sizes to the tolerances of the issue that asked for this page; the table above is every row.",
+    "- The tests (tests/test_validation.py, tests/test_ratings.py) hold the fitted size's round trip and the "
+    "predictions of a stated subset of sizes to stated tolerances; the table above is every row.",
 ]
 
 
