@@ -217,18 +217,26 @@ def fit_no_load(params: Params, sheet: Datasheet, model: str, dt_s: float,
 
 
 def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: float = 1e-3,
-              no_load_key: str | None = NO_LOAD_KEY) -> Calibration:
-    """A parameter set for `sheet` on `model`, its friction and rating factors fitted (module docstring)."""
+              no_load_key: str | None = NO_LOAD_KEY, progress: Callable[[str], None] | None = None) -> Calibration:
+    """A parameter set for `sheet` on `model`, its friction and rating factors fitted (module docstring).
+
+    `progress(message)` is told of each stage (the friction fits run the model for tens of seconds).
+    """
     if model == "ideal":
         raise ParamError("model = 'ideal': it takes its efficiencies as parameters (ideal.*); calibrate a model "
                          "with friction laws (fu2018, elastic, jones2016)")
+    say = progress or (lambda message: None)
     params, assumed = params_from_datasheet(sheet, base)
     params, fitted = fit_ratings(params, sheet)
     notes = []
+    say("fitting the friction to the efficiencies")
     params, fv, note = fit_friction(params, sheet, model, dt_s)
+    say("fitting the drag to the no-load torque")
     params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_key)
     if nv is not None:  # the drag lowers η too: fit the friction once more with it in place
+        say("fitting the friction again with the drag in place")
         params, fv, note = fit_friction(params, sheet, model, dt_s)
+    say("computing the model's datasheet")
     fitted += fv + ([nv] if nv is not None else [])
     notes += [n for n in (note, note2) if n]
     return Calibration(params=params, assumptions=assumed, fitted=fitted, sheet=sheet, model=model,
