@@ -196,14 +196,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", default=str(DATA), help="catalogue CSV")
     ap.add_argument("--model", default="fu2018", help="model to fit and predict with")
     args = ap.parse_args(argv)
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        print(f"validation: error: {out.parent} is not a folder: the page goes into an existing folder", file=sys.stderr)
+        return 2
     try:
         source, rows = read_catalogue(args.data)
         progress = lambda k, n: print(f"\rpredicting {k}/{n}", end="", file=sys.stderr, flush=True)
         cal, records = fit_and_predict(rows, args.model, progress=progress)
         print(file=sys.stderr)
-        out = Path(args.output)
         image_dir = out.parent / "validation"
-        image_dir.mkdir(parents=True, exist_ok=True)
+        image_dir.mkdir(exist_ok=True)
         plot(records, image_dir / "srs_c.png")
         text = render(source, thread_depth_per_pitch(rows), cal, records, "validation/srs_c.png",
                       "python -m prsm_ros.cli.validation -o docs/validation.md")
