@@ -79,3 +79,17 @@ def test_cli_datasheet_json_lists_the_catalogue_figures(capsys):
 def test_plain_params_refuses_datasheet_only_options(capsys):
     assert sim.main(["params", "--preset", "s30", "-o", "x.yaml"]) == 2
     assert "-o applies with --datasheet only" in capsys.readouterr().err
+
+
+def test_sheet_preload_becomes_an_oversize_roller_preload():
+    p, said = params_from_datasheet(Datasheet.from_dict({**SHEET, "preload_n": 2000}), preset("s30"))
+    assert p.elastic.preload_n == 2000 and p.elastic.preload_kind == "oversize_rollers"
+    assert any("preload" in s for s in said)
+
+
+def test_validate_refuses_a_missing_folder_before_running(tmp_path, capsys):
+    target = tmp_path / "no" / "page.md"
+    with pytest.raises(SystemExit) as e:
+        sim.main(["validate", "-o", str(target)])
+    assert e.value.code == 2 and "is not a folder" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists()

@@ -95,6 +95,9 @@ def test_thread_form_moves_ratings_not_the_contact():
     assert q.ratings.static_load_rating_n == pytest.approx(p.ratings.static_load_rating_n * 0.75 * 0.5, rel=1e-12)
     assert q.ratings.dynamic_load_rating_n == pytest.approx(p.ratings.dynamic_load_rating_n * 0.375 ** (7 / 9),
                                                             rel=1e-12)
+    # a rating given as a number stays as given when the thread form changes
+    given = p.with_overrides({"ratings.static_load_rating_n": 2.0e5})
+    assert given.with_overrides({"geometry.tooth_height_per_pitch": 0.3}).ratings.static_load_rating_n == 2.0e5
 
 
 @pytest.mark.parametrize("key,value,match", [
