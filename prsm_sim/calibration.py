@@ -7,8 +7,8 @@ the fitted size reproduces its row:
 - the rating factors f_0 and f_c (`ratings.static_factor`, `ratings.dynamic_factor`) to C_0a and C_a
   (the ratings are proportional to them: one step);
 - the screw–roller friction coefficient (`friction.mu_screw_roller`) to the mean of the listed
-  efficiencies η and η′ (both fall with it alike, so one coefficient fits their mean; their
-  difference is the model's);
+  efficiencies η and η′, and the share of the base's lead-independent losses (pin and nut–roller
+  rolling friction, scaled together) to their difference η − η′ (`fit_friction`);
 - the no-load drag (`NO_LOAD_KEY`, the drag law's torque coefficient) to the listed no-load torque;
   the drag also lowers η, so the friction is fitted once more after it.
 
@@ -30,6 +30,9 @@ from prsm_sim.params import ParamError, Params
 MU_MAX = 0.45  # upper end of the screw–roller friction search
 EFFICIENCY_TOL = 2e-4  # root tolerance on the fitted mean efficiency
 NO_LOAD_KEY: str | None = None  # the drag law's torque coefficient fitted to the no-load torque
+GAP_TOL = 1e-3  # root tolerance on the fitted η − η′
+# load-proportional losses that do not scale with the lead: scaled together by the η − η′ fit
+LEAD_INDEPENDENT_KEYS = ("friction.mu_pin", "friction.mu_nut_roller_rolling")
 
 
 @dataclass(frozen=True)
@@ -103,7 +106,9 @@ def _root(fn: Callable[[float], float], lo: float, hi: float, tol: float) -> flo
 
 def fit_ratings(params: Params, sheet: Datasheet) -> tuple[Params, list[FittedValue]]:
     """Scale f_0 and f_c so the derived ratings equal the sheet's (ratings ∝ their factor)."""
-    r, out, over = params.ratings, [], {}
+    r = params.ratings
+    out: list[FittedValue] = []
+    over: dict[str, float | None] = {}
     for figure, factor in (("static_load_rating_n", "static_factor"), ("dynamic_load_rating_n", "dynamic_factor")):
         listed = getattr(sheet, figure)
         if listed is None:
@@ -120,25 +125,74 @@ def fit_ratings(params: Params, sheet: Datasheet) -> tuple[Params, list[FittedVa
     return p, out
 
 
-def fit_friction(params: Params, sheet: Datasheet, model: str, dt_s: float) -> tuple[Params, FittedValue | None, str]:
-    """μ_SR so the model's mean of (η, η′) is the sheet's mean of the efficiencies it lists."""
-    listed = [v for v in (sheet.efficiency_forward, sheet.efficiency_backward) if v is not None]
-    if not listed:
-        return params, None, "no efficiency listed: friction.mu_screw_roller kept from the base"
-    target = sum(listed) / len(listed)
-    use = [sheet.efficiency_forward is not None, sheet.efficiency_backward is not None]
+def _fit_mu(params: Params, model: str, dt_s: float, target: float,
+            use: tuple[bool, bool]) -> tuple[float | None, tuple[float, float]]:
+    """μ_SR so the mean of the listed efficiencies (`use`: which of η, η′) is `target`; and (η, η′) there."""
+    seen: dict[float, tuple[float, float]] = {}
 
     def mean_eff(mu: float) -> float:
         e = _efficiencies(params.with_overrides({"friction.mu_screw_roller": mu}), model, dt_s)
-        vals = [x for x, u in zip(e, use) if u]
+        seen[mu] = e
+        vals = [x for x, u in zip(e, use, strict=True) if u]
         return sum(vals) / len(vals) - target
 
     mu = _root(mean_eff, 0.0, MU_MAX, EFFICIENCY_TOL)
+    return mu, seen.get(mu, (math.nan, math.nan)) if mu is not None else (math.nan, math.nan)
+
+
+def _listed_efficiencies(sheet: Datasheet) -> tuple[tuple[bool, bool], float | None, float | None]:
+    """(which of η, η′ the sheet lists; their mean; η − η′ where both are listed)."""
+    ef, eb = sheet.efficiency_forward, sheet.efficiency_backward
+    use = (ef is not None, eb is not None)
+    listed = [v for v in (ef, eb) if v is not None]
+    mean = sum(listed) / len(listed) if listed else None
+    return use, mean, (ef - eb if ef is not None and eb is not None else None)
+
+
+def fit_friction(params: Params, sheet: Datasheet, model: str, dt_s: float) -> tuple[Params, list[FittedValue], str]:
+    """Friction fitted to the listed efficiencies (module docstring).
+
+    μ_SR sets the mean of η and η′. Where both are listed, their difference η − η′ sets s, the
+    share (0 … 1) of the base's load-proportional, lead-independent losses (pin and nut–roller
+    rolling friction: `LEAD_INDEPENDENT_KEYS`) that stays: they widen η − η′ at a given mean, the
+    screw–roller sliding hardly does (docs/model.md §4.2).
+    """
+    use, target, gap = _listed_efficiencies(sheet)
+    if target is None:
+        return params, [], "no efficiency listed: friction kept from the base"
+    base_values = {k: _get(params, k) for k in LEAD_INDEPENDENT_KEYS}
+    scaled = lambda s: params.with_overrides({k: s * v for k, v in base_values.items()})
+    fits: dict[float, tuple[float | None, tuple[float, float]]] = {}
+
+    def gap_error(s: float) -> float:
+        fits[s] = _fit_mu(scaled(s), model, dt_s, target, use)
+        mu, e = fits[s]
+        return e[0] - e[1] - gap if mu is not None and gap is not None else math.nan
+
+    share = 1.0
+    if gap is not None and any(base_values.values()):
+        s = _root(gap_error, 0.0, 1.0, GAP_TOL)
+        # not bracketed: the end of [0, 1] whose η − η′ comes nearer the sheet's
+        share = s if s is not None else min((0.0, 1.0), key=lambda x: abs(gap_error(x)) if x not in fits
+                                            else abs(fits[x][1][0] - fits[x][1][1] - gap))
+    if share not in fits:
+        fits[share] = _fit_mu(scaled(share), model, dt_s, target, use)
+    mu, e = fits[share]
     if mu is None:
-        return params, None, (f"efficiency {target:.4g} out of reach with friction.mu_screw_roller in [0, {MU_MAX}]: "
-                              "the other losses of the base already exceed it; kept from the base")
-    p = params.with_overrides({"friction.mu_screw_roller": mu})
-    return p, FittedValue("friction.mu_screw_roller", mu, "mean listed efficiency", target, target + mean_eff(mu)), ""
+        return params, [], (f"efficiency {target:.4g} out of reach with friction.mu_screw_roller in [0, {MU_MAX}]: "
+                            "the base's other losses already exceed it; friction kept from the base")
+    p = scaled(share).with_overrides({"friction.mu_screw_roller": mu})
+    vals = [x for x, u in zip(e, use, strict=True) if u]
+    out = [FittedValue("friction.mu_screw_roller", mu, "mean listed efficiency", target, sum(vals) / len(vals))]
+    if gap is not None:
+        out += [FittedValue(k, _get(p, k), "efficiency_forward - efficiency_backward", gap, e[0] - e[1])
+                for k in LEAD_INDEPENDENT_KEYS]
+    return p, out, ""
+
+
+def _get(params: Params, key: str) -> float:
+    group, name = key.split(".")
+    return float(getattr(getattr(params, group), name))
 
 
 def fit_no_load(params: Params, sheet: Datasheet, model: str, dt_s: float,
@@ -163,19 +217,37 @@ def fit_no_load(params: Params, sheet: Datasheet, model: str, dt_s: float,
 
 
 def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: float = 1e-3,
-              no_load_key: str | None = NO_LOAD_KEY) -> Calibration:
-    """A parameter set for `sheet` on `model`, its friction and rating factors fitted (module docstring)."""
+              no_load_key: str | None = NO_LOAD_KEY, progress: Callable[[str], None] | None = None) -> Calibration:
+    """A parameter set for `sheet` on `model`, its friction and rating factors fitted (module docstring).
+
+    `progress(message)` is told of each stage (the friction fits run the model for tens of seconds).
+    """
     if model == "ideal":
         raise ParamError("model = 'ideal': it takes its efficiencies as parameters (ideal.*); calibrate a model "
                          "with friction laws (fu2018, elastic, jones2016)")
+    say = progress or (lambda message: None)
     params, assumed = params_from_datasheet(sheet, base)
     params, fitted = fit_ratings(params, sheet)
     notes = []
+    say("fitting the friction to the efficiencies")
     params, fv, note = fit_friction(params, sheet, model, dt_s)
+    say("fitting the drag to the no-load torque")
     params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_key)
     if nv is not None:  # the drag lowers η too: fit the friction once more with it in place
+        say("fitting the friction again with the drag in place")
         params, fv, note = fit_friction(params, sheet, model, dt_s)
-    fitted += [v for v in (fv, nv) if v is not None]
+    say("computing the model's datasheet")
+    fitted += fv + ([nv] if nv is not None else [])
     notes += [n for n in (note, note2) if n]
     return Calibration(params=params, assumptions=assumed, fitted=fitted, sheet=sheet, model=model,
                        model_sheet=model_datasheet(params, model, dt_s=dt_s), notes=notes)
+
+
+def predict(sheet: Datasheet, calibrated: Params, model: str = "fu2018", *, dt_s: float = 1e-3) -> ModelSheet:
+    """The model's datasheet for another size of the line: the row's geometry by rule, all else from `calibrated`.
+
+    Only the row's geometry (d₀, lead, starts, nut length and diameter, rollers) enters; its listed
+    efficiencies, torque and ratings are what the prediction is compared with.
+    """
+    params, _ = params_from_datasheet(sheet, calibrated)
+    return model_datasheet(params, model, dt_s=dt_s)

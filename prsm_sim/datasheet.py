@@ -47,6 +47,9 @@ class ModelSheet:
 
 
 def _steady(params: Params, model: str, dt_s: float, load_n: float, speed_rad_s: float, duration_s: float) -> dict:
+    # a steady state away from the thread ends: at a coarse lead the run travels farther than the nut can
+    if params.geometry.thread_ends:
+        params = params.with_overrides({"geometry.thread_ends": False})
     sim = Simulator(params, model, dt_s)
     traj = run_scenario(sim, ScenarioSpec("datasheet", load_n, speed_rad_s=speed_rad_s), duration_s)
     s = summarise(traj, TAIL_FRACTION)
@@ -59,7 +62,7 @@ def _steady(params: Params, model: str, dt_s: float, load_n: float, speed_rad_s:
 def datasheet_load_n(params: Params) -> float:
     """The default load of the efficiencies: 10 % of C_a (of C_0a where C_a is not rated), N."""
     r = params.ratings
-    return DEFAULT_LOAD_FRACTION * (r.dynamic_load_rating_n or r.static_load_rating_n)
+    return DEFAULT_LOAD_FRACTION * float(r.dynamic_load_rating_n or r.static_load_rating_n or 0.0)
 
 
 def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
@@ -68,7 +71,8 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
 
     Efficiencies: steady state of the speed loop at `speed_rad_s` with the load `load_n` resisting
     the motion (forward, screw drives nut) and aiding it (backward, the load drives the screw),
-    each the tail mean of a `RUN_S` run: η = P_out / P_in of the mechanism. No-load torque: the
+    each the tail mean of a `RUN_S` run on a screw without thread ends (the nut would run off a
+    coarse-lead screw): η = P_out / P_in of the mechanism. No-load torque: the
     tail mean of the screw torque at zero load and 1 rad/s. Axial stiffness: the nut's (thread
     contacts and teeth, no shaft or housing) at `load_n`. Ratings: the parameter set's.
     """
@@ -87,8 +91,8 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
                   "stiffness": "nut: thread contacts and teeth at the load (no shaft, no housing)"}
     return ModelSheet(efficiency_forward=fwd["tail_efficiency"], efficiency_backward=bwd["tail_efficiency"],
                       no_load_torque_nm=idle["tail_torque_nm"],
-                      static_load_rating_n=float(params.ratings.static_load_rating_n),
-                      dynamic_load_rating_n=float(params.ratings.dynamic_load_rating_n),
+                      static_load_rating_n=float(params.ratings.static_load_rating_n or 0.0),
+                      dynamic_load_rating_n=float(params.ratings.dynamic_load_rating_n or 0.0),
                       axial_stiffness_n_per_um=float(stiffness) * 1e-6, conditions=conditions)
 
 
@@ -209,7 +213,7 @@ def params_from_datasheet(sheet: Datasheet, base: Params) -> tuple[Params, list[
         said.append(f"no nut length: engaged length {engaged * 1e3:.4g} mm, the base's scaled with d0")
     n_t = max(1, math.floor(engaged / pitch + 1e-9))
     said.append(f"engaged teeth N_T = {n_t} per roller and side")
-    screw_length = max(g0.screw_length_m, 4 * n_t * pitch)
+    screw_length = max(float(g0.screw_length_m or 0.0), 4 * n_t * pitch)
     elastic: dict[str, Any] = {"bearing_position_m": None, "root_diameter_m": 2 * r_s - h_t,
                                "tooth_effective_width_m": None, "nut_outer_diameter_m": sheet.nut_outer_diameter_m}
     if sheet.preload_n:

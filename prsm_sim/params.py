@@ -683,13 +683,22 @@ class Params:
         return cls(name=str(name), **groups)
 
     def with_overrides(self, overrides: dict[str, Any]) -> Params:
-        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}."""
+        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}.
+
+        Ratings the base derived (`Ratings`) are derived again for the new values; ratings given
+        as numbers stay as given unless overridden.
+        """
         nested: dict[str, Any] = {}
         for key, value in overrides.items():
             parts = key.split(".")
             if len(parts) != 2:
                 raise ParamError(f"parameter override {key!r}: expected group.name, e.g. friction.mu_screw_roller")
             nested.setdefault(parts[0], {})[parts[1]] = value
+        # a rating the base derived is derived again from the new thread form, material and factors
+        r = self.ratings
+        for name, law in (("static_load_rating_n", static_load_rating_n), ("dynamic_load_rating_n", dynamic_load_rating_n)):
+            if name not in nested.get("ratings", {}) and getattr(r, name) == law(self.geometry, self.material, r):
+                nested.setdefault("ratings", {})[name] = None
         return Params.from_dict(nested, base=self)
 
     @staticmethod

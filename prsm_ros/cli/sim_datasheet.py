@@ -83,7 +83,7 @@ def _write_atomically(path: str, text: str) -> None:
 def cmd_params_datasheet(args) -> None:
     sheet = load_datasheet(args.datasheet)
     base = resolve_params(args.preset or ("s30" if not args.base else None), args.base, None)
-    cal = calibrate(sheet, base, args.model)
+    cal = calibrate(sheet, base, args.model, progress=lambda m: print(f"prsm-sim: {m} …", file=sys.stderr))
     text = params_to_yaml(cal.params)
     report: dict[str, Any] = {"model": cal.model, "assumed": cal.assumptions,
                               "fitted": [f.__dict__ for f in cal.fitted], "notes": cal.notes,
@@ -123,6 +123,16 @@ def register(sub, common: argparse.ArgumentParser, cmd_params, params_of) -> Non
     ds.add_argument("--speed", type=float, default=100.0, help="screw speed of the efficiencies, rad/s")
     ds.add_argument("--dt", type=float, default=1e-3, help="simulation step, s")
     ds.set_defaults(func=lambda a: cmd_datasheet(a, params_of))
+    va = sub.add_parser("validate", help="write docs/validation.md: a catalogue line beside the model fitted on one size")
+    va.add_argument("-o", "--output", help="the page to write (default docs/validation.md of the source tree)")
+    va.set_defaults(func=_validate)
+
+
+def _validate(args) -> None:
+    from prsm_ros.cli import validation
+    rc = validation.main(["-o", args.output] if args.output else [])
+    if rc:  # it printed its one line (2) or its interruption (130)
+        raise SystemExit(rc)
 
 
 def _plain_params(args, cmd_params) -> None:
