@@ -3,9 +3,11 @@ a running node (`-p foxglove_port:=N`) and from `prsm-bag serve`.
 
 Oracles: the protocol as the Foxglove WebSocket spec states it (foxglove/ws-protocol, spec.md:
 serverInfo and advertise as JSON text, a `subscribe` op, binary Message Data = opcode 0x01,
-uint32 subscription id, uint64 log time, payload; binary Time = opcode 0x02); the payload decoded with the schema text the
-server advertised, by mcap_ros2's independent ros2msg/CDR decoder (what Foxglove runs); for
-`serve`, the bag's own bytes for the same message.
+uint32 subscription id, uint64 log time, payload; binary Time = opcode 0x02); the payload
+decoded with the schema text the server advertised, by mcap_ros2's independent ros2msg/CDR
+decoder (what Foxglove runs); for `serve`, the bag's own bytes for the same message. The SDK's
+server accepts the protocol under its current subprotocol name, `foxglove.sdk.v1`, only; the
+client offers it with the original `foxglove.websocket.v1`, as the Foxglove app does.
 """
 
 from __future__ import annotations
@@ -31,8 +33,6 @@ websockets = pytest.importorskip("websockets")
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = ros_test_env("test_foxglove_live")
-# The SDK's server accepts the protocol under its current name; the original name is offered as well,
-# as the Foxglove app does.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 MESSAGE_DATA = 0x01
 TIME = 0x02  # the server's clock (Time capability: `prsm-bag serve`)

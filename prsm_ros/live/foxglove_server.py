@@ -92,7 +92,8 @@ class FoxgloveLive:
         try:
             import foxglove
         except ImportError as e:
-            raise LiveError(f"the live Foxglove view needs the Foxglove SDK (pip install 'prsm[foxglove]'): {e}") from None
+            raise LiveError(f"the live Foxglove view needs the Foxglove SDK (pip install 'prsm[foxglove]'): "
+                            f"{e}") from None
         self._foxglove = foxglove
         # set before the server starts: its threads may call `_subscribed` at once
         self.host = host
@@ -144,7 +145,8 @@ class FoxgloveLive:
             return
         channel = self._channels.get(topic)
         if channel is None:
-            raise KeyError(f"topic {topic!r} was not added with add_channel; added: {', '.join(self._channels) or 'none'}")
+            raise KeyError(f"topic {topic!r} was not added with add_channel; "
+                           f"added: {', '.join(self._channels) or 'none'}")
         if type(data) is not bytes:
             from rclpy.serialization import serialize_message
             data = serialize_message(data)

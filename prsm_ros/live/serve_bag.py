@@ -96,7 +96,8 @@ def add_parser(sub) -> None:
     """`serve` on the `prsm-bag` subcommands."""
     p = sub.add_parser("serve", help="serve to Foxglove over its WebSocket protocol, as the node serves a live run")
     p.add_argument("bag")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"TCP port (default {DEFAULT_PORT}; 0: any free port)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT,
+                   help=f"TCP port (default {DEFAULT_PORT}; 0: any free port)")
     p.add_argument("--host", default=DEFAULT_HOST,
                    help=f"address to bind (default {DEFAULT_HOST}: this machine only; 0.0.0.0 exposes the bag to "
                         "the network, unauthenticated)")
