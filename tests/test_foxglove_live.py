@@ -7,7 +7,7 @@ uint32 subscription id, uint64 log time, payload; binary Time = opcode 0x02); th
 decoded with the schema text the server advertised, by mcap_ros2's independent ros2msg/CDR
 decoder (what Foxglove runs); for `serve`, the bag's own bytes for the same message. The SDK's
 server accepts the protocol under its current subprotocol name, `foxglove.sdk.v1`, only; the
-client offers it with the original `foxglove.websocket.v1`, as the Foxglove app does.
+client offers it and the original `foxglove.websocket.v1`.
 """
 
 from __future__ import annotations
