@@ -43,12 +43,12 @@ from pathlib import Path
 
 import numpy as np
 
-from prsm_sim.life import life_from_samples
-
 from prsm_ros.bag.figures import (
-    LONG_RUN_S, MARK_COLOURS, SPAN_COLOURS, Context, Marks, RunData, force_text, actuator_figure, busiest_window,
+    LONG_RUN_S, MARK_COLOURS, SPAN_COLOURS, Context, Marks, RunData, actuator_figure, busiest_window, force_text,
     internal_loads_figure, load_distribution_figure, load_distribution_summary, load_steps, loads_figure,
     motion_figure, power_figure)
+from prsm_sim.life import life_from_samples
+
 from prsm_ros.bag.reader import Bag, BagError, resolve_topics
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, TOPIC_DEFS, parse_labels, unpack_internal
 
