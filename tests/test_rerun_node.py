@@ -58,7 +58,7 @@ def test_node_run_in_save_mode_records_every_step(tmp_path):
     n = len(t_ns)
     assert n > 1000
     np.testing.assert_array_equal(t_ns, np.arange(1, n + 1) * 1_000_000)  # every step, none dropped
-    by_time = dict(zip(t_ns.tolist(), np.array(nut).ravel().tolist()))
+    by_time = dict(zip(t_ns.tolist(), np.array(nut).ravel().tolist(), strict=True))
     for m in states:
         stamp = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
         assert by_time[stamp] == m.position[1] * 1e3  # shown in mm
