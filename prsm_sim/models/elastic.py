@@ -315,6 +315,10 @@ class ElasticPart(NamedTuple):
 class ElasticModel(Model):
     name = "elastic"
     compiled_kernel = True
+    has_carrier = True
+    has_internal_forces = True
+    has_friction_laws = True
+    has_axial_chain = True
     part_type = ElasticPart
 
     def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:

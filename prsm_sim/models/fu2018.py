@@ -211,6 +211,9 @@ class Forces(NamedTuple):
 class Fu2018(Model):
     name = "fu2018"
     compiled_kernel = True
+    has_carrier = True
+    has_internal_forces = True
+    has_friction_laws = True
     part_type = Fu2018Part
 
     @classmethod
