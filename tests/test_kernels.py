@@ -122,6 +122,16 @@ def test_fu2018_friction_variants(overrides):
     _both(p, "fu2018", torque, F_HEAVY, step_prefix=100)
 
 
+@pytest.mark.parametrize("model", ["fu2018", "elastic"])
+def test_drag_at_zero_load_holds_breaks_away_and_reverses(model):
+    # the load-independent losses (docs/model.md §4.5): seals held at rest, film traction, idle flanks
+    p = preset("s30").with_overrides({"drag.enabled": True})
+    torque = 0.4 * np.sin(2 * math.pi * 3.0 * _t(300))  # within and beyond the no-load torque, both ways
+    tr = _both(p, model, torque, 0.0, step_prefix=80)
+    w = tr["screw_speed_rad_s"]
+    assert np.any(w == 0.0) and np.any(w > 1.0) and np.any(w < -1.0)
+
+
 # -- elastic ------------------------------------------------------------------------------------------
 def _elastic_reversals(n):
     t = _t(n)
