@@ -1,7 +1,8 @@
-"""The compiled kernels (numba, `prsm_sim.models.kernels`) against the pure-Python reference path.
+"""The compiled kernels (numba, `prsm_sim.models.kernels`) against the same source run uncompiled.
 
-Oracle: the reference path of the same model (`kernel="reference"`), which the other tests validate against
-closed forms, conservation and fine-step solutions. Every output column, the internal loads and the final
+Oracle: the uncompiled run of the same model (`kernel="reference"`: the functions of models/kernels.py under
+the Python interpreter), whose physics the other tests validate against closed forms, conservation and
+fine-step solutions; this file checks that numba computes what the source says. Every output column, the internal loads and the final
 state must agree to 1e-12 relative to each column's magnitude (absolute on columns near zero) over runs that
 exercise each branch of the step: forward and back-driving, reversals, stick and breakaway, sub-steps, the
 viscous law, nut sliding, exponential load distribution (fu2018); backlash with impacts, oversize and double
