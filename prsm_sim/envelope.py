@@ -39,7 +39,7 @@ from prsm_sim.actuator import (ACTUATOR_QUANTITIES, ActuatorParams, BrakeParams,
 from prsm_sim.control import PositionController
 from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.presets import preset
-from prsm_sim.session import Session
+from prsm_sim.session import Session, SessionConfig
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
 MODELS = ("ideal", "jones2016", "fu2018", "elastic")
@@ -188,9 +188,9 @@ def build(case: dict):
         brake = BrakeParams(holding_torque_nm=b["holding_torque_nm"]) if b else BrakeParams()
         act = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode=case["interface"]), stops=stops, brake=brake,
                              faults=tuple(Fault(**f) for f in case.get("faults", ())))
-    session = Session(p, case["model"], case["dt_s"], act, nut_position_m=case["start_m"],
-                      initial_load_n=initial_load_n(case), interface=session_interface(case),
-                      max_effort_nm=TORQUE_LIMIT_NM)
+    session = Session.from_config(SessionConfig(
+        params=p, model=case["model"], dt_s=case["dt_s"], actuator=act, nut_position_m=case["start_m"],
+        initial_load_n=initial_load_n(case), interface=session_interface(case), max_effort_nm=TORQUE_LIMIT_NM))
     return session, act, p
 
 
