@@ -18,7 +18,7 @@ from dataclasses import fields
 import numpy as np
 
 from prsm_sim.actuator import Actuator
-from prsm_sim.actuator.stops import engaged, limits_of
+from prsm_sim.actuator.stops import Limit, engaged, limits_of
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.checks import check_typed, is_finite_number, is_number
 from prsm_sim.errors import InputError, NonFiniteStateError
@@ -356,6 +356,14 @@ class Simulator:
             self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
         return res
+
+    @property
+    def limits(self) -> tuple[Limit, ...]:
+        """The stops the nut is held within (`actuator.stops.Limit`, innermost on each side): an
+        actuator's end stops and thread ends, or the thread ends this simulator holds a bare model at;
+        empty when none are fitted."""
+        model = self.model
+        return model.limits if isinstance(model, Actuator) else self._limits
 
     @property
     def thread_end_force_n(self) -> float:
