@@ -509,15 +509,8 @@ class Session:
                 and isinstance(run, dict) and run.keys() == set(_RUN_FIELDS)):
             raise InputError("state: the gate or session entries do not match this version's (save and restore "
                              "with the same prsm version)")
-        try:  # the limits and the interface, validated as when built
-            CommandGate(gate["max_effort_nm"], gate["cmd_timeout_s"], gate["timeout_behaviour"], gate["interface"])
-        except ParamError as e:
-            raise InputError(f"state gate: {e}") from None
-        for k, hint in _GATE_TYPES.items():
-            check_typed(gate[k], hint, f"state gate.{k}")
-        if not math.isfinite(gate["value"]):
-            raise InputError(f"state gate.value = {gate['value']!r}: must be a finite number")
-        self._check_run_fields(run)
+        _check_gate(gate)
+        _check_run(run, self.simulator)
         sim = self.simulator.read_state(data.get("simulator"))
         # everything checked: from here on nothing can fail
         self.simulator.apply_state(sim)
@@ -525,15 +518,6 @@ class Session:
         for k, v in run.items():
             setattr(self, k, v)
 
-    def _check_run_fields(self, run: dict) -> None:
-        """InputError naming the field unless `run` holds what `get_state` writes for this session."""
-        for k, hint in _RUN_TYPES.items():
-            check_typed(run[k], hint, f"state session.{k}")
-        for k in ("nut_position_m", "load_n", "initial_load_n"):
-            v = run[k]
-            if v is not None and not math.isfinite(v):
-                raise InputError(f"state session.{k} = {v!r}: must be a finite number")
-        self.simulator._check_on_threads(run["nut_position_m"], "state session.nut_position_m")
 
     def status(self) -> dict:
         """The session as plain data (numbers, strings, lists, dicts): time, run state, command,
@@ -564,3 +548,28 @@ class Session:
                              "motor_current_a": a.current_a, "torque_limited": a.limited,
                              "faults_active": [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]}
         return d
+
+
+def _check_gate(gate: dict) -> None:
+    """InputError naming the field unless `gate` holds what `Session.get_state` writes for a gate: the
+    limits and the interface as when built, the command a finite number, the counters whole numbers."""
+    try:
+        CommandGate(gate["max_effort_nm"], gate["cmd_timeout_s"], gate["timeout_behaviour"], gate["interface"])
+    except ParamError as e:
+        raise InputError(f"state gate: {e}") from None
+    for k, hint in _GATE_TYPES.items():
+        check_typed(gate[k], hint, f"state gate.{k}")
+    if not math.isfinite(gate["value"]):
+        raise InputError(f"state gate.value = {gate['value']!r}: must be a finite number")
+
+
+def _check_run(run: dict, simulator: Simulator) -> None:
+    """InputError naming the field unless `run` holds what `Session.get_state` writes for a session
+    around `simulator`: values of their types, finite loads and a start position on the threads."""
+    for k, hint in _RUN_TYPES.items():
+        check_typed(run[k], hint, f"state session.{k}")
+    for k in ("nut_position_m", "load_n", "initial_load_n"):
+        v = run[k]
+        if v is not None and not math.isfinite(v):
+            raise InputError(f"state session.{k} = {v!r}: must be a finite number")
+    simulator.check_on_threads(run["nut_position_m"], "state session.nut_position_m")

@@ -109,7 +109,7 @@ class Simulator:
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits else (-sys.float_info.max,
                                                                                  sys.float_info.max)
         self._end_force, self._end_step = 0.0, -1
-        self._check_on_threads(nut_position_m)
+        self.check_on_threads(nut_position_m)
         if initial_load_n is not None and not is_finite_number(initial_load_n):
             raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N) or None")
         self._initial_nut_position_m = float(nut_position_m)
@@ -176,7 +176,7 @@ class Simulator:
             The new current state.
         """
         if nut_position_m is not None:
-            self._check_on_threads(nut_position_m)
+            self.check_on_threads(nut_position_m)
             self._initial_nut_position_m = float(nut_position_m)
         if initial_load_n is not None:
             if not is_finite_number(initial_load_n):
@@ -238,7 +238,7 @@ class Simulator:
         nstep = d["nstep"]
         if not isinstance(nstep, int) or isinstance(nstep, bool) or nstep < 0:
             raise InputError(f"state.nstep = {nstep!r}: must be a whole number >= 0")
-        self._check_on_threads(d["nut_position_m"], "state.nut_position_m")
+        self.check_on_threads(d["nut_position_m"], "state.nut_position_m")
         load = d.get("initial_load_n", 0.0)
         if not is_finite_number(load):
             raise InputError(f"state.initial_load_n = {load!r}: must be a finite number (N)")
@@ -321,7 +321,8 @@ class Simulator:
         self._before = None
         self.nstep -= 1
 
-    def _check_on_threads(self, nut_position_m, name: str = "nut_position_m") -> None:
+    def check_on_threads(self, nut_position_m, name: str = "nut_position_m") -> None:
+        """InputError naming `name` unless `nut_position_m` is a finite number on the threads, m."""
         if not is_finite_number(nut_position_m):
             raise InputError(f"{name} = {nut_position_m!r}: must be a finite number (m)")
         travel = self.params.geometry.travel_m

@@ -28,6 +28,7 @@ import numpy as np
 from prsm_sim.actuator import faults as fl
 from prsm_sim.actuator.brake import brake_level, stiction_torque
 from prsm_sim.actuator.drive import drive_update, shape_reference
+from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
 from prsm_sim.actuator.motor import current_reference, current_step, voltage
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
 from prsm_sim.actuator.sensing import SensorSuite
@@ -192,7 +193,7 @@ class Actuator(Model):
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m
         self.sensing = SensorSuite(a.sensors, self.ratio, self.rigid, self.p, self.dt_s)
-        self.J = self._probe_inertia(base)
+        self.J = probe_inertia(base, self.h_sub)
         # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
         self.J_drive = self.J + (0.0 if self.rigid else self.motor_inertia)  # the inertia the drive moves
         self.drive = a.drive.tuned(self.J_drive)
@@ -216,67 +217,6 @@ class Actuator(Model):
         """Screw acceleration (rad/s²) the position reference may ask for: half the torque limit on the inertia
         the drive moves (the other half for the load, friction and the error), unlimited without a motor."""
         return 0.5 * torque_limit_nm / self.J_drive
-
-    def _probe_inertia(self, model: Model) -> float:
-        """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
-
-        Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
-        implicit stop, coupling and dry-friction torques; the step itself is the model's.
-        """
-        s0 = model.initial_state(0.0)
-        w1 = model.step(s0, 1.0, 0.0)[0].screw_speed_rad_s
-        w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
-        return self.h_sub / (w1 - w0)
-
-    def _response(self, model: Model, screw: State, tau_nm: float, load_n: float) -> tuple[float, float, float, float]:
-        """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from this state.
-
-        Returns (ω1, ∂ω1/∂τ, θ1, ∂θ1/∂τ); a load acts as τ = −(L/2π) F. Exact for the linear
-        models; for fu2018 the local slope (its effective inertia moves with the friction regime).
-        """
-        a = model.step(screw, tau_nm, load_n)[0]
-        d = 1e-3 * max(1.0, abs(tau_nm))
-        b = model.step(screw, tau_nm + d, load_n)[0]
-        s_w = (b.screw_speed_rad_s - a.screw_speed_rad_s) / d
-        s_th = (b.screw_angle_rad - a.screw_angle_rad) / d
-        if not (math.isfinite(s_w) and s_w > 0.0 and math.isfinite(s_th) and s_th > 0.0):
-            s_w, s_th = self.h_sub / self.J, 0.5 * self.h_sub**2 / self.J  # a stuck response: the probed inertia's
-        return a.screw_speed_rad_s, s_w, a.screw_angle_rad, s_th
-
-    def _coupling(self, model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
-                  phi0: float, k: float, c: float, th_sfree: float, s_th: float):
-        """The compliant coupling's torque held over the step, solved to consistency with the screw model.
-
-        τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
-        acceleration, the screw by the model itself. The residual is strictly increasing in τ_c
-        (the screw turns further, the motor less, the more torque the coupling carries), so the
-        root is unique: Newton from the linear estimate, then secant steps, to 1e-12 of the
-        torque scale (one model step for the linear models). Its work is then ΔV + c Δφ²/h:
-        the ledger stays exact and the scheme cannot gain energy, so a stiff coupling stays
-        stable at the step (trapezoidal rule). Returns (τ_c, screw state, outputs).
-        """
-        h, jr = self.h_sub, self.motor_inertia
-        G, H = 0.5 * k + c / h, 0.5 * k - c / h
-        q_r = 0.5 * h * h / jr
-
-        def residual(tau):
-            new, out = model.step(screw, tau + tau_st, load_n)
-            phi1 = th_r_free + q_r * (tau_d - tau) - new.screw_angle_rad
-            return tau - (G * phi1 + H * phi0), new, out
-
-        slope = 1.0 + G * (q_r + s_th)
-        t0 = (G * (th_r_free + q_r * tau_d - th_sfree) + H * phi0) / slope  # the linear solution
-        r0, new, out = residual(t0)
-        scale = 1e-12 * max(1.0, abs(t0), abs(tau_d))
-        if abs(r0) <= scale:
-            return t0, new, out
-        t1 = t0 - r0 / slope
-        for _ in range(30):
-            r1, new, out = residual(t1)
-            if abs(r1) <= scale or r1 == r0:
-                break
-            t0, t1, r0 = t1, t1 - r1 * (t1 - t0) / (r1 - r0), r1
-        return t1, new, out
 
     # -- state ---------------------------------------------------------------------------
     def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> ActuatorState:
@@ -471,7 +411,7 @@ class Actuator(Model):
         cap = w.level * self.actuator.brake.holding_torque_nm + act.jam_nm
         implicit = not self.rigid or cap > 0.0
         if implicit:
-            w_a, s_w, th_a, s_th = self._response(model, screw, tau_drive_screw, load_n)
+            w_a, s_w, th_a, s_th = linear_response(model, screw, tau_drive_screw, load_n, h, self.J)
         else:
             s_th = 0.5 * h * h / self.J
         th_r, w_r = w.th_r, w.w_r
@@ -489,8 +429,8 @@ class Actuator(Model):
                 tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
                 return (*model.step(screw, tau_in, load_in), t_st, tau_d, tau_in)
             th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
-            t_c, nw, o = self._coupling(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
-                                        th_sfree, s_th)
+            t_c, nw, o = coupling_torque(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+                                         th_sfree, s_th, h, self.motor_inertia)
             return nw, o, t_st, t_c, t_c + t_st
 
         res = advance(0.0)
