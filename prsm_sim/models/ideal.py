@@ -22,21 +22,36 @@ import math
 
 import numpy as np
 
+from prsm_sim.errors import InputError
 from prsm_sim.params import Params
-from prsm_sim.physics.inertia import mass_matrix
-from prsm_sim.physics.kinematics import ideal_carrier_ratio
+from prsm_sim.physics.inertia import reflected_inertia
+from prsm_sim.physics.kinematics import ideal_carrier_ratio, ideal_speed_ratio
 from prsm_sim.stepping.model import Model
 
-
-def reflected_inertia(params: Params) -> float:
-    """Inertia at the screw with the carrier and rollers moving at the ideal ratio."""
-    M = mass_matrix(params)
-    k = ideal_carrier_ratio(params.geometry)
-    return float(M[0, 0] + 2 * M[0, 1] * k + M[1, 1] * k * k)
+__all__ = ["Ideal", "reflected_inertia"]  # reflected_inertia stays importable here (its home: physics.inertia)
 
 
 class Ideal(Model):
     name = "ideal"
+
+    @classmethod
+    def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
+                                 torque_nm: float | None = None, load_n: float | None = None) -> dict | None:
+        """Steady rolling at a screw speed: τ = τ_L/η_f forward, τ_L η_b backward, plus b ω (the model's
+        own efficiency law, LossyGear's modes; no fading: steady power is above its threshold)."""
+        if torque_nm is not None:
+            raise InputError(f"torque_nm = {torque_nm!r}: the ideal model's steady state is given by a speed")
+        w = params.loads.screw_speed_rad_s if screw_speed_rad_s is None else screw_speed_rad_s
+        f = params.loads.nut_load_n if load_n is None else load_n
+        il = params.ideal
+        tau_l = f * params.geometry.lead_per_rad_m
+        forward = tau_l * w >= 0
+        tau = tau_l / il.efficiency_forward if forward else tau_l * il.efficiency_backward
+        tau += il.viscous_nm_s_rad * w
+        return {"method": "closed form (efficiency law)", "screw_speed_rad_s": w, "carrier_over_screw": 1.0 / ideal_speed_ratio(params.geometry),
+                "speed_ratio_screw_over_carrier": ideal_speed_ratio(params.geometry), "torque_nm": tau,
+                "load_force_n": f,
+                "efficiency": (tau_l * w) / (tau * w) if tau * w > 0 and tau_l * w > 0 else math.nan}
 
     def __init__(self, params: Params, dt_s: float) -> None:
         super().__init__(params, dt_s)
