@@ -37,8 +37,8 @@ import numpy as np
 from prsm_sim.actuator import (ACTUATOR_QUANTITIES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
                                StopParams)
 from prsm_sim.control import PositionController
-from prsm_sim.models.ideal import reflected_inertia
-from prsm_sim.models.registry import MODELS as REGISTERED_MODELS
+from prsm_sim.physics.inertia import reflected_inertia
+from prsm_sim.models.registry import MODELS as REGISTERED_MODELS, model_class
 from prsm_sim.presets import preset
 from prsm_sim.session import Session, SessionConfig
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
@@ -76,7 +76,7 @@ def draw_case(rng, seed: int | None = None) -> dict:
             "interface": interface, "controller": controller, "overrides": {}}
     _draw_start(rng, case)
     _draw_load(rng, case)
-    if model == "elastic" and rng.random() < 0.5:
+    if model_class(model).has_axial_chain and rng.random() < 0.5:  # a clearance or a preload on the chain
         if rng.random() < 0.5:
             case["overrides"]["elastic.axial_clearance_m"] = float(np.round(rng.uniform(1e-6, 5e-5), 7))
         else:
@@ -150,7 +150,7 @@ def _draw_events(rng, case: dict) -> None:
 def _fault(rng, duration, model, overrides) -> dict:
     kinds = ["friction_surge", "lubrication_loss", "jam", "sensor_bias", "sensor_noise", "sensor_dropout",
              "sensor_stuck", "torque_limit_drop", "drive_fault"]
-    if model == "elastic" and "elastic.preload_n" not in overrides:
+    if model_class(model).has_axial_chain and "elastic.preload_n" not in overrides:
         kinds.append("backlash")
     kind = kinds[int(rng.integers(len(kinds)))]
     start = float(np.round(rng.uniform(0.0, 0.6) * duration, 4))

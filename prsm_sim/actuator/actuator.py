@@ -36,7 +36,7 @@ from prsm_sim.actuator.sensors import MEASURED_QUANTITIES, TrueSample
 from prsm_sim.actuator.stops import engaged, limits_of, stop_penetration, stop_stored_j
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.errors import InputError
-from prsm_sim.models.registry import build_model
+from prsm_sim.models.registry import build_model, model_class
 from prsm_sim.stepping.ledger import efficiency
 from prsm_sim.stepping.model import Model, check_step_inputs
 from prsm_sim.physics.inertia import mass_matrix
@@ -163,7 +163,8 @@ class Actuator(Model):
         super().__init__(params, dt_s)
         self.model_name = model
         self.kernel = kernel  # of the screw models it builds (`build_model`)
-        self.elastic = model == "elastic"
+        # the nut on its own axial chain: loads, stops and sensors act at its own coordinate, backlash applies
+        self.axial_chain = model_class(model).has_axial_chain
         self.actuator = a = actuator if actuator is not None else ActuatorParams()
         if not isinstance(a, ActuatorParams):
             raise InputError(f"actuator: expected ActuatorParams, got {type(a).__name__}")
@@ -329,7 +330,7 @@ class Actuator(Model):
         m = self.actuator.motor
         w.tlim = math.inf if m is None else self.ratio * m.peak_torque_nm * act.torque_factor
         screw = st.screw
-        extra = fl.extra_clearance_m(faults, st.time_s) if self.elastic else 0.0
+        extra = fl.extra_clearance_m(faults, st.time_s) if self.axial_chain else 0.0
         if extra < screw.extra_clearance_m:
             # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
             # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
@@ -451,7 +452,7 @@ class Actuator(Model):
         m, h, screw, new, led = self.actuator.motor, self.h_sub, w.screw, w.new, w.led
         dth = new.screw_angle_rad - screw.screw_angle_rad
         # where load and stop force act: the nut (its own coordinate in `elastic`)
-        dx_nut = new.nut_axial_m - screw.nut_axial_m if self.elastic else self.p * dth
+        dx_nut = new.nut_axial_m - screw.nut_axial_m if self.axial_chain else self.p * dth
         th_r, w_r, tau_c = w.th_r, w.w_r, w.tau_c
         if self.rigid:
             th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
@@ -539,7 +540,7 @@ class Actuator(Model):
     # -- energy --------------------------------------------------------------------------
     def _nut_x(self, s: State) -> float:
         """Nut position (m): its own coordinate in `elastic`, (L/2π) θ_S in the rigid models."""
-        return s.nut_axial_m if self.elastic else self.p * s.screw_angle_rad
+        return s.nut_axial_m if self.axial_chain else self.p * s.screw_angle_rad
 
     def nut_position_m(self, st: ActuatorState) -> float:
         """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
@@ -551,7 +552,7 @@ class Actuator(Model):
         rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
         s, m = st.screw, self.actuator.motor
         ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
-        if self.elastic:
+        if self.axial_chain:
             e = self._model(fl.NONE).total_stored_energy_j(s)
         else:
             e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
@@ -571,7 +572,7 @@ class Actuator(Model):
 
         Motor angle and speed come in screw coordinates (motor / gear ratio); the nut's are its own
         (`elastic`: across the axial chain from the thread, so a linear encoder sees the backlash)."""
-        v_nut = screw.nut_speed_m_s if self.elastic else self.p * screw.screw_speed_rad_s
+        v_nut = screw.nut_speed_m_s if self.axial_chain else self.p * screw.screw_speed_rad_s
         return TrueSample(motor_angle_rad * self.ratio, screw.screw_angle_rad,
                           screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
                           self._nut_x(screw), v_nut, nut_force_n)
