@@ -89,11 +89,13 @@ class Geometry:
     n_rollers: int
     n_teeth: int
     flank_angle_deg: float = 45.0
-    nut_radius_m: float | None = None  # default r_S + 2 r_R (planetary fit)
-    gear_ratio: float | None = None  # ring/spur tooth ratio g; default r_N / r_R (no migration)
-    screw_length_m: float | None = None  # default 4 × the threaded roller length
-    pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
-    nut_length_m: float | None = None  # threaded nut length; default n_teeth × pitch
+    # Derived where not given: None on input, a float in every built instance (`__post_init__` fills
+    # it), so the fields are typed as what a reader gets
+    nut_radius_m: float = None  # type: ignore[assignment]  # default r_S + 2 r_R (planetary fit)
+    gear_ratio: float = None  # type: ignore[assignment]  # ring/spur tooth ratio g; default r_N / r_R (no migration)
+    screw_length_m: float = None  # type: ignore[assignment]  # default 4 × the threaded roller length
+    pin_radius_m: float = None  # type: ignore[assignment]  # roller journal radius in the carrier; default r_R / 2
+    nut_length_m: float = None  # type: ignore[assignment]  # threaded nut length; default n_teeth × pitch
     thread_ends: bool = True  # the nut stops at ±(screw_length_m − nut_length_m)/2 (False: no ends)
 
     def __post_init__(self) -> None:

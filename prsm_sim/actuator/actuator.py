@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections import namedtuple
 from dataclasses import dataclass, replace
+from typing import Any, cast
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from prsm_sim.actuator import faults as fl
 from prsm_sim.actuator.brake import brake_level, stiction_torque
 from prsm_sim.actuator.drive import drive_update, shape_reference
 from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
-from prsm_sim.actuator.motor import current_reference, current_step, voltage
+from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
 from prsm_sim.actuator.sensing import SensorSuite
 from prsm_sim.actuator.sensors import MEASURED_QUANTITIES, TrueSample
@@ -70,7 +71,7 @@ ACTUATOR_QUANTITIES = (
 )
 _MODE_CODE = {m: float(i) for i, m in enumerate(COMMAND_INTERFACES)}
 # the actuator block of one step, built by keyword: a new quantity is one entry in ACTUATOR_QUANTITIES
-_ActuatorBlock = namedtuple("_ActuatorBlock", [n for n, _ in ACTUATOR_QUANTITIES])  # type: ignore[misc]
+_ActuatorBlock = cast(Any, namedtuple)("_ActuatorBlock", [n for n, _ in ACTUATOR_QUANTITIES])
 _MEASURED_AT = {n: i for i, (n, _) in enumerate(MEASURED_QUANTITIES)}
 # the readings that stand for the true joint quantities of the same name in `Actuator.measured`
 _JOINT_READINGS = ("screw_angle_rad", "screw_speed_rad_s", "nut_position_m", "nut_velocity_m_s", "nut_force_n")
@@ -146,9 +147,14 @@ class _Work:
         self.volt = self.tau_st = self.tau_in = self.f_stop = 0.0
         self.sums = [0.0, 0.0, 0.0, 0.0]  # screw torque, power in, out, dissipated (for n_sub > 1)
         self.act: fl.Active = fl.NONE
-        self.model: Model | None = None
         self.tlim = math.inf
-        self.cs = self.new = self.out = None
+
+    # set by the stages before they are read: the screw model the faults call for (`_begin`), the
+    # current loop's sub-step (`_motor`), the sub-step's new screw state and outputs (`_advance`)
+    model: Model
+    cs: CurrentStep
+    new: State
+    out: Outputs
 
 
 class Actuator(Model):
@@ -173,6 +179,9 @@ class Actuator(Model):
         for f in a.faults:  # refused before anything is built or stepped
             fl.check_fault(f, params, model, m is not None)
         self.rigid = m is None or m.coupling_stiffness_nm_rad is None
+        # a compliant coupling's stiffness (N·m/rad) and damping (N·m·s/rad); 0 when rigid
+        self.k_coupling = 0.0 if m is None or m.coupling_stiffness_nm_rad is None else m.coupling_stiffness_nm_rad
+        self.c_coupling = 0.0 if m is None else m.coupling_damping_nm_s_rad
         if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
             mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
                            + m.rotor_inertia_kgm2 * m.gear_ratio**2)
@@ -220,7 +229,10 @@ class Actuator(Model):
         return 0.5 * torque_limit_nm / self.J_drive
 
     # -- state ---------------------------------------------------------------------------
-    def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> ActuatorState:
+    # the actuator's state is a record of its own (`ActuatorState`, never packed): its methods take and give
+    # that, not the screw model's `State`
+    def initial_state(self, nut_position_m: float = 0.0,  # type: ignore[override]
+                      load_n: float = 0.0) -> ActuatorState:
         """At rest with the nut at `nut_position_m`, in equilibrium under the nut load `load_n`: the screw
         model pre-deflected at it (`Model.initial_state`), the drive train carrying the frictionless
         holding torque (L/2π) F (the torque reference, the motor current and a compliant coupling's
@@ -240,7 +252,7 @@ class Actuator(Model):
         if m is not None:  # as far as the drive can
             lim = self.ratio * m.peak_torque_nm
             hold = max(-lim, min(lim, hold))
-        th_r = th if self.rigid or hold == 0.0 else th + hold / m.coupling_stiffness_nm_rad
+        th_r = th if self.rigid or hold == 0.0 else th + hold / self.k_coupling
         i_a = 0.0 if m is None else hold / (self.ratio * m.torque_constant_nm_a)
         st = ActuatorState(screw=screw, mode=mode, motor_angle_rad=th_r, current_a=i_a,
                            integral_nm=hold if mode != "effort" else 0.0, torque_ref_nm=hold,
@@ -292,14 +304,16 @@ class Actuator(Model):
         return fl.fault_events(self.all_faults(after), t0 - self.dt_s, t0)
 
     # -- the step ------------------------------------------------------------------------
-    def step(self, state: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:
+    def step(self, state: ActuatorState, command: float,  # type: ignore[override]
+             load_n: float) -> tuple[ActuatorState, Outputs]:
         """One step with `command` (active interface: N·m, screw rad/s or nut m) and the nut load."""
         command, load_n = check_step_inputs(command, load_n, self.command_name)
         if not isinstance(state, ActuatorState):
             raise InputError(f"state: expected an ActuatorState (Actuator.initial_state), got {type(state).__name__}")
         return self._step_impl(state, command, load_n)
 
-    def _step_impl(self, st: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:
+    def _step_impl(self, st: ActuatorState, command: float,  # type: ignore[override]
+                   load_n: float) -> tuple[ActuatorState, Outputs]:
         """The step in its stages: faults and clearance (`_begin`), then per sub-step the drive loop
         (`_drive_loop`, when due), the current loop and motor (`_motor`), the screw with the coupling,
         brake, jams and stops solved on it (`_advance`) and the motor side and ledger (`_book`); then the
@@ -341,7 +355,7 @@ class Actuator(Model):
             # the clearance steps at the step's start: a wider gap at the same deflection unloads the
             # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
             # never closes onto a flank), so the ledger and the model's guard stay closed
-            widened = replace(screw, extra_clearance_m=extra)
+            widened = replace(screw, extra_clearance_m=extra)  # type: ignore[call-arg]  # a part field of `State`
             w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
                                                                        - model.total_stored_energy_j(widened)))
             w.screw = widened
@@ -400,11 +414,10 @@ class Actuator(Model):
         the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J would
         not do). Leaves the new screw state, its outputs and the solved torques and force in `w`."""
         model, screw, h, p, act = w.model, w.screw, self.h_sub, self.p, w.act
-        m = self.actuator.motor
         if self.rigid:
             tau_drive_screw = tau_d
         else:
-            k, c = m.coupling_stiffness_nm_rad, m.coupling_damping_nm_s_rad
+            k, c = self.k_coupling, self.c_coupling
             phi0 = w.th_r - screw.screw_angle_rad
             # linearise where the last step ended: the explicit spring torque k φ0 would swing with
             # the coupling's ringing and evaluate a set-valued friction on the wrong side
@@ -417,7 +430,7 @@ class Actuator(Model):
             s_th = 0.5 * h * h / self.J
         th_r, w_r = w.th_r, w.w_r
 
-        def advance(f_stop):
+        def advance(f_stop: float) -> tuple[State, Outputs, float, float, float]:
             """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, outputs,
             stiction torque, coupling torque, screw torque)."""
             load_in = load_n - f_stop if f_stop != 0.0 else load_n
@@ -458,7 +471,7 @@ class Actuator(Model):
             th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
             dth_r = dth
         else:
-            k = m.coupling_stiffness_nm_rad
+            k = self.k_coupling
             w_r1 = w_r + h * (tau_d - tau_c) / self.motor_inertia
             th_r1 = th_r + 0.5 * h * (w_r + w_r1)
             dth_r = th_r1 - th_r
@@ -535,7 +548,8 @@ class Actuator(Model):
         is the true one. With ideal sensors this is `out`'s values exactly.
         """
         m = self.layout.view(out.internal, "measured")
-        return replace(out, **{n: float(m[_MEASURED_AT[n]]) for n in _JOINT_READINGS})
+        readings: dict[str, Any] = {n: float(m[_MEASURED_AT[n]]) for n in _JOINT_READINGS}
+        return replace(out, **readings)
 
     # -- energy --------------------------------------------------------------------------
     def _nut_x(self, s: State) -> float:
@@ -562,7 +576,7 @@ class Actuator(Model):
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:
                 phi = st.motor_angle_rad - s.screw_angle_rad
-                e += 0.5 * self.motor_inertia * st.motor_speed_rad_s**2 + 0.5 * m.coupling_stiffness_nm_rad * phi * phi
+                e += 0.5 * self.motor_inertia * st.motor_speed_rad_s**2 + 0.5 * self.k_coupling * phi * phi
         return e
 
     # -- sensors -------------------------------------------------------------------------
