@@ -41,6 +41,7 @@ from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.models.registry import MODELS as REGISTERED_MODELS, model_class
 from prsm_sim.presets import preset
 from prsm_sim.session import Session, SessionConfig
+from prsm_sim.stepping.records import Outputs
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
 MODELS = tuple(REGISTERED_MODELS)  # drawn in the registry's order
@@ -93,7 +94,8 @@ def _pick(rng, options, p=None):
 def _draw_start(rng, case: dict) -> None:
     """Where the nut starts and what it is asked: near the middle, near a stop (with the stops), or near a
     thread end; whether the thread ends are fitted; the target, amplitude and frequency of the loop."""
-    half = 0.5 * preset("s30").geometry.travel_m
+    g = preset("s30").geometry
+    half = 0.5 * (g.screw_length_m - g.nut_length_m)  # the travel on the threads
     near = _pick(rng, ("middle", "stop", "end"))
     start = float(np.round(rng.uniform(-0.01, 0.01), 5))
     stops = None
@@ -309,7 +311,7 @@ class _Run:
         self.last_event = -math.inf
         self.t_offset = 0.0
         self.did_reset = self.did_pause = False
-        self.out = None
+        self.out: Outputs | None = None
         self._start()
 
     def _start(self) -> None:
@@ -330,6 +332,12 @@ class _Run:
         self.w_contact: float | None = None  # energy available since first contact
         self.ctl = _Controller(self.case, self.p, self.dt)
         self.engaged = self.released = False
+
+    @property
+    def last(self) -> Outputs:
+        """The last step's outputs (the end checks run only after a step)."""
+        assert self.out is not None  # `loop` returns False when no step was taken
+        return self.out
 
     def contact_of(self, x: float) -> float:
         for lim in self.limits:
@@ -464,7 +472,7 @@ class _Run:
         if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 \
                 and max(abs(q) for q in hist_v[-last:]) < 1e-6 and hist_contact[-1] > 0.0:
             f = _load(self.case, self.sim.time_s)
-            net = abs(f - self.out.nut_force_n)
+            net = abs(f - self.last.nut_force_n)
             k = self.k_stop
             if hist_contact[-1] > net / k + REST_SLACK_M:
                 stop_f = self._stop_force()
@@ -474,7 +482,7 @@ class _Run:
     def _stop_force(self) -> float:
         if self.act is None:
             return self.session.simulator.thread_end_force_n
-        return float(self.sim.layout.view(self.out.internal, "actuator")[_Q["stop_force_n"]])
+        return float(self.sim.layout.view(self.last.internal, "actuator")[_Q["stop_force_n"]])
 
     def check_ringing(self) -> None:
         """Held against a stop under a constant command: no ringing (and nothing else changed: no brake

@@ -22,7 +22,7 @@ import dataclasses
 import math
 import typing
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -83,7 +83,10 @@ def _record_to_plain(obj: Any, path: str) -> Any:
 def _reduced_dataclass(obj: object):
     """The dataclass instance `obj` pickles as (its `__reduce__` names a dataclass type), or None."""
     try:
-        rebuild, args = obj.__reduce__()[:2]
+        reduced = obj.__reduce__()
+        if not isinstance(reduced, tuple):  # a global's name: not a record
+            return None
+        rebuild, args = reduced[:2]
     except Exception:
         return None
     if isinstance(rebuild, type) and dataclasses.is_dataclass(rebuild) and isinstance(args, tuple):
@@ -182,7 +185,8 @@ def _record_from_plain(data: dict, types: dict[str, type], path: str) -> Any:
                          f"(known: {', '.join(sorted(types))})")
     if tag == "$dc":
         return cls(**{k: from_plain(v, types, f"{path}.{k}") for k, v in data["fields"].items()})
-    return cls(*(from_plain(v, types, f"{path}.{n}") for n, v in zip(cls._fields, data["items"])))
+    names = cast(Any, cls)._fields  # a named tuple (`reachable_types` admits no other kind here)
+    return cls(*(from_plain(v, types, f"{path}.{n}") for n, v in zip(names, data["items"])))
 
 
 # how each tag `to_plain` writes is read back

@@ -157,7 +157,7 @@ class Session:
         self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
         self.nut_position_m = float(nut_position_m)
         self.initial_load_n = None if initial_load_n is None else float(initial_load_n)
-        self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else self.initial_load_n
+        self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else float(initial_load_n)
         self._at_thread_end = False  # the nut pressed on a thread end after the last step
         self._edge_events: list = []  # thread-end events (stops.ThreadEndEvent) not yet taken
         self._paused = False
@@ -294,7 +294,7 @@ class Session:
         if not state_is_finite(out):
             sim.undo()  # keep the last finite state; reset clears the fault
             raise self._non_finite(out.time_s, command)
-        if before is not None:
+        if act is not None and before is not None:
             self._events += act.events(before, sim.state)
             at_end = bool(self.layout.view(out.internal, "actuator")[_THREAD_END]) if self._thread_ends else False
             end_force = self.layout.view(out.internal, "actuator")[_STOP_FORCE] if at_end else 0.0

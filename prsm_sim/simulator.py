@@ -14,6 +14,7 @@ import math
 import sys
 import warnings
 from dataclasses import fields
+from typing import Any
 
 import numpy as np
 
@@ -45,6 +46,10 @@ def _check_state(state, kind: type, path: str) -> None:
 
 
 class Simulator:
+    _packed: Any  # the packed record of the state (packed models) or None
+    _state_of: Any  # the packed record `_state` was unpacked from
+    _step_packed: Any  # the model's packed step (packed models) or None
+    _before: Any  # the state before the last step (for `undo`) or None
     """A model with its current state and step counter: the object a script or a node drives.
 
     Parameters
@@ -106,8 +111,8 @@ class Simulator:
         travel = params.geometry.travel_m
         self._limits = () if actuator is not None or travel is None else limits_of(None, travel)
         # without ends the bounds are the float range: `step` still sends an infinite or NaN nut to `_at_end`
-        self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits else (-sys.float_info.max,
-                                                                                 sys.float_info.max)
+        self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
+            (-sys.float_info.max, sys.float_info.max)
         self._end_force, self._end_step = 0.0, -1
         self.check_on_threads(nut_position_m)
         if initial_load_n is not None and not is_finite_number(initial_load_n):
@@ -125,14 +130,14 @@ class Simulator:
     # packed record of the last step (or `Model.pack_state`'s tuple), turned into a `State` only
     # when someone reads it (`_state` caches the `State` of `_state_of`).
     @property
-    def state(self) -> State:
+    def state(self) -> Any:  # a `State`, or with an actuator its `ActuatorState`
         x = self._packed
         if x is not None and x is not self._state_of:
             self._state, self._state_of = self.model.unpack_state(x), x
         return self._state
 
     @state.setter
-    def state(self, value: State) -> None:
+    def state(self, value: Any) -> None:
         self._state = value
         self._packed = self._state_of = self.model.pack_state(value) if self.model.packed else None
         self._step_packed = self.model.step_packed if self.model.packed else None
@@ -217,7 +222,7 @@ class Simulator:
         InputError (one line naming the field, nothing changed) for data `get_state` could not have written."""
         self.apply_state(self.read_state(data))
 
-    def read_state(self, data: dict) -> dict:
+    def read_state(self, data: Any) -> dict:
         """`get_state`'s data checked whole and rebuilt (nothing changed): for `apply_state`. InputError
         naming the field for a value of the wrong type, a non-finite screw state or load, or a start
         position off the threads."""
@@ -349,6 +354,7 @@ class Simulator:
             self._non_finite(self.time_s + self.dt_s)
         m = self.model
         lim = engaged(self._limits, nut(free))
+        assert lim is not None  # the free step ran past a finite end (non-finite ones were refused above)
         j = m.kinetic[0]
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start

@@ -92,7 +92,7 @@ def active(faults: tuple[Fault, ...], t_s: float) -> Active:
         elif k == "drive_fault":
             off = True
         elif k.startswith("sensor_"):
-            sens.append((f.sensor, k, f.value))
+            sens.append((str(f.sensor), k, f.value))  # a sensor fault names its sensor (`Fault` checks it)
     return Active(ff, lf, jam, tf, off, tuple(sens))
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 from abc import ABCMeta
 from dataclasses import dataclass, fields
 from functools import cached_property
+from typing import Any, cast
 
 import numpy as np
 
@@ -112,7 +113,7 @@ def _with_part_fields(part: tuple, values: dict) -> tuple:
         if k not in own and v != LEGACY_PART_FIELDS[k]:
             held = ", ".join(own) or "nothing"
             raise InputError(f"{k} = {v!r}: this model's state has no {k} (its part holds {held})")
-    return part._replace(**mine) if mine else part
+    return cast(Any, part)._replace(**mine) if mine else part  # a named tuple: it has the fields
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun
