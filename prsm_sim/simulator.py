@@ -23,7 +23,7 @@ from prsm_sim.actuator.stops import Limit, engaged, limits_of
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.checks import check_typed, is_finite_number, is_number
 from prsm_sim.errors import InputError, NonFiniteStateError
-from prsm_sim.models.registry import MODELS, build_model  # MODELS: importable from here too
+from prsm_sim.models.registry import MODELS, build_model  # noqa: F401  # MODELS: importable from here too
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.stepping.model import check_step_inputs

@@ -183,7 +183,7 @@ class Actuator(Model):
         self.k_coupling = 0.0 if m is None or m.coupling_stiffness_nm_rad is None else m.coupling_stiffness_nm_rad
         self.c_coupling = 0.0 if m is None else m.coupling_damping_nm_s_rad
         if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
-            mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
+            mass = replace(params.mass, screw_inertia_kgm2=params.resolved_mass.screw_inertia_kgm2
                            + m.rotor_inertia_kgm2 * m.gear_ratio**2)
             self.screw_params = replace(params, mass=mass)
         else:
