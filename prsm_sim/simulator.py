@@ -46,10 +46,6 @@ def _check_state(state, kind: type, path: str) -> None:
 
 
 class Simulator:
-    _packed: Any  # the packed record of the state (packed models) or None
-    _state_of: Any  # the packed record `_state` was unpacked from
-    _step_packed: Any  # the model's packed step (packed models) or None
-    _before: Any  # the state before the last step (for `undo`) or None
     """A model with its current state and step counter: the object a script or a node drives.
 
     Parameters
@@ -96,6 +92,11 @@ class Simulator:
     >>> len(traj), sim.nstep
     (500, 501)
     """
+
+    _packed: Any  # the packed record of the state (packed models) or None
+    _state_of: Any  # the packed record `_state` was unpacked from
+    _step_packed: Any  # the model's packed step (packed models) or None
+    _before: Any  # the state before the last step (for `undo`) or None
 
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
                  nut_position_m: float = 0.0, actuator=None, kernel: str = "compiled", *,
