@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import MISSING, asdict, dataclass, field, fields, replace
-from typing import Any
+from functools import cached_property
+from typing import Any, NamedTuple
 
 from prsm_sim.errors import ParamError
 from prsm_sim.physics.ratings import ISO76_LINE_CONTACT_PRESSURE_PA, dynamic_load_rating_n, static_load_rating_n
@@ -106,11 +107,13 @@ class Geometry:
     n_rollers: int
     n_teeth: int
     flank_angle_deg: float = 45.0
-    nut_radius_m: float | None = None  # default r_S + 2 r_R (planetary fit)
-    gear_ratio: float | None = None  # ring/spur tooth ratio g; default r_N / r_R (no migration)
-    screw_length_m: float | None = None  # default 4 × the threaded roller length
-    pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
-    nut_length_m: float | None = None  # threaded nut length; default n_teeth × pitch
+    # Derived where not given: None on input, a float in every built instance (`__post_init__` fills
+    # it), so the fields are typed as what a reader gets
+    nut_radius_m: float = None  # type: ignore[assignment]  # default r_S + 2 r_R (planetary fit)
+    gear_ratio: float = None  # type: ignore[assignment]  # ring/spur tooth ratio g; default r_N / r_R (no migration)
+    screw_length_m: float = None  # type: ignore[assignment]  # default 4 × the threaded roller length
+    pin_radius_m: float = None  # type: ignore[assignment]  # roller journal radius in the carrier; default r_R / 2
+    nut_length_m: float = None  # type: ignore[assignment]  # threaded nut length; default n_teeth × pitch
     thread_ends: bool = True  # the nut stops at ±(screw_length_m − nut_length_m)/2 (False: no ends)
     tooth_height_per_pitch: float = TOOTH_HEIGHT_PER_PITCH  # thread form: h_t / P (root to crest)
     flank_contact_fraction: float = 1.0  # share of the straight flank h_t / cos β a contact can span
@@ -239,6 +242,12 @@ class MassProperties:
 
     def resolved(self, geo: Geometry) -> MassProperties:
         """Fill every None from the geometry (the Params constructor calls this)."""
+        v = self.values(geo)
+        return replace(self, screw_inertia_kgm2=v.screw_inertia_kgm2, roller_mass_kg=v.roller_mass_kg,
+                       roller_inertia_kgm2=v.roller_inertia_kgm2, carrier_inertia_kgm2=v.carrier_inertia_kgm2)
+
+    def values(self, geo: Geometry) -> MassValues:
+        """Every mass and inertia as a float, those not given derived from the geometry (`Params.resolved_mass`)."""
         rho = self.density_kg_m3
         js = self.screw_inertia_kgm2
         if js is None:
@@ -252,7 +261,20 @@ class MassProperties:
         if jc is None:
             r_in, r_out, t = geo.screw_radius_m, geo.carrier_radius_m + geo.roller_radius_m / 2, 2e-3
             jc = 2 * rho * math.pi * t * (r_out**4 - r_in**4) / 2
-        return replace(self, screw_inertia_kgm2=js, roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+        return MassValues(moved_mass_kg=self.moved_mass_kg, density_kg_m3=rho, screw_inertia_kgm2=js,
+                          roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+
+
+class MassValues(NamedTuple):
+    """The mass properties of a built `Params` (`Params.resolved_mass`), each a float: the group's
+    fields with the derived ones filled (kg, kg/m³, kg·m²)."""
+
+    moved_mass_kg: float
+    density_kg_m3: float
+    screw_inertia_kgm2: float
+    roller_mass_kg: float
+    roller_inertia_kgm2: float
+    carrier_inertia_kgm2: float
 
 
 CONTACT_EVALUATIONS = ("exact", "line_of_centres")
@@ -464,8 +486,17 @@ class ElasticParams:
 
     def resolved(self, geo: Geometry) -> ElasticParams:
         """Fill every None from the geometry (the Params constructor calls this)."""
-        out = replace(
-            self,
+        v = self.values(geo)
+        out = replace(self, bearing_position_m=v.bearing_position_m, root_diameter_m=v.root_diameter_m,
+                      nut_outer_diameter_m=v.nut_outer_diameter_m, tooth_effective_width_m=v.tooth_effective_width_m)
+        check_positive("elastic", out, "root_diameter_m")
+        check_field("elastic", "nut_outer_diameter_m", v.nut_outer_diameter_m,
+               v.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
+        return out
+
+    def values(self, geo: Geometry) -> ElasticValues:
+        """The lengths derived from the geometry where not given, each a float (`Params.resolved_elastic`)."""
+        return ElasticValues(
             bearing_position_m=-geo.screw_length_m / 2 if self.bearing_position_m is None else self.bearing_position_m,
             root_diameter_m=2 * geo.screw_radius_m - 3 * geo.pitch_m if self.root_diameter_m is None
             else self.root_diameter_m,
@@ -473,10 +504,16 @@ class ElasticParams:
             else self.nut_outer_diameter_m,
             tooth_effective_width_m=math.pi * geo.roller_radius_m if self.tooth_effective_width_m is None
             else self.tooth_effective_width_m)
-        check_positive("elastic", out, "root_diameter_m")
-        check_field("elastic", "nut_outer_diameter_m", out.nut_outer_diameter_m,
-               out.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
-        return out
+
+
+class ElasticValues(NamedTuple):
+    """The lengths of the elastic group a built `Params` holds (`Params.resolved_elastic`), each a float, m:
+    the fields given, or derived from the geometry."""
+
+    bearing_position_m: float
+    root_diameter_m: float
+    nut_outer_diameter_m: float
+    tooth_effective_width_m: float
 
 
 
@@ -696,6 +733,16 @@ class Params:
         check_field("elastic", "preload_kind", self.elastic.preload_kind, self.elastic.preload_kind != "double_nut"
                or (nt >= 2 and nt % 2 == 0), f"must not be double_nut for geometry.n_teeth = {nt} (two halves of "
                "N_T/2 rows: an even n_teeth)")
+
+    @cached_property
+    def resolved_mass(self) -> MassValues:
+        """The mass properties as this set holds them (`mass`, resolved), each a float."""
+        return self.mass.values(self.geometry)
+
+    @cached_property
+    def resolved_elastic(self) -> ElasticValues:
+        """The elastic group's derived lengths as this set holds them (`elastic`, resolved), each a float, m."""
+        return self.elastic.values(self.geometry)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""

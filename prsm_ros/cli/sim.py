@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 
 from prsm_sim.errors import PrsmError
-from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, Simulator
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, SessionConfig, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.registry import model_class
@@ -154,7 +154,8 @@ def cmd_run(args) -> None:
     n = run_steps(args.duration, args.dt, error=CliError)
     actuator = _actuator(args)
     # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults in the session
-    sim = Simulator(p, args.model, args.dt) if actuator is None else Session(p, args.model, args.dt, actuator)
+    sim = Simulator(p, args.model, args.dt) if actuator is None else \
+        Session.from_config(SessionConfig(params=p, model=args.model, dt_s=args.dt, actuator=actuator))
     bar = None
     if n >= PROGRESS_MIN_STEPS and not args.no_progress:
         from tqdm import tqdm

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from prsm_sim import Session, Simulator, Trajectory
+from prsm_sim import Session, SessionConfig, Simulator, Trajectory
 from prsm_sim.actuator import actuator_params_from_dict
 from prsm_sim.control import PositionController, run_position_loop
 from prsm_sim.life import life_from_samples
@@ -48,7 +48,8 @@ def simulate(norm: dict, scenario: str, inputs: dict) -> tuple[Trajectory, dict]
     nominal = base_params(norm)
     params = nominal.with_overrides(params_o) if params_o else nominal
     if norm.get("actuator") is not None:  # stepped through the session, as the node steps it
-        session = Session(params, norm["model"], norm["dt_s"], actuator_params_from_dict(norm["actuator"]))
+        session = Session.from_config(SessionConfig(params=params, model=norm["model"], dt_s=norm["dt_s"],
+                                                    actuator=actuator_params_from_dict(norm["actuator"])))
         spec = default_spec(params, scenario, **scen)
         return run_session_scenario(session, spec, norm["duration_s"]), {"params": params}
     sim = Simulator(params, norm["model"], norm["dt_s"])

@@ -22,7 +22,7 @@ def mass_matrix(params: Params) -> np.ndarray:
     Roller axial velocity v_R = −(L/2π) ω_S + (P (n − g)/2π) ω_C couples the two coordinates
     when g ≠ n; for the standard design the off-diagonal term vanishes.
     """
-    geo, m = params.geometry, params.mass
+    geo, m = params.geometry, params.resolved_mass
     p = geo.lead_per_rad_m
     k_mig = geo.pitch_m * (geo.starts - geo.gear_ratio) / (2 * math.pi)
     nr, mr = geo.n_rollers, m.roller_mass_kg

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from prsm_sim.checks import is_finite_number
+from prsm_sim.checks import is_finite_number, is_number
 from prsm_sim.errors import InputError, ParamError
 from prsm_sim.params import Params
 from prsm_sim.stepping.ledger import energy_fault
@@ -57,19 +57,34 @@ def check_step_inputs(command, load_n, command_name: str = "torque_nm") -> tuple
     return float(command), float(load_n)
 
 
+def _real_array(name: str, value) -> np.ndarray:
+    """`value` as a float array; InputError naming `name` for anything but real numbers (strings,
+    complex numbers, booleans, or ints beyond the float range)."""
+    arr = None
+    try:
+        raw = np.asarray(value)
+        # Python numbers of mixed types are objects: converted as the numbers they are (an int too large raises)
+        if raw.dtype.kind in "iuf" or (raw.dtype.kind == "O" and all(is_number(v) for v in raw.flat)):
+            arr = np.asarray(raw, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        pass
+    if arr is None:
+        shown = repr(value)
+        shown = shown if len(shown) <= 80 else shown[:77] + "..."
+        raise InputError(f"{name} = {shown}: must be a number or an array of numbers (real; no strings, complex "
+                         "numbers or booleans)")
+    return arr
+
+
 def input_columns(command, load_n, command_name: str = "torque_nm") -> tuple[np.ndarray, np.ndarray]:
     """The inputs of a batch run as two float arrays of one value per step, or InputError (one line).
 
     `command`: a 1-D array, one value per step (a scalar is refused: `step` takes one step);
     `load_n`: one value for the whole run or a 1-D array of the same length; all finite numbers.
     """
-    arrays = []
-    for name, value in ((command_name, command), ("load_n", load_n)):
-        try:
-            arrays.append(np.asarray(value, dtype=float))
-        except (TypeError, ValueError):
-            raise InputError(f"{name} = {value!r}: must be a number or an array of numbers") from None
-    u, f = arrays
+    u, f = (_real_array(name, value) for name, value in ((command_name, command), ("load_n", load_n)))
+    if u.ndim == 1 and u.size == 0:
+        raise InputError(f"{command_name} is empty: run() takes at least one step")
     if u.ndim != 1:
         got = f"{command_name} = {command!r}" if u.ndim == 0 else f"{command_name} has shape {u.shape}"
         what, unit = ("torque", " (N·m)") if command_name == "torque_nm" else ("command", "")
