@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import MISSING, asdict, dataclass, field, fields, replace
-from typing import Any
+from functools import cached_property
+from typing import Any, NamedTuple
 
 from prsm_sim.errors import ParamError
 from prsm_sim.physics.ratings import ISO76_LINE_CONTACT_PRESSURE_PA, dynamic_load_rating_n, static_load_rating_n
@@ -106,11 +107,13 @@ class Geometry:
     n_rollers: int
     n_teeth: int
     flank_angle_deg: float = 45.0
-    nut_radius_m: float | None = None  # default r_S + 2 r_R (planetary fit)
-    gear_ratio: float | None = None  # ring/spur tooth ratio g; default r_N / r_R (no migration)
-    screw_length_m: float | None = None  # default 4 × the threaded roller length
-    pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
-    nut_length_m: float | None = None  # threaded nut length; default n_teeth × pitch
+    # Derived where not given: None on input, a float in every built instance (`__post_init__` fills
+    # it), so the fields are typed as what a reader gets
+    nut_radius_m: float = None  # type: ignore[assignment]  # default r_S + 2 r_R (planetary fit)
+    gear_ratio: float = None  # type: ignore[assignment]  # ring/spur tooth ratio g; default r_N / r_R (no migration)
+    screw_length_m: float = None  # type: ignore[assignment]  # default 4 × the threaded roller length
+    pin_radius_m: float = None  # type: ignore[assignment]  # roller journal radius in the carrier; default r_R / 2
+    nut_length_m: float = None  # type: ignore[assignment]  # threaded nut length; default n_teeth × pitch
     thread_ends: bool = True  # the nut stops at ±(screw_length_m − nut_length_m)/2 (False: no ends)
     tooth_height_per_pitch: float = TOOTH_HEIGHT_PER_PITCH  # thread form: h_t / P (root to crest)
     flank_contact_fraction: float = 1.0  # share of the straight flank h_t / cos β a contact can span
@@ -239,6 +242,12 @@ class MassProperties:
 
     def resolved(self, geo: Geometry) -> MassProperties:
         """Fill every None from the geometry (the Params constructor calls this)."""
+        v = self.values(geo)
+        return replace(self, screw_inertia_kgm2=v.screw_inertia_kgm2, roller_mass_kg=v.roller_mass_kg,
+                       roller_inertia_kgm2=v.roller_inertia_kgm2, carrier_inertia_kgm2=v.carrier_inertia_kgm2)
+
+    def values(self, geo: Geometry) -> MassValues:
+        """Every mass and inertia as a float, those not given derived from the geometry (`Params.resolved_mass`)."""
         rho = self.density_kg_m3
         js = self.screw_inertia_kgm2
         if js is None:
@@ -252,7 +261,20 @@ class MassProperties:
         if jc is None:
             r_in, r_out, t = geo.screw_radius_m, geo.carrier_radius_m + geo.roller_radius_m / 2, 2e-3
             jc = 2 * rho * math.pi * t * (r_out**4 - r_in**4) / 2
-        return replace(self, screw_inertia_kgm2=js, roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+        return MassValues(moved_mass_kg=self.moved_mass_kg, density_kg_m3=rho, screw_inertia_kgm2=js,
+                          roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+
+
+class MassValues(NamedTuple):
+    """The mass properties of a built `Params` (`Params.resolved_mass`), each a float: the group's
+    fields with the derived ones filled (kg, kg/m³, kg·m²)."""
+
+    moved_mass_kg: float
+    density_kg_m3: float
+    screw_inertia_kgm2: float
+    roller_mass_kg: float
+    roller_inertia_kgm2: float
+    carrier_inertia_kgm2: float
 
 
 CONTACT_EVALUATIONS = ("exact", "line_of_centres")
@@ -464,8 +486,17 @@ class ElasticParams:
 
     def resolved(self, geo: Geometry) -> ElasticParams:
         """Fill every None from the geometry (the Params constructor calls this)."""
-        out = replace(
-            self,
+        v = self.values(geo)
+        out = replace(self, bearing_position_m=v.bearing_position_m, root_diameter_m=v.root_diameter_m,
+                      nut_outer_diameter_m=v.nut_outer_diameter_m, tooth_effective_width_m=v.tooth_effective_width_m)
+        check_positive("elastic", out, "root_diameter_m")
+        check_field("elastic", "nut_outer_diameter_m", v.nut_outer_diameter_m,
+               v.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
+        return out
+
+    def values(self, geo: Geometry) -> ElasticValues:
+        """The lengths derived from the geometry where not given, each a float (`Params.resolved_elastic`)."""
+        return ElasticValues(
             bearing_position_m=-geo.screw_length_m / 2 if self.bearing_position_m is None else self.bearing_position_m,
             root_diameter_m=2 * geo.screw_radius_m - 3 * geo.pitch_m if self.root_diameter_m is None
             else self.root_diameter_m,
@@ -473,10 +504,16 @@ class ElasticParams:
             else self.nut_outer_diameter_m,
             tooth_effective_width_m=math.pi * geo.roller_radius_m if self.tooth_effective_width_m is None
             else self.tooth_effective_width_m)
-        check_positive("elastic", out, "root_diameter_m")
-        check_field("elastic", "nut_outer_diameter_m", out.nut_outer_diameter_m,
-               out.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
-        return out
+
+
+class ElasticValues(NamedTuple):
+    """The lengths of the elastic group a built `Params` holds (`Params.resolved_elastic`), each a float, m:
+    the fields given, or derived from the geometry."""
+
+    bearing_position_m: float
+    root_diameter_m: float
+    nut_outer_diameter_m: float
+    tooth_effective_width_m: float
 
 
 
@@ -552,6 +589,59 @@ class Stiction:
         check_field("stiction", "breakaway_ratio", v, is_finite_number(v) and v >= 1, "must be a finite number >= 1")
 
 
+PIN_BEARINGS = ("journal", "needle")
+# constant coefficient of friction of needle roller bearings with a cage, frictional moment M = ½ μ P d at the bore
+# d (SKF "Rolling bearings" general catalogue, 2016, "Friction", table 1: 0.0020)
+NEEDLE_BEARING_MU = 0.0020
+
+
+@dataclass(frozen=True)
+class DragParams:
+    """Load-independent losses of a real screw (`fu2018`, `elastic`; `ideal` as an equivalent torque), and the
+    carrier pins' bearing type. docs/model.md §4.5 lists each law and the source of each default.
+
+    `enabled` false: none of the drag acts (the papers' screw, bit for bit). `pin_bearing` acts either way:
+    ``"journal"`` is a plain pin with `friction.mu_pin`, ``"needle"`` a needle bearing with μ = 0.0020
+    (`NEEDLE_BEARING_MU`) at the same lever, the pin radius.
+
+    Attributes
+    ----------
+    enabled : bool
+        Seals, film traction and the internal preload act.
+    seal_friction_n_per_m : float
+        Friction force of a seal or wiper lip per metre of its circumference on the screw, N/m: a seal torque
+        T_s = n_seals · f′ · 2π r_S · r_S, regularised Coulomb on the screw, held statically at rest.
+    n_seals : int
+        Seals or wipers on the screw (one at each end of the nut).
+    film_thickness_m, film_area_m2 : float
+        Lubricant film h and wetted area A of one screw–roller thread contact: a Newtonian shear traction
+        f = −(ρ ν A / h) v_s at every contact, present at zero load.
+    internal_preload_n : float
+        Axial force P_i each flank set carries with no external load (the nut's play class or light preload
+        of a rigid nut, N): its contact forces act through the screw–roller Coulomb law on the idle flanks.
+    pin_bearing : str
+        ``"journal"`` or ``"needle"``.
+    """
+
+    enabled: bool = False
+    seal_friction_n_per_m: float = 32.0
+    n_seals: int = 2
+    film_thickness_m: float = 0.5e-6
+    film_area_m2: float = 1e-6
+    internal_preload_n: float = 800.0
+    pin_bearing: str = "journal"
+
+    def __post_init__(self) -> None:
+        g = "drag"
+        check_field(g, "enabled", self.enabled, isinstance(self.enabled, bool), "must be true or false")
+        check_non_negative(g, self, "seal_friction_n_per_m", "film_area_m2", "internal_preload_n")
+        check_positive(g, self, "film_thickness_m")
+        check_field(g, "n_seals", self.n_seals, isinstance(self.n_seals, int) and not isinstance(self.n_seals, bool)
+                    and self.n_seals >= 0, "must be an integer >= 0")
+        check_field(g, "pin_bearing", self.pin_bearing, self.pin_bearing in PIN_BEARINGS,
+                    f"must be one of {', '.join(PIN_BEARINGS)}")
+
+
 _GROUPS: dict[str, type] = {
     "geometry": Geometry,
     "mass": MassProperties,
@@ -562,6 +652,7 @@ _GROUPS: dict[str, type] = {
     "elastic": ElasticParams,
     "ratings": Ratings,
     "stiction": Stiction,
+    "drag": DragParams,
 }
 
 
@@ -595,6 +686,8 @@ class Params:
         Axial load ratings of the nut (derived from the thread form where left None).
     stiction : Stiction
         Breakaway beyond the running friction (`elastic`).
+    drag : DragParams
+        Load-independent losses of a real screw (seals, film traction, internal preload) and the pin bearing.
 
     Raises
     ------
@@ -621,6 +714,7 @@ class Params:
     elastic: ElasticParams = field(default_factory=ElasticParams)
     ratings: Ratings = field(default_factory=Ratings)
     stiction: Stiction = field(default_factory=Stiction)
+    drag: DragParams = field(default_factory=DragParams)
 
     def __post_init__(self) -> None:
         for gname, cls in _GROUPS.items():
@@ -639,6 +733,16 @@ class Params:
         check_field("elastic", "preload_kind", self.elastic.preload_kind, self.elastic.preload_kind != "double_nut"
                or (nt >= 2 and nt % 2 == 0), f"must not be double_nut for geometry.n_teeth = {nt} (two halves of "
                "N_T/2 rows: an even n_teeth)")
+
+    @cached_property
+    def resolved_mass(self) -> MassValues:
+        """The mass properties as this set holds them (`mass`, resolved), each a float."""
+        return self.mass.values(self.geometry)
+
+    @cached_property
+    def resolved_elastic(self) -> ElasticValues:
+        """The elastic group's derived lengths as this set holds them (`elastic`, resolved), each a float, m."""
+        return self.elastic.values(self.geometry)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""
@@ -707,10 +811,11 @@ class Params:
         return [f"{g}.{f.name}" for g, cls in _GROUPS.items() for f in fields(cls)]
 
 
-_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth")}
-_BOOL_FIELDS = {("geometry", "thread_ends")}
+_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth"), ("drag", "n_seals")}
+_BOOL_FIELDS = {("geometry", "thread_ends"), ("drag", "enabled")}
 _STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution"),
-               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law")}
+               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law"),
+               ("drag", "pin_bearing")}
 
 
 def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:

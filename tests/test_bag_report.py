@@ -42,7 +42,7 @@ def braking(tmp_path_factory):
     rows_t = [2.0] * 150 + [-1.5] * 60
     loads = [500.0] * 150 + [-200.0] * 60
     rows = [sim.step(tau, f) for tau, f in zip(rows_t, loads)]
-    from prsm_sim.models.base import trajectory_from_rows
+    from prsm_sim.stepping.trajectory import trajectory_from_rows
     traj = trajectory_from_rows(rows, sim.layout, sim.state)
     path = write_trajectory_mcap(tmp_path_factory.mktemp("bags") / "braking.mcap", traj, p, MODEL,
                                  preset_name="s30", progress=False)

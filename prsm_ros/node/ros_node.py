@@ -65,7 +65,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import SetBool, Trigger
 
-from prsm_sim import ModelError, Session
+from prsm_sim import ModelError, Session, SessionConfig
 
 from prsm_ros.cdr_read import float64_data, joint_state_stamp_effort0
 from prsm_ros.node.command_echo import CommandEcho, stamp_of
@@ -146,13 +146,12 @@ class PrsmNode(Node):
         self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
         self.echo = CommandEcho()
         self.superseded = SupersededCounter()  # commands replaced in a reader's queue before a step took them
-        self.session = Session(cfg.params, cfg.model, cfg.dt_s, cfg.actuator if cfg.with_actuator else None,
-                               nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
-                               initial_load_n=cfg.load_force,  # starts in equilibrium at its load
-                               interface=cfg.command_interface, max_effort_nm=cfg.max_effort,
-                               cmd_timeout_s=cfg.cmd_timeout, timeout_behaviour=cfg.timeout_behaviour)
-        if cfg.start_paused or cfg.wait_for_controller:
-            self.session.pause()
+        self.session = Session.from_config(SessionConfig(
+            params=cfg.params, model=cfg.model, dt_s=cfg.dt_s, actuator=cfg.actuator if cfg.with_actuator else None,
+            nut_position_m=cfg.initial_nut_position, load_n=cfg.load_force,
+            initial_load_n=cfg.load_force,  # starts in equilibrium at its load
+            interface=cfg.command_interface, max_effort_nm=cfg.max_effort, cmd_timeout_s=cfg.cmd_timeout,
+            timeout_behaviour=cfg.timeout_behaviour, paused=cfg.start_paused or cfg.wait_for_controller))
         self.mapper = MessageMapper(self.session.layout, cfg.model, joint_names=cfg.joint_names,
                                     nut_frame=cfg.values["frames.nut"])
         # which joint takes which command interface, with the joints' configured names

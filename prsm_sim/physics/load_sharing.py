@@ -187,7 +187,7 @@ def tooth_compliance_m_per_n(params: Params) -> float:
         return 0.0
     mat, g = params.material, params.geometry
     h = g.tooth_height_m / 2
-    t, w = g.pitch_m / 2 + h * math.tan(g.flank_angle_rad), el.tooth_effective_width_m
+    t, w = g.pitch_m / 2 + h * math.tan(g.flank_angle_rad), params.resolved_elastic.tooth_effective_width_m
     one = h**3 / (3 * mat.youngs_modulus_pa * w * t**3 / 12) + 1.2 * h / (mat.shear_modulus_pa * w * t)
     return 4 * one
 
@@ -204,11 +204,11 @@ def thread_contacts(params: Params):
 
 
 def screw_section_m2(params: Params) -> float:
-    return math.pi * params.elastic.root_diameter_m**2 / 4
+    return math.pi * params.resolved_elastic.root_diameter_m**2 / 4
 
 
 def nut_section_m2(params: Params) -> float:
-    return math.pi * (params.elastic.nut_outer_diameter_m**2 - (2 * params.geometry.nut_radius_m) ** 2) / 4
+    return math.pi * (params.resolved_elastic.nut_outer_diameter_m**2 - (2 * params.geometry.nut_radius_m) ** 2) / 4
 
 
 def joint_from_params(params: Params, n_teeth: int | None = None) -> Joint:
@@ -222,7 +222,7 @@ def joint_from_params(params: Params, n_teeth: int | None = None) -> Joint:
 
 def shaft_stiffness_n_per_m(params: Params, nut_position_m: float = 0.0) -> float:
     """Screw shaft between the fixed bearing and the nut: K = π d_root² E / (4ℓ), ℓ = |x_nut − x_bearing|."""
-    ell = max(abs(nut_position_m - params.elastic.bearing_position_m), 1e-6)
+    ell = max(abs(nut_position_m - params.resolved_elastic.bearing_position_m), 1e-6)
     return params.material.youngs_modulus_pa * screw_section_m2(params) / ell
 
 
@@ -306,8 +306,8 @@ def preloaded_pair(side_a: Side, side_b: Side, preload_n: float, load_n: float) 
     from scipy.optimize import brentq
     x = brentq(net, lo, hi, xtol=1e-16, rtol=1e-13)
     qa, qb = side_a.load_n(d0a + x), side_b.load_n(d0b - x)
-    da, db = solve_distribution(side_a.joint, qa), solve_distribution(side_b.joint, max(qb, 0.0))
-    return PairState(load_n, x, qa, qb, da.stiffness_n_per_m + db.stiffness_n_per_m, da)
+    dist_a, dist_b = solve_distribution(side_a.joint, qa), solve_distribution(side_b.joint, max(qb, 0.0))
+    return PairState(load_n, x, qa, qb, dist_a.stiffness_n_per_m + dist_b.stiffness_n_per_m, dist_a)
 
 
 # -- the whole axial chain ------------------------------------------------------------------------
