@@ -630,3 +630,59 @@ def nearest_hint(name: str, known: list[str]) -> str:
 def unknown_parameter(name: str, where: str, known: list[str]) -> str:
     """The one line that refuses a parameter this node does not have, with the nearest valid name."""
     return f"unknown parameter {name} ({where}){nearest_hint(name, known)}"
+
+
+# ROS arguments that take the next argument as their value (rcl's --ros-args grammar)
+ROS_VALUE_FLAGS = {"-p": "NAME:=VALUE", "--param": "NAME:=VALUE", "-r": "FROM:=TO", "--remap": "FROM:=TO",
+                   "--params-file": "FILE", "--log-level": "LEVEL", "-e": "ENCLAVE", "--enclave": "ENCLAVE",
+                   "--log-file-name": "NAME"}
+
+
+def check_ros_args(args: list[str]) -> None:
+    """ConfigError in one line for a malformed ROS argument (rcl would raise an RCLError at init):
+    a flag without its value, `-p` without `:=` or with an empty name or value, a remap of the node's
+    name or namespace to an invalid one."""
+    ros = _ros_args(args)
+    i = 0
+    while i < len(ros):
+        flag = ros[i]
+        if flag not in ROS_VALUE_FLAGS:
+            i += 1
+            continue
+        value = ros[i + 1] if i + 1 < len(ros) else None
+        if value is None or value in ROS_VALUE_FLAGS:
+            raise ConfigError(f"ROS argument {flag}: expected {ROS_VALUE_FLAGS[flag]} after it")
+        if flag in ("-p", "--param"):
+            _check_param_arg(value)
+        elif flag in ("-r", "--remap"):
+            _check_remap_arg(value)
+        i += 2
+
+
+def _check_param_arg(value: str) -> None:
+    name, sep, text = value.partition(":=")
+    if not sep or not name.strip():
+        raise ConfigError(f"-p {value}: expected NAME:=VALUE")
+    if not text.strip():
+        raise ConfigError(f"-p {value}: no value after := (an empty string is -p '{name}:=\"\"')")
+
+
+def _check_remap_arg(value: str) -> None:
+    lhs, sep, rhs = value.partition(":=")
+    if not sep or not lhs or not rhs:
+        raise ConfigError(f"-r {value}: expected FROM:=TO")
+    target = lhs.rsplit(":", 1)[-1]
+    if target == "__ns":
+        from rclpy.exceptions import InvalidNamespaceException
+        from rclpy.validate_namespace import validate_namespace
+        try:
+            validate_namespace(rhs if rhs.startswith("/") else "/" + rhs)
+        except InvalidNamespaceException as e:
+            raise ConfigError(f"-r {value}: not a valid namespace ({str(e).splitlines()[0].split(': ', 1)[-1].rstrip(':')})") from None
+    elif target == "__node":
+        from rclpy.exceptions import InvalidNodeNameException
+        from rclpy.validate_node_name import validate_node_name
+        try:
+            validate_node_name(rhs)
+        except InvalidNodeNameException as e:
+            raise ConfigError(f"-r {value}: not a valid node name ({str(e).splitlines()[0].split(': ', 1)[-1].rstrip(':')})") from None

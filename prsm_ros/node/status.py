@@ -34,6 +34,7 @@ class StatusReporter:
         self.step_wall_max_s = 0.0
         self.energy_fault_reported = False  # one ~/events entry per run (until ~/reset)
         self.model_failure_reported = False  # likewise
+        self.namesakes = 1  # nodes with this node's full name on the graph at the last look (itself included)
 
     def rearm(self) -> None:
         """After ~/reset: the next energy-guard breach and model failure are reported again."""
@@ -91,10 +92,25 @@ class StatusReporter:
 
     # -- diagnostics -------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
+        self.look_for_namesakes()
         report = simulation_report(self.session.status(), *self.transport_report(), self.fault_log)
         # the fully qualified name: two actuators in two namespaces report under two names
         self.outlets.publish("diagnostics", self.diagnostic_array(f"{self.node.get_fully_qualified_name()}: "
                                                                   "simulation", report))
+
+    def look_for_namesakes(self) -> None:
+        """Another node with this full name on the graph: services, parameters and commands would reach
+        either of them. ROS 2 does not refuse it, so the node says so loudly (an error line and a
+        ~/events entry each time the count rises; WARN on /diagnostics while it lasts)."""
+        node = self.node
+        ns, name = node.get_namespace(), node.get_name()
+        n = sum(1 for other, other_ns in node.get_node_names_and_namespaces() if other == name and other_ns == ns)
+        if n > self.namesakes:
+            text = (f"{n} nodes named {node.get_fully_qualified_name()} on this ROS domain: services, parameters and "
+                    "commands reach any of them; give each its own name (-r __node:=NAME) or namespace (-r __ns:=/NS)")
+            self.log.error(text)
+            self.event(self.session.time_s, "node", "error", "duplicate_node_name", text, {"nodes": n})
+        self.namesakes = max(n, 1)
 
     def diagnostic_array(self, name: str, report: Report) -> DiagnosticArray:
         status = DiagnosticStatus(level=DIAGNOSTIC_LEVELS[report.level], name=name, message=report.message,
@@ -127,6 +143,9 @@ class StatusReporter:
         self.step_wall_max_s = 0.0
         sink_values, problems = node.sinks.report()
         values.update(sink_values)
+        if self.namesakes > 1:
+            problems.append(f"{self.namesakes} nodes named {node.get_fully_qualified_name()} on this ROS domain")
+        values["nodes_with_this_name"] = self.namesakes
         if ps.overruns > over0:
             problems.append(f"{ps.overruns - over0} step overruns since the last report")
         return values, problems
