@@ -451,10 +451,16 @@ def runtime_change(old: NodeConfig, changes: dict[str, Any]) -> NodeConfig:
     new = NodeConfig.from_values({**old.values, **physics_parameters(old.params), **changes}, old.actuator_given,
                                  base=old.base)
     if new.params != old.params:
+        changed = ", ".join(f"{k} = {changes[k]!r}" for k in sorted(changes) if k.startswith(PHYSICS_PREFIX))
         before = build_model(old.params, old.model, old.dt_s).layout
-        after = build_model(new.params, new.model, new.dt_s).layout
+        try:  # the model the session would rebuild: values each valid alone may still leave it singular
+            after = build_model(new.params, new.model, new.dt_s).layout
+        except PrsmError:
+            raise
+        except (ArithmeticError, ValueError) as e:
+            raise ConfigError(f"{changed}: model {old.model} cannot be built with it "
+                              f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None
         if after != before:
-            changed = ", ".join(sorted(k for k in changes if k.startswith(PHYSICS_PREFIX)))
             raise ConfigError(f"{changed}: changes the internal-load layout of model {old.model} "
                               f"({before.size} → {after.size} elements); set it at start-up instead")
     return new
@@ -561,10 +567,25 @@ def _flatten(d: dict, prefix: str = "") -> list[str]:
 def param_sources(args: list[str], node_name: str, namespace: str = "/") -> ParamSources:
     """Read the command line's `-p` and `--params-file` names (ConfigError for a missing, unreadable,
     oversized or non-YAML file, in one line naming it). Remaps of __node and __ns are followed."""
-    import yaml
-
-    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
     ros = _ros_args(args)
+    node_name, fqn = _remapped(ros, node_name, namespace)
+    own: dict[str, str] = {}
+    wild: dict[str, str] = {}
+    unmatched: dict[str, list[str]] = {}
+    for flag, value in zip(ros, ros[1:]):
+        if flag in ("-p", "--param") and ":=" in value:
+            name = _param_arg_name(value, node_name, fqn)
+            if name is not None:
+                own[name] = "-p"
+        elif flag == "--params-file":
+            _params_file_names(value, fqn, own, wild, unmatched)
+    for name in own:
+        wild.pop(name, None)
+    return ParamSources(own, wild, unmatched, fqn)
+
+
+def _remapped(ros: list[str], node_name: str, namespace: str) -> tuple[str, str]:
+    """(node name, full name) after the command line's remaps of __node and __ns."""
     for flag, value in zip(ros, ros[1:]):
         if flag in ("-r", "--remap") and ":=" in value:
             lhs, rhs = value.split(":=", 1)
@@ -573,51 +594,53 @@ def param_sources(args: list[str], node_name: str, namespace: str = "/") -> Para
                 node_name = rhs
             elif target == "__ns" and (lhs == "__ns" or lhs.split(":")[0] == node_name):
                 namespace = rhs
-    fqn = ("/" + namespace.strip("/") if namespace.strip("/") else "") + "/" + node_name
-    own, wild, unmatched = {}, {}, {}
-    for flag, value in zip(ros, ros[1:]):
-        if flag in ("-p", "--param") and ":=" in value:
-            name = value.split(":=", 1)[0]
-            if name.count(":") == 1:  # node:name:=value addresses one node
-                target, name = name.split(":")
-                if target not in (node_name, fqn):
-                    continue
-            own[name] = "-p"
-            text = value.split(":=", 1)[1].strip()
-            if text.startswith("{"):  # rcl reads -p values as YAML scalars or lists, never mappings
-                raise ConfigError(f"-p {value}: rcl cannot read a YAML mapping after := (in a shell, "
-                                  f"-p {name}:=\"{{…}}\" reaches it without its quotes); give the nested names "
-                                  f"(-p {name}.motor.fitted:=true …) or quote the whole argument: "
-                                  f"-p '{name}:=\"{{…}}\"'")
-        elif flag == "--params-file":
-            path = value
-            text = read_text_file(path, what="parameters file", error=ConfigError)
-            try:
-                doc = yaml.safe_load(text)
-            except yaml.YAMLError as e:
-                mark = getattr(e, "problem_mark", None)
-                where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-                raise ConfigError(f"--params-file {path}: not valid YAML{where} "
-                                  f"({getattr(e, 'problem', None) or type(e).__name__})") from None
-            if not isinstance(doc, dict):
-                raise ConfigError(f"--params-file {path}: expected a mapping of node names to "
-                                  "{ros__parameters: {...}}")
-            matched = False
-            for key, section in doc.items():
-                kind = _section_matches(str(key), fqn)
-                if kind is None:
-                    continue
-                params = section.get("ros__parameters") if isinstance(section, dict) else None
-                if not isinstance(params, dict):
-                    raise ConfigError(f"--params-file {path}: section {key}: expected ros__parameters: {{...}}")
-                matched = True
-                for name in _flatten(params):
-                    (own if kind == "own" else wild)[name] = f"{path}, section {key}"
-            if not matched:
-                unmatched[path] = [str(k) for k in doc]
-    for name in own:
-        wild.pop(name, None)
-    return ParamSources(own, wild, unmatched, fqn)
+    return node_name, ("/" + namespace.strip("/") if namespace.strip("/") else "") + "/" + node_name
+
+
+def _param_arg_name(value: str, node_name: str, fqn: str) -> str | None:
+    """The name a `-p NAME:=VALUE` gives this node (None: it addresses another node)."""
+    name = value.split(":=", 1)[0]
+    if name.count(":") == 1:  # node:name:=value addresses one node
+        target, name = name.split(":")
+        if target not in (node_name, fqn):
+            return None
+    text = value.split(":=", 1)[1].strip()
+    if text.startswith("{"):  # rcl reads -p values as YAML scalars or lists, never mappings
+        raise ConfigError(f"-p {value}: rcl cannot read a YAML mapping after := (in a shell, "
+                          f"-p {name}:=\"{{…}}\" reaches it without its quotes); give the nested names "
+                          f"(-p {name}.motor.fitted:=true …) or quote the whole argument: "
+                          f"-p '{name}:=\"{{…}}\"'")
+    return name
+
+
+def _params_file_names(path: str, fqn: str, own: dict, wild: dict, unmatched: dict) -> None:
+    """The names a `--params-file` gives the node `fqn`, into `own` or `wild` by how its section matches."""
+    import yaml
+
+    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
+    text = read_text_file(path, what="parameters file", error=ConfigError)
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ConfigError(f"--params-file {path}: not valid YAML{where} "
+                          f"({getattr(e, 'problem', None) or type(e).__name__})") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"--params-file {path}: expected a mapping of node names to {{ros__parameters: {{...}}}}")
+    matched = False
+    for key, section in doc.items():
+        kind = _section_matches(str(key), fqn)
+        if kind is None:
+            continue
+        params = section.get("ros__parameters") if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ConfigError(f"--params-file {path}: section {key}: expected ros__parameters: {{...}}")
+        matched = True
+        for name in _flatten(params):
+            (own if kind == "own" else wild)[name] = f"{path}, section {key}"
+    if not matched:
+        unmatched[path] = [str(k) for k in doc]
 
 
 def nearest_hint(name: str, known: list[str]) -> str:

@@ -69,6 +69,7 @@ from prsm_ros.node.command_echo import CommandEcho
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.command_sequence import SupersededCounter
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters
+from prsm_ros.node.locking import NodeLock
 from prsm_ros.node.intake import COMMAND_TOPICS, CommandIntake, float64_of, reference_stamp_ns
 from prsm_ros.node.outlets import READER_COUNT_EVERY, Outlets, WarnThrottle
 from prsm_ros.node.owned_inputs import OWNED_INPUTS
@@ -141,7 +142,7 @@ class PrsmNode(Node):
     def _setup(self) -> None:
         self.config = declare_parameters(self)
         cfg = self.config
-        self.lock = threading.Lock()
+        self.lock = NodeLock()
         self.ownership = CommandOwnership(cfg.ownership_timeout, enabled=cfg.command_ownership)
         self.echo = CommandEcho()
         self.superseded = SupersededCounter()  # commands replaced in a reader's queue before a step took them
@@ -259,6 +260,8 @@ class PrsmNode(Node):
     # -- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         """A runtime change: checked as at start-up (`runtime_change`), applied all at once or not at all."""
+        if any(not p.name.strip() for p in parameters):  # rclpy takes an empty name as a new parameter
+            return SetParametersResult(successful=False, reason="a parameter name must not be empty")
         ours = {p.name: p.value for p in parameters if p.name in self.config.values or p.name.startswith(PHYSICS_PREFIX)}
         if not ours:
             return SetParametersResult(successful=True)
@@ -268,6 +271,8 @@ class PrsmNode(Node):
                 self._apply(new)
         except PrsmError as e:  # refused by the checks, or by the session building what they allowed
             return SetParametersResult(successful=False, reason=str(e))
+        except (ArithmeticError, ValueError) as e:  # a model the checks let through but cannot step: refused
+            return SetParametersResult(successful=False, reason=f"{type(e).__name__}: {e}")
         self.get_logger().info("parameters changed: " + ", ".join(f"{k} = {v!r}" for k, v in ours.items()))
         return SetParametersResult(successful=True)
 
@@ -340,7 +345,9 @@ class PrsmNode(Node):
         return done
 
     def _step_slice(self, job, n: int) -> tuple[int, str | None]:
-        """Jobs thread: up to `n` steps of `job` under the lock (the state published after the last)."""
+        """Jobs thread: up to `n` steps of `job` under the lock (the state published after the last);
+        a callback waiting for the lock goes first (`NodeLock`)."""
+        self.lock.let_waiters_first()
         with self.lock:
             why = stop_reason(job, self.session, self._stop.is_set())
             return (0, why) if why else (self.advance(n, publish_last_state=n == job.remaining), None)
