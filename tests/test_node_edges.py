@@ -2,7 +2,7 @@
 over DDS, against a real `prsm-node` process.
 
 - `initial_nut_position` is checked at runtime as at start-up (on the threads): `1.0` m on the s30
-  screw (travel ±0.135 m) is refused, and `~/reset` afterwards answers and the node steps on.
+  screw (travel ±0.135 m: (0.3 − 0.03) m / 2) is refused, and `~/reset` afterwards answers and the node steps on.
 - Every settable parameter (node and `physics.*`) set to its bounds, past them, NaN, ±inf, the
   wrong type; every service called in between; a parameter named "": the node answers each, never
   exits, and steps afterwards (joint_states arrive again).
@@ -13,7 +13,7 @@ over DDS, against a real `prsm-node` process.
 - Malformed ROS arguments are one line and exit 2, not an RCLError traceback.
 - Two nodes with the same name: each says so on stderr and ~/events (`duplicate_node_name`).
 
-Oracles: the s30 preset's thread travel (screw 0.6 m − nut 0.33 m), the parameter ranges the node
+Oracles: the s30 preset's thread travel (screw 0.3 m − nut 0.03 m), the parameter ranges the node
 declares (`parameters.node_parameters`), `step_jobs.LOCKSTEP_BACKLOG_STEPS`.
 """
 
