@@ -122,3 +122,15 @@ def test_node_lock_lets_a_waiter_go_before_the_next_slice():
         order.append("slice")
     t.join(10)
     assert order == ["waiter", "slice"] and lock.waiting == 0
+
+
+def test_ctl_reads_numbers_in_any_spelling_and_diagnostics_as_types(capsys):
+    from prsm_ros.cli import ctl
+    assert [ctl.parse_value(t) for t in ("-1e-1", "1_000", "+.5", "3", "true", "text")] == [-0.1, 1000, 0.5, 3, True,
+                                                                                           "text"]
+    assert [ctl.typed(t) for t in ("True", "False", "2.0", "12", "effort", "")] == [True, False, 2.0, 12, "effort", ""]
+    with pytest.raises(SystemExit) as e:
+        ctl.main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("prsm-ctl ")
+    args = ctl.build_parser().parse_args(["command", "torque", " -1e-1"])  # how main passes a negative number
+    assert ctl._finite(args.value, "command torque") == -0.1

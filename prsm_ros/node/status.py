@@ -112,6 +112,25 @@ class StatusReporter:
             self.event(self.session.time_s, "node", "error", "duplicate_node_name", text, {"nodes": n})
         self.namesakes = max(n, 1)
 
+    def paused_state(self) -> dict[str, Any]:
+        """While paused, the state the node holds (joint_states stops, and a reader that joins later
+        would see none): each joint's position, velocity and effort as joint_states would carry them."""
+        session = self.session
+        if not session.paused or session.fault is not None:
+            return {}
+        out = session.rest_outputs()
+        act = session.actuator
+        if act is not None:
+            out = act.measured(out)
+        screw, nut = self.node.config.joint_names
+        joints = ((screw, out.screw_angle_rad, out.screw_speed_rad_s, out.screw_torque_nm),
+                  (nut, out.nut_position_m, out.nut_velocity_m_s, out.nut_force_n))
+        values: dict[str, Any] = {"state_joints": f"{screw},{nut}"}
+        for name, x, v, f in joints:
+            values.update({f"state_{name}_position": repr(float(x)), f"state_{name}_velocity": repr(float(v)),
+                           f"state_{name}_effort": repr(float(f))})
+        return values
+
     def diagnostic_array(self, name: str, report: Report) -> DiagnosticArray:
         status = DiagnosticStatus(level=DIAGNOSTIC_LEVELS[report.level], name=name, message=report.message,
                                   hardware_id=f"prsm_sim/{self.node.config.model}",
@@ -141,6 +160,7 @@ class StatusReporter:
             **node.superseded.report(), **node.jobs.report(),
         }
         self.step_wall_max_s = 0.0
+        values.update(self.paused_state())
         sink_values, problems = node.sinks.report()
         values.update(sink_values)
         if self.namesakes > 1:
