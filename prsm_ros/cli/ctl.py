@@ -402,29 +402,41 @@ def cmd_command(ctl: Ctl, args, emit) -> None:
         raise CtlError(f"command {args.kind}: the node's command_interface is {active}; "
                        f"`prsm-ctl interface {interface}` first (or send a {_kind_of(active)} command)")
     from sensor_msgs.msg import TimeReference
-    from std_msgs.msg import String
     echoes: list = []
-    refusals: list = []
     ctl.subscribe("command_echo", TimeReference, echoes.append)
-    ctl.subscribe("events", String, lambda m: refusals.append(m.data), qos=_volatile_events_qos())
-    name = ctl.publish_once(key, Float64(data=value))
-    me = ctl.participant_of(name)
     # applied (echoed by the step that took it) or refused (an event naming this writer), for a while
-    end = time.monotonic() + min(ctl.timeout_s, APPLY_WAIT_S)
-    while time.monotonic() < end:
-        ctl.executor.spin_once(timeout_sec=0.02)
-        refused = _refusal_for(refusals, me)
-        if refused is not None:
-            raise CtlError(f"command {args.kind} {value:g} refused by {ctl.target}: {refused}")
-        done = next((m for m in echoes if m.source == name), None)
-        if done is not None:
-            t = done.header.stamp.sec + done.header.stamp.nanosec * 1e-9
-            emit({"topic": name, "value": value, "unit": unit, "applied_at_s": t},
-                 f"{value:g} {unit} on {name}: applied by the step at t = {t:.6f} s")
-            return
+    name, done = send_and_await(ctl, key, Float64(data=value), f"command {args.kind} {value:g}",
+                                lambda name, events: next((m for m in echoes if m.source == name), None))
+    if done is not None:
+        t = done.header.stamp.sec + done.header.stamp.nanosec * 1e-9
+        emit({"topic": name, "value": value, "unit": unit, "applied_at_s": t},
+             f"{value:g} {unit} on {name}: applied by the step at t = {t:.6f} s")
+        return
     emit({"topic": name, "value": value, "unit": unit, "applied_at_s": None},
          f"sent {value:g} {unit} to {name}; not applied within {min(ctl.timeout_s, APPLY_WAIT_S):g} s "
          "(the node is paused, or see prsm-ctl events)")
+
+
+def send_and_await(ctl: Ctl, key: str, msg, what: str, applied: Callable[[str, list[str]], Any]) -> tuple[str, Any]:
+    """Publish `msg` once on the node's `key` topic and wait up to APPLY_WAIT_S for the node's verdict:
+    a refusal event naming this writer is a CtlError (exit 2); `applied(topic, events)` returning
+    something ends the wait with it. Returns (topic name, that result or None: no verdict in time)."""
+    from std_msgs.msg import String
+    events: list[str] = []
+    sub = ctl.subscribe("events", String, lambda m: events.append(m.data), qos=_volatile_events_qos())
+    ctl.spin_until(lambda: sub.get_publisher_count() > 0, f"nobody publishes {ctl.topic('events')}")
+    name = ctl.publish_once(key, msg)
+    me = ctl.participant_of(name)
+    end = time.monotonic() + min(ctl.timeout_s, APPLY_WAIT_S)
+    while time.monotonic() < end:
+        ctl.executor.spin_once(timeout_sec=0.02)
+        refused = _refusal_for(events, me)
+        if refused is not None:
+            raise CtlError(f"{what} refused by {ctl.target}: {refused}")
+        got = applied(name, events)
+        if got is not None:
+            return name, got
+    return name, None
 
 
 def _volatile_events_qos():
@@ -476,25 +488,13 @@ def cmd_fault(ctl: Ctl, args, emit) -> None:
 
 def send_owned(ctl: Ctl, key: str, msg, what: str, started: str | None = None) -> dict:
     """Publish one message on an owned input (~/inject_fault, ~/brake_command) and wait for the node's
-    verdict: a refusal event naming this writer is a CtlError (exit 2); `started` (an event code)
-    confirms it took effect; else, after APPLY_WAIT_S without a refusal, it was accepted."""
-    from std_msgs.msg import String
-    events: list[str] = []
-    sub = ctl.subscribe("events", String, lambda m: events.append(m.data),
-                        qos=_volatile_events_qos())
-    ctl.spin_until(lambda: sub.get_publisher_count() > 0, f"nobody publishes {ctl.topic('events')}")
-    name = ctl.publish_once(key, msg)
-    me = ctl.participant_of(name)
-    end = time.monotonic() + min(ctl.timeout_s, APPLY_WAIT_S)
-    while time.monotonic() < end:
-        ctl.executor.spin_once(timeout_sec=0.02)
-        refused = _refusal_for(events, me)
-        if refused is not None:
-            raise CtlError(f"{what} refused by {ctl.target}: {refused}")
-        if started is not None and _event_with_code(events, started) is not None:
-            doc = _event_with_code(events, started)
-            return {"topic": name, "accepted": True,
-                    "message": f"{what}: {doc.get('message', started)} (t = {doc.get('time_s', math.nan):.6f} s)"}
+    verdict (`send_and_await`): `started` (an event code) confirms it took effect; else, after
+    APPLY_WAIT_S without a refusal, it was accepted."""
+    name, doc = send_and_await(ctl, key, msg, what,
+                               lambda name, events: started and _event_with_code(events, started))
+    if doc:
+        return {"topic": name, "accepted": True,
+                "message": f"{what}: {doc.get('message', started)} (t = {doc.get('time_s', math.nan):.6f} s)"}
     return {"topic": name, "accepted": True,
             "message": f"{what} on {name}: accepted (no refusal within {min(ctl.timeout_s, APPLY_WAIT_S):g} s)"}
 
