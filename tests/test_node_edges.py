@@ -217,11 +217,14 @@ def _run_node(ros: list[str]) -> subprocess.CompletedProcess:
                           text=True, timeout=60 * CEILING_FACTOR)
 
 
+SLOW = pytest.mark.slow  # a process each; tests/test_node_bounds_units.py checks every case without one
+
+
 @pytest.mark.parametrize("ros, words", [
     (["-p", "record_path:="], "no value after :="),
-    (["-p", "record:=false", "-p"], "expected NAME:=VALUE"),
-    (["-r", "__ns:=bad//ns"], "not a valid namespace"),
-    (["-p", ":=3"], "expected NAME:=VALUE"),
+    pytest.param(["-p", "record:=false", "-p"], "expected NAME:=VALUE", marks=SLOW),
+    pytest.param(["-r", "__ns:=bad//ns"], "not a valid namespace", marks=SLOW),
+    pytest.param(["-p", ":=3"], "expected NAME:=VALUE", marks=SLOW),
 ], ids=["empty-value", "trailing-p", "bad-namespace", "empty-name"])
 def test_malformed_ros_arguments_are_one_line_and_exit_2(ros, words):
     res = _run_node(ros)
