@@ -410,7 +410,7 @@ class PrsmNode(Node):
         """Stop the producer, then close the consumers; every wait is bounded (idempotent).
 
         The step thread goes first (it feeds the sinks), then the sinks in their order. Executor
-        callbacks (lockstep steps, services) do not run here: `prsm_ros.cli.node.main` calls
+        callbacks (lockstep steps, services) do not run here: `prsm_ros.node.process.main` calls
         this after it stopped spinning. If the step thread is still inside a step after
         STEP_THREAD_STOP_S, the sinks are closed anyway and the error says so: each counts
         whatever that step still hands it as dropped (all are safe to call after close), so
