@@ -21,6 +21,9 @@ class NodeLock:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
+        # the bare mutex, for the realtime step thread's once-a-step hold (it sleeps between steps, so it
+        # never keeps a waiter out; the counting `with` costs about 0.7 µs more a time)
+        self.raw = self._lock
         self._count_lock = threading.Lock()
         self.waiting = 0
 

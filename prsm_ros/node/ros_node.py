@@ -360,6 +360,7 @@ class PrsmNode(Node):
             self.scheduling["step_thread"] = request_realtime_priority(self.config.realtime_priority)
         self.pacer.restart()
         was_running = False
+        raw_lock = self.lock.raw
         unslept = 0  # steps since the thread last slept (and so let the executor take the lock)
         while not self._stop.is_set():
             if self.session.paused or self.session.fault is not None:
@@ -381,7 +382,7 @@ class PrsmNode(Node):
                 time.sleep(FAST_YIELD_S)
                 unslept = 0
             try:
-                with self.lock:
+                with raw_lock:  # the bare mutex: this thread sleeps or yields between steps (NodeLock)
                     if not self.session.paused:
                         self.advance(1)
             except Exception as e:  # a publish after shutdown, or a bug: never kill the process from here
