@@ -113,7 +113,7 @@ def descriptor(p: NodeParam) -> ParameterDescriptor:
 def usage() -> str:
     """`prsm-node --help`: the command line and every parameter with its default, unit and allowed values."""
     lines = ["prsm-node: the simulated PRSM actuator (planetary roller screw) on the ROS 2 graph.", "",
-             "usage: prsm-node [--help] [--params-template [PRESET]] [--urdf] [--ros-args ...]", "",
+             "usage: prsm-node [--help] [--version] [--params-template [PRESET]] [--urdf] [--ros-args ...]", "",
              "  --urdf: print the URDF of the actuator as the parameters configure it, and exit",
              "", "parameters (-p name:=value, or a ros__parameters YAML via --params-file):"]
     for p in node_parameters():
