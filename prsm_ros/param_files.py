@@ -6,13 +6,17 @@ A file holds the nested groups of `prsm_sim.Params.to_dict()`; an optional top-l
 
 from __future__ import annotations
 
+import math
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from prsm_sim import ParamError, Params, preset
-from prsm_sim.actuator import ActuatorParams, actuator_params_from_dict
+from prsm_sim.actuator import (ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams, SensorParams, StopParams,
+                               actuator_params_from_dict, fault_from_dict, parse_faults)
+from prsm_sim.params import parse_float
 
 
 def params_to_yaml(params: Params) -> str:
@@ -71,3 +75,126 @@ def resolve_params(preset_name: str | None, params_file: str | None, overrides: 
         raise ParamError("give --preset or --params, not both")
     params = load_params_file(params_file) if params_file else preset(preset_name or "jones2016")
     return params.with_overrides(overrides) if overrides else params
+
+
+# -- the actuator from node-style parameters (the node's parameters, the FMU's build options) --------------------
+ACTUATOR_PREFIX = "actuator."
+FAULTS_PREFIX = "faults."
+FAULT_FIELDS = tuple(f.name for f in fields(Fault))  # faults.<name>.<field>
+# the groups of the actuator, each a frozen dataclass of prsm_sim.actuator (drive.mode is `command_interface`)
+ACTUATOR_GROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sensors": SensorParams,
+                                    "stops": StopParams, "brake": BrakeParams}
+# What a fault's value may be, like a command's bound: a larger one is a mistake or an attack,
+# never a test (a jam 1e300 N·m, a friction factor of a million), and is refused.
+FAULT_VALUE_LIMITS = {"friction_surge": (100.0, ""), "lubrication_loss": (100.0, ""), "jam": (1e6, "N·m"),
+                      "sensor_bias": (1e6, "in the sensor's unit"), "sensor_noise": (1e6, "in the sensor's unit"),
+                      "backlash": (1.0, "m/s")}
+FAULT_START_LIMIT_S = 1e9
+
+
+def bound_fault(f: Fault) -> Fault:
+    """The fault, or ParamError when its value or start lies beyond what any test needs."""
+    limit, unit = FAULT_VALUE_LIMITS.get(f.kind, (None, ""))
+    if limit is not None and abs(f.value) > limit:
+        raise ParamError(f"fault.value = {f.value!r}: {f.kind} allows |value| <= {limit:g}" + (f" {unit}" if unit else ""))
+    if f.start_s > FAULT_START_LIMIT_S:
+        raise ParamError(f"fault.start_s = {f.start_s!r}: must be <= {FAULT_START_LIMIT_S:g} s")
+    return f
+
+
+def is_fault_field(name: str) -> bool:
+    """`faults.<name>.<field>` with a field of prsm_sim.actuator.Fault."""
+    parts = name.split(".")
+    return len(parts) == 3 and parts[0] + "." == FAULTS_PREFIX and parts[1] != "" and parts[2] in FAULT_FIELDS
+
+
+def _fault_field_value(name: str, key: str, v: Any) -> Any:
+    if key in ("sensor", "roller") and (v == "" or (isinstance(v, float) and math.isnan(v))):
+        return None  # the string list's "not given": no sensor, all rollers
+    if key not in ("kind", "sensor") and isinstance(v, str):
+        return parse_float(v, f"parameter {name}")  # YAML 1.1 reads "1e-5" and rcl "inf" as strings
+    return v
+
+
+def nested_faults(values: dict[str, Any]) -> dict[str, Fault]:
+    """The faults given as `faults.<name>.<field>` in `values`: name → Fault, in name order.
+    ParamError naming the fault."""
+    groups: dict[str, dict[str, Any]] = {}
+    for k, v in values.items():
+        if is_fault_field(k):
+            _, name, key = k.split(".")
+            groups.setdefault(name, {})[key] = _fault_field_value(k, key, v)
+    out = {}
+    for name in sorted(groups):
+        try:
+            out[name] = fault_from_dict(groups[name])
+        except ParamError as e:
+            raise ParamError(f"parameter {FAULTS_PREFIX}{name}: {e}") from None
+    return out
+
+
+def _actuator_mapping(text: str, given: frozenset[str]) -> dict:
+    """The `actuator` parameter's YAML mapping (a copy, groups as dicts where the nested names need them)."""
+    try:
+        data = yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as e:
+        raise ParamError(f"parameter actuator = {text!r}: not a YAML mapping ({str(e).splitlines()[0]})") from None
+    data = data if data is not None else {}
+    if given and not isinstance(data, dict):
+        raise ParamError(f"parameter actuator = {text!r}: expected a mapping of groups "
+                         f"({', '.join(ACTUATOR_GROUPS)}, faults)")
+    return {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()} if isinstance(data, dict) else data
+
+
+def _apply_nested(data: dict, values: dict[str, Any], given: frozenset[str]) -> None:
+    """The actuator.<group>.<field> names `given` over the mapping (`fitted` adds or, for the motor, removes a group)."""
+    for name in sorted(given):
+        group, key = name[len(ACTUATOR_PREFIX):].split(".", 1)
+        v = values[name]
+        if key == "fitted" and group == "motor" and not v:
+            data["motor"] = None
+            continue
+        if not isinstance(data.get(group), dict):
+            data[group] = {}
+        if key != "fitted":
+            data[group][key] = None if isinstance(v, float) and math.isnan(v) else v
+    if data.get("motor") is None and any(n.startswith(f"{ACTUATOR_PREFIX}motor.") and not n.endswith(".fitted")
+                                         for n in given) and values.get(f"{ACTUATOR_PREFIX}motor.fitted", True):
+        data["motor"] = data.get("motor") or {}
+
+
+def _actuator_from(data: Any, values: dict[str, Any], given: frozenset[str]) -> tuple[ActuatorParams, tuple]:
+    """ActuatorParams of the mapping and the faults of the `faults` string; ParamError naming the parameter."""
+    try:
+        a = actuator_params_from_dict(data)
+        return a, a.faults + parse_faults(values["faults"])
+    except ParamError as e:
+        text_e = str(e)
+        if text_e.startswith("fault"):
+            raise ParamError(f"parameter faults: {e}") from None
+        group = text_e.split(".", 1)[0].removeprefix("unknown parameter ")
+        nested = any(n.startswith(f"{ACTUATOR_PREFIX}{group}.") for n in given)
+        raise ParamError(f"parameter actuator.{e}" if nested and group in ACTUATOR_GROUPS
+                         else f"parameter actuator: {e}") from None
+
+
+def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str] = frozenset()) -> ActuatorParams:
+    """ActuatorParams from the `actuator` (YAML mapping), the actuator.* names `given`, `faults` and
+    `command_interface` values (the node's parameters, the FMU's build options); a given nested name
+    overrides the same field of the mapping. ParamError naming the parameter."""
+    from dataclasses import replace
+
+    from prsm_sim.actuator.faults import check_fault
+    data = _actuator_mapping(values["actuator"], given)
+    if given:
+        _apply_nested(data, values, given)
+    a, faults = _actuator_from(data, values, given)
+    named = nested_faults(values)
+    for label, f in [("faults", f) for f in faults] + [(FAULTS_PREFIX + n, f) for n, f in named.items()]:
+        try:
+            check_fault(f, params, values["model"], a.motor is not None)
+            bound_fault(f)
+        except ParamError as e:
+            raise ParamError(f"parameter {label}: {e}") from None
+    faults += tuple(named.values())
+    return replace(a, faults=faults, drive=replace(a.drive, mode=values["command_interface"]))

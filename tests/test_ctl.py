@@ -57,7 +57,7 @@ def run(capsys, *argv: str) -> tuple[int, list, str]:
     return rc, [json.loads(line) for line in out.splitlines() if line.strip()], err
 
 
-def until_state(capsys, key: str, value: str) -> None:
+def until_state(capsys, key: str, value) -> None:
     """`prsm-ctl state` until the node reports `key` = `value` (a topic command is acknowledged by DDS
     before the node has acted on it; /diagnostics come once a second)."""
     end = time.monotonic() + 30 * CEILING_FACTOR
@@ -68,10 +68,13 @@ def until_state(capsys, key: str, value: str) -> None:
 def test_pause_step_resume_reset(node, capsys):
     proc, cli = node
     rc, rec, _ = run(capsys, "state")
-    assert rc == 0 and rec[0]["paused"] == "True" and rec[0]["time_s"] == 0.0
+    assert rc == 0 and rec[0]["paused"] is True and rec[0]["time_s"] == 0.0
     rc, rec, err = run(capsys, "step", "5")
     assert rc == 0, err
     assert rec[0]["message"].startswith("stepped 5 of 5 steps to t = 0.005000 s")
+    rc, rec, _ = run(capsys, "state")  # paused: the state the node holds, though joint_states is silent
+    assert rc == 0 and rec[0]["paused"] is True and rec[0]["time_s"] == pytest.approx(0.005)
+    assert set(rec[0]["screw_joint"]) == {"position", "velocity", "effort"} and "nut_joint" in rec[0]
     assert cli.get_parameters(["step_count"]) == {"step_count": 1}  # N applies to that call only
     # likely more than a second of work: then the node answers "accepted" at once and prsm-ctl waits
     # for its step_done event; either way the answer is the steps done
@@ -82,7 +85,7 @@ def test_pause_step_resume_reset(node, capsys):
     rc, _, err = run(capsys, "step", "1")
     assert rc == 2 and "refused: not paused" in err and err.count("\n") == 1
     rc, rec, _ = run(capsys, "state")
-    assert rc == 0 and rec[0]["paused"] == "False" and rec[0]["time_s"] > 30.005
+    assert rc == 0 and rec[0]["paused"] is False and rec[0]["time_s"] > 30.005
     assert set(rec[0]) >= {"screw_joint", "nut_joint", "command_interface"}
     rc, rec, _ = run(capsys, "pause")
     assert rc == 0 and rec[0]["message"].startswith("paused")
@@ -126,7 +129,7 @@ def test_interface_command_release(node, capsys):
     assert rec[0]["topic"] == "/prsm_actuator/velocity_command" and rec[0]["applied_at_s"] > 0
     cli.spin_until(lambda: any(m.source.endswith("velocity_command") for m in echo), 10.0, "the command's echo")
     rc, rec, _ = run(capsys, "state")
-    assert rec[0]["command"] == "2.0"
+    assert rec[0]["command"] == 2.0
     rc, _, err = run(capsys, "command", "velocity", "inf")
     assert rc == 2 and "must be finite" in err
     rc, rec, _ = run(capsys, "release")
@@ -142,10 +145,10 @@ def test_brake_fault_events(node, capsys):
     assert run(capsys, "resume")[0] == 0
     rc, rec, err = run(capsys, "brake", "on")
     assert rc == 0, err
-    until_state(capsys, "brake_engaged", "True")  # the node's own word, on /diagnostics
+    until_state(capsys, "brake_engaged", True)  # the node's own word, on /diagnostics
     rc, rec, _ = run(capsys, "brake", "off")
     assert rc == 0
-    until_state(capsys, "brake_engaged", "False")
+    until_state(capsys, "brake_engaged", False)
     rc, rec, err = run(capsys, "fault", "inject", "jam", "duration_s=0.05", "value=3")
     assert rc == 0, err
     cli.spin_until(lambda: any('"fault_clear"' in m.data for m in events), 10.0, "the jam's start and clear")
@@ -201,7 +204,7 @@ def test_wait_for_controller_hands_the_plant_to_the_first_command(tmp_path, caps
             cli.wait_for_node(proc)
             assert ctl.main(["--json", "--timeout", TIMEOUT, "state"]) == 0
             rec = json.loads(capsys.readouterr().out)
-            assert rec["paused"] == "True" and rec["time_s"] == 0.0 and js == []
+            assert rec["paused"] is True and rec["time_s"] == 0.0 and js == []
             cli.publish("/prsm_actuator/screw_torque", Float64(data=0.4))
             cli.spin_until(lambda: js, 10.0, "the first state after the controller's command")
             t0 = js[0].header.stamp.sec + js[0].header.stamp.nanosec * 1e-9
@@ -225,12 +228,20 @@ def test_a_command_refused_by_the_owner_rule_says_so(tmp_path, capsys):
             cli.publisher("/prsm_actuator/screw_torque", Float64)
             cli.wait_for_node(proc)
             cli.publish("/prsm_actuator/screw_torque", Float64(data=0.1))  # this client owns it from now on
-            until_state(capsys, "command", "0.1")
+            until_state(capsys, "command", 0.1)
             rc, _, err = run(capsys, "command", "torque", "0.3")
             assert rc == 2 and err.count("\n") == 1 and "refused by /prsm_actuator" in err and "owned by" in err, err
+            # owned inputs too: the node's refusal is prsm-ctl's exit 2, never "sent"
+            rc, _, err = run(capsys, "fault", "inject", "jam", "duration_s=0.05", "value=3")
+            assert rc == 2 and err.count("\n") == 1 and "refused by /prsm_actuator" in err, err
+            rc, _, err = run(capsys, "brake", "on")
+            assert rc == 2 and err.count("\n") == 1 and "refused by /prsm_actuator" in err, err
             assert run(capsys, "release")[0] == 0
             rc, rec, err = run(capsys, "command", "torque", "0.3")
             assert rc == 0 and rec[0]["applied_at_s"] > 0, err
+            assert run(capsys, "release")[0] == 0  # that prsm-ctl process owned it (ownership_timeout 0)
+            rc, rec, err = run(capsys, "command", "torque", "-1e-1")  # a number in any spelling
+            assert rc == 0 and rec[0]["value"] == -0.1, err
             assert proc.stop() == 0, proc.stderr
     finally:
         os.environ.update({k: v for k, v in saved.items() if v is not None})

@@ -284,3 +284,39 @@ def test_the_architecture_doc_shows_the_layer_table():
             if re.match(r"\| (core|I/O) \d+ \|", line)]
     doc = [tuple(re.findall(r"`([a-z_.]+)`", row.split("|")[2])) for row in rows]
     assert doc == list(LAYERS)
+
+
+def _started_modules(mod: str, source: str | None = None) -> list[tuple[str, int]]:
+    """(project module, line) that `mod` starts as a process by its name: `start_module("pkg.mod", …)`
+    or `"-m", "pkg.mod"` in an argument list."""
+    out = []
+    tree = ast.parse(MODULES[mod].read_text(encoding="utf-8") if source is None else source)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "start_module":
+            args = node.args[:1]
+        elif isinstance(node, (ast.List, ast.Tuple)):
+            args = [b for a, b in zip(node.elts, node.elts[1:]) if isinstance(a, ast.Constant) and a.value == "-m"]
+        else:
+            continue
+        out += [(a.value, node.lineno) for a in args
+                if isinstance(a, ast.Constant) and isinstance(a.value, str) and a.value in MODULES]
+    return out
+
+
+def test_no_process_of_a_higher_layer_started_by_its_name():
+    """A module starts (`python -m NAME`) only modules of its own or a lower layer: an entry point
+    named by a string is an import the import checks cannot see (node replay starts the node's own
+    `python -m prsm_ros.node`, not the CLI above it)."""
+    bad = [f"{MODULES[mod].relative_to(ROOT)}:{line}: starts {started} ({_unit(started)} above {_unit(mod)})"
+           for mod in MODULES for started, line in _started_modules(mod)
+           if RANK[_unit(started)] > RANK[_unit(mod)]]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_started_process_check_sees_a_string_entry_point():
+    """Oracle for the check above: the old home of node replay (in `sweep`, starting the CLI) is found."""
+    src = ('from prsm_ros.ros_env import start_module\nstart_module("prsm_ros.cli.node", [], {})\n'
+           'subprocess.run([sys.executable, "-m", "prsm_ros.cli.ctl"])\n')
+    found = _started_modules("prsm_ros.sweep", src)
+    assert found == [("prsm_ros.cli.node", 2), ("prsm_ros.cli.ctl", 3)]
+    assert all(RANK[_unit(m)] > RANK["prsm_ros.sweep"] for m, _ in found)

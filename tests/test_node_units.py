@@ -145,6 +145,7 @@ def test_node_close_is_bounded_when_the_step_thread_hangs(tmp_path, monkeypatch)
     from prsm_ros.messages import TOPICS
     from prsm_ros.bag.reader import open_bag
     import prsm_ros.node.ros_node as ros_node
+    from prsm_ros.node.sinks import RecorderSink, Sinks
 
     monkeypatch.setattr(ros_node, "STEP_THREAD_STOP_S", 0.2)
     rec = McapRecorder(tmp_path / "node.mcap")
@@ -162,7 +163,8 @@ def test_node_close_is_bounded_when_the_step_thread_hangs(tmp_path, monkeypatch)
 
         def __init__(self):
             self._stop, self._resumed = threading.Event(), threading.Event()
-            self.recorder, self.rerun, self.live, self.errors = rec, None, None, []
+            self.errors = []
+            self.sinks = Sinks([RecorderSink(rec)])
             self._thread = threading.Thread(target=stuck_step, daemon=True)
             self._thread.start()
 

@@ -39,7 +39,6 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from prsm_sim import __version__
 from prsm_sim.errors import PrsmError
 
 PROG = "prsm-ctl"
@@ -72,6 +71,9 @@ def parse_value(text: str) -> Any:
         return math.nan
     if low in ("inf", "+inf", ".inf", "-inf", "-.inf"):
         return -math.inf if low.startswith("-") else math.inf
+    number = _number(text)
+    if number is not None:
+        return number
     try:
         v = yaml.safe_load(text)
     except yaml.YAMLError:
@@ -83,7 +85,27 @@ def parse_value(text: str) -> Any:
     return text
 
 
+def _number(text: str) -> int | float | None:
+    """`text` as an int or float in any spelling Python reads (-1e-1, 1_000, +.5), else None."""
+    t = text.strip()
+    for kind in (int, float):
+        try:
+            return kind(t)
+        except ValueError:
+            pass
+    return None
+
+
+def typed(text: str) -> Any:
+    """A /diagnostics value (always a string there) as what it means: true/false, a number, or the text."""
+    if text in ("True", "False"):
+        return text == "True"
+    number = _number(text)
+    return text if number is None or text.strip().lower() in ("nan", "inf", "-inf") else number
+
+
 def _finite(text: str, what: str) -> float:
+    text = text.strip()
     try:
         v = float(text)
     except ValueError:
@@ -252,14 +274,29 @@ def _state_record(js, diag: dict[str, str] | None) -> dict:
     if diag is not None:
         for k in ("paused", "command_interface", "command", "command_owner", "fault", "faults_active", "brake_engaged"):
             if k in diag and diag[k] != "":
-                rec[k] = diag[k]
+                rec[k] = typed(diag[k])
+    return rec
+
+
+PAUSED_STATE_KEYS = (("position", "state_{}_position"), ("velocity", "state_{}_velocity"), ("effort", "state_{}_effort"))
+
+
+def _paused_record(diag: dict[str, str]) -> dict:
+    """The state of a paused node from its /diagnostics (joint_states stops while paused): the last
+    state the node holds, with the joints' names and values it reports there."""
+    rec: dict[str, Any] = {"time_s": float(diag.get("sim_time_s", "nan")), "paused": True}
+    for name in filter(None, diag.get("state_joints", "").split(",")):
+        rec[name] = {k: float(diag.get(key.format(name), "nan")) for k, key in PAUSED_STATE_KEYS}
+    for k in ("command_interface", "command", "command_owner", "fault", "faults_active", "brake_engaged"):
+        if diag.get(k, "") != "":
+            rec[k] = typed(diag[k])
     return rec
 
 
 def _state_line(rec: dict) -> str:
     parts = [f"t = {rec['time_s']:.6f} s"]
     if "paused" in rec:
-        parts.append("paused" if rec["paused"] == "True" else "running")
+        parts.append("paused" if rec["paused"] is True else "running")
     if "command_interface" in rec:
         parts.append(f"{rec['command_interface']} command {rec.get('command', '?')}")
     units = {0: ("rad", "rad/s", "N·m"), 1: ("m", "m/s", "N")}
@@ -291,12 +328,9 @@ def cmd_state(ctl: Ctl, args, emit) -> None:
                 return True
             return latest["js"] is not None and latest["diag"] is not None
         ctl.spin_until(have, f"no joint_states or /diagnostics from {ctl.target}")
-        if latest["js"] is None:
-            d = latest["diag"]
-            rec = {"time_s": float(d.get("sim_time_s", "nan")), "paused": "True",
-                   **{k: d[k] for k in ("command_interface", "command", "command_owner", "fault") if d.get(k)}}
-            emit(rec, f"t = {rec['time_s']:.6f} s, paused (no joint_states while paused; "
-                      "`prsm-ctl step 1` publishes one)")
+        if latest["js"] is None:  # paused: the state the node holds, from /diagnostics
+            rec = _paused_record(latest["diag"])
+            emit(rec, _state_line(rec))
             return
         rec = _state_record(latest["js"], latest["diag"])
         emit(rec, _state_line(rec))
@@ -368,29 +402,41 @@ def cmd_command(ctl: Ctl, args, emit) -> None:
         raise CtlError(f"command {args.kind}: the node's command_interface is {active}; "
                        f"`prsm-ctl interface {interface}` first (or send a {_kind_of(active)} command)")
     from sensor_msgs.msg import TimeReference
-    from std_msgs.msg import String
     echoes: list = []
-    refusals: list = []
     ctl.subscribe("command_echo", TimeReference, echoes.append)
-    ctl.subscribe("events", String, lambda m: refusals.append(m.data), qos=_volatile_events_qos())
-    name = ctl.publish_once(key, Float64(data=value))
-    me = ctl.participant_of(name)
     # applied (echoed by the step that took it) or refused (an event naming this writer), for a while
-    end = time.monotonic() + min(ctl.timeout_s, APPLY_WAIT_S)
-    while time.monotonic() < end:
-        ctl.executor.spin_once(timeout_sec=0.02)
-        refused = _refusal_for(refusals, me)
-        if refused is not None:
-            raise CtlError(f"command {args.kind} {value:g} refused by {ctl.target}: {refused}")
-        done = next((m for m in echoes if m.source == name), None)
-        if done is not None:
-            t = done.header.stamp.sec + done.header.stamp.nanosec * 1e-9
-            emit({"topic": name, "value": value, "unit": unit, "applied_at_s": t},
-                 f"{value:g} {unit} on {name}: applied by the step at t = {t:.6f} s")
-            return
+    name, done = send_and_await(ctl, key, Float64(data=value), f"command {args.kind} {value:g}",
+                                lambda name, events: next((m for m in echoes if m.source == name), None))
+    if done is not None:
+        t = done.header.stamp.sec + done.header.stamp.nanosec * 1e-9
+        emit({"topic": name, "value": value, "unit": unit, "applied_at_s": t},
+             f"{value:g} {unit} on {name}: applied by the step at t = {t:.6f} s")
+        return
     emit({"topic": name, "value": value, "unit": unit, "applied_at_s": None},
          f"sent {value:g} {unit} to {name}; not applied within {min(ctl.timeout_s, APPLY_WAIT_S):g} s "
          "(the node is paused, or see prsm-ctl events)")
+
+
+def send_and_await(ctl: Ctl, key: str, msg, what: str, applied: Callable[[str, list[str]], Any]) -> tuple[str, Any]:
+    """Publish `msg` once on the node's `key` topic and wait up to APPLY_WAIT_S for the node's verdict:
+    a refusal event naming this writer is a CtlError (exit 2); `applied(topic, events)` returning
+    something ends the wait with it. Returns (topic name, that result or None: no verdict in time)."""
+    from std_msgs.msg import String
+    events: list[str] = []
+    sub = ctl.subscribe("events", String, lambda m: events.append(m.data), qos=_volatile_events_qos())
+    ctl.spin_until(lambda: sub.get_publisher_count() > 0, f"nobody publishes {ctl.topic('events')}")
+    name = ctl.publish_once(key, msg)
+    me = ctl.participant_of(name)
+    end = time.monotonic() + min(ctl.timeout_s, APPLY_WAIT_S)
+    while time.monotonic() < end:
+        ctl.executor.spin_once(timeout_sec=0.02)
+        refused = _refusal_for(events, me)
+        if refused is not None:
+            raise CtlError(f"{what} refused by {ctl.target}: {refused}")
+        got = applied(name, events)
+        if got is not None:
+            return name, got
+    return name, None
 
 
 def _volatile_events_qos():
@@ -427,7 +473,7 @@ def cmd_fault(ctl: Ctl, args, emit) -> None:
 
     from prsm_sim.actuator import parse_fault
 
-    from prsm_ros.node.parameters import bound_fault
+    from prsm_ros.param_files import bound_fault
     if not args.spec:
         raise CtlError("fault inject: expected KIND [key=value ...], e.g. fault inject jam duration_s=0.5 value=30")
     first = args.spec[0]
@@ -436,8 +482,32 @@ def cmd_fault(ctl: Ctl, args, emit) -> None:
         bound_fault(parse_fault(text if "start_s" in text else f"{text},start_s=0"))  # the node checks it again
     except PrsmError as e:
         raise CtlError(f"fault inject: {e}") from None
-    name = ctl.publish_once("inject_fault", String(data=text))
-    emit({"topic": name, "fault": text}, f"sent {text!r} to {name} (the node logs it and publishes it on ~/events when it starts)")
+    r = send_owned(ctl, "inject_fault", String(data=text), f"fault inject {text!r}", started="fault_start")
+    emit({**r, "fault": text}, r["message"])
+
+
+def send_owned(ctl: Ctl, key: str, msg, what: str, started: str | None = None) -> dict:
+    """Publish one message on an owned input (~/inject_fault, ~/brake_command) and wait for the node's
+    verdict (`send_and_await`): `started` (an event code) confirms it took effect; else, after
+    APPLY_WAIT_S without a refusal, it was accepted."""
+    name, doc = send_and_await(ctl, key, msg, what,
+                               lambda name, events: started and _event_with_code(events, started))
+    if doc:
+        return {"topic": name, "accepted": True,
+                "message": f"{what}: {doc.get('message', started)} (t = {doc.get('time_s', math.nan):.6f} s)"}
+    return {"topic": name, "accepted": True,
+            "message": f"{what} on {name}: accepted (no refusal within {min(ctl.timeout_s, APPLY_WAIT_S):g} s)"}
+
+
+def _event_with_code(events: list[str], code: str) -> dict | None:
+    for text in events:
+        try:
+            doc = json.loads(text)
+        except ValueError:
+            continue
+        if isinstance(doc, dict) and doc.get("code") == code:
+            return doc
+    return None
 
 
 def step(ctl: Ctl, n: int | None) -> dict:
@@ -482,17 +552,10 @@ def brake(ctl: Ctl, engage: bool) -> dict:
     """Engage or release the brake: on the node's owned `~/brake_command` topic where it has one
     (the brake is owned like the commands), else through its `~/brake` service."""
     from std_msgs.msg import Bool
-    topic = f"{ctl.target}/brake_command"
+    topic = ctl.topic("brake_command")
     if ctl.node.count_subscribers(topic) == 0:  # endpoints are discovered with the node's services
         return ctl.trigger("brake", engage)
-    from rclpy.duration import Duration
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    pub = ctl.node.create_publisher(Bool, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-    ctl.spin_until(lambda: pub.get_subscription_count() > 0, f"nobody reads {topic}")
-    pub.publish(Bool(data=engage))
-    if not pub.wait_for_all_acked(Duration(nanoseconds=int(ctl.timeout_s * 1e9))):
-        raise CtlError(f"{topic}: the node did not acknowledge the message")
-    return {"topic": topic, "message": f"sent brake {'engage' if engage else 'release'} to {topic}"}
+    return send_owned(ctl, "brake_command", Bool(data=engage), f"brake {'on' if engage else 'off'}")
 
 
 def run(args) -> int:
@@ -527,7 +590,7 @@ def run(args) -> int:
 
 
 def _emitter(as_json: bool) -> Callable[[Any, str], None]:
-    from prsm_ros.json_out import jsonable
+    from prsm_ros.cli.json_out import jsonable
 
     def emit(record: Any, text: str) -> None:
         print(json.dumps(jsonable(record), ensure_ascii=False, allow_nan=False) if as_json else text, flush=True)
@@ -564,7 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="one JSON object per line")
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0], parents=[common],
                                  epilog="See the module help: python -m prsm_ros.cli.ctl --help; README.md and docs/ros.md.")
-    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    from prsm_sim import __version__
+    ap.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = ap.add_subparsers(dest="verb", required=True, metavar="VERB")
     sub.add_parser("pause", parents=[common], help="pause stepping (~/pause true)")
     sub.add_parser("resume", parents=[common], help="resume stepping (~/pause false)")
@@ -593,9 +657,16 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _negative_number(arg: str) -> bool:
+    return arg.startswith("-") and _number(arg) is not None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
-    args = ap.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # argparse takes "-1e-1" for an option (it knows only "-1" and "-.5" as numbers): a leading space keeps
+    # a negative number a value, and every consumer strips it
+    args = ap.parse_args([" " + a if _negative_number(a) else a for a in argv])
     args.node = getattr(args, "node", DEFAULT_NODE)
     args.timeout = getattr(args, "timeout", 10.0)
     args.json = getattr(args, "json", False)
@@ -610,6 +681,7 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        print(f"{PROG}: interrupted (what was printed above is complete)", file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0

@@ -327,10 +327,10 @@ def _write_csv(path: str, traj) -> None:
 
 
 def _envelope_on_node(case: dict, args) -> dict:
-    """The case replayed into prsm-node in lockstep (prsm_ros.sweep.envelope_node); the node's output in -o."""
+    """The case replayed into prsm-node in lockstep (prsm_ros.node.replay); the node's output in -o."""
     from pathlib import Path
 
-    from prsm_ros.sweep.envelope_node import ReplayError, replay_on_node
+    from prsm_ros.node.replay import ReplayError, replay_on_node
     try:
         return replay_on_node(case, Path(args.output) / f"node-{case.get('seed')}")
     except ReplayError as e:

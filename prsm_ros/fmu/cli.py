@@ -25,7 +25,7 @@ from prsm_ros.fmu.config import make_config
 def _actuator(args, params):
     """The actuator the options ask for (the node's rule: `--actuator`, `--faults` or a non-effort
     interface fit one), or None for the bare screw model."""
-    from prsm_ros.node.parameters import actuator_config
+    from prsm_ros.param_files import actuator_config
 
     if not (args.actuator.strip() or args.faults.strip()) and args.command_interface == "effort":
         return None

@@ -13,7 +13,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
 from prsm_ros.node.parameters import (ACTUATOR_PREFIX, FAULT_FIELDS, FAULTS_PREFIX, PHYSICS_PREFIX, RCLPY_PARAMETERS,
-                                      ConfigError, NodeConfig, NodeParam, ParamSources, check_preset, check_value,
+                                      ConfigError, NodeConfig, NodeParam, ParamSources, base_params, check_preset, check_value,
                                       fault_field_names, is_fault_field, nearest_hint, node_parameters,
                                       physics_parameters, physics_type, physics_unit, unknown_parameter)
 
@@ -24,19 +24,21 @@ def declare_parameters(node: Node) -> NodeConfig:
     for p in node_parameters():
         values[p.name] = _declare(node, p.name, p.default, descriptor(p), p)
         if p.name == "preset":
-            base = check_preset(values["preset"])
+            check_preset(values["preset"])
+    base = base_params(values)  # the params_file, else the preset (ConfigError naming the parameter)
+    origin = f"parameter file {values['params_file']}" if values["params_file"] else f"preset {base.name}"
     for key, default in physics_parameters(base).items():
         unit = physics_unit(key)
         desc = ParameterDescriptor(
             description=f"physical parameter {key[len(PHYSICS_PREFIX):]}"
-                        + (f" [{unit}]" if unit else "") + f"; default from preset {base.name}",
+                        + (f" [{unit}]" if unit else "") + f"; default from {origin}",
             additional_constraints=f"{physics_type(base, key).__name__}; validated by prsm_sim.Params",
             dynamic_typing=True)
         values[key] = _declare(node, key, default, desc)
     values.update(_declare_faults(node))
     # the actuator.* names given at start-up apply (they override the `actuator` mapping)
     given = {k for k in _overrides(node) if k.startswith(ACTUATOR_PREFIX) and k in values}
-    return NodeConfig.from_values(values, given)
+    return NodeConfig.from_values(values, given, base=base)
 
 
 def _declare_faults(node: Node) -> dict[str, Any]:
@@ -111,7 +113,7 @@ def descriptor(p: NodeParam) -> ParameterDescriptor:
 def usage() -> str:
     """`prsm-node --help`: the command line and every parameter with its default, unit and allowed values."""
     lines = ["prsm-node: the simulated PRSM actuator (planetary roller screw) on the ROS 2 graph.", "",
-             "usage: prsm-node [--help] [--params-template [PRESET]] [--urdf] [--ros-args ...]", "",
+             "usage: prsm-node [--help] [--version] [--params-template [PRESET]] [--urdf] [--ros-args ...]", "",
              "  --urdf: print the URDF of the actuator as the parameters configure it, and exit",
              "", "parameters (-p name:=value, or a ros__parameters YAML via --params-file):"]
     for p in node_parameters():

@@ -28,6 +28,10 @@ PREFIX_BYTES = 12  # RTPS GUID prefix: the participant; the last 4 bytes name th
 # decides per message by its writer (a refusal is a counter), so with depth 100 the owner's
 # commands survive a writer up to ~100 messages per step (100 kHz at update_rate 1 kHz).
 COMMAND_QUEUE_DEPTH = 100
+# Participants listed by name with their refusal counts on /diagnostics (and so in the bag every
+# report): the most recently refused ones; older ones are counted only, so memory and the report
+# stay bounded however many participants a graph sees.
+REFUSED_LISTED = 16
 
 
 def participant_of(message_info: dict | None) -> bytes | None:
@@ -47,7 +51,8 @@ def participant_name(prefix: bytes | None) -> str:
 @dataclass
 class OwnershipCounters:
     refused: int = 0  # commands refused because another participant owns the actuator
-    refused_by: dict[str, int] = field(default_factory=dict)  # participant name → refused commands
+    refused_by: dict[str, int] = field(default_factory=dict)  # the last REFUSED_LISTED participants → refusals
+    refused_unlisted: int = 0  # participants that dropped out of `refused_by` (their refusals stay in `refused`)
     takeovers: int = 0  # times a participant became owner
     releases: int = 0  # by service
     lapses: int = 0  # by the owner's silence
@@ -86,10 +91,18 @@ class CommandOwnership:
         if self.owner is None or participant == self.owner:
             return None
         name = participant_name(participant)
-        self.counters.refused += 1
-        self.counters.refused_by[name] = self.counters.refused_by.get(name, 0) + 1
+        self._count_refusal(name)
         return (f"command from participant {name} refused: the actuator is owned by {participant_name(self.owner)} "
                 "(until it calls ~/release_control or stays quiet for the ownership timeout)")
+
+    def _count_refusal(self, name: str) -> None:
+        c = self.counters
+        c.refused += 1
+        n = c.refused_by.pop(name, 0) + 1  # re-inserted: the dict's order is the order of last refusal
+        c.refused_by[name] = n
+        if len(c.refused_by) > REFUSED_LISTED:
+            del c.refused_by[next(iter(c.refused_by))]
+            c.refused_unlisted += 1
 
     def owner_now(self) -> bytes | None:
         """The owner at this moment (after a lapse is applied); None when nobody owns or ownership is off."""
@@ -122,4 +135,5 @@ class CommandOwnership:
         return {"command_owner": participant_name(self.owner) if self.owner is not None else "none",
                 "commands_refused_not_owner": c.refused,
                 "refused_participants": ", ".join(f"{k} ({v})" for k, v in sorted(c.refused_by.items())) or "none",
+                "refused_participants_unlisted": c.refused_unlisted,
                 "ownership_releases": c.releases, "ownership_lapses": c.lapses}

@@ -35,21 +35,17 @@ from typing import Any
 
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, PRESETS, ParamError, Params, preset
-from prsm_sim.actuator import (COMMAND_INTERFACES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
-                                SensorParams, StopParams, actuator_params_from_dict, fault_from_dict, parse_faults)
+from prsm_sim.actuator import COMMAND_INTERFACES, ActuatorParams
 from prsm_sim.params import parse_float
+
+from prsm_ros.param_files import (ACTUATOR_GROUPS, ACTUATOR_PREFIX, FAULT_FIELDS, FAULT_START_LIMIT_S,  # noqa: F401
+                                  FAULT_VALUE_LIMITS, FAULTS_PREFIX, bound_fault, is_fault_field, nested_faults)
 
 from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
 
 TIME_MODES = ("realtime", "fast", "lockstep")
 RERUN_MODES = ("off", "save", "spawn", "connect")
 PHYSICS_PREFIX = "physics."
-ACTUATOR_PREFIX = "actuator."
-FAULTS_PREFIX = "faults."
-FAULT_FIELDS = tuple(f.name for f in fields(Fault))  # faults.<name>.<field>
-# the groups of the actuator, each a frozen dataclass of prsm_sim.actuator (drive.mode is `command_interface`)
-ACTUATOR_GROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sensors": SensorParams,
-                                    "stops": StopParams, "brake": BrakeParams}
 ACTUATOR_SKIPPED = {("drive", "mode")}
 DEFAULT_PRESET = "s30"
 DEFAULT_MODEL = "jones2016"
@@ -105,6 +101,8 @@ def _topic_params() -> list[NodeParam]:
 NODE_PARAMETERS: tuple[NodeParam, ...] = (
     NodeParam("preset", DEFAULT_PRESET, "", "named parameter set; physics.* parameters default to its values",
               choices=tuple(PRESETS), read_only=True),
+    NodeParam("params_file", "", "", "a parameter file (prsm_sim parameter groups as YAML, e.g. from prsm-sim "
+              "params -o): takes the place of preset; physics.* parameters default to its values", read_only=True),
     NodeParam("model", DEFAULT_MODEL, "", "dynamics model", choices=tuple(MODELS), read_only=True),
     NodeParam("update_rate", 1000, "Hz", "simulation steps per second of simulation time (step = 1/update_rate)",
               lo=1, hi=100_000, read_only=True),
@@ -249,6 +247,7 @@ class NodeConfig:
     topics: dict[str, str] = field(default_factory=dict)  # topic key → name
     actuator: ActuatorParams = field(default_factory=ActuatorParams)  # `actuator` + `faults` + the interface
     actuator_given: frozenset[str] = frozenset()  # the actuator.* names given at start-up (they apply)
+    base: Params | None = None  # what physics.* apply to: the params_file's parameters, else the preset
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name == "values":
@@ -278,37 +277,73 @@ class NodeConfig:
         return bool(v["actuator"].strip()) or faults or v["command_interface"] != "effort" or asked
 
     @classmethod
-    def from_values(cls, values: dict[str, Any], given: frozenset[str] | set[str] | None = None) -> NodeConfig:
+    def from_values(cls, values: dict[str, Any], given: frozenset[str] | set[str] | None = None,
+                    base: Params | None = None) -> NodeConfig:
         """Validate a full name → value mapping (node and physics parameters); ConfigError on the first problem.
 
         `given`: the actuator.* names set at start-up; None takes those whose value differs from the default.
+        `base`: the parameters the physics.* values apply to (None: read from `params_file`, else the preset).
         """
-        out: dict[str, Any] = {}
-        for p in node_parameters():
-            out[p.name] = check_value(p, values.get(p.name, p.default))
+        out: dict[str, Any] = {p.name: check_value(p, values.get(p.name, p.default)) for p in node_parameters()}
         out.update((k, v) for k, v in values.items() if is_fault_field(k))  # the nested faults (read-only)
-        base = preset(out["preset"])
-        phys = {k[len(PHYSICS_PREFIX):]: v for k, v in values.items() if k.startswith(PHYSICS_PREFIX)}
-        try:
-            params = base.with_overrides(phys)
-            MODELS[out["model"]].check_params(params)  # combinations a model refuses (fu2018: line_of_centres)
-        except ParamError as e:
-            raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
+        base = base if base is not None else base_params(out)
+        params = _physics(base, values, out["model"])
+        _check_on_threads(out["initial_nut_position"], params)
+        _check_names(out)
         topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
-        for group in (("joints.screw", "joints.nut"), ("frames.base", "frames.screw", "frames.nut")):
-            names = [out[n] for n in group]
-            for n in group:
-                if not out[n].strip() or any(c in out[n] for c in " \t\n\"'<>&"):
-                    raise ConfigError(f"parameter {n} = {out[n]!r}: must be a non-empty name without spaces, "
-                                      "quotes or <>&")
-            if len(set(names)) != len(names):
-                raise ConfigError(f"parameters {', '.join(group)} = {names}: must differ")
-        nested = actuator_parameters()
         if given is None:
-            given = {p.name for p in nested if not _same(out[p.name], p.default)}
+            given = {p.name for p in actuator_parameters() if not _same(out[p.name], p.default)}
         given = frozenset(n for n in given if n.startswith(ACTUATOR_PREFIX))
         return cls(values=out, params=params, topics=topics, actuator=actuator_config(out, params, given),
-                   actuator_given=given)
+                   actuator_given=given, base=base)
+
+
+def base_params(values: dict[str, Any]) -> Params:
+    """The parameters physics.* apply to: the `params_file` when given (it takes the place of `preset`),
+    else the preset. ConfigError naming the parameter for an unreadable or invalid file."""
+    path = values.get("params_file", "")
+    if not path:
+        return preset(values["preset"])
+    if values["preset"] != DEFAULT_PRESET:
+        raise ConfigError(f"parameters preset = {values['preset']!r} and params_file = {path!r}: give one of them "
+                          "(a parameter file may name its own base with `preset:`)")
+    from prsm_ros.param_files import load_params_file
+    try:
+        return load_params_file(path)
+    except (ParamError, OSError) as e:
+        raise ConfigError(f"parameter params_file = {path!r}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+
+
+def _physics(base: Params, values: dict[str, Any], model: str) -> Params:
+    """`base` with the physics.* values of `values`, checked by the model (ConfigError naming the parameter)."""
+    phys = {k[len(PHYSICS_PREFIX):]: v for k, v in values.items() if k.startswith(PHYSICS_PREFIX)}
+    try:
+        params = base.with_overrides(phys)
+        MODELS[model].check_params(params)  # combinations a model refuses (fu2018: line_of_centres)
+    except ParamError as e:
+        raise ConfigError(f"{PHYSICS_PREFIX}{e}") from None
+    return params
+
+
+def _check_on_threads(x: float, params: Params) -> None:
+    """initial_nut_position on the threads of `params` (the session refuses a start or a reset elsewhere)."""
+    travel = params.geometry.travel_m
+    if travel is not None and abs(x) > 0.5 * travel:
+        raise ConfigError(f"parameter initial_nut_position = {x!r}: must lie on the threads, |x| <= {0.5 * travel:g} m "
+                          "((physics.geometry.screw_length_m - nut_length_m)/2; physics.geometry.thread_ends "
+                          "= false removes the ends)")
+
+
+def _check_names(out: dict[str, Any]) -> None:
+    """Joint and frame names: non-empty, no spaces, quotes or <>& (they go into the URDF), distinct."""
+    for group in (("joints.screw", "joints.nut"), ("frames.base", "frames.screw", "frames.nut")):
+        names = [out[n] for n in group]
+        for n in group:
+            if not out[n].strip() or any(c in out[n] for c in " \t\n\"'<>&"):
+                raise ConfigError(f"parameter {n} = {out[n]!r}: must be a non-empty name without spaces, "
+                                  "quotes or <>&")
+        if len(set(names)) != len(names):
+            raise ConfigError(f"parameters {', '.join(group)} = {names}: must differ")
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -319,64 +354,12 @@ def _same(a: Any, b: Any) -> bool:
 
 
 def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str] = frozenset()) -> ActuatorParams:
-    """ActuatorParams from the `actuator` (YAML mapping), the actuator.* names `given`, `faults` and
-    `command_interface` parameters; a given nested name overrides the same field of the mapping."""
-    import yaml
-    from dataclasses import replace
-    from prsm_sim.actuator.faults import check_fault
-    text = values["actuator"]
+    """`prsm_ros.param_files.actuator_config` (where parameter files are read), refusing in a ConfigError."""
+    from prsm_ros.param_files import actuator_config as read_actuator
     try:
-        data = yaml.safe_load(text) if text.strip() else {}
-    except yaml.YAMLError as e:
-        first = str(e).splitlines()[0]
-        raise ConfigError(f"parameter actuator = {text!r}: not a YAML mapping ({first})") from None
-    data = data if data is not None else {}
-    if given:
-        if not isinstance(data, dict):
-            raise ConfigError(f"parameter actuator = {text!r}: expected a mapping of groups "
-                              f"({', '.join(ACTUATOR_GROUPS)}, faults)")
-        data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
-        for name in sorted(given):
-            group, key = name[len(ACTUATOR_PREFIX):].split(".", 1)
-            v = values[name]
-            if key == "fitted":
-                if group == "motor" and not v:
-                    data["motor"] = None
-                elif not isinstance(data.get(group), dict):
-                    data[group] = {}
-                continue
-            if not isinstance(data.get(group), dict):
-                data[group] = {}
-            data[group][key] = None if isinstance(v, float) and math.isnan(v) else v
-        if data.get("motor") is None and any(n.startswith(f"{ACTUATOR_PREFIX}motor.") and not n.endswith(".fitted")
-                                             for n in given) and values.get(f"{ACTUATOR_PREFIX}motor.fitted", True):
-            data["motor"] = data.get("motor") or {}
-    try:
-        a = actuator_params_from_dict(data)
-        faults = a.faults + parse_faults(values["faults"])
+        return read_actuator(values, params, given)
     except ParamError as e:
-        text_e = str(e)
-        if text_e.startswith("fault"):
-            raise ConfigError(f"parameter faults: {e}") from None
-        group = text_e.split(".", 1)[0].removeprefix("unknown parameter ")
-        nested = any(n.startswith(f"{ACTUATOR_PREFIX}{group}.") for n in given)
-        raise ConfigError(f"parameter actuator.{e}" if nested and group in ACTUATOR_GROUPS
-                          else f"parameter actuator: {e}") from None
-    named = nested_faults(values)
-    for label, f in [("faults", f) for f in faults] + [(FAULTS_PREFIX + n, f) for n, f in named.items()]:
-        try:
-            check_fault(f, params, values["model"], a.motor is not None)
-            bound_fault(f)
-        except ParamError as e:
-            raise ConfigError(f"parameter {label}: {e}") from None
-    faults += tuple(named.values())
-    return replace(a, faults=faults, drive=replace(a.drive, mode=values["command_interface"]))
-
-
-def is_fault_field(name: str) -> bool:
-    """`faults.<name>.<field>` with a field of prsm_sim.actuator.Fault."""
-    parts = name.split(".")
-    return len(parts) == 3 and parts[0] + "." == FAULTS_PREFIX and parts[1] != "" and parts[2] in FAULT_FIELDS
+        raise ConfigError(str(e)) from None
 
 
 def fault_field_names(name: str) -> list[str]:
@@ -387,89 +370,58 @@ def fault_field_names(name: str) -> list[str]:
     return [f"{FAULTS_PREFIX}{parts[1]}.{k}" for k in FAULT_FIELDS]
 
 
-def nested_faults(values: dict[str, Any]) -> dict[str, Fault]:
-    """The faults given as `faults.<name>.<field>` in `values`: name → Fault, in name order.
-    ConfigError naming the fault."""
-    groups: dict[str, dict[str, Any]] = {}
-    for k, v in values.items():
-        if is_fault_field(k):
-            _, name, key = k.split(".")
-            if key in ("sensor", "roller") and (v == "" or (isinstance(v, float) and math.isnan(v))):
-                v = None  # the string list's "not given": no sensor, all rollers
-            elif key not in ("kind", "sensor") and isinstance(v, str):
-                try:
-                    v = parse_float(v, f"parameter {k}")  # YAML 1.1 reads "1e-5" and rcl "inf" as strings
-                except ParamError as e:
-                    raise ConfigError(str(e)) from None
-            groups.setdefault(name, {})[key] = v
-    out = {}
-    for name in sorted(groups):
-        try:
-            out[name] = fault_from_dict(groups[name])
-        except ParamError as e:
-            raise ConfigError(f"parameter {FAULTS_PREFIX}{name}: {e}") from None
-    return out
-
-
-# What a fault's value may be, like a command's bound: a larger one is a mistake or an attack,
-# never a test (a jam 1e300 N·m, a friction factor of a million), and is refused.
-FAULT_VALUE_LIMITS = {"friction_surge": (100.0, ""), "lubrication_loss": (100.0, ""), "jam": (1e6, "N·m"),
-                      "sensor_bias": (1e6, "in the sensor's unit"), "sensor_noise": (1e6, "in the sensor's unit"),
-                      "backlash": (1.0, "m/s")}
-FAULT_START_LIMIT_S = 1e9
-
-
-def bound_fault(f: Fault) -> Fault:
-    """The fault, or ParamError when its value or start lies beyond what any test needs."""
-    limit, unit = FAULT_VALUE_LIMITS.get(f.kind, (None, ""))
-    if limit is not None and abs(f.value) > limit:
-        raise ParamError(f"fault.value = {f.value!r}: {f.kind} allows |value| <= {limit:g}" + (f" {unit}" if unit else ""))
-    if f.start_s > FAULT_START_LIMIT_S:
-        raise ParamError(f"fault.start_s = {f.start_s!r}: must be <= {FAULT_START_LIMIT_S:g} s")
-    return f
-
-
 def check_value(p: NodeParam, value: Any) -> Any:
     """The value coerced to the parameter's type, or ConfigError naming the parameter and what is allowed."""
-    def bad(why: str = "") -> ConfigError:
-        unit = f" ({p.unit})" if p.unit and p.unit != "1" else ""
-        return ConfigError(f"parameter {p.name} = {value!r}: must be {why or p.allowed}{unit}")
-
+    if p.nan_is_none and _means_none(value):
+        return math.nan
     d = p.default
-    if p.nan_is_none and value is None:
-        return math.nan
-    if p.nan_is_none and isinstance(value, str) and value.strip().lower() in ("nan", ".nan", "none", "null"):
-        return math.nan
-    if p.nan_is_none and isinstance(value, float) and math.isnan(value):
-        return value
     if isinstance(d, bool):
         if not isinstance(value, bool):
-            raise bad()
+            raise _bad(p, value)
         return value
     if isinstance(d, str):
-        if not isinstance(value, str):
-            raise bad("a string" if p.choices is None else p.allowed)
-        if p.choices is not None and value not in p.choices:
-            raise bad()
-        if p.name.startswith("topics."):
-            why = _topic_name_problem(value)
-            if why:
-                raise bad(f"a valid ROS topic name ({why})")
-        return value
+        return _check_text(p, value)
+    return _check_number(p, value)
+
+
+def _bad(p: NodeParam, value: Any, why: str = "") -> ConfigError:
+    unit = f" ({p.unit})" if p.unit and p.unit != "1" else ""
+    return ConfigError(f"parameter {p.name} = {value!r}: must be {why or p.allowed}{unit}")
+
+
+def _means_none(value: Any) -> bool:
+    """None, NaN, or a word for them (a field whose NaN means none)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return True
+    return isinstance(value, str) and value.strip().lower() in ("nan", ".nan", "none", "null")
+
+
+def _check_text(p: NodeParam, value: Any) -> str:
+    if not isinstance(value, str):
+        raise _bad(p, value, "a string" if p.choices is None else p.allowed)
+    if p.choices is not None and value not in p.choices:
+        raise _bad(p, value)
+    if p.name.startswith("topics."):
+        why = _topic_name_problem(value)
+        if why:
+            raise _bad(p, value, f"a valid ROS topic name ({why})")
+    return value
+
+
+def _check_number(p: NodeParam, value: Any) -> int | float:
+    d = p.default
     if isinstance(value, str) and isinstance(d, float):  # YAML 1.1 reads "1e-5" as a string
         try:
             value = parse_float(value, p.name)
         except ParamError:
-            raise bad() from None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise bad()
-    if isinstance(d, int) and not isinstance(value, int):
-        raise bad()
+            raise _bad(p, value) from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(d, int) and not isinstance(value, int)):
+        raise _bad(p, value)
     if not math.isfinite(value):
-        raise bad()
+        raise _bad(p, value)
     lo_ok = p.lo is None or (value > p.lo if p.lo_open else value >= p.lo)
     if not lo_ok or (p.hi is not None and value > p.hi):
-        raise bad()
+        raise _bad(p, value)
     return value if isinstance(d, int) else float(value)
 
 
@@ -498,12 +450,21 @@ def runtime_change(old: NodeConfig, changes: dict[str, Any]) -> NodeConfig:
     MCAP channels describe one layout per run.
     """
     from prsm_sim import build_model
-    new = NodeConfig.from_values({**old.values, **physics_parameters(old.params), **changes}, old.actuator_given)
+    if "" in changes:
+        raise ConfigError("a parameter named '' is not a parameter of this node")
+    new = NodeConfig.from_values({**old.values, **physics_parameters(old.params), **changes}, old.actuator_given,
+                                 base=old.base)
     if new.params != old.params:
+        changed = ", ".join(f"{k} = {changes[k]!r}" for k in sorted(changes) if k.startswith(PHYSICS_PREFIX))
         before = build_model(old.params, old.model, old.dt_s).layout
-        after = build_model(new.params, new.model, new.dt_s).layout
+        try:  # the model the session would rebuild: values each valid alone may still leave it singular
+            after = build_model(new.params, new.model, new.dt_s).layout
+        except PrsmError:
+            raise
+        except (ArithmeticError, ValueError) as e:
+            raise ConfigError(f"{changed}: model {old.model} cannot be built with it "
+                              f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None
         if after != before:
-            changed = ", ".join(sorted(k for k in changes if k.startswith(PHYSICS_PREFIX)))
             raise ConfigError(f"{changed}: changes the internal-load layout of model {old.model} "
                               f"({before.size} → {after.size} elements); set it at start-up instead")
     return new
@@ -610,10 +571,25 @@ def _flatten(d: dict, prefix: str = "") -> list[str]:
 def param_sources(args: list[str], node_name: str, namespace: str = "/") -> ParamSources:
     """Read the command line's `-p` and `--params-file` names (ConfigError for a missing, unreadable,
     oversized or non-YAML file, in one line naming it). Remaps of __node and __ns are followed."""
-    import yaml
-
-    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
     ros = _ros_args(args)
+    node_name, fqn = _remapped(ros, node_name, namespace)
+    own: dict[str, str] = {}
+    wild: dict[str, str] = {}
+    unmatched: dict[str, list[str]] = {}
+    for flag, value in zip(ros, ros[1:]):
+        if flag in ("-p", "--param") and ":=" in value:
+            name = _param_arg_name(value, node_name, fqn)
+            if name is not None:
+                own[name] = "-p"
+        elif flag == "--params-file":
+            _params_file_names(value, fqn, own, wild, unmatched)
+    for name in own:
+        wild.pop(name, None)
+    return ParamSources(own, wild, unmatched, fqn)
+
+
+def _remapped(ros: list[str], node_name: str, namespace: str) -> tuple[str, str]:
+    """(node name, full name) after the command line's remaps of __node and __ns."""
     for flag, value in zip(ros, ros[1:]):
         if flag in ("-r", "--remap") and ":=" in value:
             lhs, rhs = value.split(":=", 1)
@@ -622,51 +598,53 @@ def param_sources(args: list[str], node_name: str, namespace: str = "/") -> Para
                 node_name = rhs
             elif target == "__ns" and (lhs == "__ns" or lhs.split(":")[0] == node_name):
                 namespace = rhs
-    fqn = ("/" + namespace.strip("/") if namespace.strip("/") else "") + "/" + node_name
-    own, wild, unmatched = {}, {}, {}
-    for flag, value in zip(ros, ros[1:]):
-        if flag in ("-p", "--param") and ":=" in value:
-            name = value.split(":=", 1)[0]
-            if name.count(":") == 1:  # node:name:=value addresses one node
-                target, name = name.split(":")
-                if target not in (node_name, fqn):
-                    continue
-            own[name] = "-p"
-            text = value.split(":=", 1)[1].strip()
-            if text.startswith("{"):  # rcl reads -p values as YAML scalars or lists, never mappings
-                raise ConfigError(f"-p {value}: rcl cannot read a YAML mapping after := (in a shell, "
-                                  f"-p {name}:=\"{{…}}\" reaches it without its quotes); give the nested names "
-                                  f"(-p {name}.motor.fitted:=true …) or quote the whole argument: "
-                                  f"-p '{name}:=\"{{…}}\"'")
-        elif flag == "--params-file":
-            path = value
-            text = read_text_file(path, what="parameters file", error=ConfigError)
-            try:
-                doc = yaml.safe_load(text)
-            except yaml.YAMLError as e:
-                mark = getattr(e, "problem_mark", None)
-                where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-                raise ConfigError(f"--params-file {path}: not valid YAML{where} "
-                                  f"({getattr(e, 'problem', None) or type(e).__name__})") from None
-            if not isinstance(doc, dict):
-                raise ConfigError(f"--params-file {path}: expected a mapping of node names to "
-                                  "{ros__parameters: {...}}")
-            matched = False
-            for key, section in doc.items():
-                kind = _section_matches(str(key), fqn)
-                if kind is None:
-                    continue
-                params = section.get("ros__parameters") if isinstance(section, dict) else None
-                if not isinstance(params, dict):
-                    raise ConfigError(f"--params-file {path}: section {key}: expected ros__parameters: {{...}}")
-                matched = True
-                for name in _flatten(params):
-                    (own if kind == "own" else wild)[name] = f"{path}, section {key}"
-            if not matched:
-                unmatched[path] = [str(k) for k in doc]
-    for name in own:
-        wild.pop(name, None)
-    return ParamSources(own, wild, unmatched, fqn)
+    return node_name, ("/" + namespace.strip("/") if namespace.strip("/") else "") + "/" + node_name
+
+
+def _param_arg_name(value: str, node_name: str, fqn: str) -> str | None:
+    """The name a `-p NAME:=VALUE` gives this node (None: it addresses another node)."""
+    name = value.split(":=", 1)[0]
+    if name.count(":") == 1:  # node:name:=value addresses one node
+        target, name = name.split(":")
+        if target not in (node_name, fqn):
+            return None
+    text = value.split(":=", 1)[1].strip()
+    if text.startswith("{"):  # rcl reads -p values as YAML scalars or lists, never mappings
+        raise ConfigError(f"-p {value}: rcl cannot read a YAML mapping after := (in a shell, "
+                          f"-p {name}:=\"{{…}}\" reaches it without its quotes); give the nested names "
+                          f"(-p {name}.motor.fitted:=true …) or quote the whole argument: "
+                          f"-p '{name}:=\"{{…}}\"'")
+    return name
+
+
+def _params_file_names(path: str, fqn: str, own: dict, wild: dict, unmatched: dict) -> None:
+    """The names a `--params-file` gives the node `fqn`, into `own` or `wild` by how its section matches."""
+    import yaml
+
+    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
+    text = read_text_file(path, what="parameters file", error=ConfigError)
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ConfigError(f"--params-file {path}: not valid YAML{where} "
+                          f"({getattr(e, 'problem', None) or type(e).__name__})") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"--params-file {path}: expected a mapping of node names to {{ros__parameters: {{...}}}}")
+    matched = False
+    for key, section in doc.items():
+        kind = _section_matches(str(key), fqn)
+        if kind is None:
+            continue
+        params = section.get("ros__parameters") if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ConfigError(f"--params-file {path}: section {key}: expected ros__parameters: {{...}}")
+        matched = True
+        for name in _flatten(params):
+            (own if kind == "own" else wild)[name] = f"{path}, section {key}"
+    if not matched:
+        unmatched[path] = [str(k) for k in doc]
 
 
 def nearest_hint(name: str, known: list[str]) -> str:
@@ -679,3 +657,59 @@ def nearest_hint(name: str, known: list[str]) -> str:
 def unknown_parameter(name: str, where: str, known: list[str]) -> str:
     """The one line that refuses a parameter this node does not have, with the nearest valid name."""
     return f"unknown parameter {name} ({where}){nearest_hint(name, known)}"
+
+
+# ROS arguments that take the next argument as their value (rcl's --ros-args grammar)
+ROS_VALUE_FLAGS = {"-p": "NAME:=VALUE", "--param": "NAME:=VALUE", "-r": "FROM:=TO", "--remap": "FROM:=TO",
+                   "--params-file": "FILE", "--log-level": "LEVEL", "-e": "ENCLAVE", "--enclave": "ENCLAVE",
+                   "--log-file-name": "NAME"}
+
+
+def check_ros_args(args: list[str]) -> None:
+    """ConfigError in one line for a malformed ROS argument (rcl would raise an RCLError at init):
+    a flag without its value, `-p` without `:=` or with an empty name or value, a remap of the node's
+    name or namespace to an invalid one."""
+    ros = _ros_args(args)
+    i = 0
+    while i < len(ros):
+        flag = ros[i]
+        if flag not in ROS_VALUE_FLAGS:
+            i += 1
+            continue
+        value = ros[i + 1] if i + 1 < len(ros) else None
+        if value is None or value in ROS_VALUE_FLAGS:
+            raise ConfigError(f"ROS argument {flag}: expected {ROS_VALUE_FLAGS[flag]} after it")
+        if flag in ("-p", "--param"):
+            _check_param_arg(value)
+        elif flag in ("-r", "--remap"):
+            _check_remap_arg(value)
+        i += 2
+
+
+def _check_param_arg(value: str) -> None:
+    name, sep, text = value.partition(":=")
+    if not sep or not name.strip():
+        raise ConfigError(f"-p {value}: expected NAME:=VALUE")
+    if not text.strip():
+        raise ConfigError(f"-p {value}: no value after := (an empty string is -p '{name}:=\"\"')")
+
+
+def _check_remap_arg(value: str) -> None:
+    lhs, sep, rhs = value.partition(":=")
+    if not sep or not lhs or not rhs:
+        raise ConfigError(f"-r {value}: expected FROM:=TO")
+    target = lhs.rsplit(":", 1)[-1]
+    if target == "__ns":
+        from rclpy.exceptions import InvalidNamespaceException
+        from rclpy.validate_namespace import validate_namespace
+        try:
+            validate_namespace(rhs if rhs.startswith("/") else "/" + rhs)
+        except InvalidNamespaceException as e:
+            raise ConfigError(f"-r {value}: not a valid namespace ({str(e).splitlines()[0].split(': ', 1)[-1].rstrip(':')})") from None
+    elif target == "__node":
+        from rclpy.exceptions import InvalidNodeNameException
+        from rclpy.validate_node_name import validate_node_name
+        try:
+            validate_node_name(rhs)
+        except InvalidNodeNameException as e:
+            raise ConfigError(f"-r {value}: not a valid node name ({str(e).splitlines()[0].split(': ', 1)[-1].rstrip(':')})") from None

@@ -23,6 +23,13 @@ INLINE_WAIT_S = 1.0   # a request's work up to this long is answered when done
 STEP_REQUEST = "~/step"  # StepJob.what of a ~/step request (it runs while paused; lockstep jobs while not)
 INLINE_STEPS = 1000   # lockstep: a command's steps up to this many run at once in the executor (≲ 0.1 s)
 SLICE_S = 0.01        # work per slice (the node's lock is held that long at most, plus one step)
+# Lockstep work waiting on the jobs thread, at most: two of the largest command's batches
+# (lockstep_steps <= 1,000,000) and this many jobs. A command beyond it is recorded and offered to
+# the gate as any other, but advances no time: refused (once per writer on ~/events, counted on
+# /diagnostics), so a controller that sends faster than the node steps cannot grow the queue, and
+# the node stops stepping soon after the controller stops sending.
+LOCKSTEP_BACKLOG_STEPS = 2_000_000
+LOCKSTEP_BACKLOG_JOBS = 1000
 STOP_JOIN_S = 1.0
 
 
@@ -94,11 +101,34 @@ class StepJobs:
         self._current: StepJob | None = None
         self._thread: threading.Thread | None = None
         self._per_slice = 1.0  # steps per slice, adapted to SLICE_S from what the last slice took
+        self.refused_lockstep = 0
 
     @property
     def busy(self) -> bool:
         with self._cond:
             return self._current is not None or bool(self._queue)
+
+    def backlog(self) -> tuple[int, int]:
+        """(jobs waiting or running, steps they still have to do)."""
+        with self._cond:
+            jobs = [*self._queue, *([self._current] if self._current else [])]
+            return len(jobs), sum(j.remaining for j in jobs)
+
+    def refuse_lockstep(self, steps: int) -> str | None:
+        """Why a lockstep command's `steps` may not join the backlog now (None: they may)."""
+        jobs, waiting = self.backlog()
+        if jobs >= LOCKSTEP_BACKLOG_JOBS or waiting + steps > LOCKSTEP_BACKLOG_STEPS:
+            self.refused_lockstep += 1
+            return (f"lockstep backlog full ({jobs} requests, {waiting} steps waiting; at most "
+                    f"{LOCKSTEP_BACKLOG_JOBS} and {LOCKSTEP_BACKLOG_STEPS} steps): this command advances no time; "
+                    "wait for the state of the last one before sending the next")
+        return None
+
+    def report(self) -> dict[str, int]:
+        """For /diagnostics: the backlog now and the lockstep commands refused for it."""
+        jobs, waiting = self.backlog()
+        return {"step_jobs_waiting": jobs, "step_jobs_steps_waiting": waiting,
+                "lockstep_commands_refused_backlog": self.refused_lockstep}
 
     def submit(self, steps: int, what: str) -> StepJob:
         job = StepJob(steps, what)

@@ -1,4 +1,4 @@
-"""An envelope case replays through prsm-node in lockstep to the same states (prsm_ros.sweep.envelope_node).
+"""An envelope case replays through prsm-node in lockstep to the same states (prsm_ros.node.replay).
 
 Oracle: the case run offline through `prsm_sim.Session` (the envelope's runner) records every state;
 the node, driven by the same actions over DDS (commands, load changes, brake, pause, resume, reset),
@@ -24,7 +24,7 @@ ENV = ros_test_env("test_envelope_node")
 
 
 def test_a_case_with_brake_pause_and_reset_replays_on_the_node_to_the_same_states(tmp_path):
-    from prsm_ros.sweep.envelope_node import replay_on_node
+    from prsm_ros.node.replay import replay_on_node
     case = case_from_seed(35)  # actuator in effort mode, brake engage and release, a pause, then a reset
     assert case["interface"] == "effort" and case["brake"] and case["pause_at_s"] and case["reset_at_s"]
     r = replay_on_node(case, tmp_path / "node", env=ENV)

@@ -1,4 +1,4 @@
-"""An envelope case through prsm-node in lockstep: the same session actions, the same states.
+"""Node replay: an envelope case through prsm-node in lockstep, the same session actions, the same states.
 
     prsm-sim envelope --seed 31 --node
     prsm-sim envelope --case envelope-out/failures/seed-31.yaml --node
@@ -6,7 +6,7 @@
 The case runs here first (`run_case(case, record=True)`), through `prsm_sim.Session`, which keeps
 what was asked of the session in order (each step's command and load, brake requests, pause,
 resume, reset) and the true state after each step. Then a `prsm-node` in lockstep (one step per
-command) is started with the case's parameters on a ROS domain of its own, and the actions are
+command) is started (`python -m prsm_ros.node`, this unit's own process) with the case's parameters on a ROS domain of its own, and the actions are
 replayed into it: a command on the active interface's topic per step, `load_force` set when the
 load changes, `~/brake`, `~/pause` and `~/reset` as services. The node's true state after each step
 (`~/ground_truth/joint_states` with an actuator, `joint_states` without) must equal the recorded one
@@ -72,7 +72,7 @@ def replay_on_node(case: dict, workdir: Path, env: dict[str, str] | None = None)
     workdir.mkdir(parents=True, exist_ok=True)
     env = env or isolated_env(RERUN="off")
     with open(workdir / "node.stdout", "wb") as out, open(workdir / "node.stderr", "wb") as err:
-        proc = start_module("prsm_ros.cli.node", ros_args(node_parameters(case)), env, cwd=workdir,
+        proc = start_module("prsm_ros.node", ros_args(node_parameters(case)), env, cwd=workdir,
                             stdout=out, stderr=err)
     try:
         mismatch, compared = _replay(case, rec, env, proc, workdir)
@@ -90,93 +90,112 @@ def replay_on_node(case: dict, workdir: Path, env: dict[str, str] | None = None)
 
 def _replay(case: dict, rec, env: dict[str, str], proc, workdir: Path) -> tuple[str | None, int]:
     import rclpy
-    from rcl_interfaces.srv import SetParametersAtomically
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64
-    from std_srvs.srv import SetBool, Trigger
-
-    from prsm_ros.messages import TOPICS, with_depth
-
     ctx = rclpy.Context()
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]),
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    node = rclpy.create_node("prsm_envelope_replay", context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
+    replayer = _Replayer(ctx, case, env, proc, workdir)
     try:
-        def spin_until(done, what: str) -> None:
-            end = time.monotonic() + WAIT_S
-            while not done():
-                if proc.poll() is not None:
-                    raise ReplayError(f"prsm-node exited with {proc.returncode} waiting for {what} "
-                                       f"(its output: {workdir})")
-                if time.monotonic() > end:
-                    raise ReplayError(f"no {what} from prsm-node within {WAIT_S:g} s (its output: {workdir})")
-                executor.spin_once(timeout_sec=0.01)
+        return replayer.run(rec)
+    finally:
+        replayer.close()
+        rclpy.try_shutdown(context=ctx)
 
+
+class _Replayer:
+    """One rclpy node that sends a case's actions to the node under test and compares its states."""
+
+    def __init__(self, ctx, case: dict, env: dict[str, str], proc, workdir: Path) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64
+
+        from prsm_ros.messages import TOPICS, with_depth
+        self.case, self.env, self.proc, self.workdir = case, env, proc, workdir
+        self.node = rclpy.create_node("prsm_envelope_replay", context=ctx)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
         state_key = "ground_truth" if case["interface"] != "torque" else "joint_states"
-        states: list = []
-        sub = node.create_subscription(JointState, TOPICS[state_key].resolved(), states.append,
-                                       with_depth(TOPICS[state_key].qos, 10000))
-        iface = session_interface(case)
-        spec = TOPICS[COMMAND_TOPIC[iface]]
-        pub = node.create_publisher(Float64, f"{NODE}/{spec.name.removeprefix('~/')}", with_depth(spec.qos, 10))
+        self.states: list = []
+        self.sub = self.node.create_subscription(JointState, TOPICS[state_key].resolved(), self.states.append,
+                                                 with_depth(TOPICS[state_key].qos, 10000))
+        spec = TOPICS[COMMAND_TOPIC[session_interface(case)]]
+        self.pub = self.node.create_publisher(Float64, f"{NODE}/{spec.name.removeprefix('~/')}", with_depth(spec.qos, 10))
+        self.load = initial_load_n(case) or 0.0
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+    def spin_until(self, done, what: str) -> None:
+        end = time.monotonic() + WAIT_S
+        while not done():
+            if self.proc.poll() is not None:
+                raise ReplayError(f"prsm-node exited with {self.proc.returncode} waiting for {what} "
+                                  f"(its output: {self.workdir})")
+            if time.monotonic() > end:
+                raise ReplayError(f"no {what} from prsm-node within {WAIT_S:g} s (its output: {self.workdir})")
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def call(self, name: str, srv, request):
+        client = self.node.create_client(srv, f"{NODE}/{name}")
+        try:
+            self.spin_until(client.service_is_ready, f"service ~/{name}")
+            future = client.call_async(request)
+            self.spin_until(future.done, f"the answer of ~/{name}")
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def set_load(self, f: float) -> None:
+        if f == self.load:
+            return
+        from rcl_interfaces.srv import SetParametersAtomically
+        from rclpy.parameter import Parameter
+        req = SetParametersAtomically.Request(parameters=[Parameter("load_force", value=float(f)).to_parameter_msg()])
+        res = self.call("set_parameters_atomically", SetParametersAtomically, req).result
+        if not res.successful:
+            raise ReplayError(f"load_force = {f}: {res.reason}")
+        self.load = f
+
+    def run(self, rec) -> tuple[str | None, int]:
+        """Every recorded action in order; (where the node's state first differs or None, states compared)."""
+        from std_srvs.srv import SetBool, Trigger
+        pub, sub = self.pub, self.sub
         # matched both ways: a state published before our reader matched is lost (volatile QoS)
-        spin_until(lambda: pub.get_subscription_count() > 0 and sub.get_publisher_count() > 0,
-                   "a match of the command and state topics")
+        self.spin_until(lambda: pub.get_subscription_count() > 0 and sub.get_publisher_count() > 0,
+                        "a match of the command and state topics")
         if pub.get_subscription_count() != 1:  # another node on this domain would answer too
             raise ReplayError(f"{pub.get_subscription_count()} nodes listen on {pub.topic_name}: another ROS graph "
-                               f"shares ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}")
-
-        def call(name: str, srv, request):
-            client = node.create_client(srv, f"{NODE}/{name}")
-            try:
-                spin_until(client.service_is_ready, f"service ~/{name}")
-                future = client.call_async(request)
-                spin_until(future.done, f"the answer of ~/{name}")
-                return future.result()
-            finally:
-                node.destroy_client(client)
-
-        def set_load(f: float) -> None:
-            req = SetParametersAtomically.Request(parameters=[Parameter("load_force", value=float(f)).to_parameter_msg()])
-            res = call("set_parameters_atomically", SetParametersAtomically, req).result
-            if not res.successful:
-                raise ReplayError(f"load_force = {f}: {res.reason}")
-
-        load = initial_load_n(case) or 0.0
+                              f"shares ROS_DOMAIN_ID {self.env['ROS_DOMAIN_ID']}")
         compared = 0
         for action in rec.actions:
             kind = action[0]
             if kind == "step":
-                _, command, f = action
-                if f != load:
-                    set_load(f)
-                    load = f
-                pub.publish(Float64(data=command))
-                spin_until(lambda: len(states) > compared, f"the state of step {compared + 1}")
-                m = states[compared]
-                got = (m.position[0], m.velocity[0], m.position[1], m.velocity[1])
-                want = rec.states[compared]
+                mismatch = self.step(action, rec.states[compared], compared)
                 compared += 1
-                if got != tuple(want):
-                    return (f"step {compared} (t = {m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec:.6f} s): "
-                            f"node (angle, speed, x, v) = {got}, offline {tuple(want)}"), compared
+                if mismatch is not None:
+                    return mismatch, compared
             elif kind == "brake":
-                call("brake", SetBool, SetBool.Request(data=bool(action[1])))
+                self.call("brake", SetBool, SetBool.Request(data=bool(action[1])))
             elif kind in ("pause", "resume"):
-                call("pause", SetBool, SetBool.Request(data=kind == "pause"))
-            elif kind == "reset":
-                f0 = initial_load_n(case) or 0.0
-                if f0 != load:  # the node resets to its load_force, the session to the case's start
-                    set_load(f0)
-                    load = f0
-                call("reset", Trigger, Trigger.Request())
+                self.call("pause", SetBool, SetBool.Request(data=kind == "pause"))
+            elif kind == "reset":  # the node resets to its load_force, the session to the case's start
+                self.set_load(initial_load_n(self.case) or 0.0)
+                self.call("reset", Trigger, Trigger.Request())
         return None, compared
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+
+    def step(self, action, want, compared: int) -> str | None:
+        """One command and the state it answers; the mismatch in words, or None."""
+        from std_msgs.msg import Float64
+        _, command, f = action
+        self.set_load(f)
+        self.pub.publish(Float64(data=command))
+        self.spin_until(lambda: len(self.states) > compared, f"the state of step {compared + 1}")
+        m = self.states[compared]
+        got = (m.position[0], m.velocity[0], m.position[1], m.velocity[1])
+        if got == tuple(want):
+            return None
+        return (f"step {compared + 1} (t = {m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec:.6f} s): "
+                f"node (angle, speed, x, v) = {got}, offline {tuple(want)}")

@@ -1,0 +1,157 @@
+"""What the node sends out: its publishers and sinks, and a step's outputs turned into messages.
+
+`Outlets` publishes and records the same bytes (a message is serialised once; per-step messages
+come as CDR bytes from the encoder), hands a step's messages to the sinks in one batch, decimates
+joint_states and internal loads, and skips per-step topics nobody reads (the node's module doc
+says why that loses nothing). All its methods run with the node's lock held.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import rclpy
+from rclpy.exceptions import InvalidHandle
+from rclpy.qos import DurabilityPolicy
+from rclpy.serialization import serialize_message
+
+from prsm_ros.messages import time_ns
+from prsm_ros.node.pacing import every_n_steps
+from prsm_ros.node.sinks import Sinks
+
+READER_COUNT_EVERY = 50  # steps between two counts of the per-step topics' matched readers (module doc)
+WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings of one kind
+PER_STEP_TOPICS = ("joint_states", "ground_truth", "wrench", "internal_loads", "command_echo", "clock")
+
+
+def unmatched(pub) -> bool:
+    """True when `pub` has no matched reader (or is destroyed, at shutdown: nobody to publish to either)."""
+    try:
+        return pub.get_subscription_count() == 0
+    except InvalidHandle:
+        return True
+
+
+class WarnThrottle:
+    """Log a warning of one kind at most once per WARN_THROTTLE_S wall seconds."""
+
+    def __init__(self, logger) -> None:
+        self.logger = logger
+        self._warned_at: dict[str, float] = {}
+
+    def __call__(self, key: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._warned_at.get(key, -math.inf) >= WARN_THROTTLE_S:
+            self._warned_at[key] = now
+            self.logger.warning(text)
+
+
+class Outlets:
+    """The node's publishers (by topic key), its sinks and the names of every topic it has."""
+
+    def __init__(self, node, pub: dict, topic_names: dict[str, str], sinks: Sinks, unrecorded: frozenset[str],
+                 warn: WarnThrottle) -> None:
+        self.node, self.pub, self.topic_names, self.sinks = node, pub, topic_names, sinks
+        self.unrecorded = unrecorded  # lockstep: wall-clock topics stay out of the bag (its bytes repeat)
+        self.warn = warn
+        self.session = node.session
+        self.encoder = node.mapper.encoder()  # per-step messages straight to CDR bytes
+        self.publish_failures = 0
+        self.batch: list | None = None  # a step's messages for the sinks, handed over at once (`end_step`)
+        self.unread: frozenset[str] = frozenset()  # per-step topics with no matched reader at the last count
+        lockstep = node.config.time_mode == "lockstep"  # lockstep always publishes (a controller waits)
+        self.skippable = () if lockstep else tuple(
+            k for k in PER_STEP_TOPICS if k in pub and pub[k].qos_profile.durability == DurabilityPolicy.VOLATILE)
+        self.set_decimation(node.config)
+
+    def set_decimation(self, cfg) -> None:
+        self.js_every = every_n_steps(cfg.joint_states_rate, cfg.update_rate)
+        # heavy outputs are decimated on DDS only in realtime and fast mode; the bag records every step
+        self.il_every = 1 if cfg.time_mode == "lockstep" else every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
+
+    def publish(self, key: str, msg, stamp_ns: int | None = None) -> None:
+        """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
+        if type(msg) is not bytes:
+            msg = serialize_message(msg)
+        pub = self.pub[key]
+        if key in self.unread:  # no reader at the last count: ask again, a publish to nobody is dearer
+            if unmatched(pub):  # DDS would deliver it to nobody (volatile): the bag only
+                self.record(key, msg, stamp_ns)
+                return
+            self.unread = self.unread - {key}  # a reader matched since: it gets this message on
+        try:
+            handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
+            with handle:
+                handle.publish_raw(msg)
+        except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
+            if not rclpy.ok(context=self.node.context):
+                raise
+            self.publish_failures += 1
+            self.warn(f"publish:{key}", f"publishing on {self.topic_names[key]} failed "
+                                        f"({self.publish_failures} so far): {e}")
+        self.record(key, msg, stamp_ns)
+
+    def record(self, key: str, data, stamp_ns: int | None = None) -> None:
+        """To the sinks: with the step's batch when a step is being published, else at once."""
+        if not self.sinks.takes_messages or key in self.unrecorded:
+            return
+        item = (self.topic_names[key], data, time_ns(self.session.time_s) if stamp_ns is None else stamp_ns)
+        if self.batch is not None:
+            self.batch.append(item)
+        else:
+            self.sinks.write(*item)
+
+    def begin_step(self) -> None:
+        """A step's messages go to the sinks in one hand-over: one lock and one queue append per step."""
+        self.batch = [] if self.sinks.takes_messages else None
+
+    def end_step(self) -> None:
+        batch, self.batch = self.batch, None
+        if batch:
+            self.sinks.write_many(batch)
+
+    def count_readers(self) -> None:
+        """Note which per-step topics have no matched reader now (`publish` skips them on DDS)."""
+        self.unread = frozenset(key for key in self.skippable if unmatched(self.pub[key]))
+
+    def publish_step(self, out, reporter, echo, force_state: bool = False) -> None:
+        """A step's messages: the state first (a lockstep controller computes its next command while
+        the rest goes out), events, the command echo, /clock, internal loads; its outputs to the sinks."""
+        k = self.session.nstep
+        ns = time_ns(out.time_s)
+        enc = self.encoder
+        if k % READER_COUNT_EVERY == 0:
+            self.count_readers()
+        if force_state or k % self.js_every == 0:
+            self.publish_state(out, ns)
+        reporter.step_events()
+        echoed = echo.take()
+        if echoed is not None:
+            cmd_ns, source = echoed
+            self.publish("command_echo", enc.time_reference(ns, cmd_ns, source), ns)
+            echo.record_latency(cmd_ns, time.time_ns())
+        if "clock" in self.pub:
+            self.publish("clock", enc.clock(ns), ns)
+        if k % self.il_every == 0:
+            self.publish("internal_loads", enc.internal_loads(out), ns)
+        elif self.sinks.takes_messages:  # decimated on DDS, every step in the bag
+            self.record("internal_loads", enc.internal_loads(out), ns)
+        self.sinks.submit(out)
+
+    def publish_state(self, out, ns: int) -> None:
+        """joint_states and the wrench; with an actuator joint_states carries what the sensors
+        measure, and the truth goes beside it on ground_truth."""
+        enc, act = self.encoder, self.session.actuator
+        if act is not None:
+            self.publish("ground_truth", enc.joint_state(out, ns), ns)
+        self.publish("joint_states", enc.joint_state(act.measured(out) if act is not None else out, ns), ns)
+        self.publish("wrench", enc.wrench(out, ns), ns)
+
+    def publish_rest_state(self) -> None:
+        """The state just set (reset) on the state topics at once, though no step ran."""
+        out = self.session.rest_outputs()
+        ns = time_ns(out.time_s)
+        self.publish_state(out, ns)
+        if "clock" in self.pub:
+            self.publish("clock", self.encoder.clock(ns), ns)
