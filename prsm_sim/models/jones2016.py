@@ -15,6 +15,7 @@ stepped exactly by zero-order hold (`linear_step`), and run in batch by recursiv
 from __future__ import annotations
 
 import math
+from typing import TypedDict
 
 import numpy as np
 
@@ -160,8 +161,28 @@ class Jones2016(Model):
             stored_j=self.stored_energy_j(w[0], w[1]))
 
 
+class SteadyState(TypedDict):
+    """`steady_state`'s result, a dict by these keys (speeds rad/s, torque N·m, force N, velocities m/s, the
+    entries of C (seed eq. 39) N·m·s, and the friction group's `contact_evaluation` it was found with)."""
+
+    screw_speed_rad_s: float
+    carrier_speed_rad_s: float
+    speed_ratio_screw_over_carrier: float
+    carrier_over_screw: float
+    torque_nm: float
+    load_force_n: float
+    nut_velocity_m_s: float
+    slip_speed_m_s: float
+    efficiency: float
+    steady_a_nm_s: float
+    steady_b_nm_s: float
+    steady_c_nm_s: float
+    steady_d_nm_s: float
+    contact_evaluation: str
+
+
 def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torque_nm: float | None = None,
-                 load_n: float | None = None) -> dict[str, float]:
+                 load_n: float | None = None) -> SteadyState:
     """Closed-form steady state of `jones2016` (Jones 2016 eqs. 37–41 structure).
 
     C q̇ = B (τ, F): the carrier row gives the speed ratio (independent of c, F, τ, docs/model.md
