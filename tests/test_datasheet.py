@@ -93,3 +93,12 @@ def test_validate_refuses_a_missing_folder_before_running(tmp_path, capsys):
         sim.main(["validate", "-o", str(target)])
     assert e.value.code == 2 and "is not a folder" in capsys.readouterr().err
     assert not (tmp_path / "no").exists()
+
+
+def test_a_sheets_parameter_file_loads_back_equal(tmp_path):
+    """OUT.yaml is an ordinary parameter file: it loads back to the same parameter set."""
+    from prsm_ros.param_files import load_params_file, params_to_yaml
+    p, _ = params_from_datasheet(Datasheet.from_dict({**SHEET, "n_rollers": 9}), preset("s30"))
+    path = tmp_path / "out.yaml"
+    path.write_text(params_to_yaml(p))
+    assert load_params_file(path) == p and p.geometry.n_rollers == 9
