@@ -16,9 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.models.registry import MODELS, model_class
 from prsm_sim.models.jones2016 import steady_state
 from prsm_sim.params import Params
+from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.simulator import Simulator
 from prsm_sim.stepping.ledger import efficiency, energy_guard_summary
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
@@ -147,7 +148,7 @@ def _closed_loop(driver, spec: ScenarioSpec, n: int, progress, step, speed) -> l
     bw = min(100.0, 1.0 / (20.0 * dt))
     model = getattr(driver, "model", None)  # a Session names its screw model; a Simulator's model (or actuator)
     name = getattr(driver, "model_name", None) or getattr(model, "model_name", None) or getattr(model, "name", "")
-    if name == "elastic":
+    if name in MODELS and model_class(name).has_axial_chain:
         # above its axial mode the chain decouples the nut: the loop then acts on the screw side alone,
         # and a gain set on the whole inertia would make the sampled loop ring at the Nyquist rate
         # (kp dt / J_core > 2). Kept at kp dt / J_core ≤ 1/2, the bandwidth lowered to match.

@@ -43,7 +43,7 @@ def braking(tmp_path_factory):
     rows_t = [2.0] * 150 + [-1.5] * 60
     loads = [500.0] * 150 + [-200.0] * 60
     rows = [sim.step(tau, f) for tau, f in zip(rows_t, loads)]
-    from prsm_sim.models.base import trajectory_from_rows
+    from prsm_sim.stepping.trajectory import trajectory_from_rows
     traj = trajectory_from_rows(rows, sim.layout, sim.state)
     path = write_trajectory_mcap(tmp_path_factory.mktemp("bags") / "braking.mcap", traj, p, MODEL,
                                  preset_name="s30", progress=False)
@@ -99,7 +99,7 @@ def test_joint_states_only_counts_quasi_steady_samples():
 def test_life_uses_the_rating_the_bag_records(braking, capsys, tmp_path):
     path, _ = braking
     rated = preset("s30").ratings.dynamic_load_rating_n
-    assert rated > 0 and rated != DEFAULT_DYNAMIC_LOAD_RATING_N  # derived from the thread form (docs/model.md §4.5)
+    assert rated > 0 and rated != DEFAULT_DYNAMIC_LOAD_RATING_N  # derived from the thread form (docs/model.md §4.6)
     rc, out, _ = _cli(capsys, "report", path, "--json", "--no-plots", "-o", tmp_path)
     assert rc == 0
     life = json.loads(out)["life"]

@@ -40,9 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from prsm_sim import MODELS, Session, Simulator, preset
-from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.physics.inertia import reflected_inertia
 
 from prsm_ros.bench.common import BenchError, area_main, figure
+from prsm_ros.node.parameters import DEFAULT_MODEL
 from prsm_ros.ros_env import isolated_env, start_module
 
 DT = 1e-3
@@ -190,7 +191,7 @@ def model_cpu_figures(quick: bool) -> list[dict]:
     seconds = 3.0 if quick else 10.0
     figs = []
     for model in MODELS:
-        if model == "jones2016":  # the default: measured above
+        if model == DEFAULT_MODEL:  # the node's default: measured above
             continue
         try:
             s = loop_run(seconds, loaded=False, node_params={"model": model})

@@ -29,7 +29,7 @@ from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
-from prsm_sim.models.jones2016 import steady_state
+from prsm_sim.models.registry import model_class
 from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_session_scenario, summarise
 
 from prsm_ros.cli import sim_datasheet
@@ -120,11 +120,10 @@ def cmd_contact(args) -> None:
 
 def cmd_steady_state(args) -> None:
     p = _params(args)
-    if args.model == "jones2016":
-        ss = steady_state(p, screw_speed_rad_s=args.speed, torque_nm=args.torque, load_n=args.load)
-        ss = {"model": "jones2016", "method": "closed form (Jones 2016 eqs. 37-41)", **ss}
-    elif args.model == "ideal":
-        ss = _ideal_steady(p, args)
+    cls = model_class(args.model)
+    closed = cls.closed_form_steady_state(p, screw_speed_rad_s=args.speed, torque_nm=args.torque, load_n=args.load)
+    if closed is not None:
+        ss = {"model": args.model, **closed}
     else:
         spec = default_spec(p, "light", load_n=args.load if args.load is not None else p.loads.nut_load_n,
                             speed_rad_s=args.speed)
@@ -143,21 +142,6 @@ def cmd_steady_state(args) -> None:
               "efficiency": s["tail_efficiency"], "slip_speed_m_s": s["tail_mean_slip_speed_m_s"]}
     text = "\n".join(f"{k}: {v}" for k, v in ss.items())
     _emit(args, ss, text)
-
-
-def _ideal_steady(p: Params, args) -> dict:
-    """Forward rolling at constant speed: τ = F (L/2π)/η_f + b ω (the ideal model's own law)."""
-    w = p.loads.screw_speed_rad_s if args.speed is None else args.speed
-    f = p.loads.nut_load_n if args.load is None else args.load
-    il = p.ideal
-    tau_l = f * p.geometry.lead_per_rad_m
-    forward = tau_l * w >= 0
-    tau = tau_l / il.efficiency_forward if forward else tau_l * il.efficiency_backward
-    tau += il.viscous_nm_s_rad * w
-    return {"model": "ideal", "method": "closed form (efficiency law)", "screw_speed_rad_s": w,
-            "carrier_over_screw": 1.0 / ideal_speed_ratio(p.geometry),
-            "speed_ratio_screw_over_carrier": ideal_speed_ratio(p.geometry), "torque_nm": tau, "load_force_n": f,
-            "efficiency": (tau_l * w) / (tau * w) if tau * w > 0 and tau_l * w > 0 else math.nan}
 
 
 def cmd_run(args) -> None:
@@ -282,7 +266,7 @@ def cmd_stiffness(args) -> None:
 def cmd_modes(args) -> None:
     """Linearised axial natural frequencies and damping about an operating load (docs/model.md §4.3)."""
     from prsm_sim.physics.load_sharing import axial_modes
-    if args.model != "elastic":
+    if not model_class(args.model).has_axial_chain:
         raise CliError(f"model = {args.model!r}: modes need the elastic level; use --model elastic "
                        "(the rigid models have no axial compliance)")
     p = _params(args)
@@ -444,8 +428,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "steady-state" and args.torque is not None and args.model != "jones2016":
-        print("prsm-sim: error: --torque applies to --model jones2016 only (the others take --speed)", file=sys.stderr)
+    if args.command == "steady-state" and args.torque is not None \
+            and "torque_nm" not in model_class(args.model).steady_state_inputs:
+        takers = " or ".join(n for n, c in MODELS.items() if "torque_nm" in c.steady_state_inputs)
+        print(f"prsm-sim: error: --torque applies to --model {takers} only (the others take --speed)", file=sys.stderr)
         return 2
     try:
         args.func(args)

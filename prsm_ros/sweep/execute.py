@@ -16,8 +16,8 @@ from prsm_sim import Session, Simulator, Trajectory
 from prsm_sim.actuator import actuator_params_from_dict
 from prsm_sim.control import PositionController, run_position_loop
 from prsm_sim.life import life_from_samples
-from prsm_sim.models.ideal import reflected_inertia
-from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.models.registry import model_class
+from prsm_sim.physics.inertia import mass_matrix, reflected_inertia
 from prsm_sim.scenarios import default_spec, run_scenario, run_session_scenario, summarise
 
 from prsm_ros.sweep.study import POSITION, StudyError, base_params, controller_defaults
@@ -102,7 +102,7 @@ def _energy_residual(norm: dict, traj: Trajectory, params) -> dict:
     """work_in − work_out − kinetic − dissipated at the end of the run (docs/model.md §5 item 5), J and relative."""
     s = traj.final_state
     u = np.array([s.screw_speed_rad_s, s.carrier_speed_rad_s])
-    if norm["model"] == "ideal":
+    if not model_class(norm["model"]).has_carrier:  # the carrier moves at the ideal ratio: in J
         kinetic = 0.5 * reflected_inertia(params) * s.screw_speed_rad_s ** 2
     else:
         kinetic = 0.5 * float(u @ mass_matrix(params) @ u)

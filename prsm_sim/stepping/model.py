@@ -35,6 +35,7 @@ import copyreg
 import math
 from dataclasses import replace
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -93,9 +94,24 @@ class Model:
     # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
     # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
     kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)
-    part_type = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
+    part_type: Any = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
     packed = True  # the model steps on the packed state (`step_packed`); the actuator does not
     command_name = "torque_nm"  # what the first input of a step is (a bare model: the screw torque, N·m)
+    # -- capabilities: what callers ask of a model instead of comparing its name ------------------
+    has_carrier = False  # the carrier (with the rollers) is a degree of freedom of its own, not tied at a ratio
+    has_internal_forces = False  # the step reports internal loads (per roller/contact; `layout` labels them)
+    has_friction_laws = False  # contact forces act through the selectable friction laws (`friction.*_law`)
+    has_axial_chain = False  # the nut has its own axial DOF on a compliant screw–nut chain (preload, modes)
+
+    steady_state_inputs: tuple[str, ...] = ("screw_speed_rad_s",)  # what may fix a steady state (speed; a torque)
+
+    @classmethod
+    def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
+                                 torque_nm: float | None = None, load_n: float | None = None) -> dict | None:
+        """The model's steady state in closed form (``method``, speeds, torque, load, efficiency), or None
+        when the model has none (it is then found by simulation). Defaults: the preset's speed and load;
+        a torque only where `steady_state_inputs` lists it."""
+        return None
 
     @classmethod
     def check_params(cls, params: Params) -> None:
