@@ -29,7 +29,9 @@ from prsm_sim.params import ParamError, Params
 
 MU_MAX = 0.45  # upper end of the screw–roller friction search
 EFFICIENCY_TOL = 2e-4  # root tolerance on the fitted mean efficiency
-NO_LOAD_KEYS: tuple[str, ...] = ()  # the drag law's coefficients scaled together to the no-load torque
+# the drag laws' coefficients scaled together to the no-load torque (docs/model.md §4.5): the seals'
+# lead-independent torque and the idle flanks' lead-proportional one, in the base's proportion
+NO_LOAD_KEYS: tuple[str, ...] = ("drag.seal_friction_n_per_m", "drag.internal_preload_n")
 GAP_TOL = 1e-3  # root tolerance on the fitted η − η′
 # load-proportional losses that do not scale with the lead: scaled together by the η − η′ fit
 LEAD_INDEPENDENT_KEYS = ("friction.mu_pin", "friction.mu_nut_roller_rolling")
@@ -208,6 +210,8 @@ def fit_no_load(params: Params, sheet: Datasheet, model: str, dt_s: float,
     if not keys:
         return params, [], f"model {model!r} has no drag coefficient to fit: no-load torque not calibrated"
     target = sheet.no_load_torque_nm
+    if not params.drag.enabled:  # a listed no-load torque is a drag the base left off
+        params = params.with_overrides({"drag.enabled": True})
     values = {k: _get(params, k) for k in keys}
     t0 = model_datasheet(params, model, dt_s=dt_s).no_load_torque_nm
     for _ in range(4):
@@ -240,9 +244,11 @@ def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: fl
     params, fv, note = fit_friction(params, sheet, model, dt_s)
     say("fitting the drag to the no-load torque")
     params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_keys)
-    if nv:  # the drag lowers η too: fit the friction once more with it in place
+    if nv:  # the drag lowers η and the friction sets the idle flanks' torque: once more each
         say("fitting the friction again with the drag in place")
         params, fv, note = fit_friction(params, sheet, model, dt_s)
+        say("fitting the drag again with that friction")
+        params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_keys)
     say("computing the model's datasheet")
     fitted += fv + nv
     notes += [n for n in (note, note2) if n]
