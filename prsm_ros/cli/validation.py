@@ -190,7 +190,8 @@ LIMITS = [
     "- C_a: ISO 281's form makes it nearly flat over lead; the catalogue's rises with the lead (about ×1.6 "
     "from lead 2 to 15 mm at d₀ 30 mm), so the prediction runs high at fine and low at coarse leads.",
     "- T₀: the catalogue lists a starting torque (a breakaway figure); the model's is the steady torque at "
-    "1 rad/s, fitted equal on the fitted size. Without a no-load drag in the model it is zero.",
+    "1 rad/s of the drag group (docs/model.md §4.5: seals, growing with r_S², and the idle flanks of the "
+    "internal preload, growing with the lead), scaled together to equal the fitted size's.",
     "- The tests (tests/test_validation.py, tests/test_ratings.py) hold the fitted size's round trip and the "
     "predictions of a stated subset of sizes to stated tolerances; the table above is every row.",
 ]
