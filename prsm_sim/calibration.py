@@ -9,8 +9,8 @@ the fitted size reproduces its row:
 - the screw–roller friction coefficient (`friction.mu_screw_roller`) to the mean of the listed
   efficiencies η and η′, and the share of the base's lead-independent losses (pin and nut–roller
   rolling friction, scaled together) to their difference η − η′ (`fit_friction`);
-- the no-load drag (`NO_LOAD_KEY`, the drag law's torque coefficient) to the listed no-load torque;
-  the drag also lowers η, so the friction is fitted once more after it.
+- the no-load drag (`NO_LOAD_KEYS`, the drag law's coefficients, scaled together) to the listed
+  no-load torque; the drag also lowers η, so the friction is fitted once more after it.
 
 Everything else (material, thread-form ratios, the other friction laws, the drag law's other
 coefficients) comes from the base parameter set: a second size of a product line is its own row
@@ -29,7 +29,9 @@ from prsm_sim.params import ParamError, Params
 
 MU_MAX = 0.45  # upper end of the screw–roller friction search
 EFFICIENCY_TOL = 2e-4  # root tolerance on the fitted mean efficiency
-NO_LOAD_KEY: str | None = None  # the drag law's torque coefficient fitted to the no-load torque
+# the drag laws' coefficients scaled together to the no-load torque (docs/model.md §4.5): the seals'
+# lead-independent torque and the idle flanks' lead-proportional one, in the base's proportion
+NO_LOAD_KEYS: tuple[str, ...] = ("drag.seal_friction_n_per_m", "drag.internal_preload_n")
 GAP_TOL = 1e-3  # root tolerance on the fitted η − η′
 # load-proportional losses that do not scale with the lead: scaled together by the η − η′ fit
 LEAD_INDEPENDENT_KEYS = ("friction.mu_pin", "friction.mu_nut_roller_rolling")
@@ -196,28 +198,37 @@ def _get(params: Params, key: str) -> float:
 
 
 def fit_no_load(params: Params, sheet: Datasheet, model: str, dt_s: float,
-                key: str | None) -> tuple[Params, FittedValue | None, str]:
-    """The drag coefficient `key` so the model's no-load torque is the sheet's (the torque ∝ the coefficient)."""
+                keys: tuple[str, ...]) -> tuple[Params, list[FittedValue], str]:
+    """Scale the drag coefficients `keys` together so the model's no-load torque is the sheet's.
+
+    The no-load torque is a sum of terms each proportional to one of them, so one common factor
+    keeps the base's split (e.g. seals against the idle flanks) and fits the sum; a few
+    proportional steps absorb the small coupling through the carrier's speed.
+    """
     if sheet.no_load_torque_nm is None:
-        return params, None, "no no-load torque listed: the drag kept from the base"
-    if key is None:
-        return params, None, f"model {model!r} has no drag coefficient to fit: no-load torque not calibrated"
-    group, name = key.split(".")
-    value = getattr(getattr(params, group), name)
-    t0 = model_datasheet(params, model).no_load_torque_nm
-    for _ in range(3):  # proportional, up to the drag's small share in the carrier's speed
-        if not (t0 > 0 and value > 0):
-            return params, None, f"no-load torque {t0:.3g} N·m with {key} = {value!r}: cannot scale it to the sheet's"
-        value *= sheet.no_load_torque_nm / t0
-        params = params.with_overrides({key: value})
-        t0 = model_datasheet(params, model).no_load_torque_nm
-        if abs(t0 / sheet.no_load_torque_nm - 1) < 1e-3:
+        return params, [], "no no-load torque listed: the drag kept from the base"
+    if not keys:
+        return params, [], f"model {model!r} has no drag coefficient to fit: no-load torque not calibrated"
+    target = sheet.no_load_torque_nm
+    if not params.drag.enabled:  # a listed no-load torque is a drag the base left off
+        params = params.with_overrides({"drag.enabled": True})
+    values = {k: _get(params, k) for k in keys}
+    t0 = model_datasheet(params, model, dt_s=dt_s).no_load_torque_nm
+    for _ in range(4):
+        if not (t0 > 0 and any(values.values())):
+            return params, [], (f"no-load torque {t0:.3g} N·m with {', '.join(keys)} = {list(values.values())}: "
+                                "cannot scale it to the sheet's")
+        values = {k: v * target / t0 for k, v in values.items()}
+        params = params.with_overrides(values)
+        t0 = model_datasheet(params, model, dt_s=dt_s).no_load_torque_nm
+        if abs(t0 / target - 1) < 1e-3:
             break
-    return params, FittedValue(key, value, "no_load_torque_nm", sheet.no_load_torque_nm, t0), ""
+    return params, [FittedValue(k, v, "no_load_torque_nm", target, t0) for k, v in values.items()], ""
 
 
 def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: float = 1e-3,
-              no_load_key: str | None = NO_LOAD_KEY, progress: Callable[[str], None] | None = None) -> Calibration:
+              no_load_keys: tuple[str, ...] = NO_LOAD_KEYS,
+              progress: Callable[[str], None] | None = None) -> Calibration:
     """A parameter set for `sheet` on `model`, its friction and rating factors fitted (module docstring).
 
     `progress(message)` is told of each stage (the friction fits run the model for tens of seconds).
@@ -232,12 +243,14 @@ def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: fl
     say("fitting the friction to the efficiencies")
     params, fv, note = fit_friction(params, sheet, model, dt_s)
     say("fitting the drag to the no-load torque")
-    params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_key)
-    if nv is not None:  # the drag lowers η too: fit the friction once more with it in place
+    params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_keys)
+    if nv:  # the drag lowers η and the friction sets the idle flanks' torque: once more each
         say("fitting the friction again with the drag in place")
         params, fv, note = fit_friction(params, sheet, model, dt_s)
+        say("fitting the drag again with that friction")
+        params, nv, note2 = fit_no_load(params, sheet, model, dt_s, no_load_keys)
     say("computing the model's datasheet")
-    fitted += fv + ([nv] if nv is not None else [])
+    fitted += fv + nv
     notes += [n for n in (note, note2) if n]
     return Calibration(params=params, assumptions=assumed, fitted=fitted, sheet=sheet, model=model,
                        model_sheet=model_datasheet(params, model, dt_s=dt_s), notes=notes)

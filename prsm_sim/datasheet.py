@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from prsm_sim.params import ParamError, Params, is_finite_number
+from prsm_sim.params import ParamError, Params, is_finite_number, parse_float
 from prsm_sim.scenarios import ScenarioSpec, run_scenario, summarise
 from prsm_sim.simulator import Simulator
 
@@ -153,6 +153,8 @@ class Datasheet:
                 raise ParamError(f"datasheet: {name} is required")
         values = {}
         for k, v in data.items():
+            if isinstance(v, str) and k not in ("starts", "n_rollers"):
+                v = parse_float(v, f"datasheet.{k}")  # YAML 1.1 reads 5e-3 (no dot) as a string
             if k in ("starts", "n_rollers") and isinstance(v, float) and v.is_integer():
                 v = int(v)
             if isinstance(v, int) and not isinstance(v, bool) and k not in ("starts", "n_rollers"):

@@ -49,7 +49,7 @@ def test_geometry_from_a_sheet_follows_the_stated_rules():
     ({"starts": None}, r"starts is required"),
     ({"starts": 2}, r"datasheet\.starts = 2: must be a whole number >= 3"),
     ({"efficiency_forward": 1.2}, r"datasheet\.efficiency_forward = 1\.2: must be a number in \(0, 1\]"),
-    ({"static_load_rating_n": "many"}, r"datasheet\.static_load_rating_n = 'many'"),
+    ({"static_load_rating_n": "many"}, r"datasheet\.static_load_rating_n = 'many': must be a number"),
 ])
 def test_bad_sheet_names_the_key(patch, match):
     with pytest.raises(ParamError, match=match):
@@ -93,3 +93,18 @@ def test_validate_refuses_a_missing_folder_before_running(tmp_path, capsys):
         sim.main(["validate", "-o", str(target)])
     assert e.value.code == 2 and "is not a folder" in capsys.readouterr().err
     assert not (tmp_path / "no").exists()
+
+
+def test_a_sheets_parameter_file_loads_back_equal(tmp_path):
+    """OUT.yaml is an ordinary parameter file: it loads back to the same parameter set."""
+    from prsm_ros.param_files import load_params_file, params_to_yaml
+    p, _ = params_from_datasheet(Datasheet.from_dict({**SHEET, "n_rollers": 9}), preset("s30"))
+    path = tmp_path / "out.yaml"
+    path.write_text(params_to_yaml(p))
+    assert load_params_file(path) == p and p.geometry.n_rollers == 9
+
+
+def test_yaml_exponents_without_a_dot_are_numbers():
+    """YAML 1.1 reads 5e-3 as a string; the sheet takes it as the number it spells."""
+    sheet = Datasheet.from_dict(yaml.safe_load("nominal_diameter_m: 30e-3\nlead_m: 5e-3\nstarts: 5\n"))
+    assert sheet.lead_m == 5e-3 and sheet.nominal_diameter_m == 30e-3

@@ -181,10 +181,17 @@ LIMITS = [
     "roller count or engaged length: the model takes the most rollers that fit and 0.6 of the nut's length, "
     "so the smallest nut (d₀ 15 mm, 50 mm long) and the coarsest pitches (P = 4 mm and above, where fewer "
     "rollers fit) fall outside ±30 %.",
+    "- η, η′: the screw–roller sliding loses the same share at every lead (docs/model.md §4.2); the pin and "
+    "nut–roller rolling losses are a torque that does not scale with the lead, so they cost more at fine "
+    "leads. The fit keeps the share of them that reproduces the fitted row's η − η′ (0.01, one unit of the "
+    "catalogue's rounding); the catalogue's η, flat from lead 2 mm up, says they are smaller still, and the "
+    "finest leads' predictions fall below it by that much. The 6-start rows' 0.03 lower efficiency is not "
+    "in the model: it predicts them as efficient as the 5-start ones.",
     "- C_a: ISO 281's form makes it nearly flat over lead; the catalogue's rises with the lead (about ×1.6 "
     "from lead 2 to 15 mm at d₀ 30 mm), so the prediction runs high at fine and low at coarse leads.",
     "- T₀: the catalogue lists a starting torque (a breakaway figure); the model's is the steady torque at "
-    "1 rad/s, fitted equal on the fitted size. Without a no-load drag in the model it is zero.",
+    "1 rad/s of the drag group (docs/model.md §4.5: seals, growing with r_S², and the idle flanks of the "
+    "internal preload, growing with the lead), scaled together to equal the fitted size's.",
     "- The tests (tests/test_validation.py, tests/test_ratings.py) hold the fitted size's round trip and the "
     "predictions of a stated subset of sizes to stated tolerances; the table above is every row.",
 ]

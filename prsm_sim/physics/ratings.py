@@ -3,7 +3,7 @@
 A thread contact sits where docs/model.md §3 puts it (roller profile radius r_R / sin β), but the
 flank it sits on is short: from root to crest it spans ℓ_f (`Geometry.flank_contact_length_m`,
 a fraction of h_t / cos β, h_t ∝ P). Loaded to a rating, the Hertz ellipse of such a contact is
-longer than the flank at catalogue pitches (about 0.8 mm at 4 GPa on an s30 flank of 0.57 mm), so
+longer than the flank at catalogue pitches (about 0.8 mm at 4.2 GPa on an s30 flank of 0.57 mm), so
 the flank, not the ellipse, sets the contact's length: the contact carries load as a line contact
 of length ℓ_f across the curvature ρ that runs across the flank (Johnson, *Contact Mechanics*,
 §4.3: p₀ = (Q E* / (π ℓ R))^(1/2), so Q = π ℓ_f p₀² C_E / ρ, C_E = 1/E*).
