@@ -36,8 +36,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_sim.actuator",),  # drive, motor, sensors, brake, faults around a model
     ("prsm_sim.simulator", "prsm_sim.control"),
     ("prsm_sim.command_gate", "prsm_sim.scenarios"),  # the gate; standard runs
-    ("prsm_sim.session",),  # the runtime session: a simulator with its gate, faults, pause, state
-    ("prsm_sim.envelope",),  # edge cases, run through the session
+    ("prsm_sim.session", "prsm_sim.datasheet"),  # the runtime session; a model's catalogue figures, a plant from a sheet
+    ("prsm_sim.envelope", "prsm_sim.calibration"),  # edge cases, run through the session; friction fitted to a sheet
     ("prsm_sim",),
     # prsm_ros: all I/O
     ("prsm_ros.interface", "prsm_ros.cdr_read", "prsm_ros.ros_env", "prsm_ros.json_out",

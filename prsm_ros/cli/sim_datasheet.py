@@ -16,6 +16,7 @@ import tempfile
 from typing import Any
 
 from prsm_sim import MODELS, Params
+from prsm_sim.models.registry import model_class
 from prsm_sim.calibration import Calibration, calibrate
 from prsm_sim.datasheet import Datasheet, ModelSheet, model_datasheet
 
@@ -113,7 +114,7 @@ def register(sub, common: argparse.ArgumentParser, cmd_params, params_of) -> Non
                                                                 "build and calibrate a parameter set for it")
     pa.add_argument("--base", metavar="PARAMS.yaml", help="with --datasheet: friction, material and factors from this "
                                                             "parameter file (default the s30 preset)")
-    pa.add_argument("--model", choices=[m for m in MODELS if m != "ideal"], default="fu2018",
+    pa.add_argument("--model", choices=[m for m in MODELS if not model_class(m).takes_efficiencies], default="fu2018",
                     help="with --datasheet: the model the friction is calibrated for")
     pa.add_argument("-o", "--output", metavar="OUT.yaml", help="with --datasheet: write the parameter file here")
     pa.set_defaults(func=lambda a: cmd_params_datasheet(a) if a.datasheet else _plain_params(a, cmd_params))

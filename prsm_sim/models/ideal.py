@@ -35,6 +35,7 @@ __all__ = ["Ideal", "reflected_inertia"]  # reflected_inertia stays importable h
 
 class Ideal(Model):
     name = "ideal"
+    takes_efficiencies = True
 
     @classmethod
     def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
