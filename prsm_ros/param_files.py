@@ -6,6 +6,7 @@ A file holds the nested groups of `prsm_sim.Params.to_dict()`; an optional top-l
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +22,44 @@ def params_to_yaml(params: Params) -> str:
 
 
 def _yaml_mapping(text: str, source: str, what: str) -> dict:
-    """The YAML text's top-level mapping; ParamError names `source`, the line and what was wrong."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ParamError(f"{source}:{where} not valid YAML ({getattr(e, 'problem', None) or type(e).__name__})") from None
+    """The YAML text's top-level mapping, loaded within `limits.load_yaml`'s bounds; ParamError names
+    `source`, the line and what was wrong, never the text."""
+    from prsm_ros.limits import load_yaml
+    data = load_yaml(text, source=source, error=ParamError)
     if not isinstance(data, dict):
         raise ParamError(f"{source}: expected a mapping of {what}, got {type(data).__name__}")
     return dict(data)
+
+
+# A key or value that reads as a name (a parameter, a preset, a model) may be echoed in an error;
+# any other text came from the file and is not printed back (a file given by mistake: a key, a log).
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,63}")
+HIDDEN = "<text from the file>"
+
+
+def _texts(doc) -> set[str]:
+    """Every string key and value of a loaded document that is not a name (`_NAME`)."""
+    found: set[str] = set()
+    seen: set[int] = set()
+    todo = [doc]
+    while todo:
+        item = todo.pop()
+        if isinstance(item, str):
+            if not _NAME.fullmatch(item):
+                found.add(item)
+        elif isinstance(item, (dict, list)) and id(item) not in seen:  # aliases share objects: visit once
+            seen.add(id(item))
+            todo.extend([*item.keys(), *item.values()] if isinstance(item, dict) else item)
+    return found
+
+
+def without_file_text(message: str, doc) -> str:
+    """`message` with every text of `doc` that is not a name replaced by HIDDEN (its repr too)."""
+    for text in sorted(_texts(doc), key=len, reverse=True):
+        for form in (repr(text), text):
+            if form:
+                message = message.replace(form, HIDDEN)
+    return message
 
 
 def _read_text(path: str | Path, what: str) -> str:
@@ -47,7 +76,7 @@ def params_from_yaml(text: str, source: str = "<string>") -> Params:
         base = preset(base_name) if base_name is not None else None
         return Params.from_dict(data, base=base)
     except ParamError as e:
-        raise ParamError(f"{source}: {e}") from None
+        raise ParamError(f"{source}: {without_file_text(str(e), [data, base_name])}") from None
 
 
 def load_params_file(path: str | Path) -> Params:
@@ -62,7 +91,7 @@ def load_actuator_file(path: str | Path) -> ActuatorParams:
     try:
         return actuator_params_from_dict(data)
     except ParamError as e:
-        raise ParamError(f"{source}: {e}") from None
+        raise ParamError(f"{source}: {without_file_text(str(e), data)}") from None
 
 
 def resolve_params(preset_name: str | None, params_file: str | None, overrides: dict[str, Any] | None = None) -> Params:

@@ -606,9 +606,8 @@ def _flatten(d: dict, prefix: str = "") -> list[str]:
 def param_sources(args: list[str], node_name: str, namespace: str = "/") -> ParamSources:
     """Read the command line's `-p` and `--params-file` names (ConfigError for a missing, unreadable,
     oversized or non-YAML file, in one line naming it). Remaps of __node and __ns are followed."""
-    import yaml
-
-    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
+    # regular, bounded, UTF-8 (rcl's parser takes minutes on 9 MB), its depth, aliases and sections bounded
+    from prsm_ros.limits import NODE_PARAMS_MAX_SECTIONS, load_yaml, read_text_file
     ros = _ros_args(args)
     for flag, value in zip(ros, ros[1:]):
         if flag in ("-r", "--remap") and ":=" in value:
@@ -637,13 +636,8 @@ def param_sources(args: list[str], node_name: str, namespace: str = "/") -> Para
         elif flag == "--params-file":
             path = value
             text = read_text_file(path, what="parameters file", error=ConfigError)
-            try:
-                doc = yaml.safe_load(text)
-            except yaml.YAMLError as e:
-                mark = getattr(e, "problem_mark", None)
-                where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-                raise ConfigError(f"--params-file {path}: not valid YAML{where} "
-                                  f"({getattr(e, 'problem', None) or type(e).__name__})") from None
+            doc = load_yaml(text, source=f"--params-file {path}", error=ConfigError,
+                            max_top_keys=NODE_PARAMS_MAX_SECTIONS)
             if not isinstance(doc, dict):
                 raise ConfigError(f"--params-file {path}: expected a mapping of node names to "
                                   "{ros__parameters: {...}}")
