@@ -29,9 +29,10 @@ from prsm_ros.interface import TOPIC_DEFS
 from prsm_ros.limits import file_kind
 
 MAGIC = b"\x89MCAP0\r\n"
-# A chunk's uncompressed size is allocated before it is read: a damaged size must not decide it.
-# rosbag2 writes 768 KiB chunks, the mcap CLI 4 MiB, our recorder 1 MiB.
-MAX_CHUNK_BYTES = 256 << 20
+# What one chunk may decompress to. Its records are all held at once (for the log-time merge), so
+# the cap bounds a reader's memory whatever the file declares: the output itself is bounded, not
+# only the declared size. rosbag2 writes 768 KiB chunks, the mcap CLI 4 MiB, our recorder 1 MiB.
+MAX_CHUNK_BYTES = 64 << 20
 MAX_WINDOW_S = 1e9  # --start/--end: seconds from the first message (int64 nanoseconds hold ±9.2e9 s)
 
 
@@ -153,43 +154,79 @@ class ChunkSkipped(Exception):
     """A chunk that cannot be used (the reason says why); its messages are skipped, the rest is read."""
 
 
-def chunk_records(chunk) -> list:
-    """The schema, channel and message records inside one chunk, after its size and CRC are checked.
+def _zstd(data: bytes, cap: int) -> bytes:
+    import zstandard
+    try:
+        size = zstandard.frame_content_size(data)
+        if size > cap:
+            raise ChunkSkipped(f"its zstd frame holds {size} bytes, more than the {cap >> 20} MiB a chunk may hold here")
+        if size >= 0:  # the output is allocated at the frame's size, checked above
+            return zstandard.ZstdDecompressor().decompress(data)
+        reader = zstandard.ZstdDecompressor().stream_reader(data)
+        parts, held = [], 0
+        while held <= cap:
+            part = reader.read(1 << 20)
+            if not part:
+                break
+            parts.append(part)
+            held += len(part)
+        return b"".join(parts)
+    except zstandard.ZstdError as e:
+        raise ChunkSkipped(f"does not decompress (zstd: {str(e)[:60]})") from None
 
-    Raises ChunkSkipped naming the reason: a declared size over MAX_CHUNK_BYTES (so a damaged length
-    cannot make the reader allocate it), data that does not decompress to the declared size, a CRC
-    mismatch (a CRC of 0 means "not computed", MCAP spec), records that do not parse.
+
+def _lz4(data: bytes, cap: int) -> bytes:
+    import lz4.frame
+    try:
+        return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=cap + 1)
+    except RuntimeError as e:  # the lz4 binding's only error type for a frame it cannot read (LZ4F_* codes)
+        raise ChunkSkipped(f"does not decompress (lz4: {str(e)[:60]})") from None
+
+
+def chunk_data(chunk, cap: int = MAX_CHUNK_BYTES) -> bytes:
+    """A chunk's records as bytes, decompressed to at most `cap` bytes and checked by its CRC.
+
+    ChunkSkipped naming the reason: a declared size over `cap`, an output that would exceed it (the
+    output is bounded as it is produced, so a frame that lies about its size costs nothing), a
+    codec error, a CRC mismatch. With a CRC the data are good whatever size the chunk declares
+    (the mcap library's own readers decompress by the frame); without one (0: "not computed",
+    MCAP spec) they must have the declared size.
     """
-    from mcap.data_stream import ReadDataStream
-    from mcap.opcode import Opcode
-    from mcap.records import Channel, Message, Schema
-
     size = chunk.uncompressed_size
-    if size > MAX_CHUNK_BYTES:
-        raise ChunkSkipped(f"declares {size} bytes uncompressed, more than the {MAX_CHUNK_BYTES >> 20} MiB "
-                           "a chunk may hold here")
+    if size > cap:
+        raise ChunkSkipped(f"declares {size} bytes uncompressed, more than the {cap >> 20} MiB a chunk may hold here")
     try:
         if chunk.compression == "zstd":
-            import zstandard
-            declared = zstandard.frame_content_size(chunk.data)
-            if declared not in (-1, size):  # -1: the frame does not say
-                raise ChunkSkipped(f"its zstd frame holds {declared} bytes, the chunk declares {size}")
-            data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
+            data = _zstd(chunk.data, cap)
         elif chunk.compression == "lz4":
-            import lz4.frame
-            data = lz4.frame.decompress(chunk.data)
+            data = _lz4(chunk.data, cap)
         elif chunk.compression == "":
             data = chunk.data
         else:
             raise ChunkSkipped(f"unknown compression {chunk.compression[:40]!r}")
     except ImportError as e:
         raise ChunkSkipped(f"{chunk.compression} compression needs the {e.name} package") from None
-    except damaged_data_errors() as e:
-        raise ChunkSkipped(f"does not decompress ({type(e).__name__})") from None
-    if len(data) != size:
+    if len(data) > cap:
+        raise ChunkSkipped(f"decompresses to more than the {cap >> 20} MiB a chunk may hold here")
+    if chunk.uncompressed_crc != 0:
+        if zlib.crc32(data) != chunk.uncompressed_crc:
+            raise ChunkSkipped("CRC mismatch")
+    elif len(data) != size:
         raise ChunkSkipped(f"decompresses to {len(data)} bytes, the chunk declares {size}")
-    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise ChunkSkipped("CRC mismatch")
+    return data
+
+
+def chunk_records(chunk) -> list:
+    """The schema, channel and message records inside one chunk (`chunk_data` checks it first).
+
+    Raises ChunkSkipped naming the reason when the chunk fails its checks or its records do not parse.
+    """
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Message, Schema
+
+    data = chunk_data(chunk)
+    size = len(data)
     stream = ReadDataStream(io.BytesIO(data))
     out: list = []
     try:
@@ -307,6 +344,58 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
             pos += 9 + length
 
 
+def _footer(f, size: int):
+    """(summary_start, summary_crc) from the footer record before the closing magic; None without one."""
+    from mcap.opcode import Opcode
+    if size < 8 + 37:
+        return None
+    f.seek(size - 37)
+    tail = f.read(37)
+    if tail[29:] != MAGIC or tail[0] != Opcode.FOOTER:
+        return None
+    summary_start, _, crc = struct.unpack_from("<QQI", tail, 9)
+    return summary_start, crc
+
+
+def summary_doubt(f, size: int, summary) -> str | None:
+    """Why the summary of a finished file cannot be trusted to find every chunk; None when it can.
+
+    The footer's summary CRC (when written) must match, and every chunk the data section holds
+    must be one a chunk index points at: the top-level records are walked by their lengths
+    (headers only, nothing decompressed) up to the summary or to the first record that runs
+    past it. A summary that misses a chunk would make every reader drop its messages.
+    """
+    from mcap.opcode import Opcode
+    foot = _footer(f, size)
+    if foot is None:
+        return "no footer"
+    summary_start, crc = foot
+    if not 8 < summary_start <= size - 37:
+        return "the footer points outside the file"
+    if crc != 0:
+        f.seek(summary_start)
+        left, got = size - 8 - 4 - summary_start, 0
+        while left > 0:
+            block = f.read(min(left, 1 << 20))
+            if not block:
+                break
+            got = zlib.crc32(block, got)
+            left -= len(block)
+        if got != crc:
+            return "its CRC does not match"
+    indexed = {(ci.chunk_start_offset, ci.chunk_length) for ci in summary.chunk_indexes}
+    pos = 8
+    while pos + 9 <= summary_start:
+        f.seek(pos)
+        opcode, length = struct.unpack("<BQ", f.read(9))
+        if opcode == Opcode.DATA_END or length > summary_start - pos - 9:
+            break
+        if opcode == Opcode.CHUNK and (pos, 9 + length) not in indexed:
+            return f"the chunk at byte {pos} has no chunk index"
+        pos += 9 + length
+    return None
+
+
 def _bad_chunks_note(name: str, bad: list[tuple[int, str]]) -> str:
     first = "; ".join(f"byte {pos}: {why}" for pos, why in bad[:3])
     more = f"; and {len(bad) - 3} more" if len(bad) > 3 else ""
@@ -340,6 +429,7 @@ class Bag:
         self._bad_chunks: dict[int, str] = {}   # byte offset → reason, found while reading
         self._decoders: dict[int, object] = {}
         self._summary_damaged = False
+        self._summary_doubt: str | None = None  # why a summary that reads is not trusted (the file is scanned)
         self._indexed = False  # finished file with chunk indexes: read through the summary's chunk indexes
         self._size = self.path.stat().st_size
         with open(self.path, "rb") as f:
@@ -367,6 +457,10 @@ class Bag:
                 summary = reader.get_summary()
                 if summary is None or summary.statistics is None or not summary.chunk_indexes:
                     return None  # nothing to seek by: scanning gives the per-topic times too
+                why = summary_doubt(f, self._size, summary)
+                if why is not None:
+                    self._summary_doubt = why
+                    return None
                 metadata = list(reader.iter_metadata())
                 message_index_times = self._channel_time_ranges(f, summary)
         except (*damaged_data_errors(), OSError):  # no footer, damaged footer or summary: scan the records
@@ -438,9 +532,9 @@ class Bag:
             upto = f" up to log time {end * 1e-9:.3f} s" if end is not None else ""
             self.notes.append(f"{self.path.name}: unfinished MCAP file ({why}); recovered {scan.chunks} complete "
                               f"chunk(s), {n} message(s){upto}; data after byte {scan.stopped_at} was lost")
-        elif scan.complete and self._summary_damaged:
-            self.notes.append(f"{self.path.name}: the summary could not be read (damaged footer or summary); "
-                              "read by scanning the records")
+        elif scan.complete and (self._summary_damaged or self._summary_doubt):
+            why = self._summary_doubt or "damaged footer or summary"
+            self.notes.append(f"{self.path.name}: the summary could not be used ({why}); read by scanning the records")
         if scan.bad_chunks:
             self._bad_chunks.update(scan.bad_chunks)
             self.notes.append(_bad_chunks_note(self.path.name, scan.bad_chunks))
