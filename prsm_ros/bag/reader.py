@@ -553,6 +553,10 @@ class Bag:
             self.topics[ch.topic] = info
         if ch.id not in info.channel_ids:
             info.channel_ids.append(ch.id)
+            other = normalise_type(schema.name) if schema else ""
+            if other != info.type or ch.message_encoding != info.message_encoding:
+                info.problem = info.problem or (f"recorded with two types ({info.type or 'no schema'} and "
+                                                f"{other or 'no schema'})"[:200])
         return info
 
     def _check_schemas(self) -> None:
