@@ -215,6 +215,18 @@ def run_case(bag: Path, work: Path, verbs, topics, *, plots: bool = False, memor
     return failures
 
 
+EXPORT_TYPES = ("sensor_msgs/msg/JointState", "std_msgs/msg/Float64MultiArray", "std_msgs/msg/String")
+
+
+def export_topics(bag) -> list[str]:
+    """The topics `export` is run on: one of each type that holds arrays, text or labels (EXPORT_TYPES)."""
+    chosen = {}
+    for name, info in sorted(bag.topics.items()):
+        if info.type in EXPORT_TYPES:
+            chosen.setdefault(info.type, name)
+    return sorted(chosen.values()) or sorted(bag.topics)[:1]
+
+
 def available_verbs(verbs) -> list[str]:
     """`verbs` without those whose optional dependency is missing (play: rclpy; to-rrd: rerun)."""
     import importlib.util
@@ -244,7 +256,7 @@ def fuzz(bags: list[Path], cases: int, *, seed: int = 1, verbs=VERBS, memory_mib
     verbs = available_verbs(verbs)
     _preload(verbs)
     rng = random.Random(seed)
-    originals = [(p, p.read_bytes(), sorted(open_bag(p).topics)) for p in bags]
+    originals = [(p, p.read_bytes(), export_topics(open_bag(p))) for p in bags]
     failures: list[dict] = []
     t0 = time.monotonic()
     for case in range(cases):
@@ -284,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plots", action="store_true", help="report draws its plots (slower)")
     ap.add_argument("--keep", type=Path, help="copy failing inputs here")
     args = ap.parse_args(argv)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # play's publishers stay on this host
     bags = args.bags or sorted((ROOT / "bags").glob("*.mcap"))
     verbs = [v for v in args.verbs.split(",") if v]
     unknown = [v for v in verbs if v not in VERBS]
