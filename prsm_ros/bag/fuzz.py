@@ -259,6 +259,27 @@ def fuzz(bags: list[Path], cases: int, *, seed: int = 1, verbs=VERBS, memory_mib
     originals = [(p, p.read_bytes(), export_topics(open_bag(p))) for p in bags]
     failures: list[dict] = []
     t0 = time.monotonic()
+    done = 0
+    try:
+        done = _cases(originals, cases, rng, verbs, failures, t0, memory_mib=memory_mib, timeout_s=timeout_s,
+                      plots=plots, keep=keep, progress=progress)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the figures of the cases run so far
+        done = len(_DONE)
+    by_verb: dict[str, int] = {}
+    for f in failures:
+        for v in f["failures"]:
+            by_verb[v] = by_verb.get(v, 0) + 1
+    return {"cases": done, "verbs": verbs, "runs": done * len(verbs), "failing_cases": len(failures),
+            "failures_by_verb": by_verb, "memory_mib": memory_mib, "timeout_s": timeout_s,
+            "wall_s": round(time.monotonic() - t0, 1), "examples": failures[:20]}
+
+
+_DONE: list[int] = []
+
+
+def _cases(originals, cases: int, rng, verbs, failures: list, t0: float, *, memory_mib: int, timeout_s: float,
+           plots: bool, keep: Path | None, progress: bool) -> int:
+    _DONE.clear()
     for case in range(cases):
         path, data, topics = originals[case % len(originals)]
         ops = random_ops(rng)
@@ -273,16 +294,12 @@ def fuzz(bags: list[Path], cases: int, *, seed: int = 1, verbs=VERBS, memory_mib
                 if keep is not None:
                     keep.mkdir(parents=True, exist_ok=True)
                     shutil.copy(bag, keep / f"case{case}_{path.name}")
+        _DONE.append(case)
         if progress and (case + 1) % 50 == 0:
-            print(f"{case + 1}/{cases} cases, {len(failures)} failing, {time.monotonic() - t0:.0f} s",
+            print(f"{case + 1}/{cases} cases, {len(failures)} failing, {time.monotonic() - t0:.0f} s"
+                  + (f"; last failure: {json.dumps(failures[-1], default=str)[:300]}" if failures else ""),
                   file=sys.stderr, flush=True)
-    by_verb: dict[str, int] = {}
-    for f in failures:
-        for v in f["failures"]:
-            by_verb[v] = by_verb.get(v, 0) + 1
-    return {"cases": cases, "verbs": verbs, "runs": cases * len(verbs), "failing_cases": len(failures),
-            "failures_by_verb": by_verb, "memory_mib": memory_mib, "timeout_s": timeout_s,
-            "wall_s": round(time.monotonic() - t0, 1), "examples": failures[:20]}
+    return cases
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -297,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", type=Path, help="copy failing inputs here")
     args = ap.parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # play's publishers stay on this host
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # stopped: print the figures so far
     bags = args.bags or sorted((ROOT / "bags").glob("*.mcap"))
     verbs = [v for v in args.verbs.split(",") if v]
     unknown = [v for v in verbs if v not in VERBS]
