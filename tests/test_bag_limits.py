@@ -276,3 +276,15 @@ def test_apply_folds_every_mutation_into_the_file():
     assert fuzz.apply(data, [("flip", 3, 0)])[3] == data[3] ^ 1
     assert len(fuzz.apply(data, [("dup", 0, 9)])) == len(data) + 10
     assert fuzz.apply(data, [("set64", 0, 2**64 - 1)])[:8] == b"\xff" * 8
+
+
+def test_a_record_longer_than_a_chunk_may_be_is_skipped_unread(tmp_path, capsys, monkeypatch):
+    """A record is read whole: one declaring more than MAX_RECORD_BYTES is passed over by its length
+    (scanned) or skipped (indexed), never read into memory; the records beside it are kept."""
+    from prsm_ros.bag import reader
+    bag = hb.joint_states_bag(tmp_path / "js.mcap", 20)
+    monkeypatch.setattr(reader, "MAX_RECORD_BYTES", 64)
+    for path in (bag, hb.bad_footer(bag, tmp_path / "scanned.mcap")):
+        rc, out, err = _cli(capsys, "info", path, "--json", "--check")
+        assert rc == 0, err
+        assert "more than the 0 MiB a record may hold here" in json.loads(out)["note"]

@@ -33,6 +33,7 @@ MAGIC = b"\x89MCAP0\r\n"
 # the cap bounds a reader's memory whatever the file declares: the output itself is bounded, not
 # only the declared size. rosbag2 writes 768 KiB chunks, the mcap CLI 4 MiB, our recorder 1 MiB.
 MAX_CHUNK_BYTES = 64 << 20
+MAX_RECORD_BYTES = MAX_CHUNK_BYTES + (1 << 20)  # a record read whole: a chunk's data and its header fields
 MAX_WINDOW_S = 1e9  # --start/--end: seconds from the first message (int64 nanoseconds hold ±9.2e9 s)
 
 
@@ -313,6 +314,12 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
             if length > size - pos - 9:  # cut short, or a damaged length: nothing after it can be framed
                 scan.stopped_at = pos
                 break
+            if length > MAX_RECORD_BYTES:  # framed by its length: skipped unread, the records after it are read
+                scan.bad_chunks.append((pos, f"a record of {length} bytes, more than the "
+                                             f"{MAX_RECORD_BYTES >> 20} MiB a record may hold here"))
+                f.seek(length, io.SEEK_CUR)
+                pos += 9 + length
+                continue
             body = f.read(length)
             stream = ReadDataStream(io.BytesIO(body))
             found = []
@@ -742,6 +749,27 @@ class Bag:
             if keep(channel, message):
                 yield schema, channel, message
 
+    def _chunk_at(self, f, ci) -> list:
+        """The records of the chunk a chunk index points at; ChunkSkipped saying why it cannot be used."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Chunk
+
+        if ci.chunk_length < 9 or ci.chunk_start_offset + ci.chunk_length > self._size:
+            raise ChunkSkipped("its index points past the end of the file")
+        f.seek(ci.chunk_start_offset)
+        opcode, length = struct.unpack("<BQ", f.read(9))
+        if opcode != Opcode.CHUNK or length != ci.chunk_length - 9:
+            raise ChunkSkipped("its index does not point at a chunk")
+        if length > MAX_RECORD_BYTES:
+            raise ChunkSkipped(f"a record of {length} bytes, more than the {MAX_RECORD_BYTES >> 20} MiB a record "
+                               "may hold here")
+        try:
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
+        except damaged_data_errors() as e:
+            raise ChunkSkipped(f"the chunk record does not parse ({type(e).__name__})") from None
+        return chunk_records(chunk)
+
     def _indexed_raw(self, wanted, start_ns, end_ns, keep):
         """Messages of a finished file in log-time order, chunk by chunk through the chunk indexes.
 
@@ -751,9 +779,7 @@ class Bag:
         """
         import heapq
 
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Chunk, Message
+        from mcap.records import Message
 
         ids = None if wanted is None else {cid for t in wanted for cid in self.topics[t].channel_ids}
         chunks = [ci for ci in self._chunk_indexes
@@ -769,17 +795,7 @@ class Bag:
                     ci = chunks[i]
                     i += 1
                     try:
-                        if ci.chunk_length < 9 or ci.chunk_start_offset + ci.chunk_length > self._size:
-                            raise ChunkSkipped("its index points past the end of the file")
-                        f.seek(ci.chunk_start_offset)
-                        opcode, length = struct.unpack("<BQ", f.read(9))
-                        if opcode != Opcode.CHUNK or length != ci.chunk_length - 9:
-                            raise ChunkSkipped("its index does not point at a chunk")
-                        try:
-                            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
-                        except damaged_data_errors() as e:
-                            raise ChunkSkipped(f"the chunk record does not parse ({type(e).__name__})") from None
-                        records = chunk_records(chunk)
+                        records = self._chunk_at(f, ci)
                     except ChunkSkipped as e:
                         self._bad_chunks[ci.chunk_start_offset] = str(e)
                         continue
