@@ -288,3 +288,11 @@ def test_a_record_longer_than_a_chunk_may_be_is_skipped_unread(tmp_path, capsys,
         rc, out, err = _cli(capsys, "info", path, "--json", "--check")
         assert rc == 0, err
         assert "more than the 0 MiB a record may hold here" in json.loads(out)["note"]
+
+
+def test_the_repair_floor_counts_messages_on_declared_channels_only(tmp_path):
+    """A damaged Channel record leaves its messages without a topic: mcap's non-seeking reader stops at
+    the first of them, `repair` cannot write them under any topic, so the fuzz floor does not count them
+    (found by the fuzzer: a truncated bag whose channel opcode was flipped)."""
+    bag = hb.undeclared_channel(hb.FLOAT64_CDR, tmp_path / "undeclared.mcap")
+    assert fuzz.stream_count(bag) == 10  # the 10 on ~/screw_torque, not the 10 on channel 99

@@ -8,8 +8,9 @@ verb on it in a forked child whose address space is limited (`resource.setrlimit
 end with exit 0, or exit 2 with one error line; a Python exception out of `main` (a traceback),
 a MemoryError, a child killed by a signal or still running at the timeout is a failure. `repair`
 must keep at least as many messages as the mcap library's stream reader reads from the same
-file's data section (validating CRCs; it stops at the first damaged record), counted in the
-repaired file by the mcap library's reader. The figures are printed at the end; failing inputs
+file's data section (validating CRCs; it stops at the first damaged record; messages on a channel
+no Channel record declared have no topic and are not counted), counted in the repaired file by
+the mcap library's reader. The figures are printed at the end; failing inputs
 are copied to --keep. The regression test (tests/test_bag_fuzz.py) drives `apply` with hypothesis.
 """
 
@@ -91,14 +92,19 @@ def random_ops(rng: random.Random) -> list[tuple[str, int, int]]:
 
 def stream_count(path) -> int:
     """Messages the mcap library's stream reader reads from the data section (CRCs checked) before
-    its first error: the lower bound `repair` must reach."""
-    from mcap.records import Message
+    its first error, counting those on a channel a Channel record declared before them (what its
+    non-seeking reader yields; it stops at the first other one): the lower bound for `repair`."""
+    from mcap.records import Channel, Message
     from mcap.stream_reader import StreamReader
     n = 0
+    channels: set[int] = set()
     try:
         with open(path, "rb") as f:
             for rec in StreamReader(f, validate_crcs=True, record_size_limit=64 << 20).records:
-                n += isinstance(rec, Message)
+                if isinstance(rec, Channel):
+                    channels.add(rec.id)
+                elif isinstance(rec, Message) and rec.channel_id in channels:
+                    n += 1
     except Exception:  # its first error ends its reading, whatever the error
         pass
     return n
