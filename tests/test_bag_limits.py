@@ -296,3 +296,27 @@ def test_the_repair_floor_counts_messages_on_declared_channels_only(tmp_path):
     (found by the fuzzer: a truncated bag whose channel opcode was flipped)."""
     bag = hb.undeclared_channel(hb.FLOAT64_CDR, tmp_path / "undeclared.mcap")
     assert fuzz.stream_count(bag) == 10  # the 10 on ~/screw_torque, not the 10 on channel 99
+
+
+@pytest.mark.parametrize("damage", ["chunk_length", "schema_length"])
+def test_a_damaged_record_length_is_read_past(tmp_path, capsys, damage):
+    """Was: a chunk whose record length was damaged lost its messages (the reader framed by the length;
+    mcap's stream reader reads the chunk by its own fields: 1,781 of 2,501 kept), and a damaged record
+    ended the scan. Now a chunk is read by its own fields when its CRC holds, and past any other
+    damaged record the scan reads on from the next record that frames."""
+    from mcap.opcode import Opcode
+    data = bytearray((ROOT / "bags" / "heavy_load.mcap").read_bytes())
+    if damage == "chunk_length":
+        pos = [p for p, op, _ in hb.records(bytes(data)) if op == Opcode.CHUNK][1]
+        struct.pack_into("<Q", data, pos + 1, 0)
+    else:
+        pos = next(p for p, op, _ in hb.records(bytes(data)) if op == Opcode.SCHEMA)
+        struct.pack_into("<Q", data, pos + 1, 1)  # one byte: its body does not parse as a Schema
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    rc, out, err = _cli(capsys, "repair", damaged, tmp_path / "fixed.mcap")
+    assert rc == 0, err
+    assert "read past 1 damaged byte range(s)" in err
+    kept = fuzz.repaired_count(tmp_path / "fixed.mcap")
+    assert kept >= fuzz.stream_count(damaged)
+    assert kept == 2501  # a topic whose schema was lost is copied undecoded

@@ -17,6 +17,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import re
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -247,6 +248,75 @@ def chunk_records(chunk) -> list:
     return out
 
 
+# Where a record's framing is damaged, a scan reads on from the next offset where two records in a
+# row frame as records do: a known opcode (Header excepted), then a length (under 2^32) that ends
+# inside the file, at another such record or at the closing magic.
+_OPCODES = bytes([2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15])
+_CANDIDATE = re.compile(b"[" + re.escape(_OPCODES) + rb"].{4}\x00{4}", re.S)
+
+
+class _Empty:
+    """An empty mapping for a file of size 0 (mmap cannot map it)."""
+
+    def __enter__(self):
+        return b""
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _mapped(f):
+    import mmap
+    size = os.fstat(f.fileno()).st_size
+    return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else _Empty()
+
+
+def _next_record(mm, start: int, size: int) -> int | None:
+    """The first offset ≥ `start` where a record and the one after it frame plausibly; None if none."""
+    for m in _CANDIDATE.finditer(mm, start):
+        p = m.start()
+        q = p + 9 + int.from_bytes(mm[p + 1:p + 9], "little")
+        if q + 8 == size and mm[q:q + 8] == MAGIC:
+            return p
+        if q + 9 <= size and mm[q] in _OPCODES and int.from_bytes(mm[q + 1:q + 9], "little") <= size - q - 9:
+            return p
+    return None
+
+
+def _chunk_end(mm, pos: int, size: int) -> int:
+    """Where the Chunk record at `pos` ends by its own fields (compression and data lengths), as mcap's
+    stream reader reads it; -1 when they run past the file."""
+    at = pos + 9
+    if at + 32 > size:
+        return -1
+    (clen,) = struct.unpack_from("<I", mm, at + 28)
+    if clen > 64 or at + 40 + clen > size:
+        return -1
+    (rlen,) = struct.unpack_from("<Q", mm, at + 32 + clen)
+    end = at + 40 + clen + rlen
+    return end if end <= size else -1
+
+
+def _reframed_chunk(mm, pos: int, size: int) -> tuple[list, int] | None:
+    """(records, end) of a Chunk read by its own fields when its record length is damaged; None unless
+    it passes every check of `chunk_records` with a CRC (without one, nothing says it is whole)."""
+    from mcap.records import Chunk
+    end = _chunk_end(mm, pos, size)
+    at = pos + 9
+    if end < 0 or end - at > MAX_RECORD_BYTES:
+        return None
+    start_ns, end_ns, usize, crc, clen = struct.unpack_from("<QQQII", mm, at)
+    if crc == 0:
+        return None
+    try:
+        compression = bytes(mm[at + 32:at + 32 + clen]).decode("utf-8")
+        chunk = Chunk(compression=compression, data=bytes(mm[at + 40 + clen:end]), message_end_time=end_ns,
+                      message_start_time=start_ns, uncompressed_crc=crc, uncompressed_size=usize)
+        return chunk_records(chunk), end
+    except (UnicodeDecodeError, ChunkSkipped):
+        return None
+
+
 @dataclass
 class Scan:
     """What a record walk found: header, schemas, channels, metadata, whether the file ended properly.
@@ -265,6 +335,7 @@ class Scan:
     problem: str | None = None
     bad_chunks: list[tuple[int, str]] = field(default_factory=list)
     undeclared: int = 0
+    gaps: list[tuple[int, int]] = field(default_factory=list)  # damaged byte ranges read past (start, end)
 
 
 def scan_records(path, on_message=None) -> Scan:
@@ -301,7 +372,7 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
         return None
 
     damaged = damaged_data_errors()
-    with open(path, "rb") as f:
+    with open(path, "rb") as f, _mapped(f) as mm:
         size = os.fstat(f.fileno()).st_size
         _require_magic(f, path)
         pos = 8
@@ -311,9 +382,25 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 scan.stopped_at = pos
                 break
             opcode, length = struct.unpack("<BQ", head)
-            if length > size - pos - 9:  # cut short, or a damaged length: nothing after it can be framed
-                scan.stopped_at = pos
-                break
+            if opcode == Opcode.CHUNK and length != _chunk_end(mm, pos, size) - pos - 9:
+                reframed = _reframed_chunk(mm, pos, size)
+                if reframed is not None:  # a damaged record length, the chunk whole by its own fields and CRC
+                    records, end = reframed
+                    scan.chunks += 1
+                    scan.gaps.append((pos + 1, pos + 9))
+                    yield from (item for item in (take(rec) for rec in records) if item is not None)
+                    pos = end
+                    f.seek(pos)
+                    continue
+            if length > size - pos - 9:  # cut short, or a damaged length: read on from the next record, if any
+                nxt = _next_record(mm, pos + 1, size)
+                if nxt is None:
+                    scan.stopped_at = pos
+                    break
+                scan.gaps.append((pos, nxt))
+                pos = nxt
+                f.seek(pos)
+                continue
             if length > MAX_RECORD_BYTES:  # framed by its length: skipped unread, the records after it are read
                 scan.bad_chunks.append((pos, f"a record of {length} bytes, more than the "
                                              f"{MAX_RECORD_BYTES >> 20} MiB a record may hold here"))
@@ -343,10 +430,16 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 elif opcode == Opcode.FOOTER:
                     scan.complete = f.read(8) == MAGIC
                     break
-            except damaged as e:  # a damaged record: keep what came before it
-                scan.stopped_at = pos
-                scan.problem = f"damaged record at byte {pos} ({type(e).__name__})"
-                break
+            except damaged as e:  # a damaged record: read on from the next record, if any
+                nxt = _next_record(mm, pos + 1, size)
+                if nxt is None:
+                    scan.stopped_at = pos
+                    scan.problem = f"damaged record at byte {pos} ({type(e).__name__})"
+                    break
+                scan.gaps.append((pos, nxt))
+                pos = nxt
+                f.seek(pos)
+                continue
             yield from (item for item in found if item is not None)
             pos += 9 + length
 
@@ -542,6 +635,10 @@ class Bag:
         elif scan.complete and (self._summary_damaged or self._summary_doubt):
             why = self._summary_doubt or "damaged footer or summary"
             self.notes.append(f"{self.path.name}: the summary could not be used ({why}); read by scanning the records")
+        if scan.gaps:
+            where = ", ".join(f"{a}–{b}" for a, b in scan.gaps[:3]) + (" …" if len(scan.gaps) > 3 else "")
+            self.notes.append(f"{self.path.name}: read past {len(scan.gaps)} damaged byte range(s) (bytes {where}) "
+                              "to the next record")
         if scan.bad_chunks:
             self._bad_chunks.update(scan.bad_chunks)
             self.notes.append(_bad_chunks_note(self.path.name, scan.bad_chunks))
