@@ -4,7 +4,8 @@
                                 [--timeout-s 60] [--keep DIR] [--plots] [BAG ...]
 
 Each case applies one to four mutations (`apply`) to a bag (default: bags/*.mcap) and runs every
-verb on it in a forked child whose address space is limited (`resource.setrlimit`): a verb must
+verb on it in a forked child whose address space may grow by --memory-mib beyond what the warm
+worker has mapped (`resource.setrlimit`, RLIMIT_AS); the timeout is per verb. A verb must
 end with exit 0, or exit 2 with one error line; a Python exception out of `main` (a traceback),
 a MemoryError, a child killed by a signal or still running at the timeout is a failure. `repair`
 must keep at least as many messages as the mcap library's stream reader reads from the same
@@ -157,8 +158,18 @@ def _run_verb(argv: list[str]) -> dict:
     return outcome
 
 
+def _mapped_bytes() -> int:
+    """This process's address space (VmSize): the libraries it has mapped count against RLIMIT_AS."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            return next(int(ln.split()[1]) << 10 for ln in f if ln.startswith("VmSize:"))
+    except (OSError, StopIteration, ValueError):
+        return 0
+
+
 def _child(bag: Path, work: Path, verbs, topics, plots: bool, memory_bytes: int, results: Path) -> None:
-    resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+    limit = _mapped_bytes() + memory_bytes  # memory_bytes beyond what the warm worker has mapped already
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     with open(results, "a", encoding="utf-8") as log:
         def put(d: dict) -> None:
             log.write(json.dumps(d) + "\n")
@@ -170,6 +181,27 @@ def _child(bag: Path, work: Path, verbs, topics, plots: bool, memory_bytes: int,
             if verb == "repair" and outcome.get("rc") == 0:
                 outcome["kept"] = repaired_count(work / "repair.mcap")
             put({"verb": verb, **outcome})
+
+
+def _wait(pid: int, results: Path, timeout_s: float):
+    """The child's wait status, or "timeout" after killing its group when a verb ran past `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    status = None
+    seen_bytes = 0
+    while status is None:
+        done, st = os.waitpid(pid, os.WNOHANG)
+        grown = results.stat().st_size if results.exists() else 0
+        if grown != seen_bytes:  # a verb started or ended: the timeout is per verb
+            seen_bytes, deadline = grown, time.monotonic() + timeout_s
+        if done:
+            status = st
+        elif time.monotonic() > deadline:
+            os.killpg(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            status = "timeout"
+        else:
+            time.sleep(0.02)
+    return status
 
 
 def run_case(bag: Path, work: Path, verbs, topics, *, plots: bool = False, memory_bytes: int,
@@ -188,18 +220,7 @@ def run_case(bag: Path, work: Path, verbs, topics, *, plots: bool = False, memor
             code = 3
         finally:
             os._exit(code)
-    deadline = time.monotonic() + timeout_s
-    status = None
-    while status is None:
-        done, st = os.waitpid(pid, os.WNOHANG)
-        if done:
-            status = st
-        elif time.monotonic() > deadline:
-            os.killpg(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            status = "timeout"
-        else:
-            time.sleep(0.02)
+    status = _wait(pid, results, timeout_s)
     lines = [json.loads(ln) for ln in results.read_text(encoding="utf-8").splitlines()] if results.exists() else []
     failures: dict[str, str] = {}
     floor = next((d["stream_count"] for d in lines if "stream_count" in d), None)
@@ -252,6 +273,10 @@ def _preload(verbs) -> None:
     if "play" in verbs:
         import prsm_ros.bag.play  # noqa: F401
         import rclpy  # noqa: F401
+    if "to-rrd" in verbs:
+        import prsm_ros.viz.from_bag  # noqa: F401
+    if "layout" in verbs:
+        import prsm_ros.bag.foxglove_layout  # noqa: F401
 
 
 def fuzz(bags: list[Path], cases: int, *, seed: int = 1, verbs=VERBS, memory_mib: int = DEFAULT_MEMORY_MIB,
@@ -314,8 +339,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--verbs", default=",".join(VERBS), help=f"comma-separated (default {','.join(VERBS)})")
-    ap.add_argument("--memory-mib", type=int, default=DEFAULT_MEMORY_MIB, help="address-space limit of each case")
-    ap.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S, help="a case running longer is a hang")
+    ap.add_argument("--memory-mib", type=int, default=DEFAULT_MEMORY_MIB,
+                    help="address space a case may add to the warm worker's")
+    ap.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S, help="a verb running longer is a hang")
     ap.add_argument("--plots", action="store_true", help="report draws its plots (slower)")
     ap.add_argument("--keep", type=Path, help="copy failing inputs here")
     args = ap.parse_args(argv)
