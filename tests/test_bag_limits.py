@@ -227,6 +227,7 @@ def _wide_bag(path: Path, n_msgs: int, n_joints: int) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_export_streams_a_wide_table_to_disk(tmp_path, capsys):
     """Was: the whole table held in memory (a 137 KB bag of wide JointStates took 1.27 GB). Now rows go
     to disk as they are decoded: exporting four times the messages takes no more memory at its peak."""
