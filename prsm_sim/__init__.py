@@ -10,7 +10,7 @@ from prsm_sim.presets import PRESETS, preset
 from prsm_sim.simulator import Simulator
 from prsm_sim.stepping.records import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory
-from prsm_sim.session import Session
+from prsm_sim.session import Session, SessionConfig
 
 
 def _version() -> str:
@@ -41,5 +41,5 @@ __all__ = [
     "PrsmError", "ParamError", "InputError", "ModelError",
     "OUTPUT_FIELDS", "InternalBlock", "InternalLayout", "Outputs", "State", "Trajectory",
     "Friction", "Geometry", "IdealLoss", "Loads", "MassProperties", "Params",
-    "PRESETS", "preset", "MODELS", "Simulator", "build_model", "Session",
+    "PRESETS", "preset", "MODELS", "Simulator", "build_model", "Session", "SessionConfig",
 ]

@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 
 from prsm_sim.errors import InputError
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
@@ -106,9 +105,3 @@ def run_position_loop(sim, ctl: PositionController, duration_s: float, load_n: f
     track.add(reference(s.time_s, amplitude_m, frequency_hz)[0] - p * s.screw_angle_rad)
     return trajectory_from_rows(rows, sim.layout, sim.state), track
 
-
-def tracking_error(traj: Trajectory, amplitude_m: float = DEFAULT_AMPLITUDE_M,
-                   frequency_hz: float = DEFAULT_FREQUENCY_HZ) -> np.ndarray:
-    """x_ref − x at the end of every step of a position-loop run (m)."""
-    ref = 0.5 * amplitude_m * (1 - np.cos(2 * math.pi * frequency_hz * traj.time_s))
-    return ref - traj["nut_position_m"]

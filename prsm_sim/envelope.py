@@ -37,12 +37,14 @@ import numpy as np
 from prsm_sim.actuator import (ACTUATOR_QUANTITIES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
                                StopParams)
 from prsm_sim.control import PositionController
-from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.physics.inertia import reflected_inertia
+from prsm_sim.models.registry import MODELS as REGISTERED_MODELS, model_class
 from prsm_sim.presets import preset
-from prsm_sim.session import Session
+from prsm_sim.session import Session, SessionConfig
+from prsm_sim.stepping.records import Outputs
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
-MODELS = ("ideal", "jones2016", "fu2018", "elastic")
+MODELS = tuple(REGISTERED_MODELS)  # drawn in the registry's order
 INTERFACES = ("torque", "effort", "velocity", "position")
 CONTROLLERS = ("hold", "sine", "bangbang")
 LOADS = ("zero", "constant", "steps", "square", "into_stop")
@@ -60,34 +62,51 @@ def case_from_seed(seed: int) -> dict:
 
 def draw_case(rng, seed: int | None = None) -> dict:
     """One envelope case drawn by `rng`: anything with numpy's Generator methods `choice(n, p=None)`,
-    `uniform(lo, hi)`, `random()` and `integers(n)` (a test passes hypothesis' draws through them)."""
+    `uniform(lo, hi)`, `random()` and `integers(n)` (a test passes hypothesis' draws through them).
 
-    def pick(options, p=None):
-        return options[int(rng.choice(len(options), p=p))]
-
-    model = pick(MODELS)
-    dt = pick((1e-3, 1e-4), p=(0.8, 0.2))
-    interface = pick(INTERFACES)
-    controller = pick(CONTROLLERS)
+    The draws come in a fixed order (plant and loop, start and stops, load, elastic preload or
+    clearance, then brake, faults, reset and pause), so a seed keeps its case."""
+    model = _pick(rng, MODELS)
+    dt = _pick(rng, (1e-3, 1e-4), p=(0.8, 0.2))
+    interface = _pick(rng, INTERFACES)
+    controller = _pick(rng, CONTROLLERS)
     # long enough for a hold to be judged (0.5 s + settling), short elsewhere: thousands of runs on two cores
     lo, hi = ((0.62, 0.7) if controller == "hold" else (0.2, 0.5)) if dt == 1e-3 else (0.02, 0.05)
     duration = float(np.round(rng.uniform(lo, hi), 3))
     case = {"seed": seed, "preset": "s30", "model": model, "dt_s": dt, "duration_s": duration,
             "interface": interface, "controller": controller, "overrides": {}}
-    p = preset("s30")
-    half = 0.5 * p.geometry.travel_m
-    # where the nut starts and what it is asked: near the middle, near a stop, or near a thread end
-    near = pick(("middle", "stop", "end"))
+    _draw_start(rng, case)
+    _draw_load(rng, case)
+    if model_class(model).has_axial_chain and rng.random() < 0.5:  # a clearance or a preload on the chain
+        if rng.random() < 0.5:
+            case["overrides"]["elastic.axial_clearance_m"] = float(np.round(rng.uniform(1e-6, 5e-5), 7))
+        else:
+            case["overrides"]["elastic.preload_n"] = float(np.round(rng.uniform(200.0, 3000.0), 1))
+            case["overrides"]["elastic.preload_kind"] = _pick(rng, ("oversize_rollers", "double_nut"))
+    _draw_events(rng, case)
+    return case
+
+
+def _pick(rng, options, p=None):
+    return options[int(rng.choice(len(options), p=p))]
+
+
+def _draw_start(rng, case: dict) -> None:
+    """Where the nut starts and what it is asked: near the middle, near a stop (with the stops), or near a
+    thread end; whether the thread ends are fitted; the target, amplitude and frequency of the loop."""
+    g = preset("s30").geometry
+    half = 0.5 * (g.screw_length_m - g.nut_length_m)  # the travel on the threads
+    near = _pick(rng, ("middle", "stop", "end"))
     start = float(np.round(rng.uniform(-0.01, 0.01), 5))
     stops = None
-    if near == "stop" and interface != "torque":
+    if near == "stop" and case["interface"] != "torque":
         gap = float(np.round(rng.uniform(2e-4, 5e-3), 5))
-        sgn = pick((1.0, -1.0))
+        sgn = _pick(rng, (1.0, -1.0))
         stops = {"min_position_m": start - 0.05, "max_position_m": start + gap} if sgn > 0 else \
                 {"min_position_m": start - gap, "max_position_m": start + 0.05}
-        stops.update(stiffness_n_m=float(pick((1e7, 1e8, 1e9))), damping_n_s_m=float(pick((0.0, 2e4, 2e5))))
+        stops.update(stiffness_n_m=float(_pick(rng, (1e7, 1e8, 1e9))), damping_n_s_m=float(_pick(rng, (0.0, 2e4, 2e5))))
     elif near == "end":
-        start = float(np.round(pick((1.0, -1.0)) * (half - rng.uniform(2e-4, 5e-3)), 6))
+        start = float(np.round(_pick(rng, (1.0, -1.0)) * (half - rng.uniform(2e-4, 5e-3)), 6))
     case["start_m"] = start
     case["stops"] = stops
     case["thread_ends"] = bool(rng.random() < 0.9)
@@ -96,41 +115,44 @@ def draw_case(rng, seed: int | None = None) -> dict:
     amplitude = float(np.round(rng.uniform(5e-4, 8e-3), 5))
     case.update(target_m=float(np.round(start + rng.uniform(-1, 1) * amplitude, 6)), amplitude_m=amplitude,
                 frequency_hz=float(np.round(rng.uniform(0.5, 8.0), 2)))
-    kind = pick(LOADS)
-    f = float(np.round(rng.uniform(50.0, 8000.0), 1)) * pick((1.0, -1.0))
+
+
+def _draw_load(rng, case: dict) -> None:
+    """The load's kind, value and period, and whether the start is in equilibrium under it."""
+    kind = _pick(rng, LOADS)
+    f = float(np.round(rng.uniform(50.0, 8000.0), 1)) * _pick(rng, (1.0, -1.0))
     if kind == "into_stop":
         # a load pushing the nut towards the nearer limit (a negative load pushes +x)
+        start, stops = case["start_m"], case["stops"]
         toward = 1.0 if (stops is not None and stops["max_position_m"] - start < start - stops["min_position_m"]) \
             or (stops is None and start > 0) else -1.0
         f = -toward * abs(f)
     case["load"] = {"kind": kind, "value_n": f if kind != "zero" else 0.0,
                     "period_s": float(np.round(rng.uniform(0.05, 0.4), 3))}
     case["initial_load"] = bool(kind in ("constant", "into_stop") and rng.random() < 0.5)
-    if model == "elastic" and rng.random() < 0.5:
-        if rng.random() < 0.5:
-            case["overrides"]["elastic.axial_clearance_m"] = float(np.round(rng.uniform(1e-6, 5e-5), 7))
-        else:
-            case["overrides"]["elastic.preload_n"] = float(np.round(rng.uniform(200.0, 3000.0), 1))
-            case["overrides"]["elastic.preload_kind"] = pick(("oversize_rollers", "double_nut"))
+
+
+def _draw_events(rng, case: dict) -> None:
+    """Brake engage/release and a fault (with an actuator), a reset and a pause mid-run."""
+    duration = case["duration_s"]
     case["brake"] = None
     case["faults"] = []
-    if interface != "torque":
+    if case["interface"] != "torque":
         if rng.random() < 0.25:
             t1 = float(np.round(rng.uniform(0.1, 0.6) * duration, 4))
             case["brake"] = {"holding_torque_nm": float(np.round(rng.uniform(2.0, 20.0), 2)), "engage_s": t1,
                              "release_s": float(np.round(t1 + rng.uniform(0.05, 0.3) * duration, 4))}
         if rng.random() < 0.35:
-            case["faults"] = [_fault(rng, duration, model, case["overrides"])]
+            case["faults"] = [_fault(rng, duration, case["model"], case["overrides"])]
     case["reset_at_s"] = float(np.round(rng.uniform(0.3, 0.7) * duration, 4)) if rng.random() < 0.15 else None
     # drawn last, so every other draw of a seed stays what it was before pauses were drawn
     case["pause_at_s"] = float(np.round(rng.uniform(0.1, 0.9) * duration, 4)) if rng.random() < 0.25 else None
-    return case
 
 
 def _fault(rng, duration, model, overrides) -> dict:
     kinds = ["friction_surge", "lubrication_loss", "jam", "sensor_bias", "sensor_noise", "sensor_dropout",
              "sensor_stuck", "torque_limit_drop", "drive_fault"]
-    if model == "elastic" and "elastic.preload_n" not in overrides:
+    if model_class(model).has_axial_chain and "elastic.preload_n" not in overrides:
         kinds.append("backlash")
     kind = kinds[int(rng.integers(len(kinds)))]
     start = float(np.round(rng.uniform(0.0, 0.6) * duration, 4))
@@ -188,9 +210,9 @@ def build(case: dict):
         brake = BrakeParams(holding_torque_nm=b["holding_torque_nm"]) if b else BrakeParams()
         act = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode=case["interface"]), stops=stops, brake=brake,
                              faults=tuple(Fault(**f) for f in case.get("faults", ())))
-    session = Session(p, case["model"], case["dt_s"], act, nut_position_m=case["start_m"],
-                      initial_load_n=initial_load_n(case), interface=session_interface(case),
-                      max_effort_nm=TORQUE_LIMIT_NM)
+    session = Session.from_config(SessionConfig(
+        params=p, model=case["model"], dt_s=case["dt_s"], actuator=act, nut_position_m=case["start_m"],
+        initial_load_n=initial_load_n(case), interface=session_interface(case), max_effort_nm=TORQUE_LIMIT_NM))
     return session, act, p
 
 
@@ -261,168 +283,226 @@ def run_case(case: dict, record: bool = False) -> Result:
 
 
 def _run(case: dict, res: Result) -> None:
-    session, act, p = build(case)
-    sim = session.simulator
-    dt = sim.dt_s
-    actions = res.actions if res.actions is not None else _Discard()
-    n = int(round(case["duration_s"] / dt))
-    ctl = _Controller(case, p, dt)
-    geo = p.geometry
-    travel = geo.travel_m
-    pl = geo.lead_per_rad_m
-    limits = sim.model.limits if act is not None else sim._limits
-    k_stop = limits[0].stiffness_n_m if limits else 1e8
-    brake = case.get("brake")
-    reset_at = case.get("reset_at_s")
-    pause_at = case.get("pause_at_s")
-    elastic = case["model"] == "elastic"
-    tail = max(1, int(round(0.5 / dt)))
-    hist_w, hist_cmd, hist_contact, hist_load, hist_v = [], [], [], [], []
-    # times at which what the plant sees changes besides the command and the load: faults start and end
-    events = sorted({t for fd in case.get("faults", ()) for t in (fd["start_s"], fd["start_s"] + fd["duration_s"])})
-    last_event = -math.inf
+    run = _Run(case, res)
+    if run.loop():
+        run.check_rest()
+        run.check_ringing()
 
-    def nut(out):
-        return out.nut_position_m
 
-    def contact_of(x):
-        for lim in limits:
+class _Run:
+    """One case's closed loop and the invariants it is checked against, step by step (`loop`) and at
+    its end (`check_rest`, `check_ringing`). `step_checks` return False at the first violation, which
+    ends the run."""
+
+    def __init__(self, case: dict, res: Result) -> None:
+        self.case, self.res = case, res
+        self.session, self.act, self.p = build(case)
+        self.sim = self.session.simulator
+        self.dt = self.sim.dt_s
+        self.actions = res.actions if res.actions is not None else _Discard()
+        geo = self.p.geometry
+        self.travel, self.nut_length = geo.travel_m, geo.nut_length_m
+        self.limits = self.sim.limits
+        self.k_stop = self.limits[0].stiffness_n_m if self.limits else 1e8
+        self.tail = max(1, int(round(0.5 / self.dt)))
+        # times at which what the plant sees changes besides the command and the load: faults start and end
+        self.events = sorted({t for fd in case.get("faults", ()) for t in (fd["start_s"],
+                                                                           fd["start_s"] + fd["duration_s"])})
+        self.last_event = -math.inf
+        self.t_offset = 0.0
+        self.did_reset = self.did_pause = False
+        self.out: Outputs | None = None
+        self._start()
+
+    def _start(self) -> None:
+        """The loop's memory at the (initial or reset) start: the nut's position, the stored energy, no history."""
+        self.hist_w: list[float] = []
+        self.hist_cmd: list[float] = []
+        self.hist_contact: list[float] = []
+        self.hist_load: list[float] = []
+        self.hist_v: list[float] = []
+        st = self.sim.state
+        model = self.sim.model
+        if self.act is not None:
+            self.x_prev, self.stored_prev = model.nut_position_m(st), model.stored_energy(st)
+        else:
+            self.x_prev, self.stored_prev = model.nut_motion(st)[0], model.total_stored_energy_j(st)
+        self.stored0 = self.stored_prev
+        self.v_prev = self.energy_in_prev = self.load_work_prev = 0.0
+        self.w_contact: float | None = None  # energy available since first contact
+        self.ctl = _Controller(self.case, self.p, self.dt)
+        self.engaged = self.released = False
+
+    @property
+    def last(self) -> Outputs:
+        """The last step's outputs (the end checks run only after a step)."""
+        assert self.out is not None  # `loop` returns False when no step was taken
+        return self.out
+
+    def contact_of(self, x: float) -> float:
+        for lim in self.limits:
             d = lim.sign * (x - lim.position_m)
             if d > 0.0:
                 return d
         return 0.0
 
-    def initial():  # nut position and stored energy of the (initial or reset) state
-        st = sim.state
-        screw = st.screw if act is not None else st
-        x0 = screw.nut_axial_m if elastic else pl * screw.screw_angle_rad
-        e0 = sim.model.stored_energy(st) if act is not None else sim.model.total_stored_energy_j(st)
-        return x0, e0
+    def loop(self) -> bool:
+        """The closed loop over the case's duration; False when it stopped at a violation."""
+        case, n = self.case, int(round(self.case["duration_s"] / self.dt))
+        pause_at, reset_at = case.get("pause_at_s"), case.get("reset_at_s")
+        for _ in range(n):
+            t = self.sim.time_s + self.t_offset
+            if pause_at is not None and not self.did_pause and t >= pause_at:
+                self.did_pause = True
+                self.session = _pause_and_continue(case, self.session, self.actions, self.res)
+                self.sim = self.session.simulator
+                if self.res.violations:
+                    return False
+            if reset_at is not None and not self.did_reset and t >= reset_at:
+                t = self._reset(t)
+            self._brake(t)
+            f = _load(case, t - (self.t_offset if self.did_reset else 0.0))
+            cmd = self.ctl.command(t, self.x_prev, self.v_prev, f)
+            while self.events and self.events[0] <= self.sim.time_s:
+                self.last_event = max(self.last_event, self.events.pop(0) + self.t_offset)
+            out = self.out = self.session.step(float(cmd), f)
+            self.actions.append(("step", float(cmd), f))
+            self.res.steps += 1
+            if not self.step_checks(out, t, cmd, f):
+                return False
+        return self.out is not None
 
-    out = None
-    x_prev, stored_prev = initial()
-    stored0 = stored_prev
-    v_prev = 0.0
-    energy_in_prev = load_work_prev = 0.0
-    w_contact = None  # energy available since first contact
-    t_offset = 0.0
-    engaged = released = did_reset = did_pause = False
-    for i in range(n):
-        t = sim.time_s + t_offset
-        if pause_at is not None and not did_pause and t >= pause_at:
-            did_pause = True
-            session = _pause_and_continue(case, session, actions, res)
-            sim = session.simulator
-            if res.violations:
-                return
-        if reset_at is not None and not did_reset and t >= reset_at:
-            did_reset = True
-            t_offset = t
-            session.reset()
-            actions.append(("reset",))
-            out, w_contact = None, None
-            hist_w.clear(), hist_cmd.clear(), hist_contact.clear(), hist_load.clear(), hist_v.clear()
-            x_prev, stored_prev = initial()
-            stored0 = stored_prev
-            v_prev, energy_in_prev, load_work_prev = 0.0, 0.0, 0.0
-            ctl = _Controller(case, p, dt)
-            engaged = released = False
-            t = t_offset
-        if brake and act is not None:
-            # a refused request (e.g. release while a drive fault holds the torque off) is the library's answer
-            if not engaged and t >= brake["engage_s"]:
-                engaged, last_event = True, t
-                session.brake(True)
-                actions.append(("brake", True))
-            elif engaged and not released and t >= brake["release_s"]:
-                released, last_event = True, t
-                session.brake(False)
-                actions.append(("brake", False))
-        f = _load(case, t - (t_offset if did_reset else 0.0))
-        cmd = ctl.command(t, x_prev, v_prev, f)
-        while events and events[0] <= sim.time_s:
-            last_event = max(last_event, events.pop(0) + t_offset)
-        out = session.step(float(cmd), f)
-        actions.append(("step", float(cmd), f))
-        res.steps += 1
-        x, v = nut(out), out.nut_velocity_m_s
+    def _reset(self, t: float) -> float:
+        self.did_reset = True
+        self.t_offset = t
+        self.session.reset()
+        self.actions.append(("reset",))
+        self.out = None
+        self._start()
+        return self.t_offset
+
+    def _brake(self, t: float) -> None:
+        # a refused request (e.g. release while a drive fault holds the torque off) is the library's answer
+        brake = self.case.get("brake")
+        if not (brake and self.act is not None):
+            return
+        if not self.engaged and t >= brake["engage_s"]:
+            self.engaged, self.last_event = True, t
+            self.session.brake(True)
+            self.actions.append(("brake", True))
+        elif self.engaged and not self.released and t >= brake["release_s"]:
+            self.released, self.last_event = True, t
+            self.session.brake(False)
+            self.actions.append(("brake", False))
+
+    def step_checks(self, out, t: float, cmd: float, f: float) -> bool:
+        """A step's invariants: finite, the energy guard and the actuator's ledger, an impact within the
+        work, the nut on its threads; then the history the end checks read. False at a violation."""
+        res = self.res
+        x, v = out.nut_position_m, out.nut_velocity_m_s
         if res.states is not None:
             res.states.append((out.screw_angle_rad, out.screw_speed_rad_s, x, v))
         scal = (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_speed_rad_s, x, v, out.nut_force_n,
                 out.energy_residual_j)
         if not all(math.isfinite(q) for q in scal):
             res.violations.append(f"non-finite state at t = {t:.4f} s")
-            return
+            return False
         if out.energy_fault:
             res.violations.append(f"energy guard tripped at t = {t:.4f} s (residual {out.energy_residual_j:.3g} J "
                                   f"of {out.energy_flow_j:.3g} J)")
-            return
-        if act is not None:
-            blk = sim.layout.view(out.internal, "actuator")
-            e_in, load_work, diss, stored = (float(blk[_Q[q]]) for q in ("energy_in_j", "load_work_j", "dissipated_j",
-                                                                         "stored_j"))
-            miss = e_in - load_work - diss - (stored - stored0)
-            scale = abs(e_in) + abs(load_work) + abs(diss)
-            if scale > ENERGY_GUARD_MIN_FLOW_J and abs(miss) > ENERGY_GUARD_REL * scale:  # the guard's own rule
-                res.violations.append(f"actuator ledger misses {miss:.3g} J of {scale:.3g} J at t = {t:.4f} s")
-                return
-            stop_f = float(blk[_Q["stop_force_n"]])
-        else:
-            stored = out.stored_energy_j
-            # work of the screw torque and of the external load over the step
-            e_in = energy_in_prev + out.power_in_w * dt
-            load_work = load_work_prev + f * (x - x_prev)
-            stop_f = session.simulator.thread_end_force_n
-        delta = contact_of(x)
+            return False
+        books = self._books(out, t, x, f)
+        if books is None:
+            return False
+        e_in, load_work, stored = books
+        delta = self.contact_of(x)
         res.max_penetration_m = max(res.max_penetration_m, delta)
-        if delta > 0.0:
-            if w_contact is None:  # first contact: what was stored just before it
-                w_contact = stored_prev - energy_in_prev + load_work_prev
-            w = w_contact + e_in - load_work
-            if 0.5 * k_stop * delta * delta > w * (1 + 1e-6) + 1e-9:
-                res.violations.append(f"impact past the work: ½kδ² = {0.5 * k_stop * delta * delta:.4g} J > W = "
-                                      f"{w:.4g} J at t = {t:.4f} s (δ = {delta * 1e6:.2f} µm)")
-                return
-        else:
-            w_contact = None
-        if travel is not None and abs(x) > 0.5 * travel + 0.5 * geo.nut_length_m:
+        if not self._impact_within_work(delta, e_in, load_work, t):
+            return False
+        if self.travel is not None and abs(x) > 0.5 * self.travel + 0.5 * self.nut_length:
             res.violations.append(f"the nut left its threads: x = {x:.5f} m at t = {t:.4f} s")
-            return
-        hist_w.append(out.screw_speed_rad_s)
-        hist_cmd.append(cmd)
-        hist_contact.append(delta)
-        hist_load.append(f)
-        hist_v.append(v)
-        x_prev, v_prev, stored_prev = x, v, stored
-        energy_in_prev, load_work_prev = e_in, load_work
-    if out is None:
-        return
-    # rest against a stop at the end: δ within the static deflection of the net force + 2 µm
-    last = int(round(0.1 / dt))
-    # (screw and nut: an elastic nut can still ring on its chain while the screw is held)
-    if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 \
-            and max(abs(q) for q in hist_v[-last:]) < 1e-6 and hist_contact[-1] > 0.0:
-        f = _load(case, sim.time_s)
-        net = abs(f - out.nut_force_n)
-        if hist_contact[-1] > net / k_stop + REST_SLACK_M:
-            res.violations.append(f"at rest {hist_contact[-1] * 1e6:.2f} µm into the stop, the net force "
-                                  f"{net:.1f} N deflects it {net / k_stop * 1e6:.2f} µm (stop force {stop_f:.1f} N)")
-    # held against a stop under a constant command: no ringing
-    # (and nothing else changed: no brake command, fault start or end in that time; the impact that brought
-    # it there SETTLE_S or more before the window, so what is judged is a hold, not an impact's decay)
-    settle = int(round(SETTLE_S / dt))
-    if len(hist_w) >= tail + settle and min(hist_contact[-tail - settle:]) > 0.0 and len(set(hist_cmd[-tail:])) == 1 \
-            and len(set(hist_load[-tail:])) == 1 and last_event <= sim.time_s + t_offset - tail * dt - 0.1:
-        ptp = max(hist_w[-tail:]) - min(hist_w[-tail:])
-        # ringing reverses the screw and lasts: swings of a quarter of the limit either way still there in
-        # the window's last 0.1 s. A one-way creep (the speed loop's integral pressing the nut further in)
-        # and the decaying ring when the torque limit then halts it are the controller's physics
-        last = hist_w[-max(2, int(round(0.1 / dt))):]
-        w = [q for q in last if abs(q) >= 0.25 * P2P_LIMIT_RAD_S]
-        reversals = sum(1 for a, b in zip(w, w[1:]) if a * b < 0.0)
-        if ptp >= P2P_LIMIT_RAD_S and reversals >= 2:
-            res.violations.append(f"screw speed rings {ptp:.3f} rad/s peak to peak against a stop "
-                                  "under a constant command")
+            return False
+        self.hist_w.append(out.screw_speed_rad_s)
+        self.hist_cmd.append(cmd)
+        self.hist_contact.append(delta)
+        self.hist_load.append(f)
+        self.hist_v.append(v)
+        self.x_prev, self.v_prev, self.stored_prev = x, v, stored
+        self.energy_in_prev, self.load_work_prev = e_in, load_work
+        return True
+
+    def _books(self, out, t: float, x: float, f: float) -> tuple[float, float, float] | None:
+        """(energy in, load work, stored energy) so far, J; None (a violation) when the actuator's ledger
+        misses more than the energy guard allows."""
+        if self.act is None:
+            # work of the screw torque and of the external load over the step
+            return (self.energy_in_prev + out.power_in_w * self.dt, self.load_work_prev + f * (x - self.x_prev),
+                    out.stored_energy_j)
+        blk = self.sim.layout.view(out.internal, "actuator")
+        e_in, load_work, diss, stored = (float(blk[_Q[q]]) for q in ("energy_in_j", "load_work_j", "dissipated_j",
+                                                                     "stored_j"))
+        miss = e_in - load_work - diss - (stored - self.stored0)
+        scale = abs(e_in) + abs(load_work) + abs(diss)
+        if scale > ENERGY_GUARD_MIN_FLOW_J and abs(miss) > ENERGY_GUARD_REL * scale:  # the guard's own rule
+            self.res.violations.append(f"actuator ledger misses {miss:.3g} J of {scale:.3g} J at t = {t:.4f} s")
+            return None
+        return e_in, load_work, stored
+
+    def _impact_within_work(self, delta: float, e_in: float, load_work: float, t: float) -> bool:
+        """½ k δ² ≤ W past a stop or thread end, W the energy stored at first contact plus the work of the
+        drive and the load since."""
+        if delta <= 0.0:
+            self.w_contact = None
+            return True
+        if self.w_contact is None:  # first contact: what was stored just before it
+            self.w_contact = self.stored_prev - self.energy_in_prev + self.load_work_prev
+        w = self.w_contact + e_in - load_work
+        k = self.k_stop
+        if 0.5 * k * delta * delta > w * (1 + 1e-6) + 1e-9:
+            self.res.violations.append(f"impact past the work: ½kδ² = {0.5 * k * delta * delta:.4g} J > W = "
+                                       f"{w:.4g} J at t = {t:.4f} s (δ = {delta * 1e6:.2f} µm)")
+            return False
+        return True
+
+    def check_rest(self) -> None:
+        """At rest against a stop at the end: δ within the static deflection of the net force + 2 µm
+        (screw and nut: an elastic nut can still ring on its chain while the screw is held)."""
+        last = int(round(0.1 / self.dt))
+        hist_w, hist_v, hist_contact = self.hist_w, self.hist_v, self.hist_contact
+        if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 \
+                and max(abs(q) for q in hist_v[-last:]) < 1e-6 and hist_contact[-1] > 0.0:
+            f = _load(self.case, self.sim.time_s)
+            net = abs(f - self.last.nut_force_n)
+            k = self.k_stop
+            if hist_contact[-1] > net / k + REST_SLACK_M:
+                stop_f = self._stop_force()
+                self.res.violations.append(f"at rest {hist_contact[-1] * 1e6:.2f} µm into the stop, the net force "
+                                           f"{net:.1f} N deflects it {net / k * 1e6:.2f} µm (stop force {stop_f:.1f} N)")
+
+    def _stop_force(self) -> float:
+        if self.act is None:
+            return self.session.simulator.thread_end_force_n
+        return float(self.sim.layout.view(self.last.internal, "actuator")[_Q["stop_force_n"]])
+
+    def check_ringing(self) -> None:
+        """Held against a stop under a constant command: no ringing (and nothing else changed: no brake
+        command, fault start or end in that time; the impact that brought it there SETTLE_S or more before
+        the window, so what is judged is a hold, not an impact's decay)."""
+        tail, dt, hist_w = self.tail, self.dt, self.hist_w
+        settle = int(round(SETTLE_S / dt))
+        if len(hist_w) >= tail + settle and min(self.hist_contact[-tail - settle:]) > 0.0 \
+                and len(set(self.hist_cmd[-tail:])) == 1 and len(set(self.hist_load[-tail:])) == 1 \
+                and self.last_event <= self.sim.time_s + self.t_offset - tail * dt - 0.1:
+            ptp = max(hist_w[-tail:]) - min(hist_w[-tail:])
+            # ringing reverses the screw and lasts: swings of a quarter of the limit either way still there in
+            # the window's last 0.1 s. A one-way creep (the speed loop's integral pressing the nut further in)
+            # and the decaying ring when the torque limit then halts it are the controller's physics
+            last = hist_w[-max(2, int(round(0.1 / dt))):]
+            w = [q for q in last if abs(q) >= 0.25 * P2P_LIMIT_RAD_S]
+            reversals = sum(1 for a, b in zip(w, w[1:]) if a * b < 0.0)
+            if ptp >= P2P_LIMIT_RAD_S and reversals >= 2:
+                self.res.violations.append(f"screw speed rings {ptp:.3f} rad/s peak to peak against a stop "
+                                           "under a constant command")
 
 
 class _Discard(list):

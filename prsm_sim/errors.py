@@ -21,3 +21,17 @@ class InputError(PrsmError, ValueError):
 
 class ModelError(PrsmError, RuntimeError):
     """A model could not be built or advanced for valid-looking parameters (e.g. no thread contact found)."""
+
+
+class NonFiniteStateError(ModelError):
+    """A step or run produced a non-finite state; the state before it is kept.
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time of the first non-finite state, s.
+    """
+
+    def __init__(self, message: str, time_s: float) -> None:
+        super().__init__(message)
+        self.time_s = time_s

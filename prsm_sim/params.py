@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import MISSING, asdict, dataclass, field, fields, replace
-from typing import Any
+from functools import cached_property
+from typing import Any, NamedTuple
 
 from prsm_sim.errors import ParamError
-from prsm_sim.physics.load_sharing import iso76_static_rating_n
+from prsm_sim.physics.ratings import ISO76_LINE_CONTACT_PRESSURE_PA, dynamic_load_rating_n, static_load_rating_n
 
 
 def check_field(group: str, name: str, value: Any, ok: bool, allowed: str) -> None:
@@ -43,6 +44,14 @@ def check_non_negative(group: str, obj: Any, *names: str) -> None:
 
 def _set(obj: Any, name: str, value: Any) -> None:
     object.__setattr__(obj, name, value)
+
+
+# Thread form: tooth height per pitch. A roller-screw catalogue's screw outer and root diameters
+# differ by 0.8 P in every row (docs/validation/data/srs_c_roller_screws.csv; docs/model.md "Thread form").
+TOOTH_HEIGHT_PER_PITCH = 0.4
+# f_c of the dynamic rating (physics.ratings): the value that gives the SRS-C 30 × 5 row's C_a = 123 kN
+# with the datasheet rules of prsm_sim.datasheet (docs/model.md "Ratings").
+DYNAMIC_FACTOR_DEFAULT = 164.6
 
 
 @dataclass(frozen=True)
@@ -75,6 +84,15 @@ class Geometry:
         The nut stays on the threads: x = 0 is the nut centred on the screw, and a stiff, damped
         stop (the actuator's stop law) holds it within ±(screw_length_m − nut_length_m)/2.
         False removes the ends (a screw of unlimited length); the lengths move them.
+    tooth_height_per_pitch : float, default 0.4
+        Thread form: radial tooth height h_t (root to crest) per pitch, so h_t = 0.4 P by default (the
+        screw thread depth of a roller-screw catalogue, docs/model.md "Thread form"); at most the
+        sharp V's depth 1 / (2 tan β). Sets the tooth compliance and, with the next, the ratings.
+    flank_contact_fraction : float, default 1
+        Thread form: the fraction of the straight flank (h_t / cos β along its generator in the
+        axial section) a contact can spread over, in (0, 1]; ℓ_f = fraction × h_t / cos β is what
+        limits a contact's size on the flank (`physics.ratings`). The contact point itself stays
+        where docs/model.md §3 puts it (roller profile radius r_R / sin β).
 
     Raises
     ------
@@ -89,12 +107,16 @@ class Geometry:
     n_rollers: int
     n_teeth: int
     flank_angle_deg: float = 45.0
-    nut_radius_m: float | None = None  # default r_S + 2 r_R (planetary fit)
-    gear_ratio: float | None = None  # ring/spur tooth ratio g; default r_N / r_R (no migration)
-    screw_length_m: float | None = None  # default 4 × the threaded roller length
-    pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
-    nut_length_m: float | None = None  # threaded nut length; default n_teeth × pitch
+    # Derived where not given: None on input, a float in every built instance (`__post_init__` fills
+    # it), so the fields are typed as what a reader gets
+    nut_radius_m: float = None  # type: ignore[assignment]  # default r_S + 2 r_R (planetary fit)
+    gear_ratio: float = None  # type: ignore[assignment]  # ring/spur tooth ratio g; default r_N / r_R (no migration)
+    screw_length_m: float = None  # type: ignore[assignment]  # default 4 × the threaded roller length
+    pin_radius_m: float = None  # type: ignore[assignment]  # roller journal radius in the carrier; default r_R / 2
+    nut_length_m: float = None  # type: ignore[assignment]  # threaded nut length; default n_teeth × pitch
     thread_ends: bool = True  # the nut stops at ±(screw_length_m − nut_length_m)/2 (False: no ends)
+    tooth_height_per_pitch: float = TOOTH_HEIGHT_PER_PITCH  # thread form: h_t / P (root to crest)
+    flank_contact_fraction: float = 1.0  # share of the straight flank h_t / cos β a contact can span
 
     def __post_init__(self) -> None:
         g = "geometry"
@@ -121,6 +143,7 @@ class Geometry:
         if self.nut_length_m is None:
             _set(self, "nut_length_m", self.n_teeth * self.pitch_m)
         check_positive(g, self, "screw_length_m", "pin_radius_m", "nut_length_m")
+        self._check_thread_form()
         check_field(g, "thread_ends", self.thread_ends, isinstance(self.thread_ends, bool), "must be true or false")
         if self.thread_ends:
             check_field(g, "nut_length_m", self.nut_length_m, self.nut_length_m < self.screw_length_m,
@@ -128,6 +151,25 @@ class Geometry:
         n_max = math.floor(math.pi / math.asin(min(1.0, self.roller_radius_m / self.carrier_radius_m)))
         check_field(g, "n_rollers", self.n_rollers, self.n_rollers <= n_max,
                f"at most {n_max} rollers of radius {self.roller_radius_m:g} m fit on the {self.carrier_radius_m:g} m pin circle")
+
+    def _check_thread_form(self) -> None:
+        g = "geometry"
+        v_depth = 1 / (2 * math.tan(math.radians(self.flank_angle_deg)))
+        v = self.tooth_height_per_pitch
+        check_field(g, "tooth_height_per_pitch", v, is_finite_number(v) and 0 < v <= v_depth * (1 + 1e-12),
+                    f"must lie in (0, {v_depth:.6g}] (the sharp V's depth 1 / (2 tan β))")
+        v = self.flank_contact_fraction
+        check_field(g, "flank_contact_fraction", v, is_finite_number(v) and 0 < v <= 1, "must lie in (0, 1]")
+
+    @property
+    def tooth_height_m(self) -> float:
+        """Radial tooth height h_t from root to crest (thread form), m."""
+        return self.tooth_height_per_pitch * self.pitch_m
+
+    @property
+    def flank_contact_length_m(self) -> float:
+        """ℓ_f: the flank length, along its generator in the axial section, a contact can span, m."""
+        return self.flank_contact_fraction * self.tooth_height_m / math.cos(self.flank_angle_rad)
 
     @property
     def flank_angle_rad(self) -> float:
@@ -200,6 +242,12 @@ class MassProperties:
 
     def resolved(self, geo: Geometry) -> MassProperties:
         """Fill every None from the geometry (the Params constructor calls this)."""
+        v = self.values(geo)
+        return replace(self, screw_inertia_kgm2=v.screw_inertia_kgm2, roller_mass_kg=v.roller_mass_kg,
+                       roller_inertia_kgm2=v.roller_inertia_kgm2, carrier_inertia_kgm2=v.carrier_inertia_kgm2)
+
+    def values(self, geo: Geometry) -> MassValues:
+        """Every mass and inertia as a float, those not given derived from the geometry (`Params.resolved_mass`)."""
         rho = self.density_kg_m3
         js = self.screw_inertia_kgm2
         if js is None:
@@ -213,7 +261,20 @@ class MassProperties:
         if jc is None:
             r_in, r_out, t = geo.screw_radius_m, geo.carrier_radius_m + geo.roller_radius_m / 2, 2e-3
             jc = 2 * rho * math.pi * t * (r_out**4 - r_in**4) / 2
-        return replace(self, screw_inertia_kgm2=js, roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+        return MassValues(moved_mass_kg=self.moved_mass_kg, density_kg_m3=rho, screw_inertia_kgm2=js,
+                          roller_mass_kg=mr, roller_inertia_kgm2=jr, carrier_inertia_kgm2=jc)
+
+
+class MassValues(NamedTuple):
+    """The mass properties of a built `Params` (`Params.resolved_mass`), each a float: the group's
+    fields with the derived ones filled (kg, kg/m³, kg·m²)."""
+
+    moved_mass_kg: float
+    density_kg_m3: float
+    screw_inertia_kgm2: float
+    roller_mass_kg: float
+    roller_inertia_kgm2: float
+    carrier_inertia_kgm2: float
 
 
 CONTACT_EVALUATIONS = ("exact", "line_of_centres")
@@ -425,8 +486,17 @@ class ElasticParams:
 
     def resolved(self, geo: Geometry) -> ElasticParams:
         """Fill every None from the geometry (the Params constructor calls this)."""
-        out = replace(
-            self,
+        v = self.values(geo)
+        out = replace(self, bearing_position_m=v.bearing_position_m, root_diameter_m=v.root_diameter_m,
+                      nut_outer_diameter_m=v.nut_outer_diameter_m, tooth_effective_width_m=v.tooth_effective_width_m)
+        check_positive("elastic", out, "root_diameter_m")
+        check_field("elastic", "nut_outer_diameter_m", v.nut_outer_diameter_m,
+               v.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
+        return out
+
+    def values(self, geo: Geometry) -> ElasticValues:
+        """The lengths derived from the geometry where not given, each a float (`Params.resolved_elastic`)."""
+        return ElasticValues(
             bearing_position_m=-geo.screw_length_m / 2 if self.bearing_position_m is None else self.bearing_position_m,
             root_diameter_m=2 * geo.screw_radius_m - 3 * geo.pitch_m if self.root_diameter_m is None
             else self.root_diameter_m,
@@ -434,10 +504,16 @@ class ElasticParams:
             else self.nut_outer_diameter_m,
             tooth_effective_width_m=math.pi * geo.roller_radius_m if self.tooth_effective_width_m is None
             else self.tooth_effective_width_m)
-        check_positive("elastic", out, "root_diameter_m")
-        check_field("elastic", "nut_outer_diameter_m", out.nut_outer_diameter_m,
-               out.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
-        return out
+
+
+class ElasticValues(NamedTuple):
+    """The lengths of the elastic group a built `Params` holds (`Params.resolved_elastic`), each a float, m:
+    the fields given, or derived from the geometry."""
+
+    bearing_position_m: float
+    root_diameter_m: float
+    nut_outer_diameter_m: float
+    tooth_effective_width_m: float
 
 
 
@@ -445,20 +521,48 @@ Elastic = ElasticParams  # the group's name before `ElasticParams` (the model is
 
 @dataclass(frozen=True)
 class Ratings:
-    """Basic axial load ratings of the nut (N): static C_0a and dynamic C_a (docs/model.md §5 item 10).
+    """Basic axial load ratings of the nut (N): static C_0a and dynamic C_a, and the factors they come from.
 
-    `static_load_rating_n` None: derived where Params is built, as the axial load that takes the
-    peak Hertz pressure of uniformly shared thread contacts to 4.2 GPa (the ISO 76 static-rating
-    criterion for point contacts). `dynamic_load_rating_n` 0: not rated (life estimates need it).
+    Either rating None: derived where Params is built from the geometry's thread form, the material
+    and the factors below (`physics.ratings`, docs/model.md "Ratings"): C_0a as the axial load that
+    takes the flank-limited thread contacts to the ISO 76 line-contact pressure, C_a by ISO 281's
+    thrust roller bearing formula. A number given here is used as it stands (0 for C_a: not
+    rated; life estimates need it).
+
+    Attributes
+    ----------
+    static_load_rating_n, dynamic_load_rating_n : float or None
+        The ratings, N; None derives them.
+    static_contact_pressure_pa : float, default 4.0e9
+        p₀ of the static rating: ISO 76:2006's 4000 MPa for roller (line) contacts.
+    static_factor : float, default 1
+        f_0, the static profile factor (a datasheet calibrates it).
+    dynamic_factor : float
+        f_c of ISO 281's thrust roller bearing formula (N, lengths in mm); the default is the value
+        that reproduces a catalogue size (docs/model.md "Ratings").
     """
 
     static_load_rating_n: float | None = None
-    dynamic_load_rating_n: float = 0.0
+    dynamic_load_rating_n: float | None = None
+    static_contact_pressure_pa: float = ISO76_LINE_CONTACT_PRESSURE_PA
+    static_factor: float = 1.0
+    dynamic_factor: float = DYNAMIC_FACTOR_DEFAULT
 
     def __post_init__(self) -> None:
         if self.static_load_rating_n is not None:
             check_positive("ratings", self, "static_load_rating_n")
-        check_non_negative("ratings", self, "dynamic_load_rating_n")
+        if self.dynamic_load_rating_n is not None:
+            check_non_negative("ratings", self, "dynamic_load_rating_n")
+        check_positive("ratings", self, "static_contact_pressure_pa", "static_factor", "dynamic_factor")
+
+    def resolved(self, geo: Geometry, material: Material) -> Ratings:
+        """Fill each None rating from the thread form (the Params constructor calls this)."""
+        return replace(
+            self,
+            static_load_rating_n=static_load_rating_n(geo, material, self) if self.static_load_rating_n is None
+            else self.static_load_rating_n,
+            dynamic_load_rating_n=dynamic_load_rating_n(geo, material, self) if self.dynamic_load_rating_n is None
+            else self.dynamic_load_rating_n)
 
 
 STICTION_LAWS = ("stribeck",)
@@ -485,6 +589,59 @@ class Stiction:
         check_field("stiction", "breakaway_ratio", v, is_finite_number(v) and v >= 1, "must be a finite number >= 1")
 
 
+PIN_BEARINGS = ("journal", "needle")
+# constant coefficient of friction of needle roller bearings with a cage, frictional moment M = ½ μ P d at the bore
+# d (SKF "Rolling bearings" general catalogue, 2016, "Friction", table 1: 0.0020)
+NEEDLE_BEARING_MU = 0.0020
+
+
+@dataclass(frozen=True)
+class DragParams:
+    """Load-independent losses of a real screw (`fu2018`, `elastic`; `ideal` as an equivalent torque), and the
+    carrier pins' bearing type. docs/model.md §4.5 lists each law and the source of each default.
+
+    `enabled` false: none of the drag acts (the papers' screw, bit for bit). `pin_bearing` acts either way:
+    ``"journal"`` is a plain pin with `friction.mu_pin`, ``"needle"`` a needle bearing with μ = 0.0020
+    (`NEEDLE_BEARING_MU`) at the same lever, the pin radius.
+
+    Attributes
+    ----------
+    enabled : bool
+        Seals, film traction and the internal preload act.
+    seal_friction_n_per_m : float
+        Friction force of a seal or wiper lip per metre of its circumference on the screw, N/m: a seal torque
+        T_s = n_seals · f′ · 2π r_S · r_S, regularised Coulomb on the screw, held statically at rest.
+    n_seals : int
+        Seals or wipers on the screw (one at each end of the nut).
+    film_thickness_m, film_area_m2 : float
+        Lubricant film h and wetted area A of one screw–roller thread contact: a Newtonian shear traction
+        f = −(ρ ν A / h) v_s at every contact, present at zero load.
+    internal_preload_n : float
+        Axial force P_i each flank set carries with no external load (the nut's play class or light preload
+        of a rigid nut, N): its contact forces act through the screw–roller Coulomb law on the idle flanks.
+    pin_bearing : str
+        ``"journal"`` or ``"needle"``.
+    """
+
+    enabled: bool = False
+    seal_friction_n_per_m: float = 32.0
+    n_seals: int = 2
+    film_thickness_m: float = 0.5e-6
+    film_area_m2: float = 1e-6
+    internal_preload_n: float = 800.0
+    pin_bearing: str = "journal"
+
+    def __post_init__(self) -> None:
+        g = "drag"
+        check_field(g, "enabled", self.enabled, isinstance(self.enabled, bool), "must be true or false")
+        check_non_negative(g, self, "seal_friction_n_per_m", "film_area_m2", "internal_preload_n")
+        check_positive(g, self, "film_thickness_m")
+        check_field(g, "n_seals", self.n_seals, isinstance(self.n_seals, int) and not isinstance(self.n_seals, bool)
+                    and self.n_seals >= 0, "must be an integer >= 0")
+        check_field(g, "pin_bearing", self.pin_bearing, self.pin_bearing in PIN_BEARINGS,
+                    f"must be one of {', '.join(PIN_BEARINGS)}")
+
+
 _GROUPS: dict[str, type] = {
     "geometry": Geometry,
     "mass": MassProperties,
@@ -495,6 +652,7 @@ _GROUPS: dict[str, type] = {
     "elastic": ElasticParams,
     "ratings": Ratings,
     "stiction": Stiction,
+    "drag": DragParams,
 }
 
 
@@ -525,9 +683,11 @@ class Params:
     elastic : ElasticParams
         Axial compliance chain of `elastic` (clearance, preload, bearing, housing).
     ratings : Ratings
-        Axial load ratings of the nut (the static one derived by ISO 76 where left None).
+        Axial load ratings of the nut (derived from the thread form where left None).
     stiction : Stiction
         Breakaway beyond the running friction (`elastic`).
+    drag : DragParams
+        Load-independent losses of a real screw (seals, film traction, internal preload) and the pin bearing.
 
     Raises
     ------
@@ -554,6 +714,7 @@ class Params:
     elastic: ElasticParams = field(default_factory=ElasticParams)
     ratings: Ratings = field(default_factory=Ratings)
     stiction: Stiction = field(default_factory=Stiction)
+    drag: DragParams = field(default_factory=DragParams)
 
     def __post_init__(self) -> None:
         for gname, cls in _GROUPS.items():
@@ -564,8 +725,7 @@ class Params:
         if self.friction.drag_radius_m is None:
             _set(self, "friction", replace(self.friction, drag_radius_m=self.geometry.nut_radius_m))
         _set(self, "elastic", self.elastic.resolved(self.geometry))
-        if self.ratings.static_load_rating_n is None:
-            _set(self, "ratings", replace(self.ratings, static_load_rating_n=iso76_static_rating_n(self)))
+        _set(self, "ratings", self.ratings.resolved(self.geometry, self.material))
         c0 = self.ratings.static_load_rating_n
         check_field("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
                f"must not exceed the static load rating ratings.static_load_rating_n = {c0:.6g} N")
@@ -573,6 +733,16 @@ class Params:
         check_field("elastic", "preload_kind", self.elastic.preload_kind, self.elastic.preload_kind != "double_nut"
                or (nt >= 2 and nt % 2 == 0), f"must not be double_nut for geometry.n_teeth = {nt} (two halves of "
                "N_T/2 rows: an even n_teeth)")
+
+    @cached_property
+    def resolved_mass(self) -> MassValues:
+        """The mass properties as this set holds them (`mass`, resolved), each a float."""
+        return self.mass.values(self.geometry)
+
+    @cached_property
+    def resolved_elastic(self) -> ElasticValues:
+        """The elastic group's derived lengths as this set holds them (`elastic`, resolved), each a float, m."""
+        return self.elastic.values(self.geometry)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""
@@ -617,13 +787,22 @@ class Params:
         return cls(name=str(name), **groups)
 
     def with_overrides(self, overrides: dict[str, Any]) -> Params:
-        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}."""
+        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}.
+
+        Ratings the base derived (`Ratings`) are derived again for the new values; ratings given
+        as numbers stay as given unless overridden.
+        """
         nested: dict[str, Any] = {}
         for key, value in overrides.items():
             parts = key.split(".")
             if len(parts) != 2:
                 raise ParamError(f"parameter override {key!r}: expected group.name, e.g. friction.mu_screw_roller")
             nested.setdefault(parts[0], {})[parts[1]] = value
+        # a rating the base derived is derived again from the new thread form, material and factors
+        r = self.ratings
+        for name, law in (("static_load_rating_n", static_load_rating_n), ("dynamic_load_rating_n", dynamic_load_rating_n)):
+            if name not in nested.get("ratings", {}) and getattr(r, name) == law(self.geometry, self.material, r):
+                nested.setdefault("ratings", {})[name] = None
         return Params.from_dict(nested, base=self)
 
     @staticmethod
@@ -632,10 +811,11 @@ class Params:
         return [f"{g}.{f.name}" for g, cls in _GROUPS.items() for f in fields(cls)]
 
 
-_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth")}
-_BOOL_FIELDS = {("geometry", "thread_ends")}
+_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth"), ("drag", "n_seals")}
+_BOOL_FIELDS = {("geometry", "thread_ends"), ("drag", "enabled")}
 _STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution"),
-               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law")}
+               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law"),
+               ("drag", "pin_bearing")}
 
 
 def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:

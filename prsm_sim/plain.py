@@ -22,7 +22,7 @@ import dataclasses
 import math
 import typing
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -42,36 +42,51 @@ def to_plain(obj: Any, _path: str = "state") -> Any:
     if obj is None or isinstance(obj, (bool, str)):
         return obj
     if isinstance(obj, (np.generic, np.ndarray)):
-        if isinstance(obj, np.ndarray):
-            return {"$array": obj.dtype.str, "shape": list(obj.shape),
-                    "data": [to_plain(v, _path) for v in obj.ravel().tolist()]}
-        return {"$np": obj.dtype.str, "value": to_plain(obj.item(), _path)}
+        return _numpy_to_plain(obj, _path)
     if isinstance(obj, int):
         return int(obj)
     if isinstance(obj, float):
         return float(obj) if math.isfinite(obj) else {"$float": repr(float(obj))}
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {"$dc": _type_name(type(obj)),
-                "fields": {f.name: to_plain(getattr(obj, f.name), f"{_path}.{f.name}")
-                           for f in dataclasses.fields(obj) if f.init}}
-    if _is_named_tuple(obj):
-        return {"$nt": _type_name(type(obj)), "items": [to_plain(v, f"{_path}.{n}") for n, v in zip(obj._fields, obj)]}
-    if isinstance(obj, list) and type(obj) is list:
-        return [to_plain(v, f"{_path}[{i}]") for i, v in enumerate(obj)]
-    if type(obj) is tuple:
-        return {"$tuple": [to_plain(v, f"{_path}[{i}]") for i, v in enumerate(obj)]}
-    if type(obj) is dict and all(isinstance(k, str) for k in obj):
-        return {"$dict": {k: to_plain(v, f"{_path}.{k}") for k, v in obj.items()}}
+    plain = _record_to_plain(obj, _path)
+    if plain is not None:
+        return plain
     reduced = _reduced_dataclass(obj)
     if reduced is not None:  # e.g. a record that pickles as a plain dataclass (PackedOutputs → Outputs)
         return to_plain(reduced, _path)
     raise InputError(f"{_path}: a {type(obj).__name__} cannot be written as plain data")
 
 
+def _numpy_to_plain(obj: np.generic | np.ndarray, path: str) -> dict:
+    if isinstance(obj, np.ndarray):
+        return {"$array": obj.dtype.str, "shape": list(obj.shape),
+                "data": [to_plain(v, path) for v in obj.ravel().tolist()]}
+    return {"$np": obj.dtype.str, "value": to_plain(obj.item(), path)}
+
+
+def _record_to_plain(obj: Any, path: str) -> Any:
+    """A dataclass, named tuple, list, tuple or dict with string keys as plain data; None for anything else."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {"$dc": _type_name(type(obj)),
+                "fields": {f.name: to_plain(getattr(obj, f.name), f"{path}.{f.name}")
+                           for f in dataclasses.fields(obj) if f.init}}
+    if _is_named_tuple(obj):
+        return {"$nt": _type_name(type(obj)), "items": [to_plain(v, f"{path}.{n}") for n, v in zip(obj._fields, obj)]}
+    if type(obj) is list:
+        return [to_plain(v, f"{path}[{i}]") for i, v in enumerate(obj)]
+    if type(obj) is tuple:
+        return {"$tuple": [to_plain(v, f"{path}[{i}]") for i, v in enumerate(obj)]}
+    if type(obj) is dict and all(isinstance(k, str) for k in obj):
+        return {"$dict": {k: to_plain(v, f"{path}.{k}") for k, v in obj.items()}}
+    return None
+
+
 def _reduced_dataclass(obj: object):
     """The dataclass instance `obj` pickles as (its `__reduce__` names a dataclass type), or None."""
     try:
-        rebuild, args = obj.__reduce__()[:2]
+        reduced = obj.__reduce__()
+        if not isinstance(reduced, tuple):  # a global's name: not a record
+            return None
+        rebuild, args = reduced[:2]
     except Exception:
         return None
     if isinstance(rebuild, type) and dataclasses.is_dataclass(rebuild) and isinstance(args, tuple):
@@ -133,39 +148,54 @@ def from_plain(data: Any, types: dict[str, type] | Iterable[type], _path: str = 
     or a record type not in `types`."""
     if not isinstance(types, dict):
         types = {_type_name(t): t for t in types}
-    if data is None or isinstance(data, (bool, str)):
-        return data
-    if isinstance(data, int):
-        return data
-    if isinstance(data, float):
+    if data is None or isinstance(data, (bool, str, int, float)):
         return data
     if isinstance(data, list):
         return [from_plain(v, types, f"{_path}[{i}]") for i, v in enumerate(data)]
     if not (isinstance(data, dict) and len(data) >= 1):
         raise InputError(f"{_path} = {data!r}: not plain data written by prsm_sim")
     tag = next(iter(data))
+    reader = _TAGGED.get(tag)
+    if reader is None:
+        raise InputError(f"{_path}: unknown tag {tag!r}; not plain data written by prsm_sim")
     try:
-        if tag == "$float" and data[tag] in ("nan", "inf", "-inf"):
-            return float(data[tag])
-        if tag == "$tuple":
-            return tuple(from_plain(v, types, f"{_path}[{i}]") for i, v in enumerate(data[tag]))
-        if tag == "$dict":
-            return {str(k): from_plain(v, types, f"{_path}.{k}") for k, v in data[tag].items()}
-        if tag == "$np":
-            return np.dtype(data[tag]).type(from_plain(data["value"], types, _path))
-        if tag == "$array":
-            flat = [from_plain(v, types, _path) for v in data["data"]]
-            return np.array(flat, dtype=np.dtype(data[tag])).reshape(data["shape"])
-        if tag in ("$dc", "$nt"):
-            cls = types.get(data[tag])
-            if cls is None:
-                raise InputError(f"{_path}: record type {data[tag]!r} is not one this state holds "
-                                 f"(known: {', '.join(sorted(types))})")
-            if tag == "$dc":
-                return cls(**{k: from_plain(v, types, f"{_path}.{k}") for k, v in data["fields"].items()})
-            return cls(*(from_plain(v, types, f"{_path}.{n}") for n, v in zip(cls._fields, data["items"])))
+        return reader(data, types, _path)
     except InputError:
         raise
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise InputError(f"{_path}: malformed {tag} entry ({type(e).__name__}: {e})") from None
-    raise InputError(f"{_path}: unknown tag {tag!r}; not plain data written by prsm_sim")
+
+
+def _float_from_plain(data: dict, types: dict[str, type], path: str) -> float:
+    if data["$float"] not in ("nan", "inf", "-inf"):
+        raise InputError(f"{path}: unknown tag '$float' value {data['$float']!r}; not plain data written by prsm_sim")
+    return float(data["$float"])
+
+
+def _array_from_plain(data: dict, types: dict[str, type], path: str) -> np.ndarray:
+    flat = [from_plain(v, types, path) for v in data["data"]]
+    return np.array(flat, dtype=np.dtype(data["$array"])).reshape(data["shape"])
+
+
+def _record_from_plain(data: dict, types: dict[str, type], path: str) -> Any:
+    tag = next(iter(data))
+    cls = types.get(data[tag])
+    if cls is None:
+        raise InputError(f"{path}: record type {data[tag]!r} is not one this state holds "
+                         f"(known: {', '.join(sorted(types))})")
+    if tag == "$dc":
+        return cls(**{k: from_plain(v, types, f"{path}.{k}") for k, v in data["fields"].items()})
+    names = cast(Any, cls)._fields  # a named tuple (`reachable_types` admits no other kind here)
+    return cls(*(from_plain(v, types, f"{path}.{n}") for n, v in zip(names, data["items"])))
+
+
+# how each tag `to_plain` writes is read back
+_TAGGED = {
+    "$float": _float_from_plain,
+    "$tuple": lambda d, types, path: tuple(from_plain(v, types, f"{path}[{i}]") for i, v in enumerate(d["$tuple"])),
+    "$dict": lambda d, types, path: {str(k): from_plain(v, types, f"{path}.{k}") for k, v in d["$dict"].items()},
+    "$np": lambda d, types, path: np.dtype(d["$np"]).type(from_plain(d["value"], types, path)),
+    "$array": _array_from_plain,
+    "$dc": _record_from_plain,
+    "$nt": _record_from_plain,
+}

@@ -16,9 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
-from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.models.registry import MODELS, model_class
 from prsm_sim.models.jones2016 import steady_state
 from prsm_sim.params import Params
+from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.simulator import Simulator
 from prsm_sim.stepping.ledger import efficiency, energy_guard_summary
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
@@ -63,20 +64,27 @@ def default_spec(params: Params, name: str, *, load_n: float | None = None, torq
 def torque_profile(spec: ScenarioSpec, n_steps: int, dt_s: float) -> np.ndarray:
     """Open-loop torque held over each step k (t = k dt)."""
     t = dt_s * np.arange(n_steps)
+    if spec.name not in ("step", "ramp", "sine"):
+        raise InputError(f"scenario {spec.name!r} is speed-controlled, not a torque profile")
+    amp = spec.torque_nm
+    if amp is None:
+        raise InputError(f"scenario {spec.name!r}: torque_nm = None: an open-loop scenario needs its torque (N·m)")
     if spec.name == "step":
-        return np.full(n_steps, spec.torque_nm)
+        return np.full(n_steps, amp)
     if spec.name == "ramp":
-        return spec.torque_nm * t / max(t[-1], dt_s) if n_steps else t
-    if spec.name == "sine":
-        return spec.torque_nm * np.sin(2 * math.pi * spec.frequency_hz * t)
-    raise InputError(f"scenario {spec.name!r} is speed-controlled, not a torque profile")
+        return amp * t / max(t[-1], dt_s) if n_steps else t
+    return amp * np.sin(2 * math.pi * spec.frequency_hz * t)
 
 
 def speed_reference(spec: ScenarioSpec, t_s: float) -> float:
     """Screw-speed reference: a 0.1 s ramp to the speed (heavy, light) or a sine (motion reversals)."""
+    w = spec.speed_rad_s
+    if w is None:
+        raise InputError(f"scenario {spec.name!r}: speed_rad_s = None: a speed-controlled scenario needs its speed "
+                         "(rad/s)")
     if spec.name == "sine-motion":
-        return spec.speed_rad_s * math.sin(2 * math.pi * spec.frequency_hz * t_s)
-    return spec.speed_rad_s * min(1.0, t_s / 0.1)
+        return w * math.sin(2 * math.pi * spec.frequency_hz * t_s)
+    return w * min(1.0, t_s / 0.1)
 
 
 def run_scenario(sim: Simulator, spec: ScenarioSpec, duration_s: float, progress=None) -> Trajectory:
@@ -147,7 +155,7 @@ def _closed_loop(driver, spec: ScenarioSpec, n: int, progress, step, speed) -> l
     bw = min(100.0, 1.0 / (20.0 * dt))
     model = getattr(driver, "model", None)  # a Session names its screw model; a Simulator's model (or actuator)
     name = getattr(driver, "model_name", None) or getattr(model, "model_name", None) or getattr(model, "name", "")
-    if name == "elastic":
+    if name in MODELS and model_class(name).has_axial_chain:
         # above its axial mode the chain decouples the nut: the loop then acts on the screw side alone,
         # and a gain set on the whole inertia would make the sampled loop ring at the Nyquist rate
         # (kp dt / J_core > 2). Kept at kp dt / J_core ≤ 1/2, the bandwidth lowered to match.

@@ -17,15 +17,15 @@ last finite state kept.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from prsm_sim.actuator import ACTUATOR_QUANTITIES, Actuator, ActuatorParams, ActuatorState, Fault, FaultEvent
 from prsm_sim.actuator.stops import ThreadEndEvent
-from prsm_sim.checks import is_finite_number
+from prsm_sim.checks import check_typed, is_finite_number
 from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate, GateCounters
-from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
+from prsm_sim.errors import InputError, ModelError, NonFiniteStateError, ParamError, PrsmError
 from prsm_sim.models.registry import build_model
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
@@ -37,9 +37,12 @@ from prsm_sim.stepping.records import InternalLayout, Outputs
 STATE_FORMAT = "prsm_session/1"
 _THREAD_END = [n for n, _ in ACTUATOR_QUANTITIES].index("thread_end")  # in the actuator's output block
 _STOP_FORCE = [n for n, _ in ACTUATOR_QUANTITIES].index("stop_force_n")
-# what a session holds besides its simulator and its gate, saved by `get_state`
-_RUN_FIELDS = ("nut_position_m", "load_n", "initial_load_n", "_paused", "fault", "_last", "_events",
-               "_at_thread_end", "_edge_events")
+# what a session holds besides its simulator and its gate, saved by `get_state`, and the types `set_state` takes
+_RUN_TYPES = {"nut_position_m": float, "load_n": float, "initial_load_n": float | None, "_paused": bool,
+              "fault": str | None, "_last": Outputs | None, "_events": list[FaultEvent], "_at_thread_end": bool,
+              "_edge_events": list[ThreadEndEvent]}
+_RUN_FIELDS = tuple(_RUN_TYPES)
+_GATE_TYPES = {"value": float, "command_time_s": float | None, "timed_out": bool, "counters": GateCounters}
 
 
 def state_is_finite(out: Outputs) -> bool:
@@ -55,6 +58,48 @@ def state_is_finite(out: Outputs) -> bool:
         return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out.nut_force_n * 0.0 == 0.0
     return (out.screw_angle_rad * 0.0 + out.screw_speed_rad_s * 0.0 + out.carrier_angle_rad * 0.0
             + out.carrier_speed_rad_s * 0.0 + out.nut_force_n * 0.0 == 0.0) and bool(np.isfinite(out.internal).all())
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """Everything a `Session` is built from: the one description every transport (the node, the FMU,
+    studies, the CLI, the envelope) fills in and hands to `Session.from_config`.
+
+    Attributes
+    ----------
+    params, model, dt_s, actuator, kernel
+        The parameter set, the screw model's name, the fixed step (s), the actuator around the screw
+        (`ActuatorParams`, None: the bare model, effort only) and the kernel, as for `Simulator`.
+    faults : tuple of Fault
+        Faults scheduled besides the actuator's own (`ActuatorParams.faults`); an actuator is needed.
+    interface : {"effort", "velocity", "position"}
+        The active command interface at the start.
+    nut_position_m, load_n, initial_load_n
+        The start: nut position (m), the nut load in force (N) and the load the start is in
+        equilibrium under (N, None: at rest and unloaded), as for `Session`.
+    max_effort_nm, cmd_timeout_s, timeout_behaviour
+        The command gate's torque limit (N·m), watchdog timeout (simulation s, 0 disables) and what
+        a timeout does ("zero" or "hold").
+    paused : bool
+        Start paused (the transport steps only on request).
+
+    Values are checked where the session is built (one line naming the field).
+    """
+
+    params: Params
+    model: str = "jones2016"
+    dt_s: float = 1e-3
+    actuator: ActuatorParams | None = None
+    faults: tuple[Fault, ...] = ()
+    kernel: str = "compiled"
+    interface: str = "effort"
+    nut_position_m: float = 0.0
+    load_n: float = 0.0
+    initial_load_n: float | None = None
+    max_effort_nm: float = 50.0
+    cmd_timeout_s: float = 0.0
+    timeout_behaviour: str = "zero"
+    paused: bool = False
 
 
 class Session:
@@ -112,7 +157,7 @@ class Session:
         self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
         self.nut_position_m = float(nut_position_m)
         self.initial_load_n = None if initial_load_n is None else float(initial_load_n)
-        self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else self.initial_load_n
+        self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else float(initial_load_n)
         self._at_thread_end = False  # the nut pressed on a thread end after the last step
         self._edge_events: list = []  # thread-end events (stops.ThreadEndEvent) not yet taken
         self._paused = False
@@ -124,6 +169,28 @@ class Session:
         if reason is not None:
             raise ParamError(reason)
         self.gate.reset(self.nut_position_m)
+
+    @classmethod
+    def from_config(cls, config: SessionConfig) -> Session:
+        """The session `config` describes (InputError/ParamError naming the field when refused)."""
+        if not isinstance(config, SessionConfig):
+            raise InputError(f"config: expected a SessionConfig, got {type(config).__name__}")
+        act = config.actuator
+        if config.faults:
+            if act is None:
+                raise InputError("faults: the bare model takes no faults (fit an actuator)")
+            if not isinstance(act, ActuatorParams):
+                raise InputError(f"actuator: expected ActuatorParams, got {type(act).__name__}")
+            act = replace(act, faults=act.faults + tuple(config.faults))
+        if not isinstance(config.paused, bool):
+            raise InputError(f"paused = {config.paused!r}: must be true or false")
+        session = cls(config.params, config.model, config.dt_s, act, nut_position_m=config.nut_position_m,
+                      load_n=config.load_n, initial_load_n=config.initial_load_n, kernel=config.kernel,
+                      interface=config.interface, max_effort_nm=config.max_effort_nm,
+                      cmd_timeout_s=config.cmd_timeout_s, timeout_behaviour=config.timeout_behaviour)
+        if config.paused:
+            session.pause()
+        return session
 
     def __repr__(self) -> str:
         return (f"Session(model={self.model_name!r}, actuator={self.actuator is not None}, "
@@ -219,16 +286,15 @@ class Session:
                 sim.state = before = act.command_brake(before, True)
         try:
             out = sim.step(command, self.load_n)
+        except NonFiniteStateError as e:  # the simulator kept the last finite state
+            raise self._non_finite(e.time_s, command) from None
         except Exception as e:  # any model failure stops stepping until reset
             self.fault = f"model {self.model_name} failed at t = {t0:.6f} s: {type(e).__name__}: {e}"
             raise ModelError(self.fault) from e
         if not state_is_finite(out):
             sim.undo()  # keep the last finite state; reset clears the fault
-            self.fault = (f"model {self.model_name} produced a non-finite state at t = {out.time_s:.6f} s "
-                          f"(command {command:g} {gate.interface}, load {self.load_n:g} N); "
-                          "stepping stopped until reset")
-            raise ModelError(self.fault)
-        if before is not None:
+            raise self._non_finite(out.time_s, command)
+        if act is not None and before is not None:
             self._events += act.events(before, sim.state)
             at_end = bool(self.layout.view(out.internal, "actuator")[_THREAD_END]) if self._thread_ends else False
             end_force = self.layout.view(out.internal, "actuator")[_STOP_FORCE] if at_end else 0.0
@@ -240,6 +306,13 @@ class Session:
             self._edge_events.append(ThreadEndEvent(out.time_s, "reached" if at_end else "left", float(end_force)))
         self._last = out
         return out
+
+    def _non_finite(self, time_s: float, command: float) -> ModelError:
+        """Stop stepping until reset: the step at `time_s` produced a non-finite state."""
+        self.fault = (f"model {self.model_name} produced a non-finite state at t = {time_s:.6f} s "
+                      f"(command {command:g} {self.gate.interface}, load {self.load_n:g} N); "
+                      "stepping stopped until reset")
+        return NonFiniteStateError(self.fault, time_s)
 
     @property
     def _thread_ends(self) -> bool:
@@ -418,8 +491,10 @@ class Session:
                 "session": to_plain({k: getattr(self, k) for k in _RUN_FIELDS}, "session")}
 
     def set_state(self, data: dict) -> None:
-        """Continue from `get_state`'s data. InputError (one line, nothing changed) for data of
-        another format, model, step or actuator fitting, or data `get_state` did not write."""
+        """Continue from `get_state`'s data, all or nothing: the whole of it is checked before anything
+        changes. InputError (one line naming the field, nothing changed) for data of another format,
+        model, step or actuator fitting, data `get_state` did not write, values of the wrong type,
+        non-finite loads or positions, or a nut position off the threads."""
         if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
             raise InputError(f"state format = {data.get('format') if isinstance(data, dict) else data!r}: "
                              f"expected {STATE_FORMAT!r} (a Session.get_state result)")
@@ -434,14 +509,15 @@ class Session:
                 and isinstance(run, dict) and run.keys() == set(_RUN_FIELDS)):
             raise InputError("state: the gate or session entries do not match this version's (save and restore "
                              "with the same prsm version)")
-        try:  # the limits and the interface, validated as when built
-            CommandGate(gate["max_effort_nm"], gate["cmd_timeout_s"], gate["timeout_behaviour"], gate["interface"])
-        except ParamError as e:
-            raise InputError(f"state gate: {e}") from None
-        self.simulator.set_state(data.get("simulator"))
+        _check_gate(gate)
+        _check_run(run, self.simulator)
+        sim = self.simulator.read_state(data.get("simulator"))
+        # everything checked: from here on nothing can fail
+        self.simulator.apply_state(sim)
         vars(self.gate).update(gate)
         for k, v in run.items():
             setattr(self, k, v)
+
 
     def status(self) -> dict:
         """The session as plain data (numbers, strings, lists, dicts): time, run state, command,
@@ -472,3 +548,28 @@ class Session:
                              "motor_current_a": a.current_a, "torque_limited": a.limited,
                              "faults_active": [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]}
         return d
+
+
+def _check_gate(gate: dict) -> None:
+    """InputError naming the field unless `gate` holds what `Session.get_state` writes for a gate: the
+    limits and the interface as when built, the command a finite number, the counters whole numbers."""
+    try:
+        CommandGate(gate["max_effort_nm"], gate["cmd_timeout_s"], gate["timeout_behaviour"], gate["interface"])
+    except ParamError as e:
+        raise InputError(f"state gate: {e}") from None
+    for k, hint in _GATE_TYPES.items():
+        check_typed(gate[k], hint, f"state gate.{k}")
+    if not math.isfinite(gate["value"]):
+        raise InputError(f"state gate.value = {gate['value']!r}: must be a finite number")
+
+
+def _check_run(run: dict, simulator: Simulator) -> None:
+    """InputError naming the field unless `run` holds what `Session.get_state` writes for a session
+    around `simulator`: values of their types, finite loads and a start position on the threads."""
+    for k, hint in _RUN_TYPES.items():
+        check_typed(run[k], hint, f"state session.{k}")
+    for k in ("nut_position_m", "load_n", "initial_load_n"):
+        v = run[k]
+        if v is not None and not math.isfinite(v):
+            raise InputError(f"state session.{k} = {v!r}: must be a finite number")
+    simulator.check_on_threads(run["nut_position_m"], "state session.nut_position_m")

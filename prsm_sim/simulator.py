@@ -11,22 +11,38 @@ state and counts steps, so a node or a CLI can drive it without bookkeeping of i
 from __future__ import annotations
 
 import math
+import sys
 import warnings
+from dataclasses import fields
+from typing import Any
 
 import numpy as np
 
 from prsm_sim.actuator import Actuator
-from prsm_sim.actuator.stops import engaged, limits_of
+from prsm_sim.actuator.stops import Limit, engaged, limits_of
 from prsm_sim.actuator.stops import solve as solve_stop
-from prsm_sim.checks import is_finite_number
-from prsm_sim.errors import InputError
-from prsm_sim.models.registry import MODELS, build_model  # MODELS: importable from here too
+from prsm_sim.checks import check_typed, is_finite_number, is_number
+from prsm_sim.errors import InputError, NonFiniteStateError
+from prsm_sim.models.registry import MODELS, build_model  # noqa: F401  # MODELS: importable from here too
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.stepping.model import check_step_inputs
 from prsm_sim.stepping.packed import NUT_POSITION_ITEM, PACKED_STATE_SIZE
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
+
+
+# the state-carrying columns of a run (with the nut force): efficiency and speed_ratio may be NaN by design
+_STATE_COLUMNS = ("screw_angle_rad", "screw_speed_rad_s", "carrier_angle_rad", "carrier_speed_rad_s")
+
+
+def _check_state(state, kind: type, path: str) -> None:
+    """InputError naming the field unless `state` holds what its annotations say, with a finite screw state."""
+    check_typed(state, kind, path)
+    screw = getattr(state, "screw", state)
+    for f in fields(screw):
+        if f.name != "part" and not math.isfinite(getattr(screw, f.name)):
+            raise InputError(f"{path}.{f.name} = {getattr(screw, f.name)!r}: must be a finite number")
 
 
 class Simulator:
@@ -77,6 +93,11 @@ class Simulator:
     (500, 501)
     """
 
+    _packed: Any  # the packed record of the state (packed models) or None
+    _state_of: Any  # the packed record `_state` was unpacked from
+    _step_packed: Any  # the model's packed step (packed models) or None
+    _before: Any  # the state before the last step (for `undo`) or None
+
     def __init__(self, params: Params, model: str = "jones2016", dt_s: float = 1e-3,
                  nut_position_m: float = 0.0, actuator=None, kernel: str = "compiled", *,
                  initial_load_n: float | None = None) -> None:
@@ -90,9 +111,11 @@ class Simulator:
         # thread ends: the actuator holds them itself (with its stops); a bare model here
         travel = params.geometry.travel_m
         self._limits = () if actuator is not None or travel is None else limits_of(None, travel)
-        self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits else (-math.inf, math.inf)
+        # without ends the bounds are the float range: `step` still sends an infinite or NaN nut to `_at_end`
+        self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
+            (-sys.float_info.max, sys.float_info.max)
         self._end_force, self._end_step = 0.0, -1
-        self._check_on_threads(nut_position_m)
+        self.check_on_threads(nut_position_m)
         if initial_load_n is not None and not is_finite_number(initial_load_n):
             raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N) or None")
         self._initial_nut_position_m = float(nut_position_m)
@@ -108,14 +131,14 @@ class Simulator:
     # packed record of the last step (or `Model.pack_state`'s tuple), turned into a `State` only
     # when someone reads it (`_state` caches the `State` of `_state_of`).
     @property
-    def state(self) -> State:
+    def state(self) -> Any:  # a `State`, or with an actuator its `ActuatorState`
         x = self._packed
         if x is not None and x is not self._state_of:
             self._state, self._state_of = self.model.unpack_state(x), x
         return self._state
 
     @state.setter
-    def state(self, value: State) -> None:
+    def state(self, value: Any) -> None:
         self._state = value
         self._packed = self._state_of = self.model.pack_state(value) if self.model.packed else None
         self._step_packed = self.model.step_packed if self.model.packed else None
@@ -159,7 +182,7 @@ class Simulator:
             The new current state.
         """
         if nut_position_m is not None:
-            self._check_on_threads(nut_position_m)
+            self.check_on_threads(nut_position_m)
             self._initial_nut_position_m = float(nut_position_m)
         if initial_load_n is not None:
             if not is_finite_number(initial_load_n):
@@ -196,16 +219,44 @@ class Simulator:
                          "packed": None if x is None else tuple(x[:PACKED_STATE_SIZE])})
 
     def set_state(self, data: dict) -> None:
-        """Continue from `get_state`'s data, bit for bit (also in another process, same parameters)."""
-        d = from_plain(data, reachable_types(self.state))
+        """Continue from `get_state`'s data, bit for bit (also in another process, same parameters).
+        InputError (one line naming the field, nothing changed) for data `get_state` could not have written."""
+        self.apply_state(self.read_state(data))
+
+    def read_state(self, data: Any) -> dict:
+        """`get_state`'s data checked whole and rebuilt (nothing changed): for `apply_state`. InputError
+        naming the field for a value of the wrong type, a non-finite screw state or load, or a start
+        position off the threads."""
+        d = from_plain(data, reachable_types(self.state), "state")
+        if not (isinstance(d, dict) and {"nstep", "nut_position_m", "state", "packed"} <= d.keys()):
+            raise InputError("state: not a Simulator.get_state result (nstep, nut_position_m, state, packed)")
         packed = d["packed"]
-        if packed is not None and not (self.model.packed and type(packed) is tuple and len(packed) == PACKED_STATE_SIZE):
-            raise InputError(f"state.packed: a packed record of {PACKED_STATE_SIZE} items for a packed model expected")
+        if packed is not None:
+            if not (self.model.packed and type(packed) is tuple and len(packed) == PACKED_STATE_SIZE
+                    and all(is_number(v) for v in packed[:PACKED_STATE_SIZE - 1])):
+                raise InputError(f"state.packed: a packed record of {PACKED_STATE_SIZE} items for a packed model "
+                                 "expected")
+            _check_state(self.model.unpack_state(packed), State, "state.packed")
+        state = d["state"]
+        if not isinstance(state, type(self.state)):  # State, or the actuator's ActuatorState
+            raise InputError(f"state.state = {type(state).__name__}: must be a prsm_sim {type(self.state).__name__}")
+        _check_state(state, type(state), "state.state")
+        nstep = d["nstep"]
+        if not isinstance(nstep, int) or isinstance(nstep, bool) or nstep < 0:
+            raise InputError(f"state.nstep = {nstep!r}: must be a whole number >= 0")
+        self.check_on_threads(d["nut_position_m"], "state.nut_position_m")
+        load = d.get("initial_load_n", 0.0)
+        if not is_finite_number(load):
+            raise InputError(f"state.initial_load_n = {load!r}: must be a finite number (N)")
+        return {**d, "nut_position_m": float(d["nut_position_m"]), "initial_load_n": float(load)}
+
+    def apply_state(self, d: dict) -> None:
+        """Continue from `read_state`'s result (cannot fail)."""
         self.restore(d["state"], d["nstep"])
-        self._initial_nut_position_m = float(d["nut_position_m"])
-        self._initial_load_n = float(d.get("initial_load_n", 0.0))
-        if packed is not None:  # the packed record as it was (its stored energy is not recomputed)
-            self._packed = self._state_of = packed
+        self._initial_nut_position_m = d["nut_position_m"]
+        self._initial_load_n = d["initial_load_n"]
+        if d["packed"] is not None:  # the packed record as it was (its stored energy is not recomputed)
+            self._packed = self._state_of = d["packed"]
 
     def step(self, command: float | None = None, load_n: float = 0.0, *, torque_nm: float | None = None) -> Outputs:
         """Advance one step with the command and the nut load held over it.
@@ -230,6 +281,9 @@ class Simulator:
         ------
         InputError
             A missing, non-finite or non-numeric input; the state is left unchanged.
+        NonFiniteStateError
+            The step left the nut's position non-finite (a `ModelError`); the state is left
+            unchanged. `Session.step` checks every state-carrying output.
         """
         if torque_nm is not None:
             command = self._deprecated_torque_nm(command, torque_nm)
@@ -240,7 +294,7 @@ class Simulator:
         if x is not None:  # the record is the outputs and the next packed state
             out = self._step_packed(x, command, load_n)
             xn = out[NUT_POSITION_ITEM]  # the item, not the property: read on every step
-            if xn > self._hi or xn < self._lo:  # the free step ran past a thread end (NaN: not)
+            if not self._lo <= xn <= self._hi:  # the free step ran past a thread end, or is not finite
                 out = self._at_end_packed(x, out, command, load_n)
             self._packed = out
             self._before = x
@@ -248,7 +302,7 @@ class Simulator:
             s0 = self._state
             new, out = self.model.step(s0, command, load_n)
             xn = out.nut_position_m
-            if xn > self._hi or xn < self._lo:
+            if not self._lo <= xn <= self._hi:
                 new, out = self._at_end_state(s0, (new, out), command, load_n)
             self._state = new
             self._before = s0
@@ -273,12 +327,13 @@ class Simulator:
         self._before = None
         self.nstep -= 1
 
-    def _check_on_threads(self, nut_position_m) -> None:
+    def check_on_threads(self, nut_position_m, name: str = "nut_position_m") -> None:
+        """InputError naming `name` unless `nut_position_m` is a finite number on the threads, m."""
         if not is_finite_number(nut_position_m):
-            raise InputError(f"nut_position_m = {nut_position_m!r}: must be a finite number (m)")
+            raise InputError(f"{name} = {nut_position_m!r}: must be a finite number (m)")
         travel = self.params.geometry.travel_m
         if travel is not None and abs(nut_position_m) > 0.5 * travel:
-            raise InputError(f"nut_position_m = {nut_position_m!r}: must lie on the threads, |x| <= "
+            raise InputError(f"{name} = {nut_position_m!r}: must lie on the threads, |x| <= "
                              f"{0.5 * travel:g} m ((screw_length_m - nut_length_m)/2; geometry.thread_ends = false "
                              f"removes the ends)")
 
@@ -294,15 +349,29 @@ class Simulator:
     def _at_end(self, before: State, free, advance, nut):
         """The step against a thread end: the stop law solved on the model's own step (actuator/stops.py);
         the end's force joins the load on the nut (`load_force_n` reports their sum, so the ledger holds
-        its work). Sets `thread_end_force_n`."""
+        its work). Sets `thread_end_force_n`. A step that leaves the nut non-finite (also where no end
+        is fitted: the bounds are then the float range) raises NonFiniteStateError, nothing changed."""
+        if not math.isfinite(nut(free)):
+            self._non_finite(self.time_s + self.dt_s)
         m = self.model
         lim = engaged(self._limits, nut(free))
+        assert lim is not None  # the free step ran past a finite end (non-finite ones were refused above)
         j = m.kinetic[0]
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
         f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
+        if not math.isfinite(nut(res)):
+            self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
         return res
+
+    @property
+    def limits(self) -> tuple[Limit, ...]:
+        """The stops the nut is held within (`actuator.stops.Limit`, innermost on each side): an
+        actuator's end stops and thread ends, or the thread ends this simulator holds a bare model at;
+        empty when none are fitted."""
+        model = self.model
+        return model.limits if isinstance(model, Actuator) else self._limits
 
     @property
     def thread_end_force_n(self) -> float:
@@ -316,6 +385,20 @@ class Simulator:
         warnings.warn("Simulator.step(torque_nm=...) is deprecated: pass the command first, step(command, load_n)",
                       DeprecationWarning, stacklevel=3)
         return torque_nm
+
+    def _check_finite_run(self, traj: Trajectory) -> None:
+        """NonFiniteStateError at the first row whose state-carrying columns are not all finite."""
+        cols = traj.columns
+        bad = ~np.isfinite(cols["nut_force_n"])
+        for name in _STATE_COLUMNS:
+            bad |= ~np.isfinite(cols[name])
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            self._non_finite(float(cols["time_s"][k]))
+
+    def _non_finite(self, time_s: float):
+        raise NonFiniteStateError(f"model {self.model.name} produced a non-finite state at t = {time_s:.6f} s; "
+                                  "the state before it is kept", time_s)
 
     def run(self, command, load_n=0.0) -> Trajectory:
         """Advance one step per element of `command` (the model's batch form where it has one).
@@ -338,10 +421,13 @@ class Simulator:
         Raises
         ------
         InputError
-            A scalar or non-1-D command, a load of another length, non-numeric or non-finite
-            values; the state is left unchanged.
+            A scalar, empty or non-1-D command, a load of another length, values that are not
+            finite real numbers; the state is left unchanged.
+        NonFiniteStateError
+            The run produced a non-finite state (a `ModelError`); the state is left unchanged.
         """
         traj = self.model.run(self.state, command, load_n)
+        self._check_finite_run(traj)
         x = traj.columns["nut_position_m"]
         if len(x) and (x.min() < self._lo or x.max() > self._hi):
             # the run reaches a thread end: stepped instead, each step against the end as `step` takes it

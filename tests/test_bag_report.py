@@ -9,7 +9,6 @@ categories (what is a slip, what is an internal load).
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +42,7 @@ def braking(tmp_path_factory):
     rows_t = [2.0] * 150 + [-1.5] * 60
     loads = [500.0] * 150 + [-200.0] * 60
     rows = [sim.step(tau, f) for tau, f in zip(rows_t, loads)]
-    from prsm_sim.models.base import trajectory_from_rows
+    from prsm_sim.stepping.trajectory import trajectory_from_rows
     traj = trajectory_from_rows(rows, sim.layout, sim.state)
     path = write_trajectory_mcap(tmp_path_factory.mktemp("bags") / "braking.mcap", traj, p, MODEL,
                                  preset_name="s30", progress=False)
@@ -99,7 +98,7 @@ def test_joint_states_only_counts_quasi_steady_samples():
 def test_life_uses_the_rating_the_bag_records(braking, capsys, tmp_path):
     path, _ = braking
     rated = preset("s30").ratings.dynamic_load_rating_n
-    assert rated == 100_000.0 != DEFAULT_DYNAMIC_LOAD_RATING_N
+    assert rated > 0 and rated != DEFAULT_DYNAMIC_LOAD_RATING_N  # derived from the thread form (docs/model.md §4.5)
     rc, out, _ = _cli(capsys, "report", path, "--json", "--no-plots", "-o", tmp_path)
     assert rc == 0
     life = json.loads(out)["life"]

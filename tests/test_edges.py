@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, build_model, preset
-from prsm_sim.models.base import ENERGY_GUARD_REL
+from prsm_sim.stepping.ledger import ENERGY_GUARD_REL
 
 # -- fu2018 at rest with no screw torque ---------------------------------------------------------------
 # At rest with τ = 0 the screw's moment balance (Newton–Euler, docs/model.md §4.2, equation 1) reads

@@ -33,7 +33,7 @@ def _assert_close(got, want, sim, ref_state):
     got, want = np.array(got), np.array(want)
     scale = np.maximum(np.nanmax(np.abs(want), axis=0), 1e-300)
     # the energy residual is rounding noise by design (~1e-14 J): judged against the energy that flowed,
-    # the guard's own scale (models/base.py energy guard)
+    # the guard's own scale (stepping/ledger.py energy guard)
     names = [f for f, _ in OUTPUT_FIELDS]
     scale[names.index("energy_residual_j")] = scale[names.index("energy_flow_j")]
     assert np.array_equal(np.isnan(got), np.isnan(want))

@@ -77,7 +77,7 @@ def test_kernel_constants_are_named_and_the_kernels_read_them_by_name():
     fu = Simulator(p, "fu2018").model
     el = Simulator(p, "elastic").model
     # the array the kernel reads is the NamedTuple, field for field
-    for model, array, cls in ((fu, fu._kernel_k, kernels.Fu2018Constants), (el, el._kernel_e, kernels.ElasticConstants)):
+    for model, array, cls in ((fu, fu.kernel_constants[0], kernels.Fu2018Constants), (el, el._kernel_e, kernels.ElasticConstants)):
         assert type(model.constants) is cls and array.tolist() == [float(v) for v in model.constants]
     assert fu.constants.p == p.geometry.lead_per_rad_m and fu.constants.h == 1e-3
     assert fu.constants.nr == p.geometry.n_rollers and fu.constants.mu == p.friction.mu_screw_roller

@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from prsm_sim import MODELS, ParamError, PrsmError, Simulator, preset
-from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.models.registry import model_class
+from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.scenarios import default_spec, run_scenario
 from prsm_sim.stepping.trajectory import trajectory_from_rows
 
@@ -112,7 +113,8 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
 
     if "step_response" in only:
         p = preset("jones2016")
-        if model == "fu2018":
+        jones_limit = model_class(model).has_friction_laws and not model_class(model).has_axial_chain
+        if jones_limit:
             # Fu 2018's own validation: viscous screw–roller friction and every other friction off
             # (pins, nut–roller rolling, drag) is the Jones 2016 model
             p = p.with_overrides({"friction.screw_roller_law": "viscous", "friction.mu_pin": 0.0,
@@ -121,7 +123,7 @@ def make(out_dir: Path, model: str, progress: bool = True, only: tuple[str, ...]
         traj = run_scenario(Simulator(p, model, DT_S), spec, 1.0)
         save("step_response", traj, p, "jones2016",
              f"torque step of {spec.torque_nm:.5f} N·m at t = 0 from rest against {spec.load_n:g} N (Jones 2016 seed "
-             "example)" + ("; fu2018 with friction.screw_roller_law = viscous and the other frictions off (Jones limit)" if model == "fu2018" else ""))
+             "example)" + ("; fu2018 with friction.screw_roller_law = viscous and the other frictions off (Jones limit)" if jones_limit else ""))
 
     p = preset("s30")
     if "sine_tracking" in only and offline_tracking:

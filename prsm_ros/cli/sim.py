@@ -2,6 +2,8 @@
 
     prsm-sim presets
     prsm-sim params --preset s30
+    prsm-sim params --datasheet SHEET.yaml [--base PARAMS.yaml] [--model fu2018] [-o OUT.yaml]
+    prsm-sim datasheet --preset s30 --model fu2018 [--load N] [--speed RAD_S] --json
     prsm-sim contact --preset jones2016
     prsm-sim steady-state --preset jones2016 --model jones2016 --json
     prsm-sim run --preset s30 --model fu2018 --scenario heavy --duration 1 --json [--csv F] [--mcap F]
@@ -23,12 +25,13 @@ from typing import Any
 import numpy as np
 
 from prsm_sim.errors import PrsmError
-from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, Simulator
+from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, SessionConfig, Simulator
 from prsm_sim.physics.contact import contact_for, predicted_screw_offset_rad
 from prsm_sim.physics.kinematics import ideal_speed_ratio
-from prsm_sim.models.jones2016 import steady_state
+from prsm_sim.models.registry import model_class
 from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_session_scenario, summarise
 
+from prsm_ros.cli import sim_datasheet
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
 from prsm_ros.limits import run_steps
@@ -114,11 +117,10 @@ def cmd_contact(args) -> None:
 
 def cmd_steady_state(args) -> None:
     p = _params(args)
-    if args.model == "jones2016":
-        ss = steady_state(p, screw_speed_rad_s=args.speed, torque_nm=args.torque, load_n=args.load)
-        ss = {"model": "jones2016", "method": "closed form (Jones 2016 eqs. 37-41)", **ss}
-    elif args.model == "ideal":
-        ss = _ideal_steady(p, args)
+    cls = model_class(args.model)
+    closed = cls.closed_form_steady_state(p, screw_speed_rad_s=args.speed, torque_nm=args.torque, load_n=args.load)
+    if closed is not None:
+        ss = {"model": args.model, **closed}
     else:
         spec = default_spec(p, "light", load_n=args.load if args.load is not None else p.loads.nut_load_n,
                             speed_rad_s=args.speed)
@@ -139,21 +141,6 @@ def cmd_steady_state(args) -> None:
     _emit(args, ss, text)
 
 
-def _ideal_steady(p: Params, args) -> dict:
-    """Forward rolling at constant speed: τ = F (L/2π)/η_f + b ω (the ideal model's own law)."""
-    w = p.loads.screw_speed_rad_s if args.speed is None else args.speed
-    f = p.loads.nut_load_n if args.load is None else args.load
-    il = p.ideal
-    tau_l = f * p.geometry.lead_per_rad_m
-    forward = tau_l * w >= 0
-    tau = tau_l / il.efficiency_forward if forward else tau_l * il.efficiency_backward
-    tau += il.viscous_nm_s_rad * w
-    return {"model": "ideal", "method": "closed form (efficiency law)", "screw_speed_rad_s": w,
-            "carrier_over_screw": 1.0 / ideal_speed_ratio(p.geometry),
-            "speed_ratio_screw_over_carrier": ideal_speed_ratio(p.geometry), "torque_nm": tau, "load_force_n": f,
-            "efficiency": (tau_l * w) / (tau * w) if tau * w > 0 and tau_l * w > 0 else math.nan}
-
-
 def cmd_run(args) -> None:
     p = _params(args)
     spec = default_spec(p, args.scenario, load_n=args.load, torque_nm=args.torque, speed_rad_s=args.speed,
@@ -164,7 +151,8 @@ def cmd_run(args) -> None:
     n = run_steps(args.duration, args.dt, error=CliError)
     actuator = _actuator(args)
     # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults in the session
-    sim = Simulator(p, args.model, args.dt) if actuator is None else Session(p, args.model, args.dt, actuator)
+    sim = Simulator(p, args.model, args.dt) if actuator is None else \
+        Session.from_config(SessionConfig(params=p, model=args.model, dt_s=args.dt, actuator=actuator))
     bar = None
     if n >= PROGRESS_MIN_STEPS and not args.no_progress:
         from tqdm import tqdm
@@ -174,25 +162,20 @@ def cmd_run(args) -> None:
     def progress(k: int) -> None:
         if bar is not None:
             bar.update(k - done[0])
-            done[0] = k
+        done[0] = k
 
-    traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
-    if bar is not None:
-        bar.close()
+    try:
+        traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
+    except KeyboardInterrupt:
+        _interrupted(f"at step {done[0]} of {n}: nothing written (a run's outputs are written when it ends; "
+                     "a shorter --duration ends sooner)")
+    finally:
+        if bar is not None:
+            bar.close()
     summary = {"preset": p.name, "model": args.model, "scenario": args.scenario, "dt_s": args.dt,
                "load_n": spec.load_n, "torque_nm": spec.torque_nm, "speed_reference_rad_s": spec.speed_rad_s,
                **summarise(traj)}
-    if args.csv:
-        _write_csv(args.csv, traj)
-        summary["csv"] = args.csv
-    if args.mcap:
-        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
-        try:
-            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
-                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
-        except OSError as e:
-            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
-        summary["mcap"] = args.mcap
+    summary.update(_write_outputs(args, traj, p, n))
     f = summary["final"]
     text = "\n".join([
         f"{p.name} / {args.model} / {args.scenario}: {summary['steps']} steps of {args.dt} s",
@@ -207,6 +190,36 @@ def cmd_run(args) -> None:
           f"(residual {summary['energy_guard']['residual_j']:.6g} J of {summary['energy_guard']['flow_j']:.6g} J); "
           "do not trust these results"] if summary["energy_guard"]["fault"] else []))
     _emit(args, summary, text)
+
+
+def _write_outputs(args, traj, p: Params, n: int) -> dict:
+    """Write the run's --csv and --mcap files; {"csv": path, "mcap": path} of those written."""
+    written: dict[str, str] = {}
+    if args.csv:
+        try:
+            _write_csv(args.csv, traj)
+        except KeyboardInterrupt:
+            _interrupted(f"while writing {args.csv}: the run ended ({len(traj)} steps) but the CSV is incomplete")
+        written["csv"] = args.csv
+    if args.mcap:
+        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
+        try:
+            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
+                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
+        except OSError as e:
+            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
+        except KeyboardInterrupt:
+            kept = f"{args.csv} is complete; " if args.csv else ""
+            _interrupted(f"while writing {args.mcap}: {kept}the MCAP holds the steps written so far, without its "
+                         f"index (prsm-bag repair {args.mcap} rebuilds it)")
+        written["mcap"] = args.mcap
+    return written
+
+
+def _interrupted(what: str) -> None:
+    """Ctrl-C: say what was kept, in one line, and exit 130 (128 + SIGINT, as a shell reports it)."""
+    print(f"prsm-sim: interrupted {what}", file=sys.stderr)
+    raise SystemExit(130)
 
 
 def _actuator(args):
@@ -276,7 +289,7 @@ def cmd_stiffness(args) -> None:
 def cmd_modes(args) -> None:
     """Linearised axial natural frequencies and damping about an operating load (docs/model.md §4.3)."""
     from prsm_sim.physics.load_sharing import axial_modes
-    if args.model != "elastic":
+    if not model_class(args.model).has_axial_chain:
         raise CliError(f"model = {args.model!r}: modes need the elastic level; use --model elastic "
                        "(the rigid models have no axial compliance)")
     p = _params(args)
@@ -324,31 +337,9 @@ def _envelope_on_node(case: dict, args) -> dict:
 def cmd_envelope(args) -> None:
     from pathlib import Path
 
-    from prsm_ros.sweep.envelope import run_envelope, run_one
-    from prsm_sim.envelope import case_from_seed
+    from prsm_ros.sweep.envelope import run_envelope
     if args.seed is not None or args.case is not None:
-        if args.seed is not None:
-            case = case_from_seed(args.seed)
-        else:
-            from prsm_ros.limits import load_yaml, read_text_file
-            doc = load_yaml(read_text_file(args.case, what="case file", error=CliError), source=f"--case {args.case}",
-                            error=CliError)
-            case = doc.get("case", doc) if isinstance(doc, dict) else None
-            if not isinstance(case, dict):
-                raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")
-        r = run_one(case)
-        node = _envelope_on_node(case, args) if args.node else None
-        if args.json:
-            print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
-        else:
-            print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
-                  f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
-                  + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
-            if node is not None:
-                print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
-                      + ("the same states" if node["ok"] else f"DIFFERS at {node['mismatch']}"))
-        if not r["ok"] or (node is not None and not node["ok"]):
-            raise SystemExit(1)
+        _envelope_one(args)
         return
     if args.node:
         raise CliError("--node: replays one case; give --seed N or --case FILE")
@@ -363,17 +354,54 @@ def cmd_envelope(args) -> None:
         if bar is not None:
             bar.update(done - bar.n)
 
-    summary = run_envelope(args.runs, Path(args.output), first_seed=args.first_seed, address=args.address,
-                           workers=args.workers, progress=progress)
-    if bar is not None:
-        bar.close()
+    try:
+        summary = run_envelope(args.runs, Path(args.output), first_seed=args.first_seed, address=args.address,
+                               workers=args.workers, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    if summary.get("interrupted"):
+        print(f"prsm-sim: interrupted: {summary['runs']} of {summary['requested']} runs done, {summary['failed']} "
+              f"broke an invariant (cases in {args.output}/failures, counts in {args.output}/summary.json); go on "
+              f"with --first-seed {summary['next_seed']}", file=sys.stderr)
+        raise SystemExit(130)
     print(dumps(summary) if args.json else
           f"{summary['runs']} runs on {summary['workers']} workers in {summary['wall_s']} s: {summary['failed']} "
           f"broke an invariant" + (f" (cases in {args.output}/failures)" if summary["failed"] else ""))
 
 
+def _envelope_one(args) -> None:
+    """`prsm-sim envelope --seed N | --case FILE [--node]`: one case, run here (and on the node)."""
+    from prsm_ros.sweep.envelope import run_one
+    from prsm_sim.envelope import case_from_seed
+    if args.seed is not None:
+        case = case_from_seed(args.seed)
+    else:
+        from prsm_ros.limits import load_yaml, read_text_file
+        doc = load_yaml(read_text_file(args.case, what="case file", error=CliError), source=f"--case {args.case}",
+                        error=CliError)
+        case = doc.get("case", doc) if isinstance(doc, dict) else None
+        if not isinstance(case, dict):
+            raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")
+    r = run_one(case)
+    node = _envelope_on_node(case, args) if args.node else None
+    if args.json:
+        print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
+    else:
+        print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
+              f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
+              + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
+        if node is not None:
+            print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
+                  + ("the same states" if node["ok"] else f"DIFFERS at {node['mismatch']}"))
+    if not r["ok"] or (node is not None and not node["ok"]):
+        raise SystemExit(1)
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from prsm_sim import __version__
     ap = argparse.ArgumentParser(prog="prsm-sim", description="Offline planetary roller screw simulation.")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--preset", choices=list(PRESETS), help="named parameter set (default jones2016)")
@@ -381,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override one parameter (repeatable)")
     common.add_argument("--json", action="store_true", help="machine-readable output")
     sub.add_parser("presets", parents=[common], help="list the presets").set_defaults(func=cmd_presets)
-    sub.add_parser("params", parents=[common], help="print every parameter as YAML").set_defaults(func=cmd_params)
+    sim_datasheet.register(sub, common, cmd_params, _params)  # params (also --datasheet), datasheet
     sub.add_parser("contact", parents=[common], help="exact thread contact geometry").set_defaults(func=cmd_contact)
     ss = sub.add_parser("steady-state", parents=[common], help="steady state of a model")
     ss.add_argument("--model", choices=list(MODELS), default="jones2016")
@@ -437,8 +465,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "steady-state" and args.torque is not None and args.model != "jones2016":
-        print("prsm-sim: error: --torque applies to --model jones2016 only (the others take --speed)", file=sys.stderr)
+    if args.command == "steady-state" and args.torque is not None \
+            and "torque_nm" not in model_class(args.model).steady_state_inputs:
+        takers = " or ".join(n for n, c in MODELS.items() if "torque_nm" in c.steady_state_inputs)
+        print(f"prsm-sim: error: --torque applies to --model {takers} only (the others take --speed)", file=sys.stderr)
         return 2
     try:
         args.func(args)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from prsm_sim import ParamError, Params, Session, __version__
+from prsm_sim import ParamError, Params, Session, SessionConfig, __version__
 from prsm_sim.actuator import ActuatorParams, actuator_params_from_dict, actuator_params_to_dict
 
 CONFIG_NAME = "prsm_fmu.json"
@@ -53,6 +53,6 @@ def session_from_config(config: dict[str, Any]):
     s = config["session"]
     # starts in equilibrium at its load, as prsm-node does at its load_force: an FMU built with a
     # load sits still under it from the first step instead of ringing in from an unloaded chain
-    return Session(params, config["model"], config["dt_s"], act, nut_position_m=s["nut_position_m"],
-                   load_n=s["load_n"], initial_load_n=s["load_n"], interface=s["interface"],
-                   max_effort_nm=s["max_effort_nm"])
+    return Session.from_config(SessionConfig(
+        params=params, model=config["model"], dt_s=config["dt_s"], actuator=act, nut_position_m=s["nut_position_m"],
+        load_n=s["load_n"], initial_load_n=s["load_n"], interface=s["interface"], max_effort_nm=s["max_effort_nm"]))

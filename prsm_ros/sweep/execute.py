@@ -12,12 +12,12 @@ import time
 
 import numpy as np
 
-from prsm_sim import Session, Simulator, Trajectory
+from prsm_sim import Session, SessionConfig, Simulator, Trajectory
 from prsm_sim.actuator import actuator_params_from_dict
 from prsm_sim.control import PositionController, run_position_loop
 from prsm_sim.life import life_from_samples
-from prsm_sim.models.ideal import reflected_inertia
-from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.models.registry import model_class
+from prsm_sim.physics.inertia import mass_matrix, reflected_inertia
 from prsm_sim.scenarios import default_spec, run_scenario, run_session_scenario, summarise
 
 from prsm_ros.sweep.study import POSITION, StudyError, base_params, controller_defaults
@@ -48,7 +48,8 @@ def simulate(norm: dict, scenario: str, inputs: dict) -> tuple[Trajectory, dict]
     nominal = base_params(norm)
     params = nominal.with_overrides(params_o) if params_o else nominal
     if norm.get("actuator") is not None:  # stepped through the session, as the node steps it
-        session = Session(params, norm["model"], norm["dt_s"], actuator_params_from_dict(norm["actuator"]))
+        session = Session.from_config(SessionConfig(params=params, model=norm["model"], dt_s=norm["dt_s"],
+                                                    actuator=actuator_params_from_dict(norm["actuator"])))
         spec = default_spec(params, scenario, **scen)
         return run_session_scenario(session, spec, norm["duration_s"]), {"params": params}
     sim = Simulator(params, norm["model"], norm["dt_s"])
@@ -102,7 +103,7 @@ def _energy_residual(norm: dict, traj: Trajectory, params) -> dict:
     """work_in − work_out − kinetic − dissipated at the end of the run (docs/model.md §5 item 5), J and relative."""
     s = traj.final_state
     u = np.array([s.screw_speed_rad_s, s.carrier_speed_rad_s])
-    if norm["model"] == "ideal":
+    if not model_class(norm["model"]).has_carrier:  # the carrier moves at the ideal ratio: in J
         kinetic = 0.5 * reflected_inertia(params) * s.screw_speed_rad_s ** 2
     else:
         kinetic = 0.5 * float(u @ mass_matrix(params) @ u)
@@ -135,6 +136,39 @@ def failed_row(norm: dict, spec: dict, error: BaseException, wall_time_s: float 
             "scenario": spec["scenario"], **spec["inputs"], **{m: math.nan for m in norm["metrics"]},
             "status": "failed", "error": f"{type(error).__name__}: {error}".splitlines()[0],
             "wall_time_s": wall_time_s}
+
+
+# Why a metric of a finished run is NaN (undefined, not failed): by the metric's name (before any @selector)
+UNDEFINED_WHY = {
+    "efficiency": "no net power reached the load in the run's tail (the screw stood still, e.g. a load held by "
+                  "static friction, or a run shorter than the scenario's 0.1 s speed ramp)",
+    "speed_ratio": "the screw did not turn in the run's tail",
+    "energy_residual_rel": "no work went in",
+}
+UNDEFINED_PEAK_WHY = "the model has no such internal load"
+
+
+def undefined(rows: list[dict], metrics: list[str]) -> dict[str, dict]:
+    """Metrics that are NaN in finished runs: {metric: {"runs", "of", "why"}}, only those with any.
+
+    A failed run's metrics are NaN because it failed (its error says why); these are runs that
+    finished and measured nothing, which a study's statistics would otherwise pass over in silence.
+    """
+    ok = [r for r in rows if r.get("status") == "ok"]
+    out = {}
+    for m in metrics:
+        n = sum(1 for r in ok if not (isinstance(r.get(m), (int, float)) and math.isfinite(r[m])))
+        if n:
+            base = m.partition("@")[0]
+            why = UNDEFINED_PEAK_WHY if base.startswith("peak_") else UNDEFINED_WHY.get(
+                base, "the metric is not defined for these runs")
+            out[m] = {"runs": n, "of": len(ok), "why": why}
+    return out
+
+
+def undefined_text(undef: dict[str, dict]) -> list[str]:
+    """One line per metric of `undefined`, for the CLI's summary and the report."""
+    return [f"{m}: NaN in {u['runs']} of {u['of']} finished runs: {u['why']}" for m, u in undef.items()]
 
 
 def run_batch(norm: dict, specs: list[dict], decimate: int | None = None) -> list[tuple[dict, object]]:

@@ -20,20 +20,24 @@ energy ledger (source in = load work + dissipated + stored) is kept in the state
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass, replace
+from typing import Any, cast
 
 import numpy as np
 
 from prsm_sim.actuator import faults as fl
 from prsm_sim.actuator.brake import brake_level, stiction_torque
 from prsm_sim.actuator.drive import drive_update, shape_reference
-from prsm_sim.actuator.motor import current_reference, current_step, voltage
+from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
+from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
-from prsm_sim.actuator.sensors import DROPOUT_STREAM, STREAM, first_order, normal, quantise, uniform
+from prsm_sim.actuator.sensing import SensorSuite
+from prsm_sim.actuator.sensors import MEASURED_QUANTITIES, TrueSample
 from prsm_sim.actuator.stops import engaged, limits_of, stop_penetration, stop_stored_j
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.errors import InputError
-from prsm_sim.models.registry import build_model
+from prsm_sim.models.registry import build_model, model_class
 from prsm_sim.stepping.ledger import efficiency
 from prsm_sim.stepping.model import Model, check_step_inputs
 from prsm_sim.physics.inertia import mass_matrix
@@ -65,20 +69,12 @@ ACTUATOR_QUANTITIES = (
     ("stored_j", "J"),
     ("faults_active", "1"),
 )
-MEASURED_QUANTITIES = (
-    ("motor_angle_rad", "rad"),
-    ("screw_angle_rad", "rad"),
-    ("screw_speed_rad_s", "rad/s"),
-    ("nut_position_m", "m"),
-    ("nut_velocity_m_s", "m/s"),
-    ("nut_force_n", "N"),
-    ("motor_encoder_fresh", "1"),
-    ("linear_encoder_fresh", "1"),
-    ("load_cell_fresh", "1"),
-)
 _MODE_CODE = {m: float(i) for i, m in enumerate(COMMAND_INTERFACES)}
-_SENSOR_INDEX = {"motor_encoder": 0, "linear_encoder": 1, "load_cell": 2}
-_GROUPS = {"motor_encoder": (0, 1, 2), "linear_encoder": (3, 4), "load_cell": (5,)}  # indices into MEASURED_QUANTITIES
+# the actuator block of one step, built by keyword: a new quantity is one entry in ACTUATOR_QUANTITIES
+_ActuatorBlock = cast(Any, namedtuple)("_ActuatorBlock", [n for n, _ in ACTUATOR_QUANTITIES])
+_MEASURED_AT = {n: i for i, (n, _) in enumerate(MEASURED_QUANTITIES)}
+# the readings that stand for the true joint quantities of the same name in `Actuator.measured`
+_JOINT_READINGS = ("screw_angle_rad", "screw_speed_rad_s", "nut_position_m", "nut_velocity_m_s", "nut_force_n")
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +113,7 @@ class ActuatorState:
     brake_engaged: bool = False
     brake_level: float = 0.0
     faults: tuple[Fault, ...] = ()
-    history: tuple[tuple[float, ...], ...] = ()
+    history: tuple[TrueSample, ...] = ()
     measured: tuple[float, ...] = ()
     load_cell_filtered_n: float = 0.0
     ledger: Ledger = Ledger()
@@ -129,6 +125,36 @@ class ActuatorState:
     @property
     def time_s(self) -> float:
         return self.screw.time_s
+
+
+class _Work:
+    """The working values of one step, handed from stage to stage (`Actuator._step_impl`): what the
+    state carries (motor, drive, brake, ledger, screw) as the sub-steps advance it, and the last
+    sub-step's solved torques and outputs the step reports."""
+
+    __slots__ = ("screw", "led", "th_r", "w_r", "i_a", "integ", "tau_ref", "w_ref", "limited", "enc", "level",
+                 "ref", "ref_v", "cmd_prev", "tau_c", "volt", "tau_st", "tau_in", "f_stop", "sums", "act", "model",
+                 "tlim", "cs", "new", "out")
+
+    def __init__(self, st: ActuatorState) -> None:
+        self.screw, self.led = st.screw, st.ledger
+        self.th_r, self.w_r, self.i_a = st.motor_angle_rad, st.motor_speed_rad_s, st.current_a
+        self.integ, self.tau_ref, self.w_ref, self.limited = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, \
+            st.limited
+        self.enc, self.level = st.encoder_rad, st.brake_level
+        self.ref, self.ref_v, self.cmd_prev = st.reference_m, st.reference_m_s, st.command_prev
+        self.tau_c = st.coupling_nm
+        self.volt = self.tau_st = self.tau_in = self.f_stop = 0.0
+        self.sums = [0.0, 0.0, 0.0, 0.0]  # screw torque, power in, out, dissipated (for n_sub > 1)
+        self.act: fl.Active = fl.NONE
+        self.tlim = math.inf
+
+    # set by the stages before they are read: the screw model the faults call for (`_begin`), the
+    # current loop's sub-step (`_motor`), the sub-step's new screw state and outputs (`_advance`)
+    model: Model
+    cs: CurrentStep
+    new: State
+    out: Outputs
 
 
 class Actuator(Model):
@@ -143,7 +169,8 @@ class Actuator(Model):
         super().__init__(params, dt_s)
         self.model_name = model
         self.kernel = kernel  # of the screw models it builds (`build_model`)
-        self.elastic = model == "elastic"
+        # the nut on its own axial chain: loads, stops and sensors act at its own coordinate, backlash applies
+        self.axial_chain = model_class(model).has_axial_chain
         self.actuator = a = actuator if actuator is not None else ActuatorParams()
         if not isinstance(a, ActuatorParams):
             raise InputError(f"actuator: expected ActuatorParams, got {type(a).__name__}")
@@ -152,8 +179,11 @@ class Actuator(Model):
         for f in a.faults:  # refused before anything is built or stepped
             fl.check_fault(f, params, model, m is not None)
         self.rigid = m is None or m.coupling_stiffness_nm_rad is None
+        # a compliant coupling's stiffness (N·m/rad) and damping (N·m·s/rad); 0 when rigid
+        self.k_coupling = 0.0 if m is None or m.coupling_stiffness_nm_rad is None else m.coupling_stiffness_nm_rad
+        self.c_coupling = 0.0 if m is None else m.coupling_damping_nm_s_rad
         if m is not None and self.rigid:  # the rotor turns with the screw: its inertia, reflected, joins the screw's
-            mass = replace(params.mass, screw_inertia_kgm2=params.mass.screw_inertia_kgm2
+            mass = replace(params.mass, screw_inertia_kgm2=params.resolved_mass.screw_inertia_kgm2
                            + m.rotor_inertia_kgm2 * m.gear_ratio**2)
             self.screw_params = replace(params, mass=mass)
         else:
@@ -172,7 +202,8 @@ class Actuator(Model):
         self._models: dict[tuple[float, float], Model] = {}
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m
-        self.J = self._probe_inertia(base)
+        self.sensing = SensorSuite(a.sensors, self.ratio, self.rigid, self.p, self.dt_s)
+        self.J = probe_inertia(base, self.h_sub)
         # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
         self.J_drive = self.J + (0.0 if self.rigid else self.motor_inertia)  # the inertia the drive moves
         self.drive = a.drive.tuned(self.J_drive)
@@ -182,7 +213,6 @@ class Actuator(Model):
             InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
             InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
         ))
-        self._n_screw_internal = base.layout.size
 
     # -- construction helpers ------------------------------------------------------------
     def _model(self, act: fl.Active) -> Model:
@@ -198,69 +228,11 @@ class Actuator(Model):
         the drive moves (the other half for the load, friction and the error), unlimited without a motor."""
         return 0.5 * torque_limit_nm / self.J_drive
 
-    def _probe_inertia(self, model: Model) -> float:
-        """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
-
-        Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
-        implicit stop, coupling and dry-friction torques; the step itself is the model's.
-        """
-        s0 = model.initial_state(0.0)
-        w1 = model.step(s0, 1.0, 0.0)[0].screw_speed_rad_s
-        w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
-        return self.h_sub / (w1 - w0)
-
-    def _response(self, model: Model, screw: State, tau_nm: float, load_n: float) -> tuple[float, float, float, float]:
-        """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from this state.
-
-        Returns (ω1, ∂ω1/∂τ, θ1, ∂θ1/∂τ); a load acts as τ = −(L/2π) F. Exact for the linear
-        models; for fu2018 the local slope (its effective inertia moves with the friction regime).
-        """
-        a = model.step(screw, tau_nm, load_n)[0]
-        d = 1e-3 * max(1.0, abs(tau_nm))
-        b = model.step(screw, tau_nm + d, load_n)[0]
-        s_w = (b.screw_speed_rad_s - a.screw_speed_rad_s) / d
-        s_th = (b.screw_angle_rad - a.screw_angle_rad) / d
-        if not (math.isfinite(s_w) and s_w > 0.0 and math.isfinite(s_th) and s_th > 0.0):
-            s_w, s_th = self.h_sub / self.J, 0.5 * self.h_sub**2 / self.J  # a stuck response: the probed inertia's
-        return a.screw_speed_rad_s, s_w, a.screw_angle_rad, s_th
-
-    def _coupling(self, model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
-                  phi0: float, k: float, c: float, th_sfree: float, s_th: float):
-        """The compliant coupling's torque held over the step, solved to consistency with the screw model.
-
-        τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
-        acceleration, the screw by the model itself. The residual is strictly increasing in τ_c
-        (the screw turns further, the motor less, the more torque the coupling carries), so the
-        root is unique: Newton from the linear estimate, then secant steps, to 1e-12 of the
-        torque scale (one model step for the linear models). Its work is then ΔV + c Δφ²/h:
-        the ledger stays exact and the scheme cannot gain energy, so a stiff coupling stays
-        stable at the step (trapezoidal rule). Returns (τ_c, screw state, outputs).
-        """
-        h, jr = self.h_sub, self.motor_inertia
-        G, H = 0.5 * k + c / h, 0.5 * k - c / h
-        q_r = 0.5 * h * h / jr
-
-        def residual(tau):
-            new, out = model.step(screw, tau + tau_st, load_n)
-            phi1 = th_r_free + q_r * (tau_d - tau) - new.screw_angle_rad
-            return tau - (G * phi1 + H * phi0), new, out
-
-        slope = 1.0 + G * (q_r + s_th)
-        t0 = (G * (th_r_free + q_r * tau_d - th_sfree) + H * phi0) / slope  # the linear solution
-        r0, new, out = residual(t0)
-        scale = 1e-12 * max(1.0, abs(t0), abs(tau_d))
-        if abs(r0) <= scale:
-            return t0, new, out
-        t1 = t0 - r0 / slope
-        for _ in range(30):
-            r1, new, out = residual(t1)
-            if abs(r1) <= scale or r1 == r0:
-                break
-            t0, t1, r0 = t1, t1 - r1 * (t1 - t0) / (r1 - r0), r1
-        return t1, new, out
-
     # -- state ---------------------------------------------------------------------------
-    def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> ActuatorState:
+    # the actuator's state is a record of its own (`ActuatorState`, never packed): its methods take and give
+    # that, not the screw model's `State`
+    def initial_state(self, nut_position_m: float = 0.0,  # type: ignore[override]
+                      load_n: float = 0.0) -> ActuatorState:
         """At rest with the nut at `nut_position_m`, in equilibrium under the nut load `load_n`: the screw
         model pre-deflected at it (`Model.initial_state`), the drive train carrying the frictionless
         holding torque (L/2π) F (the torque reference, the motor current and a compliant coupling's
@@ -280,15 +252,15 @@ class Actuator(Model):
         if m is not None:  # as far as the drive can
             lim = self.ratio * m.peak_torque_nm
             hold = max(-lim, min(lim, hold))
-        th_r = th if self.rigid or hold == 0.0 else th + hold / m.coupling_stiffness_nm_rad
+        th_r = th if self.rigid or hold == 0.0 else th + hold / self.k_coupling
         i_a = 0.0 if m is None else hold / (self.ratio * m.torque_constant_nm_a)
         st = ActuatorState(screw=screw, mode=mode, motor_angle_rad=th_r, current_a=i_a,
                            integral_nm=hold if mode != "effort" else 0.0, torque_ref_nm=hold,
                            coupling_nm=0.0 if self.rigid else hold)
         sample = self._sample(th_r, 0.0, screw, float(load_n))
-        enc = self._encoder_screw_angle(th_r * self.ratio, th)
-        *meas, filt = self._measure(0, (), 0.0, sample, sample, fl.NONE, first=True)
-        return replace(st, encoder_rad=enc, history=(sample,), measured=tuple(meas), load_cell_filtered_n=filt)
+        enc = self.sensing.encoder_screw_angle(th_r * self.ratio, th)
+        meas, filt = self.sensing.measure(0, (), 0.0, sample, sample, fl.NONE, first=True)
+        return replace(st, encoder_rad=enc, history=(sample,), measured=meas, load_cell_filtered_n=filt)
 
     def all_faults(self, state: ActuatorState) -> tuple[Fault, ...]:
         return self.actuator.faults + state.faults
@@ -332,193 +304,236 @@ class Actuator(Model):
         return fl.fault_events(self.all_faults(after), t0 - self.dt_s, t0)
 
     # -- the step ------------------------------------------------------------------------
-    def step(self, state: ActuatorState, command: float, load_n: float) -> tuple[ActuatorState, Outputs]:
+    def step(self, state: ActuatorState, command: float,  # type: ignore[override]
+             load_n: float) -> tuple[ActuatorState, Outputs]:
         """One step with `command` (active interface: N·m, screw rad/s or nut m) and the nut load."""
         command, load_n = check_step_inputs(command, load_n, self.command_name)
         if not isinstance(state, ActuatorState):
             raise InputError(f"state: expected an ActuatorState (Actuator.initial_state), got {type(state).__name__}")
         return self._step_impl(state, command, load_n)
 
-    def _step_impl(self, st: ActuatorState, command: float, load_n: float):
-        a, m = self.actuator, self.actuator.motor
-        h, p, J, N = self.h_sub, self.p, self.J, self.ratio
+    def _step_impl(self, st: ActuatorState, command: float,  # type: ignore[override]
+                   load_n: float) -> tuple[ActuatorState, Outputs]:
+        """The step in its stages: faults and clearance (`_begin`), then per sub-step the drive loop
+        (`_drive_loop`, when due), the current loop and motor (`_motor`), the screw with the coupling,
+        brake, jams and stops solved on it (`_advance`) and the motor side and ledger (`_book`); then the
+        sub-steps' averages, the sensors and the actuator block (`_finish`)."""
+        w = self._begin(st)
+        loop_due = st.step % self.hold_steps == 0
+        for j in range(self.n_sub):
+            if loop_due:
+                self._drive_loop(w, st, command, st.step * self.n_sub + j)
+            tau_d = self._motor(w)
+            self._advance(w, load_n, tau_d)
+            self._book(w, load_n, tau_d)
+            w.level = brake_level(self.actuator.brake, w.level, st.brake_engaged, self.h_sub)
+        if self.n_sub > 1:
+            n, sums = self.n_sub, w.sums
+            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
+            w.out = replace(w.out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
+                            power_dissipated_w=pd, efficiency=efficiency(pin, pout, pd))
+        return self._finish(st, w, command)
+
+    def _begin(self, st: ActuatorState) -> _Work:
+        """The step's working values: the active faults, the screw model they call for, and a backlash
+        fault's clearance applied to the screw's state at the step's start."""
+        w = _Work(st)
         faults = self.all_faults(st)
-        act = fl.active(faults, st.time_s)
-        model = self._model(act)
-        screw, led = st.screw, st.ledger
-        extra = fl.extra_clearance_m(faults, st.time_s) if self.elastic else 0.0
+        w.act = act = fl.active(faults, st.time_s)
+        w.model = model = self._model(act)
+        m = self.actuator.motor
+        w.tlim = math.inf if m is None else self.ratio * m.peak_torque_nm * act.torque_factor
+        screw = st.screw
+        extra = fl.extra_clearance_m(faults, st.time_s) if self.axial_chain else 0.0
         if extra < screw.extra_clearance_m:
             # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
             # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
             # parameter's clearance at the next pass through the gap
-            delta = p * screw.screw_angle_rad - screw.nut_axial_m
+            delta = self.p * screw.screw_angle_rad - screw.nut_axial_m
             extra = max(extra, min(screw.extra_clearance_m, 2.0 * abs(delta) - self.params.elastic.axial_clearance_m))
         if extra != screw.extra_clearance_m:
             # the clearance steps at the step's start: a wider gap at the same deflection unloads the
             # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
             # never closes onto a flank), so the ledger and the model's guard stay closed
-            widened = replace(screw, extra_clearance_m=extra)
-            led = replace(led, backlash_j=led.backlash_j + float(model.total_stored_energy_j(screw)
-                                                                 - model.total_stored_energy_j(widened)))
-            screw = widened
-        th_r, w_r, i_a = st.motor_angle_rad, st.motor_speed_rad_s, st.current_a
-        integ, tau_ref, w_ref, limited, enc = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, st.limited, st.encoder_rad
-        level = st.brake_level
-        sums = [0.0, 0.0, 0.0, 0.0]  # screw torque·h, power in, out, dissipated (for n_sub > 1)
-        volt = tau_st = f_stop = 0.0
-        tau_c = st.coupling_nm
-        ref, ref_v, cmd_prev = st.reference_m, st.reference_m_s, st.command_prev
-        tlim = math.inf if m is None else N * m.peak_torque_nm * act.torque_factor
-        loop_due = st.step % self.hold_steps == 0
-        for j in range(self.n_sub):
-            # drive loop on the encoder feedback
-            if loop_due:
-                enc_new = self._read_encoder(th_r * N, screw.screw_angle_rad, act, st.step * self.n_sub + j, enc)
-                h_loop = h * self.hold_steps
-                if a.sensors.encoder_counts_per_rev == 0 and not any(x[0] == "motor_encoder" for x in act.sensor):
-                    w_meas = w_r if not self.rigid else screw.screw_speed_rad_s
-                else:
-                    w_meas = (enc_new - enc) / h_loop
-                enc = enc_new
-                x_meas = self._read_linear(self._nut_x(screw), enc, act, st.step * self.n_sub + j)
-                if act.drive_off:
-                    tau_ref, integ, limited, w_ref = 0.0, 0.0, False, 0.0
-                    ref, ref_v, cmd_prev = math.nan, 0.0, math.nan  # restarts from the command when the drive is back
-                else:
-                    ff = ff_nm = 0.0
-                    target = command
-                    if st.mode == "position" and self.drive.position_feedforward:
-                        if not math.isfinite(ref):
-                            # the reference starts at the command: it shapes the command's changes (the loop
-                            # alone takes out an initial error, as without feed-forward)
-                            ref, ref_v = command, 0.0
-                        # the loops compare the nut now with the reference now; the torque that takes the
-                        # reference to its next point over this update is fed forward
-                        target, v0 = ref, ref_v
-                        rate = (command - cmd_prev) / h_loop if math.isfinite(cmd_prev) else 0.0
-                        cmd_prev = command
-                        ref, ref_v = shape_reference(ref, ref_v, command, rate, self.drive.speed_limit_rad_s * p,
-                                                     self._accel_limit(tlim) * p, h_loop)
-                        ff, ff_nm = v0 / p, self.J_drive * (ref_v - v0) / (p * h_loop)
-                    d = drive_update(self.drive, st.mode, target, integ, w_meas, x_meas, p, tlim, h_loop, ff, ff_nm)
-                    tau_ref, integ, limited, w_ref = d
-            # current loop and motor torque (screw side)
-            if m is None:
-                tau_d = tau_ref
-            else:
-                i_ref = 0.0 if act.drive_off else current_reference(m, tau_ref, w_r * N)
-                cs = current_step(m, i_a, i_ref, h)
-                volt = voltage(m, cs, i_a, w_r * N, h)
-                tau_d = N * m.torque_constant_nm_a * cs.mean_current_a
-            if self.rigid:
-                tau_drive_screw = tau_d
-            else:
-                k, c = m.coupling_stiffness_nm_rad, m.coupling_damping_nm_s_rad
-                phi0 = th_r - screw.screw_angle_rad
-                # linearise where the last step ended: the explicit spring torque k φ0 would swing with
-                # the coupling's ringing and evaluate a set-valued friction on the wrong side
-                tau_drive_screw = tau_c
-            # dry friction (brake, jam) and a compliant coupling are solved implicitly on the screw's local
-            # linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a): s comes from two model steps at
-            # this state (exact for the linear models; fu2018's effective inertia moves with its friction
-            # regime, so a fixed J would not do)
-            cap = level * a.brake.holding_torque_nm + act.jam_nm
-            implicit = not self.rigid or cap > 0.0
+            widened = replace(screw, extra_clearance_m=extra)  # type: ignore[call-arg]  # a part field of `State`
+            w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
+                                                                       - model.total_stored_energy_j(widened)))
+            w.screw = widened
+        return w
+
+    def _drive_loop(self, w: _Work, st: ActuatorState, command: float, key: int) -> None:
+        """One update of the drive's loops on the encoder feedback (and a linear encoder's, if fitted):
+        the torque reference, the speed integrator and, in position mode, the shaped reference."""
+        act, p, screw = w.act, self.p, w.screw
+        enc_new = self.sensing.read_encoder(w.th_r * self.ratio, screw.screw_angle_rad, act, key, w.enc)
+        h_loop = self.h_sub * self.hold_steps
+        if self.actuator.sensors.encoder_counts_per_rev == 0 and not any(x[0] == "motor_encoder" for x in act.sensor):
+            w_meas = w.w_r if not self.rigid else screw.screw_speed_rad_s
+        else:
+            w_meas = (enc_new - w.enc) / h_loop
+        w.enc = enc_new
+        x_meas = self.sensing.read_linear(self._nut_x(screw), w.enc, act, key)
+        if act.drive_off:
+            w.tau_ref, w.integ, w.limited, w.w_ref = 0.0, 0.0, False, 0.0
+            w.ref, w.ref_v, w.cmd_prev = math.nan, 0.0, math.nan  # restarts from the command when the drive is back
+            return
+        ff = ff_nm = 0.0
+        target = command
+        if st.mode == "position" and self.drive.position_feedforward:
+            if not math.isfinite(w.ref):
+                # the reference starts at the command: it shapes the command's changes (the loop
+                # alone takes out an initial error, as without feed-forward)
+                w.ref, w.ref_v = command, 0.0
+            # the loops compare the nut now with the reference now; the torque that takes the
+            # reference to its next point over this update is fed forward
+            target, v0 = w.ref, w.ref_v
+            rate = (command - w.cmd_prev) / h_loop if math.isfinite(w.cmd_prev) else 0.0
+            w.cmd_prev = command
+            w.ref, w.ref_v = shape_reference(w.ref, w.ref_v, command, rate, self.drive.speed_limit_rad_s * p,
+                                             self._accel_limit(w.tlim) * p, h_loop)
+            ff, ff_nm = v0 / p, self.J_drive * (w.ref_v - v0) / (p * h_loop)
+        w.tau_ref, w.integ, w.limited, w.w_ref = drive_update(self.drive, st.mode, target, w.integ, w_meas, x_meas, p,
+                                                              w.tlim, h_loop, ff, ff_nm)
+
+    def _motor(self, w: _Work) -> float:
+        """The current loop over a sub-step: the motor's torque on the screw side, N·m (the torque
+        reference itself without a motor). Keeps the current step and the winding voltage in `w`."""
+        m = self.actuator.motor
+        if m is None:
+            return w.tau_ref
+        N = self.ratio
+        i_ref = 0.0 if w.act.drive_off else current_reference(m, w.tau_ref, w.w_r * N)
+        w.cs = cs = current_step(m, w.i_a, i_ref, self.h_sub)
+        w.volt = voltage(m, cs, w.i_a, w.w_r * N, self.h_sub)
+        return N * m.torque_constant_nm_a * cs.mean_current_a
+
+    def _advance(self, w: _Work, load_n: float, tau_d: float) -> None:
+        """The screw over one sub-step under the drive's torque `tau_d`, with dry friction (brake, jam), a
+        compliant coupling and an end stop's force solved implicitly on the screw's local linear response
+        ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a). s comes from two model steps at this state (exact for
+        the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J would
+        not do). Leaves the new screw state, its outputs and the solved torques and force in `w`."""
+        model, screw, h, p, act = w.model, w.screw, self.h_sub, self.p, w.act
+        if self.rigid:
+            tau_drive_screw = tau_d
+        else:
+            k, c = self.k_coupling, self.c_coupling
+            phi0 = w.th_r - screw.screw_angle_rad
+            # linearise where the last step ended: the explicit spring torque k φ0 would swing with
+            # the coupling's ringing and evaluate a set-valued friction on the wrong side
+            tau_drive_screw = w.tau_c
+        cap = w.level * self.actuator.brake.holding_torque_nm + act.jam_nm
+        implicit = not self.rigid or cap > 0.0
+        if implicit:
+            w_a, s_w, th_a, s_th = linear_response(model, screw, tau_drive_screw, load_n, h, self.J)
+        else:
+            s_th = 0.5 * h * h / self.J
+        th_r, w_r = w.th_r, w.w_r
+
+        def advance(f_stop: float) -> tuple[State, Outputs, float, float, float]:
+            """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, outputs,
+            stiction torque, coupling torque, screw torque)."""
+            load_in = load_n - f_stop if f_stop != 0.0 else load_n
+            t_st = 0.0
             if implicit:
-                w_a, s_w, th_a, s_th = self._response(model, screw, tau_drive_screw, load_n)
-            else:
-                s_th = 0.5 * h * h / J
-
-            def advance(f_stop, screw=screw, tau_drive_screw=tau_drive_screw, th_r=th_r, w_r=w_r, tau_d=tau_d):
-                """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, outputs,
-                stiction torque, coupling torque, screw torque)."""
-                load_in = load_n - f_stop if f_stop != 0.0 else load_n
-                t_st = 0.0
-                if implicit:
-                    w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
-                    t_st = stiction_torque(cap, w_pred, h / s_w, h)
-                    th_pred += s_th * t_st
-                if self.rigid:
-                    tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
-                    return (*model.step(screw, tau_in, load_in), t_st, tau_d, tau_in)
-                th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
-                t_c, nw, o = self._coupling(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
-                                            th_sfree, s_th)
-                return nw, o, t_st, t_c, t_c + t_st
-
-            res = advance(0.0)
-            f_stop = 0.0
-            if self.limits:
-                # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
-                lim = engaged(self.limits, self._nut_x(res[0]))
-                if lim is not None:
-                    f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
-                                             p * p * s_th)
-            new, out, tau_st, tau_c, tau_in = res
-            if not self.rigid:
-                tau_drive_screw = tau_c
-            dth = new.screw_angle_rad - screw.screw_angle_rad
-            # where load and stop force act: the nut (its own coordinate in `elastic`)
-            dx_nut = new.nut_axial_m - screw.nut_axial_m if self.elastic else p * dth
-            # motor side and the ledger
+                w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
+                t_st = stiction_torque(cap, w_pred, h / s_w, h)
+                th_pred += s_th * t_st
             if self.rigid:
-                th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
-                dth_r = dth
-            else:
-                w_r1 = w_r + h * (tau_d - tau_c) / self.motor_inertia
-                th_r1 = th_r + 0.5 * h * (w_r + w_r1)
-                dth_r = th_r1 - th_r
-                v0 = 0.5 * k * phi0 * phi0
-                phi1 = th_r1 - new.screw_angle_rad
-                led = replace(led, coupling_j=led.coupling_j + tau_c * (dth_r - dth) - (0.5 * k * phi1 * phi1 - v0))
-            if m is None:
-                e_in = tau_d * dth
-                copper = 0.0
-            else:
-                copper = cs.copper_j
-                e_in = cs.copper_j + cs.magnetic_j + tau_d * dth_r
-                i_a = cs.current_a
-            led = Ledger(energy_in_j=led.energy_in_j + e_in, copper_j=led.copper_j + copper, coupling_j=led.coupling_j,
-                         stiction_j=led.stiction_j - tau_st * dth, stop_work_j=led.stop_work_j - f_stop * dx_nut,
-                         load_work_j=led.load_work_j + load_n * dx_nut, backlash_j=led.backlash_j)
-            th_r, w_r = th_r1, w_r1
-            if self.n_sub > 1:
-                sums[0] += tau_in
-                sums[1] += out.power_in_w
-                sums[2] += out.power_out_w
-                sums[3] += out.power_dissipated_w
-            screw = new
-            level = brake_level(a.brake, level, st.brake_engaged, h)
+                tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
+                return (*model.step(screw, tau_in, load_in), t_st, tau_d, tau_in)
+            th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
+            t_c, nw, o = coupling_torque(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+                                         th_sfree, s_th, h, self.motor_inertia)
+            return nw, o, t_st, t_c, t_c + t_st
+
+        res = advance(0.0)
+        f_stop = 0.0
+        if self.limits:
+            # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
+            lim = engaged(self.limits, self._nut_x(res[0]))
+            if lim is not None:
+                f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
+                                         p * p * s_th)
+        w.new, w.out, w.tau_st, w.tau_c, w.tau_in = res
+        w.f_stop = f_stop
+
+    def _book(self, w: _Work, load_n: float, tau_d: float) -> None:
+        """The motor side over the sub-step (with the screw, or through the compliant coupling's spring) and
+        the energy ledger (source in = load work + dissipated + stored); the sub-step's end becomes the
+        next one's start."""
+        m, h, screw, new, led = self.actuator.motor, self.h_sub, w.screw, w.new, w.led
+        dth = new.screw_angle_rad - screw.screw_angle_rad
+        # where load and stop force act: the nut (its own coordinate in `elastic`)
+        dx_nut = new.nut_axial_m - screw.nut_axial_m if self.axial_chain else self.p * dth
+        th_r, w_r, tau_c = w.th_r, w.w_r, w.tau_c
+        if self.rigid:
+            th_r1, w_r1 = new.screw_angle_rad, new.screw_speed_rad_s
+            dth_r = dth
+        else:
+            k = self.k_coupling
+            w_r1 = w_r + h * (tau_d - tau_c) / self.motor_inertia
+            th_r1 = th_r + 0.5 * h * (w_r + w_r1)
+            dth_r = th_r1 - th_r
+            phi0 = th_r - screw.screw_angle_rad
+            v0 = 0.5 * k * phi0 * phi0
+            phi1 = th_r1 - new.screw_angle_rad
+            led = replace(led, coupling_j=led.coupling_j + tau_c * (dth_r - dth) - (0.5 * k * phi1 * phi1 - v0))
+        if m is None:
+            e_in = tau_d * dth
+            copper = 0.0
+        else:
+            cs = w.cs
+            copper = cs.copper_j
+            e_in = cs.copper_j + cs.magnetic_j + tau_d * dth_r
+            w.i_a = cs.current_a
+        w.led = Ledger(energy_in_j=led.energy_in_j + e_in, copper_j=led.copper_j + copper, coupling_j=led.coupling_j,
+                       stiction_j=led.stiction_j - w.tau_st * dth, stop_work_j=led.stop_work_j - w.f_stop * dx_nut,
+                       load_work_j=led.load_work_j + load_n * dx_nut, backlash_j=led.backlash_j)
+        w.th_r, w.w_r = th_r1, w_r1
         if self.n_sub > 1:
-            n = self.n_sub
-            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
-            out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
-                          power_dissipated_w=pd, efficiency=efficiency(pin, pout, pd))
-        # sensors: the true sample now, delivered `latency_steps` later
-        sample = self._sample(th_r, w_r, screw, out.nut_force_n)
+            out, sums = w.out, w.sums
+            sums[0] += w.tau_in
+            sums[1] += out.power_in_w
+            sums[2] += out.power_out_w
+            sums[3] += out.power_dissipated_w
+        w.screw = new
+
+    def _finish(self, st: ActuatorState, w: _Work, command: float) -> tuple[ActuatorState, Outputs]:
+        """The next state, and the outputs completed with the actuator block and what the sensors measured
+        (the true sample now, delivered `latency_steps` later)."""
+        a, m, screw, led, out = self.actuator, self.actuator.motor, w.screw, w.led, w.out
+        sample = self._sample(w.th_r, w.w_r, screw, out.nut_force_n)
         lat = a.sensors.latency_steps
         history = (st.history + (sample,))[-(lat + 1):] if lat else (sample,)
         before = st.history[0] if st.history else history[0]
-        *meas, filt = self._measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, act)
-        meas = tuple(meas)
-        nxt = ActuatorState(screw, st.step + 1, st.mode, th_r, w_r, i_a, integ, tau_ref, w_ref, limited, enc,
-                            st.brake_engaged, level, st.faults, history, meas, filt, led, 0.0 if self.rigid else tau_c, ref, ref_v,
-                            cmd_prev)
-        # the actuator block
+        meas, filt = self.sensing.measure(st.step + 1, st.measured, st.load_cell_filtered_n, history[0], before, w.act)
+        nxt = ActuatorState(screw=screw, step=st.step + 1, mode=st.mode, motor_angle_rad=w.th_r,
+                            motor_speed_rad_s=w.w_r, current_a=w.i_a, integral_nm=w.integ, torque_ref_nm=w.tau_ref,
+                            speed_ref_rad_s=w.w_ref, limited=w.limited, encoder_rad=w.enc,
+                            brake_engaged=st.brake_engaged, brake_level=w.level, faults=st.faults, history=history,
+                            measured=meas, load_cell_filtered_n=filt, ledger=led,
+                            coupling_nm=0.0 if self.rigid else w.tau_c, reference_m=w.ref, reference_m_s=w.ref_v,
+                            command_prev=w.cmd_prev)
         x = self._nut_x(screw)
         stop_e = stop_stored_j(self.limits, x)
         depth, at_end = stop_penetration(self.limits, x)
-        stored = self.stored_energy(nxt)
-        diss = (screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_e
-                + led.backlash_j)
-        cap_b = level * a.brake.holding_torque_nm
-        cap_all = cap_b + act.jam_nm
-        brake_t = tau_st * cap_b / cap_all if cap_all > 0 else 0.0
-        motor_torque = 0.0 if m is None else m.torque_constant_nm_a * i_a
-        n_active = float(sum(f.active(st.time_s) for f in self.all_faults(st))) if act is not fl.NONE else 0.0
-        block = (command, _MODE_CODE[st.mode], w_ref, tau_ref, float(limited), i_a, motor_torque,
-                 w_r * N, volt, (led.energy_in_j - st.ledger.energy_in_j) / self.dt_s, tau_c, level, brake_t,
-                 tau_st - brake_t, f_stop, depth, led.stop_work_j - stop_e, float(at_end), led.energy_in_j, led.load_work_j, diss, stored, n_active)
+        cap_b = w.level * a.brake.holding_torque_nm
+        cap_all = cap_b + w.act.jam_nm
+        brake_t = w.tau_st * cap_b / cap_all if cap_all > 0 else 0.0
+        block = _ActuatorBlock(
+            command=command, mode=_MODE_CODE[st.mode], speed_reference_rad_s=w.w_ref, torque_reference_nm=w.tau_ref,
+            torque_limited=float(w.limited), motor_current_a=w.i_a,
+            motor_torque_nm=0.0 if m is None else m.torque_constant_nm_a * w.i_a, motor_speed_rad_s=w.w_r * self.ratio,
+            motor_voltage_v=w.volt, electrical_power_w=(led.energy_in_j - st.ledger.energy_in_j) / self.dt_s,
+            coupling_torque_nm=w.tau_c, brake_level=w.level, brake_torque_nm=brake_t,
+            jam_torque_nm=w.tau_st - brake_t, stop_force_n=w.f_stop, stop_penetration_m=depth,
+            stop_absorbed_j=led.stop_work_j - stop_e, thread_end=float(at_end), energy_in_j=led.energy_in_j,
+            load_work_j=led.load_work_j,
+            dissipated_j=(screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j
+                          - stop_e + led.backlash_j),
+            stored_j=self.stored_energy(nxt),
+            faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
         # `out` was made by the screw model for this call alone: completing its internal vector in
         # place saves a copy of the whole record per step
         object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
@@ -533,13 +548,17 @@ class Actuator(Model):
         is the true one. With ideal sensors this is `out`'s values exactly.
         """
         m = self.layout.view(out.internal, "measured")
-        return replace(out, screw_angle_rad=float(m[1]), screw_speed_rad_s=float(m[2]), nut_position_m=float(m[3]),
-                       nut_velocity_m_s=float(m[4]), nut_force_n=float(m[5]))
+        readings: dict[str, Any] = {n: float(m[_MEASURED_AT[n]]) for n in _JOINT_READINGS}
+        return replace(out, **readings)
 
     # -- energy --------------------------------------------------------------------------
     def _nut_x(self, s: State) -> float:
         """Nut position (m): its own coordinate in `elastic`, (L/2π) θ_S in the rigid models."""
-        return s.nut_axial_m if self.elastic else self.p * s.screw_angle_rad
+        return s.nut_axial_m if self.axial_chain else self.p * s.screw_angle_rad
+
+    def nut_position_m(self, st: ActuatorState) -> float:
+        """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
+        return self._nut_x(st.screw)
 
     def stored_energy(self, st: ActuatorState) -> float:
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own
@@ -547,7 +566,7 @@ class Actuator(Model):
         rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
         s, m = st.screw, self.actuator.motor
         ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
-        if self.elastic:
+        if self.axial_chain:
             e = self._model(fl.NONE).total_stored_energy_j(s)
         else:
             e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
@@ -557,111 +576,17 @@ class Actuator(Model):
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:
                 phi = st.motor_angle_rad - s.screw_angle_rad
-                e += 0.5 * self.motor_inertia * st.motor_speed_rad_s**2 + 0.5 * m.coupling_stiffness_nm_rad * phi * phi
+                e += 0.5 * self.motor_inertia * st.motor_speed_rad_s**2 + 0.5 * self.k_coupling * phi * phi
         return e
 
     # -- sensors -------------------------------------------------------------------------
-    def _encoder_screw_angle(self, motor_angle_rad: float, screw_angle_rad: float) -> float:
-        counts = self.actuator.sensors.encoder_counts_per_rev
-        if counts == 0:
-            return screw_angle_rad if self.rigid else motor_angle_rad / self.ratio
-        return quantise(motor_angle_rad, 2.0 * math.pi / counts) / self.ratio
-
-    def _faulted(self, sensor: str, value: float, held: float, act: fl.Active, key: int) -> tuple[float, bool]:
-        """Apply the active faults of `sensor` to a fresh reading: (value, fresh?)."""
-        seed = self.actuator.sensors.seed
-        for s, kind, v in act.sensor:
-            if s != sensor:
-                continue
-            if kind == "sensor_bias":
-                value += v
-            elif kind == "sensor_noise":
-                value += v * normal(seed, key, 100 + STREAM[sensor])
-            elif kind == "sensor_stuck":
-                return held, False
-            elif kind == "sensor_dropout" and uniform(seed, key, 110 + STREAM[sensor]) <= v:
-                return held, False
-        return value, True
-
-    def _read_encoder(self, motor_angle_rad: float, screw_angle_rad: float, act: fl.Active, key: int,
-                      held: float) -> float:
-        v = self._encoder_screw_angle(motor_angle_rad, screw_angle_rad)
-        return self._faulted("motor_encoder", v, held, act, key)[0] if act.sensor else v
-
-    def _read_linear(self, nut_m: float, encoder_screw_rad: float, act: fl.Active, key: int) -> float:
-        res = self.actuator.sensors.linear_encoder_resolution_m
-        if res is None:
-            return self.p * encoder_screw_rad
-        v = quantise(nut_m, res)
-        return self._faulted("linear_encoder", v, v, act, key)[0] if act.sensor else v
-
     def _sample(self, motor_angle_rad: float, motor_speed_rad_s: float, screw: State,
-                nut_force_n: float) -> tuple[float, ...]:
-        """The true values the sensors see: motor angle (motor shaft), screw angle/speed, nut position/velocity/force.
+                nut_force_n: float) -> TrueSample:
+        """The true values the sensors see (`TrueSample`).
 
         Motor angle and speed come in screw coordinates (motor / gear ratio); the nut's are its own
         (`elastic`: across the axial chain from the thread, so a linear encoder sees the backlash)."""
-        p = self.p
-        v_nut = screw.nut_speed_m_s if self.elastic else p * screw.screw_speed_rad_s
-        return (motor_angle_rad * self.ratio, screw.screw_angle_rad,
-                screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
-                self._nut_x(screw), v_nut, nut_force_n)
-
-    def _measure(self, key: int, prev: tuple, filtered_n: float, now: tuple, before: tuple, act: fl.Active,
-                 first: bool = False) -> tuple:
-        """What the sensors report at step `key` for the delayed true sample `now` (`before`: a step earlier).
-
-        `prev`: the last reading (held on dropout or a stuck fault); `filtered_n`: the load
-        cell filter's memory. Returns the MEASURED_QUANTITIES values and the new filter memory.
-        """
-        sp, p, h = self.actuator.sensors, self.p, self.dt_s
-        prev = prev if prev else None
-        # motor encoder → screw angle and speed
-        ang = self._encoder_screw_angle(now[0], now[1])
-        if sp.encoder_counts_per_rev == 0:
-            spd = now[2]
-        else:
-            spd = 0.0 if first else (ang - self._encoder_screw_angle(before[0], before[1])) / h
-        fresh = [1.0, 1.0, 1.0]
-        out = [now[0] if sp.encoder_counts_per_rev == 0 else ang * self.ratio, ang, spd]
-        # nut position and velocity: linear encoder if fitted, else from the motor encoder
-        if sp.linear_encoder_resolution_m is None:
-            if sp.encoder_counts_per_rev == 0 and self.rigid:
-                out += [now[3], now[4]]
-            else:
-                out += [p * ang, p * spd]
-        else:
-            res = sp.linear_encoder_resolution_m
-            x = quantise(now[3], res)
-            v = now[4] if res == 0 else (0.0 if first else (x - quantise(before[3], res)) / h)
-            out += [x, v]
-        # load cell, in a conditioning chain's order: element (true force) → amplifier (bias, white noise of
-        # σ per sample at the step rate) → anti-alias first-order low-pass, so the filter acts on the noise
-        raw = now[5] + sp.load_cell_bias_n if sp.load_cell_bias_n else now[5]
-        if sp.load_cell_noise_n:
-            raw += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
-        filt = first_order(filtered_n, raw, sp.load_cell_bandwidth_hz, h) if not first else raw
-        out.append(filt)
-        if prev is not None:
-            lin = sp.linear_encoder_resolution_m is not None
-            for sensor, idx in _GROUPS.items():
-                if sensor == "linear_encoder" and not lin:
-                    continue
-                si = _SENSOR_INDEX[sensor]
-                dropped = sp.dropout_probability > 0 and uniform(sp.seed, key, DROPOUT_STREAM[sensor]) <= sp.dropout_probability
-                if not dropped and act.sensor:
-                    # bias and noise act on the primary reading (screw angle rad, nut position m, force N)
-                    primary = idx[1] if sensor == "motor_encoder" else idx[0]
-                    v, ok = self._faulted(sensor, out[primary], prev[primary], act, key)
-                    dropped = not ok
-                    if ok and v != out[primary]:
-                        out[primary] = v
-                        if sensor == "motor_encoder":
-                            out[0] = v * self.ratio
-                if dropped:
-                    for i in idx:
-                        out[i] = prev[i]
-                    fresh[si] = 0.0
-                if sensor == "motor_encoder" and not lin and (dropped or act.sensor):
-                    out[3], out[4] = p * out[1], p * out[2]
-        return tuple(out) + tuple(fresh) + (filt,)
+        v_nut = screw.nut_speed_m_s if self.axial_chain else self.p * screw.screw_speed_rad_s
+        return TrueSample(motor_angle_rad * self.ratio, screw.screw_angle_rad,
+                          screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
+                          self._nut_x(screw), v_nut, nut_force_n)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from prsm_sim.errors import InputError
 from prsm_sim.actuator.params import DriveParams
 
 
@@ -64,24 +65,28 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
     ω_ref = kp_pos (x_ref − x) / (L/2π) + `feedforward_rad_s`, then the speed loop with the torque
     `feedforward_nm` (the reference's acceleration times the inertia) added. The speed reference is clamped
     to ±speed_limit; the torque to ±torque_limit, and the integrator holds while the output
-    sits on the limit and the error would push it further (conditional integration).
+    sits on the limit and the error would push it further (conditional integration). `drive` must be
+    tuned (`DriveParams.tuned`: every gain a number; InputError otherwise).
     """
     if mode == "effort":
         tau = max(-torque_limit_nm, min(torque_limit_nm, command))
         return DriveOut(tau, integral_nm, tau != command, 0.0)
+    kp, ki, kx = drive.speed_kp_nm_s_rad, drive.speed_ki_nm_rad, drive.position_kp_1_s
+    if kp is None or ki is None or kx is None:
+        raise InputError("drive: gains left None (tune them first: DriveParams.tuned(inertia_kgm2))")
     if mode == "position":
-        w_ref = drive.position_kp_1_s * (command - nut_meas_m) / lead_per_rad_m + feedforward_rad_s
+        w_ref = kx * (command - nut_meas_m) / lead_per_rad_m + feedforward_rad_s
     else:
         w_ref = command
     lim = drive.speed_limit_rad_s
     w_ref = max(-lim, min(lim, w_ref))
     e = w_ref - speed_meas_rad_s
-    integ = integral_nm + drive.speed_ki_nm_rad * e * h_s
-    raw = drive.speed_kp_nm_s_rad * e + integ + feedforward_nm
+    integ = integral_nm + ki * e * h_s
+    raw = kp * e + integ + feedforward_nm
     tau = max(-torque_limit_nm, min(torque_limit_nm, raw))
     limited = tau != raw
     if limited and raw * e > 0.0:
         # anti-windup: the integrator stops where the output meets the limit (never beyond its new value)
-        edge = math.copysign(torque_limit_nm, raw) - drive.speed_kp_nm_s_rad * e - feedforward_nm
+        edge = math.copysign(torque_limit_nm, raw) - kp * e - feedforward_nm
         integ = min(integ, max(edge, integral_nm)) if raw > 0 else max(integ, min(edge, integral_nm))
     return DriveOut(tau, integ, limited, w_ref)

@@ -17,7 +17,7 @@ frequency, below the coupling's resonance.
 from __future__ import annotations
 
 from prsm_sim.actuator.params import ActuatorParams
-from prsm_sim.models.ideal import reflected_inertia
+from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.params import Params
 
 

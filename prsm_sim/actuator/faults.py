@@ -24,11 +24,10 @@ from typing import NamedTuple
 
 from prsm_sim.actuator.params import Fault
 from prsm_sim.errors import ParamError
+from prsm_sim.models.registry import model_class
 from prsm_sim.params import Params
 
-FRICTION_KINDS = ("friction_surge", "lubrication_loss")
 MODELS_RESOLVING_ROLLERS: tuple[str, ...] = ()
-MODELS_WITH_BACKLASH: tuple[str, ...] = ("elastic",)
 
 
 def check_fault(fault: Fault, params: Params, model_name: str, has_motor: bool) -> Fault:
@@ -42,7 +41,8 @@ def check_fault(fault: Fault, params: Params, model_name: str, has_motor: bool) 
         if model_name not in MODELS_RESOLVING_ROLLERS:
             raise ParamError(f"fault.roller = {fault.roller}: model {model_name!r} treats all rollers alike "
                              f"(none of ideal, jones2016, fu2018 resolves one roller); use roller None for all")
-    if fault.kind == "backlash" and model_name not in MODELS_WITH_BACKLASH:
+    # a clearance grows only where the nut sits on its own axial chain
+    if fault.kind == "backlash" and not model_class(model_name).has_axial_chain:
         raise ParamError(f"fault.kind = 'backlash': growing backlash is not implemented for model {model_name!r} "
                          "(it needs the elastic model's thread clearance: use model 'elastic'; "
                          "elastic.axial_clearance_m sets a fixed backlash)")
@@ -92,7 +92,7 @@ def active(faults: tuple[Fault, ...], t_s: float) -> Active:
         elif k == "drive_fault":
             off = True
         elif k.startswith("sensor_"):
-            sens.append((f.sensor, k, f.value))
+            sens.append((str(f.sensor), k, f.value))  # a sensor fault names its sensor (`Fault` checks it)
     return Active(ff, lf, jam, tf, off, tuple(sens))
 
 

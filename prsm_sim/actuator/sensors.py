@@ -9,6 +9,8 @@ bit for a seed in lockstep, whatever order the steps are evaluated in.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import NamedTuple
 
 _M64 = (1 << 64) - 1
 
@@ -49,6 +51,46 @@ def first_order(previous: float, target: float, bandwidth_hz: float | None, dt_s
     return target + (previous - target) * a
 
 
-# stream numbers of the draws (one per sensor and purpose)
-STREAM = {"motor_encoder": 1, "linear_encoder": 2, "load_cell": 3}
-DROPOUT_STREAM = {"motor_encoder": 11, "linear_encoder": 12, "load_cell": 13}
+class TrueSample(NamedTuple):
+    """The true values the sensors see at one step (what their latency delays), by name.
+
+    Motor angle on the motor shaft (rad), screw angle (rad) and speed (rad/s: the rotor's with a
+    compliant coupling, where the motor encoder sits), the nut's own position (m), velocity (m/s)
+    and axial force (N)."""
+
+    motor_angle_rad: float
+    screw_angle_rad: float
+    screw_speed_rad_s: float
+    nut_position_m: float
+    nut_velocity_m_s: float
+    nut_force_n: float
+
+
+@dataclass(frozen=True)
+class SensorChannel:
+    """One sensor: the quantities it reports (name, unit), the one its bias and noise faults act on,
+    and the stream numbers of its noise and dropout draws (one per sensor and purpose).
+
+    Each reports a freshness flag besides (``<name>_fresh``: 0 while dropped or stuck)."""
+
+    name: str
+    quantities: tuple[tuple[str, str], ...]
+    primary: str
+    stream: int
+    dropout_stream: int
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(q for q, _ in self.quantities)
+
+
+SENSORS = (
+    SensorChannel("motor_encoder", (("motor_angle_rad", "rad"), ("screw_angle_rad", "rad"),
+                                    ("screw_speed_rad_s", "rad/s")), "screw_angle_rad", 1, 11),
+    SensorChannel("linear_encoder", (("nut_position_m", "m"), ("nut_velocity_m_s", "m/s")), "nut_position_m", 2, 12),
+    SensorChannel("load_cell", (("nut_force_n", "N"),), "nut_force_n", 3, 13),
+)
+# the readings, then the freshness flags, in the order of the `measured` block
+MEASURED_QUANTITIES = tuple(q for s in SENSORS for q in s.quantities) + tuple((f"{s.name}_fresh", "1") for s in SENSORS)
+STREAM = {s.name: s.stream for s in SENSORS}
+DROPOUT_STREAM = {s.name: s.dropout_stream for s in SENSORS}

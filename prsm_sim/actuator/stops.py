@@ -33,7 +33,7 @@ The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, TypeVar
 
 from prsm_sim.actuator.params import StopParams
 
@@ -93,8 +93,11 @@ def engaged(limits: tuple[Limit, ...], x1_m: float) -> Limit | None:
     return None
 
 
-def solve(limit: Limit, h_s: float, x0_m: float, free, advance: Callable[[float], object],
-          nut_position: Callable[[object], float], compliance_m_n: float) -> tuple[float, object]:
+R = TypeVar("R")  # what a step gives (a model's or the simulator's result), as `solve` passes it through
+
+
+def solve(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable[[float], R],
+          nut_position: Callable[[R], float], compliance_m_n: float) -> tuple[float, R]:
     """The stop force held over the step (N, signed along +x_nut) and the step's result under it.
 
     `free`: the step's result without a stop force; `advance(F)`: the step with the stop force F

@@ -61,6 +61,7 @@ import numpy as np
 from prsm_sim.models import kernels
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
                                     slip_speed)
+from prsm_sim.models.kernels import ROOT_STEP_TOL  # noqa: F401 (public here, where the chain law is described)
 from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
@@ -90,7 +91,7 @@ FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is
 IMPACT_TOL = 1e-4
 IMPACT_FLOOR = 1e-4
 IMPACT_ITERATIONS = 4
-ROOT_STEP_TOL = 1e-9  # relative Newton step at which `power_law_root` stops (its error is then below rounding)
+_LAW = kernels.load("reference")
 
 
 @dataclass(frozen=True)
@@ -116,44 +117,11 @@ class PowerLaw:
         return 0.6 * self.a * f ** (5.0 / 3.0) + 0.5 * self.b * f * f
 
 
-def power_law_root(d: float, a: float, b: float) -> float:
-    """s = F^(1/3) with δ = a F^(2/3) + b F, i.e. a s² + b s³ = d (0 for d ≤ 0): the inverse of the power law.
-
-    In s the law is a polynomial, convex and increasing for s > 0, so Newton from an upper bound
-    (the smaller of the pure-Hertz root √(d/a) and the pure-linear root ∛(d/b), picked by comparing
-    a³ with d b² so that only one root is taken) converges monotonically, with no fractional power
-    inside the loop. The stiffness and energy then follow from s without powers either
-    (`AxialLaw.evaluate`). The compiled kernel (`models.kernels._power_root`) does the same arithmetic.
-
-    Stopping: Newton's error after a step of relative size r is at most about r² (the relative curvature
-    term g''/(2g') s of this polynomial lies in [1/2, 1]), so a step below ROOT_STEP_TOL = 1e-9 leaves an
-    error under 1e-17 of s, below double rounding: the iteration stops there instead of taking one more
-    step only to see it vanish (3.1 iterations on average instead of 3.75; the root is taken about twice
-    per sub-step).
-    """
-    if d <= 0.0:
-        return 0.0
-    if a == 0.0:
-        return (d / b) ** (1.0 / 3.0)
-    s = math.sqrt(d / a) if b == 0.0 or a * a * a >= d * b * b else (d / b) ** (1.0 / 3.0)
-    for _ in range(60):
-        r = a * s * s + b * s * s * s - d
-        s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
-        if abs(s_new - s) <= ROOT_STEP_TOL * s:
-            return s_new
-        s = s_new
-    return s
-
-
-def _stiffness_at_root(s: float, a: float, b: float) -> float:
-    """dF/dδ = 1 / ((2/3) a F^(−1/3) + b) at F = s³ (s floored where F^(−1/3) would overflow)."""
-    return 1.0 / ((2.0 / 3.0) * a / max(s, 1e-100) + b)
-
-
-def _complementary_at_root(s: float, a: float, b: float) -> float:
-    """∫₀^F δ dF' = (3/5) a F^(5/3) + b F²/2 at F = s³."""
-    f = s * s * s
-    return 0.6 * a * (s * s * s * s * s) + 0.5 * b * f * f
+# the chain law's arithmetic, written once in `models.kernels` (uncompiled here: these run outside the step)
+power_law_root = _LAW._power_root  # s = F^(1/3) with δ = a F^(2/3) + b F (`kernels._power_root`)
+_stiffness_at_root = _LAW._stiffness_at_root
+_complementary_at_root = _LAW._complementary_at_root
+_sliding_efficiencies = _LAW._sliding_eff
 
 
 def fit_side(joint: ls.Joint, rating_n: float) -> PowerLaw:
@@ -202,6 +170,10 @@ class AxialLaw:
         self.d0 = self.side.approach(self.preload) if self.preload > 0 else 0.0
         self.v0 = (self.preload * self.d0 - self.side.complementary(self.preload)) if self.preload > 0 else 0.0
         self.shares = _share_table(self.joint, params.ratings.static_load_rating_n)
+        # the law's constants as the step's kernels read them (the rest of `ElasticConstants` is the model's)
+        self.constants = ElasticConstants(*(math.nan,) * len(ElasticConstants._fields))._replace(
+            clearance=self.clearance, preload=self.preload, law_a=self.side.a, law_b=self.side.b, ea=self.ea,
+            x_bearing=self.x_bearing, c_housing=self.c_housing, d0=self.d0, v0=self.v0)
 
     def external_compliance(self, x_n: float) -> tuple[float, float]:
         """(ℓ/EA + 1/K_h, its derivative in x_N)."""
@@ -211,52 +183,14 @@ class AxialLaw:
 
     def evaluate(self, delta: float, x_n: float, extra_clearance_m: float = 0.0) -> tuple[float, float, float, float]:
         """(F, K = dF/dδ, V, lost motion) at deflection δ and nut position x_N, with the clearance
-        widened by `extra_clearance_m` (a growing-backlash fault; unpreloaded nuts only)."""
-        c_ext, _ = self.external_compliance(x_n)
-        if self.preload > 0:
-            return self._preloaded(delta, c_ext)
-        half = 0.5 * (self.clearance + extra_clearance_m)
-        mag = abs(delta) - half
-        if mag <= 0.0:
-            return 0.0, 0.0, 0.0, delta
-        a, b = self.side.a, self.side.b + c_ext
-        r = power_law_root(mag, a, b)
-        f = r * r * r
-        k = _stiffness_at_root(r, a, b)
-        v = f * mag - _complementary_at_root(r, a, b)
-        sgn = 1.0 if delta > 0 else -1.0
-        return sgn * f, k, v, sgn * half
-
-    def _preloaded(self, delta: float, c_ext: float) -> tuple[float, float, float, float]:
-        """Pair shift x_p with δ = x_p + F(x_p) c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
-        a, b, d0 = self.side.a, self.side.b, self.d0
-        x = delta / 2.0
-        for _ in range(60):
-            ra, rb = power_law_root(d0 + x, a, b), power_law_root(d0 - x, a, b)
-            qa, qb = ra * ra * ra, rb * rb * rb
-            ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
-            kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
-            f = qa - qb
-            r = x + f * c_ext - delta
-            dx = -r / (1.0 + (ka + kb) * c_ext)
-            x += dx
-            if abs(dx) <= 1e-15 * max(abs(x), d0):
-                break
-        ra, rb = power_law_root(d0 + x, a, b), power_law_root(d0 - x, a, b)
-        qa, qb = ra * ra * ra, rb * rb * rb
-        ka = _stiffness_at_root(ra, a, b) if qa > 0 else 0.0
-        kb = _stiffness_at_root(rb, a, b) if qb > 0 else 0.0
-        f = qa - qb
-        k_pair = ka + kb
-        k = k_pair / (1.0 + k_pair * c_ext)
-        va = qa * (d0 + x) - _complementary_at_root(ra, a, b)
-        vb = (qb * (d0 - x) - _complementary_at_root(rb, a, b)) if qb > 0 else 0.0
-        return f, k, va + vb - 2 * self.v0 + 0.5 * f * f * c_ext, 0.0
+        widened by `extra_clearance_m` (a growing-backlash fault; unpreloaded nuts only): `kernels.law_evaluate`.
+        """
+        return _LAW.law_evaluate(delta, x_n, extra_clearance_m, self.constants)
 
     def pair_forces(self, delta: float, x_n: float) -> tuple[float, float]:
         """(Q_A, Q_B) of a preloaded pair at δ: the flank set that δ > 0 loads, and the opposed one (N)."""
         c_ext, _ = self.external_compliance(x_n)
-        f = self._preloaded(delta, c_ext)[0]
+        f = self.evaluate(delta, x_n)[0]
         x = delta - f * c_ext
         return self.side.force(self.d0 + x), self.side.force(self.d0 - x)
 
@@ -315,6 +249,10 @@ class ElasticPart(NamedTuple):
 class ElasticModel(Model):
     name = "elastic"
     compiled_kernel = True
+    has_carrier = True
+    has_internal_forces = True
+    has_friction_laws = True
+    has_axial_chain = True
     part_type = ElasticPart
 
     def __init__(self, params: Params, dt_s: float, kernel: str = "compiled") -> None:
@@ -326,8 +264,8 @@ class ElasticModel(Model):
         dt_s : float
             Fixed output step, s.
         kernel : {"compiled", "reference"}
-            "compiled": the sub-step loop (core included) and the batch loop run as numba code
-            (`models.kernels`, the same arithmetic); "reference": the pure-Python methods, their specification.
+            The sub-step loop's source (core included), `models.kernels`, run as numba code ("compiled") or
+            by the Python interpreter ("reference").
         """
         self._kn = kernels.load(kernel)
         self.kernel = kernel
@@ -335,8 +273,11 @@ class ElasticModel(Model):
         self.law = AxialLaw(params)
         self.m = params.mass.moved_mass_kg
         self.p = self.geo.lead_per_rad_m
-        # the rotating core: fu2018 with the moved mass taken off (the nut is its own body here)
-        core_params = params.with_overrides({"mass.moved_mass_kg": 1e-9 * self.m})
+        # the rotating core: fu2018 with the moved mass taken off (the nut is its own body here); its idle flanks
+        # press with this model's preload P₀ (held at its zero-load value: exact at zero load, where a preload
+        # torque is specified), not the rigid nut's internal preload, which the chain's clearance replaces
+        core_params = params.with_overrides({"mass.moved_mass_kg": 1e-9 * self.m,
+                                             "drag.internal_preload_n": params.elastic.preload_n})
         ms, _ = ls.axial_masses_kg(params)
         self.screw_side_mass_kg = ms
         self.mu = ms * self.m / (ms + self.m)
@@ -374,18 +315,22 @@ class ElasticModel(Model):
         self._share_loads = self.law.shares[0].tolist()
         law = self.law
         m_core = self._m_core
-        self.constants = ElasticConstants(
+        self.constants = law.constants._replace(
             p=self.p, m=self.m, mu=self.mu, zeta=self.zeta, substeps=float(self.substeps), hs=self.core.dt_s,
             breakaway=float(self.breakaway), eta_sf=self.eta_static[0], eta_sb=self.eta_static[1], w_stick=self.w_stick,
             czs=self.czs, sin_beta=self.sin_beta, mu_c=self.mu_c, eta_rf=self.eta_running[0],
-            eta_rb=self.eta_running[1], d_mu=self.d_mu, p_sb_vs=self.p_over_sin_beta_per_vs, clearance=law.clearance,
-            preload=law.preload, law_a=law.side.a, law_b=law.side.b, ea=law.ea, x_bearing=law.x_bearing,
-            c_housing=law.c_housing, d0=law.d0, v0=law.v0, m00=m_core[0][0], m01=m_core[0][1], m11=m_core[1][1],
-            impact_tol=IMPACT_TOL, impact_floor=IMPACT_FLOOR, impact_iter=float(IMPACT_ITERATIONS))
-        self._kernel_e = np.array(self.constants, dtype=float)  # the compiled kernel's (`kernels.ElasticConstants`)
-        if self._kn is not None:  # compiled or loaded from the disk cache now, not in a realtime loop's first step
+            eta_rb=self.eta_running[1], d_mu=self.d_mu, p_sb_vs=self.p_over_sin_beta_per_vs, m00=m_core[0][0],
+            m01=m_core[0][1], m11=m_core[1][1], impact_tol=IMPACT_TOL, impact_floor=IMPACT_FLOOR,
+            impact_iter=float(IMPACT_ITERATIONS))
+        # the step's constants (`kernels.ElasticConstants`): a float array for numba, a tuple of Python floats for
+        # the interpreter (`_law_e` always the tuple: the stored energy is computed outside the step too)
+        self._law_e = tuple(self.constants)
+        self._kernel_e: tuple | np.ndarray = self._law_e
+        if kernel == "compiled":
+            self._kernel_e = np.array(self._law_e, dtype=float)
+            # compiled or loaded from the disk cache now, not in a realtime loop's first step
             self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
-                                     self.core._kernel_k, self.core._kernel_s)
+                                     *self.core.kernel_constants)
 
     def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> State:
         """At rest with the nut at `nut_position_m`; under a nut load F the chain is deflected to carry it
@@ -409,34 +354,6 @@ class ElasticModel(Model):
         """The nut's own position (m) and velocity (m/s) in `state`."""
         return state.nut_axial_m, state.nut_speed_m_s
 
-    def _core_step(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
-        """One `fu2018` step of the core (length core.dt_s) under a held thread force.
-
-        Returns (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces, flank sign, pin force, gear force,
-        solver memory): `Fu2018._step`, with its stick and its error-controlled sub-steps at friction
-        transitions.
-        """
-        return self.core._step(ws, wc, sign, pin_abs, gear, mem, tau, load)
-
-    def _holds(self, torque_nm: float, thread_force_n: float) -> bool:
-        """Static friction holds the screw at rest: the torque lies inside the breakaway band
-        [p F η_b,s, p F/η_f,s] (mirrored for F < 0), efficiencies at μ_s = breakaway_ratio · μ."""
-        eta_f, eta_b = self.eta_static
-        t = self.p * thread_force_n
-        lo, hi = (t * eta_b, t / eta_f) if t >= 0 else (t / eta_f, t * eta_b)
-        return lo <= torque_nm <= hi
-
-    def _core_holds(self, torque_nm: float, thread_force_n: float, sign, pin_abs, gear) -> bool:
-        """The running law's static friction (fu2018 `stick_forces`) holds the screw at rest under the torque
-        left once the static Stribeck excess has taken its share (`_rest_torque`)."""
-        st, r = self.core.stick_forces(self._rest_torque(torque_nm, thread_force_n), thread_force_n, sign, pin_abs,
-                                       1.0 if gear >= 0.0 else -1.0)
-        return st is not None and r <= 1.0
-
-    def _core_kinetic_j(self, ws: float, wc: float) -> float:
-        (m00, m01), (_, m11) = self._m_core
-        return 0.5 * (m00 * ws * ws + 2 * m01 * ws * wc + m11 * wc * wc)
-
     # -- energy ---------------------------------------------------------------------------
     def total_stored_energy_j(self, state: State) -> float:
         """Kinetic energy of the core and the nut plus the chain's elastic energy (J), at the state's
@@ -446,54 +363,10 @@ class ElasticModel(Model):
         return self._stored_j(state.screw_speed_rad_s, state.carrier_speed_rad_s, state.nut_speed_m_s, v)
 
     def _stored_j(self, ws: float, wc: float, v_n: float, v_el: float) -> float:
-        """Core and nut kinetic energy plus the chain's elastic energy `v_el` (J)."""
-        return self._core_kinetic_j(ws, wc) + 0.5 * self.m * v_n**2 + v_el
+        """Core and nut kinetic energy plus the chain's elastic energy `v_el` (J), as the step books it."""
+        return _LAW._core_kinetic(ws, wc, self._law_e) + 0.5 * self.m * v_n ** 2.0 + v_el
 
-    # -- stepping -------------------------------------------------------------------------
-    def _force(self, th_s, w_s, x_n, v_n, extra=0.0):
-        delta = self.p * th_s - x_n
-        f, k, v, lost = self.law.evaluate(delta, x_n, extra)
-        c = 2.0 * self.zeta * math.sqrt(k * self.mu) if k > 0 else 0.0
-        rate = self.p * w_s - v_n
-        return f + c * rate, f, k, v, lost, delta, c
-
-    def _stribeck_torque(self, ws: float, thread_force_n: float) -> float:
-        """Excess friction torque (N m, resisting ω_S) of the Stribeck law over `fu2018`'s running friction.
-
-        μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²) at the screw–roller slip v = |ω_S| p / sin β (docs/model.md §3),
-        expressed through the sliding-only efficiencies of docs/model.md §4.2: driving (ω_S F ≥ 0) the screw
-        torque of the sliding contacts is p|F|/η_f(μ), back-driven p|F| η_b(μ); the excess is the difference
-        between μ(v) and μ_c. Zero when `breakaway_ratio` is 1 or the screw is at rest (`_rest_torque` then).
-        """
-        if not self.breakaway or ws == 0.0:
-            return 0.0
-        r = ws * self.p_over_sin_beta_per_vs
-        g = math.exp(-r * r)
-        if g < 1e-12:
-            return 0.0
-        ex = self._excess(ws, thread_force_n, g)
-        return ex if ws > 0.0 else -ex
-
-    def _excess(self, direction: float, thread_force_n: float, g: float) -> float:
-        """|excess torque| (N m) for motion in `direction` (sign of ω_S) at Stribeck decay g = exp(−(v/v_s)²)."""
-        mu = self.mu_c + self.d_mu * g
-        eta_f, eta_b = _sliding_efficiencies(self.czs, self.sin_beta, mu)
-        eta_fc, eta_bc = self.eta_running
-        t = abs(self.p * thread_force_n)
-        # driving (ω_S F ≥ 0): p|F|/η_f(μ) less its running value; back-driven: p|F| η_b(μ_c) less p|F| η_b(μ)
-        return t * (1.0 / eta_f - 1.0 / eta_fc) if direction * thread_force_n >= 0.0 else t * (eta_bc - eta_b)
-
-    def _rest_torque(self, torque_nm: float, thread_force_n: float) -> float:
-        """Screw torque the core sees at rest: the Stribeck excess at zero slip acts as extra static friction
-        against the net torque τ − p F, up to its full value (the v → 0 limit of `_stribeck_torque`), so the
-        screw breaks away where the running law's stick band plus that excess ends (p F/η_f,s with frictionless
-        pins), and the friction just after breakaway is the friction just before it."""
-        d = torque_nm - self.p * thread_force_n
-        if not self.breakaway or d == 0.0:
-            return torque_nm
-        ex0 = self._excess(d, thread_force_n, 1.0)
-        return torque_nm - math.copysign(min(abs(d), ex0), d)
-
+    # -- stepping: `kernels.elastic_advance`, the one source (compiled or uncompiled) ---------------------
     def _kernel_args(self, s: State) -> tuple:
         """The state as the compiled kernel takes it (floats; the solver memory as `kernels.kernel_memory`)."""
         # float() on every field: an int (a user's replace(state, nut_axial_m=0)) would make numba compile a
@@ -505,15 +378,12 @@ class ElasticModel(Model):
                 float(q.extra_clearance_m))
 
     def _run_impl(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
-        """The batch form: with the compiled kernel the whole loop runs compiled and the internal-load block is
-        built when first read; the reference path is the step repeated."""
-        if self._kn is None:
-            return super()._run_impl(state, torque_nm, load_n)
+        """The batch form: one call of `kernels.elastic_run`; the internal-load block is built when first read."""
         n = len(torque_nm)
         cols, comp = np.empty((n, 17)), np.empty((n, len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)))
         args = self._kernel_args(state)
         th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc = self._kn.elastic_run(
-            *args, torque_nm, load_n, self._kernel_e, self.core._kernel_k, self.core._kernel_s, cols, comp)
+            *args, torque_nm, load_n, self._kernel_e, *self.core.kernel_constants, cols, comp)
         extra = args[-1]
         final = State(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
                       part=ElasticPart(int(sign), pin_abs, gear, memory_from_kernel(mem), x_n, v_n, acc, extra))
@@ -534,110 +404,35 @@ class ElasticModel(Model):
         and chain figures are the record's aux, from which the slip speed and the internal vector
         (`_internal`) are derived when read.
         """
-        substeps, stored, internal = self._substeps, self._stored_j, self._internal
+        substeps, internal = self._substeps, self._internal
         finish = self.finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
                                lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
 
         def step(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem, x_n, v_n, acc, extra = x[11]
             (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el, k, v_el, lost,
-             delta) = substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm,
+             delta, e_end) = substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm,
                                load_n)
-            return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, stored(ws, wc, v_n, v_el),
+            return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, e_end,
                           (sign, pin_abs, gear, mem, x_n, v_n, acc, extra),
                           (f1, f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
         return step
 
     def _substeps(self, ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n):
-        """One output step of `substeps` sub-steps (module doc), on plain floats.
+        """One output step of `substeps` sub-steps (module doc; `kernels.elastic_advance`), on plain floats.
 
         Returns (ω_S, ω_C, θ_S, θ_C, x_N, v_N, flank sign, pin force, gear force, solver memory, screw
         acceleration, dissipated J, the load's work J, thread force on the nut N, the core's end forces, and
-        the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end).
-        With the compiled kernel: `models.kernels.elastic_advance`, the same arithmetic.
+        the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end, and the
+        stored energy at the end J).
         """
-        if self._kn is not None:
-            (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
-             f_th, _) = self._kn.elastic_advance(
-                float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
-                float(gear), kernel_memory(mem), float(acc), float(extra), float(torque_nm), float(load_n),
-                self._kernel_e, self.core._kernel_k, self.core._kernel_s)
-            return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, memory_from_kernel(mem), acc, diss,
-                    w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta)
-        hs, m, core, law, p = self.core.dt_s, self.m, self.core, self.law, self.p
-        diss = 0.0
-        f_th, f_el0, k, v_el0, lost, delta, c0 = self._force(th_s, ws, x_n, v_n, extra)
-        w_out = 0.0
-        for _ in range(self.substeps):
-            # Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with
-            # the accelerations at its start): equal and opposite impulses, second order in the axial mode.
-            a_n = (f_th - load_n + law.nut_side_force(f_el0, x_n)) / m
-            x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
-            _, f_el, k_mid, _, _, _, c = self._force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
-                                                     x_mid, v_n + 0.5 * hs * a_n, extra)
-            rate = p * (ws + 0.5 * hs * acc) - (v_n + 0.5 * hs * a_n)
-            f_str = self._stribeck_torque(ws, f_el + c * rate)
-            best = None
-            for attempt in range(IMPACT_ITERATIONS + 1):
-                f_mid = f_el + c * rate
-                stuck = self.breakaway and ws == 0.0 and wc == 0.0 and self._holds(torque_nm, f_mid)
-                if stuck:  # static friction holds the screw: no creep below breakaway
-                    f1 = core.solve_forces((0.0, 0.0), torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0)
-                    ws1, wc1, dth_s, dth_c, d_core = 0.0, 0.0, 0.0, 0.0, 0.0
-                    sign1, pin1, gear1, mem1 = sign, pin_abs, gear, mem
-                else:
-                    if ws == 0.0 and wc == 0.0:
-                        f_str = torque_nm - self._rest_torque(torque_nm, f_mid)
-                    ws1, wc1, dth_s, dth_c, d_core, f1, sign1, pin1, gear1, mem1 = self._core_step(
-                        ws, wc, sign, pin_abs, gear, mem, torque_nm - f_str, f_mid)
-                nsf = law.nut_side_force(f_el, x_mid)
-                v1 = v_n + hs * (f_mid - load_n + nsf) / m
-                dx = 0.5 * hs * (v_n + v1)
-                d_delta = p * dth_s - dx
-                _, f_el1, k1, v_el1, lost1, delta1, c1 = self._force(th_s + dth_s, ws1, x_n + dx, v1, extra)
-                # Energy consistency of the held elastic force: its work f Δδ (+ the nut-side term) must equal
-                # the change of V. Where the contact closes or opens inside the sub-step (a backlash crossing,
-                # an impact) the midpoint force does not see it and misses by up to the whole V of the
-                # sub-step. There the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ of the
-                # last attempt (a discrete gradient: its work is ΔV exactly), a contraction since (ωh)²/2 < 1;
-                # the attempt with the smallest miss is kept. Only sub-steps that miss pay for it (crossings, the
-                # first sub-steps of a Hertz contact; smooth contact passes the first time).
-                err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
-                if best is None or abs(err) < abs(best[0]):
-                    best = (err, f_el, c, rate, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1,
-                            v1, dx, d_delta, f_el1, k1, v_el1, lost1, delta1, c1, f_mid)
-                if (attempt == IMPACT_ITERATIONS or abs(d_delta) < 1e-15
-                        or abs(err) <= IMPACT_TOL * abs(torque_nm * dth_s) + IMPACT_FLOOR * (abs(v_el1) + abs(v_el0))):
-                    break
-                f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
-                rate = d_delta / hs
-                # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen
-                # (at a contact entry the predicted midpoint may still lie in the gap, K = 0)
-                c = 2.0 * self.zeta * math.sqrt(max(k_mid, k1) * self.mu) if max(k_mid, k1) > 0 else 0.0
-            (err, f_el, c, rate, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1,
-             v1, dx, d_delta, f_el1, k1, v_el1, lost1, delta1, c1, f_mid) = best
-            # the held damping force and Stribeck torque take out exactly the work they did over the sub-step
-            diss += d_core + c * rate * d_delta + f_str * dth_s
-            sign, pin_abs, gear, mem = sign1, pin1, gear1, mem1
-            acc = (ws1 - ws) / hs
-            th_s += dth_s
-            th_c += dth_c
-            if (self.breakaway and not stuck and abs(ws1) < self.w_stick
-                    and (self._holds(torque_nm, f_mid) or self._core_holds(torque_nm, f_mid, sign, pin_abs, gear))):
-                # Karnopp: slower than the stick window with the torque inside the breakaway band (or the running
-                # law's stick band widened by the static excess), the screw sticks; its kinetic energy (and the
-                # carrier's) goes to friction, counted in the ledger
-                diss += self._core_kinetic_j(ws1, wc1)
-                ws1 = wc1 = acc = 0.0
-                _, f_el1, k1, v_el1, lost1, delta1, c1 = self._force(th_s, 0.0, x_n + dx, v1, extra)
-            x_n += dx
-            v_n = v1
-            w_out += load_n * dx
-            ws, wc = ws1, wc1
-            f_el0, k, v_el0, lost, delta = f_el1, k1, v_el1, lost1, delta1
-            f_th = f_el1 + c1 * (p * ws - v_n)
-        return (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el0, k, v_el0,
-                lost, delta)
+        (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
+         f_th, e_end) = self._kn.elastic_advance(
+            float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
+            float(gear), kernel_memory(mem), float(acc), float(extra), float(torque_nm), float(load_n),
+            self._kernel_e, *self.core.kernel_constants)
+        return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, memory_from_kernel(mem), acc, diss,
+                w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta, e_end)
 
     def _internal(self, compact, f_el, k, v_el, lost, delta, v_n, x_n=0.0, extra=0.0) -> np.ndarray:
         """Output block: fu2018's per-roller, per-tooth and carrier quantities, the chain, the per-thread loads.

@@ -44,6 +44,16 @@ def input_matrix(params: Params) -> np.ndarray:
 
 class Jones2016(Model):
     name = "jones2016"
+    has_carrier = True
+    has_internal_forces = True
+    steady_state_inputs = ("screw_speed_rad_s", "torque_nm")
+
+    @classmethod
+    def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
+                                 torque_nm: float | None = None, load_n: float | None = None) -> dict | None:
+        """Jones 2016 eqs. 37–41 (`steady_state`): a speed gives the torque, or a torque the speed."""
+        return {"method": "closed form (Jones 2016 eqs. 37-41)",
+                **steady_state(params, screw_speed_rad_s=screw_speed_rad_s, torque_nm=torque_nm, load_n=load_n)}
 
     def __init__(self, params: Params, dt_s: float) -> None:
         super().__init__(params, dt_s)

@@ -18,6 +18,20 @@ from prsm_sim.stepping.model import Model
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018, "elastic": ElasticModel}
 
 
+def model_class(model: str) -> type[Model]:
+    """The class of the named model, to ask its capabilities (`Model.has_axial_chain`, …) before building it.
+
+    Raises
+    ------
+    ParamError
+        Unknown model name (the message names the field `model` and lists the known ones).
+    """
+    try:
+        return MODELS[model]
+    except (KeyError, TypeError):
+        raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
+
+
 def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled") -> Model:
     """Build the named model for a parameter set and a fixed step.
 
@@ -45,10 +59,7 @@ def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled
     ParamError
         Unknown model name (the message lists the known ones), a step out of range or an unknown kernel.
     """
-    try:
-        cls = MODELS[model]
-    except (KeyError, TypeError):
-        raise ParamError(f"model = {model!r}: known models are {', '.join(MODELS)}") from None
+    cls = model_class(model)
     check_kernel(kernel)
     cls.check_params(params)
     return cls(params, dt_s, kernel=kernel) if cls.compiled_kernel else cls(params, dt_s)

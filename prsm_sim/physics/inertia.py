@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from prsm_sim.physics.kinematics import ideal_carrier_ratio
+
 if TYPE_CHECKING:  # the parameter records, for annotations only: params resolves derived values with physics
     from prsm_sim.params import Params
 
@@ -20,7 +22,7 @@ def mass_matrix(params: Params) -> np.ndarray:
     Roller axial velocity v_R = −(L/2π) ω_S + (P (n − g)/2π) ω_C couples the two coordinates
     when g ≠ n; for the standard design the off-diagonal term vanishes.
     """
-    geo, m = params.geometry, params.mass
+    geo, m = params.geometry, params.resolved_mass
     p = geo.lead_per_rad_m
     k_mig = geo.pitch_m * (geo.starts - geo.gear_ratio) / (2 * math.pi)
     nr, mr = geo.n_rollers, m.roller_mass_kg
@@ -29,3 +31,11 @@ def mass_matrix(params: Params) -> np.ndarray:
                                           + m.roller_inertia_kgm2 * (1 - geo.gear_ratio) ** 2))
     j_sc = -nr * mr * p * k_mig
     return np.array([[j_s, j_sc], [j_sc, j_c]])
+
+
+def reflected_inertia(params: Params) -> float:
+    """Inertia at the screw, kg·m², with the carrier and rollers moving at the ideal ratio
+    ω_C = k ω_S: J = M_SS + 2 M_SC k + M_CC k² (the mass matrix reduced on that constraint)."""
+    M = mass_matrix(params)
+    k = ideal_carrier_ratio(params.geometry)
+    return float(M[0, 0] + 2 * M[0, 1] * k + M[1, 1] * k * k)

@@ -175,17 +175,19 @@ def _zero_load_stiffness(joint: Joint) -> float:
 def tooth_compliance_m_per_n(params: Params) -> float:
     """Axial compliance of the teeth on one roller's load path: screw, roller (two flanks), nut [assumed].
 
-    Each tooth a cantilever of length h = P/4 (pitch line to root), axial thickness 0.75 P (mean of
-    the pitch-line thickness P/2 and the root thickness at 45°), width w (elastic.tooth_effective_width_m),
-    loaded at the pitch line: δ = f h³/(3EI) + 1.2 f h/(G w t) (Euler–Bernoulli bending plus
-    Timoshenko shear, I = w t³/12). A coarse stand-in for Yamamoto's thread compliance
-    (docs/model.md §4.3); `elastic.tooth_model = none` removes it.
+    Each tooth a cantilever from the pitch line to the root, of length h = h_t / 2 (h_t the thread
+    form's tooth height, `geometry.tooth_height_m`), axial thickness t = P/2 + h tan β (mean of the
+    pitch-line thickness P/2 and the root thickness P/2 + 2 h tan β), width w
+    (elastic.tooth_effective_width_m), loaded at the pitch line: δ = f h³/(3EI) + 1.2 f h/(G w t)
+    (Euler–Bernoulli bending plus Timoshenko shear, I = w t³/12). A coarse stand-in for Yamamoto's
+    thread compliance (docs/model.md §4.3); `elastic.tooth_model = none` removes it.
     """
     el = params.elastic
     if el.tooth_model == "none":
         return 0.0
     mat, g = params.material, params.geometry
-    h, t, w = g.pitch_m / 4, 0.75 * g.pitch_m, el.tooth_effective_width_m
+    h = g.tooth_height_m / 2
+    t, w = g.pitch_m / 2 + h * math.tan(g.flank_angle_rad), params.resolved_elastic.tooth_effective_width_m
     one = h**3 / (3 * mat.youngs_modulus_pa * w * t**3 / 12) + 1.2 * h / (mat.shear_modulus_pa * w * t)
     return 4 * one
 
@@ -202,11 +204,11 @@ def thread_contacts(params: Params):
 
 
 def screw_section_m2(params: Params) -> float:
-    return math.pi * params.elastic.root_diameter_m**2 / 4
+    return math.pi * params.resolved_elastic.root_diameter_m**2 / 4
 
 
 def nut_section_m2(params: Params) -> float:
-    return math.pi * (params.elastic.nut_outer_diameter_m**2 - (2 * params.geometry.nut_radius_m) ** 2) / 4
+    return math.pi * (params.resolved_elastic.nut_outer_diameter_m**2 - (2 * params.geometry.nut_radius_m) ** 2) / 4
 
 
 def joint_from_params(params: Params, n_teeth: int | None = None) -> Joint:
@@ -220,7 +222,7 @@ def joint_from_params(params: Params, n_teeth: int | None = None) -> Joint:
 
 def shaft_stiffness_n_per_m(params: Params, nut_position_m: float = 0.0) -> float:
     """Screw shaft between the fixed bearing and the nut: K = π d_root² E / (4ℓ), ℓ = |x_nut − x_bearing|."""
-    ell = max(abs(nut_position_m - params.elastic.bearing_position_m), 1e-6)
+    ell = max(abs(nut_position_m - params.resolved_elastic.bearing_position_m), 1e-6)
     return params.material.youngs_modulus_pa * screw_section_m2(params) / ell
 
 
@@ -304,8 +306,8 @@ def preloaded_pair(side_a: Side, side_b: Side, preload_n: float, load_n: float) 
     from scipy.optimize import brentq
     x = brentq(net, lo, hi, xtol=1e-16, rtol=1e-13)
     qa, qb = side_a.load_n(d0a + x), side_b.load_n(d0b - x)
-    da, db = solve_distribution(side_a.joint, qa), solve_distribution(side_b.joint, max(qb, 0.0))
-    return PairState(load_n, x, qa, qb, da.stiffness_n_per_m + db.stiffness_n_per_m, da)
+    dist_a, dist_b = solve_distribution(side_a.joint, qa), solve_distribution(side_b.joint, max(qb, 0.0))
+    return PairState(load_n, x, qa, qb, dist_a.stiffness_n_per_m + dist_b.stiffness_n_per_m, dist_a)
 
 
 # -- the whole axial chain ------------------------------------------------------------------------

@@ -35,10 +35,11 @@ import copyreg
 import math
 from dataclasses import replace
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
-from prsm_sim.checks import is_finite_number
+from prsm_sim.checks import is_finite_number, is_number
 from prsm_sim.errors import InputError, ParamError
 from prsm_sim.params import Params
 from prsm_sim.stepping.ledger import energy_fault
@@ -56,19 +57,34 @@ def check_step_inputs(command, load_n, command_name: str = "torque_nm") -> tuple
     return float(command), float(load_n)
 
 
+def _real_array(name: str, value) -> np.ndarray:
+    """`value` as a float array; InputError naming `name` for anything but real numbers (strings,
+    complex numbers, booleans, or ints beyond the float range)."""
+    arr = None
+    try:
+        raw = np.asarray(value)
+        # Python numbers of mixed types are objects: converted as the numbers they are (an int too large raises)
+        if raw.dtype.kind in "iuf" or (raw.dtype.kind == "O" and all(is_number(v) for v in raw.flat)):
+            arr = np.asarray(raw, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        pass
+    if arr is None:
+        shown = repr(value)
+        shown = shown if len(shown) <= 80 else shown[:77] + "..."
+        raise InputError(f"{name} = {shown}: must be a number or an array of numbers (real; no strings, complex "
+                         "numbers or booleans)")
+    return arr
+
+
 def input_columns(command, load_n, command_name: str = "torque_nm") -> tuple[np.ndarray, np.ndarray]:
     """The inputs of a batch run as two float arrays of one value per step, or InputError (one line).
 
     `command`: a 1-D array, one value per step (a scalar is refused: `step` takes one step);
     `load_n`: one value for the whole run or a 1-D array of the same length; all finite numbers.
     """
-    arrays = []
-    for name, value in ((command_name, command), ("load_n", load_n)):
-        try:
-            arrays.append(np.asarray(value, dtype=float))
-        except (TypeError, ValueError):
-            raise InputError(f"{name} = {value!r}: must be a number or an array of numbers") from None
-    u, f = arrays
+    u, f = (_real_array(name, value) for name, value in ((command_name, command), ("load_n", load_n)))
+    if u.ndim == 1 and u.size == 0:
+        raise InputError(f"{command_name} is empty: run() takes at least one step")
     if u.ndim != 1:
         got = f"{command_name} = {command!r}" if u.ndim == 0 else f"{command_name} has shape {u.shape}"
         what, unit = ("torque", " (N·m)") if command_name == "torque_nm" else ("command", "")
@@ -93,9 +109,24 @@ class Model:
     # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
     # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
     kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)
-    part_type = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
+    part_type: Any = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
     packed = True  # the model steps on the packed state (`step_packed`); the actuator does not
     command_name = "torque_nm"  # what the first input of a step is (a bare model: the screw torque, N·m)
+    # -- capabilities: what callers ask of a model instead of comparing its name ------------------
+    has_carrier = False  # the carrier (with the rollers) is a degree of freedom of its own, not tied at a ratio
+    has_internal_forces = False  # the step reports internal loads (per roller/contact; `layout` labels them)
+    has_friction_laws = False  # contact forces act through the selectable friction laws (`friction.*_law`)
+    has_axial_chain = False  # the nut has its own axial DOF on a compliant screw–nut chain (preload, modes)
+
+    steady_state_inputs: tuple[str, ...] = ("screw_speed_rad_s",)  # what may fix a steady state (speed; a torque)
+
+    @classmethod
+    def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
+                                 torque_nm: float | None = None, load_n: float | None = None) -> dict | None:
+        """The model's steady state in closed form (``method``, speeds, torque, load, efficiency), or None
+        when the model has none (it is then found by simulation). Defaults: the preset's speed and load;
+        a torque only where `steady_state_inputs` lists it."""
+        return None
 
     @classmethod
     def check_params(cls, params: Params) -> None:

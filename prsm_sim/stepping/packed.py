@@ -116,7 +116,7 @@ class PackedOutputs(tuple):
     def __setattr__(self, name, value):
         raise FrozenInstanceError(f"cannot assign to field {name!r}")  # as on the frozen `Outputs`
 
-    __delattr__ = __setattr__
+    __delattr__ = __setattr__  # type: ignore[assignment]  # refused as assignment is
 
     time_s = property(itemgetter(0))
     screw_angle_rad = property(itemgetter(1))
@@ -175,7 +175,7 @@ class PackedOutputs(tuple):
 
     def to_outputs(self) -> Outputs:
         """The record as a plain `Outputs` (every field computed)."""
-        return Outputs(*self.scalar_values(), self.internal)
+        return Outputs(*self.scalar_values(), self.internal)  # type: ignore[arg-type, call-arg]  # the fields in order
 
     def __reduce__(self):
         return (Outputs, (*self.scalar_values(), self.internal))
@@ -193,7 +193,7 @@ class PackedOutputs(tuple):
         eq = self.__eq__(other)
         return eq if eq is NotImplemented else not eq
 
-    __hash__ = None
+    __hash__ = None  # type: ignore[assignment]  # compared by value, so unhashable (as `Outputs`)
 
 
 _FIELD_NAMES = tuple(n for n, _ in OUTPUT_FIELDS)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from abc import ABCMeta
 from dataclasses import dataclass, fields
+from functools import cached_property
+from typing import Any, cast
 
 import numpy as np
 
@@ -111,7 +113,7 @@ def _with_part_fields(part: tuple, values: dict) -> tuple:
         if k not in own and v != LEGACY_PART_FIELDS[k]:
             held = ", ".join(own) or "nothing"
             raise InputError(f"{k} = {v!r}: this model's state has no {k} (its part holds {held})")
-    return part._replace(**mine) if mine else part
+    return cast(Any, part)._replace(**mine) if mine else part  # a named tuple: it has the fields
 
 
 # Name and unit of every scalar output, in publication order. The ROS, MCAP and Rerun
@@ -277,24 +279,28 @@ class InternalLayout:
 
     blocks: tuple[InternalBlock, ...]
 
-    @property
+    @cached_property
     def size(self) -> int:
         """Length of the flat vector."""
         return sum(b.size for b in self.blocks)
 
-    def offsets(self) -> dict[str, int]:
-        """Start index of each block in the flat vector, by block name."""
+    @cached_property
+    def _spans(self) -> dict[str, tuple[int, int, tuple[int, ...]]]:
+        """(start, end, shape) of each block by name, worked out once (a session reads a block every step)."""
         out, at = {}, 0
         for b in self.blocks:
-            out[b.name] = at
+            out[b.name] = (at, at + b.size, b.shape)
             at += b.size
         return out
 
+    def offsets(self) -> dict[str, int]:
+        """Start index of each block in the flat vector, by block name."""
+        return {name: span[0] for name, span in self._spans.items()}
+
     def view(self, flat: np.ndarray, block: str) -> np.ndarray:
         """The named block of `flat` reshaped to its shape (a view, no copy)."""
-        at = self.offsets()[block]
-        b = next(b for b in self.blocks if b.name == block)
-        return flat[at : at + b.size].reshape(b.shape)
+        at, end, shape = self._spans[block]
+        return flat[at:end].reshape(shape)
 
     def labels(self) -> list[str]:
         """One label per element, e.g. "per_roller[2].screw_normal_force_n [N]"."""

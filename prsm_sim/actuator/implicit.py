@@ -1,0 +1,81 @@
+"""Torques solved implicitly on a screw model's own step: the inertia a torque sees, the model's local
+linear response to a torque, and a compliant coupling's torque made consistent with the model.
+
+The actuator solves its dry friction (brake, jams), end stops and compliant coupling on these,
+so each stays stable at the step whatever the screw model (`actuator.Actuator._advance`).
+"""
+
+from __future__ import annotations
+
+import math
+
+from prsm_sim.stepping.model import Model
+from prsm_sim.stepping.records import State
+
+
+def probe_inertia(model: Model, h_s: float) -> float:
+    """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
+
+    Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
+    implicit stop, coupling and dry-friction torques; the step itself is the model's.
+    """
+    s0 = model.initial_state(0.0)
+    w1 = model.step(s0, 1.0, 0.0)[0].screw_speed_rad_s
+    w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
+    return h_s / (w1 - w0)
+
+
+def linear_response(model: Model, screw: State, tau_nm: float, load_n: float, h_s: float,
+                    inertia_kgm2: float) -> tuple[float, float, float, float]:
+    """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from this state.
+
+    Returns (ω1, ∂ω1/∂τ, θ1, ∂θ1/∂τ); a load acts as τ = −(L/2π) F. `inertia_kgm2`: the probed
+    inertia (`probe_inertia`), whose response stands in where the model's is stuck. Exact for the linear
+    models; for fu2018 the local slope (its effective inertia moves with the friction regime).
+    """
+    a = model.step(screw, tau_nm, load_n)[0]
+    d = 1e-3 * max(1.0, abs(tau_nm))
+    b = model.step(screw, tau_nm + d, load_n)[0]
+    s_w = (b.screw_speed_rad_s - a.screw_speed_rad_s) / d
+    s_th = (b.screw_angle_rad - a.screw_angle_rad) / d
+    if not (math.isfinite(s_w) and s_w > 0.0 and math.isfinite(s_th) and s_th > 0.0):
+        s_w, s_th = h_s / inertia_kgm2, 0.5 * h_s**2 / inertia_kgm2  # a stuck response: the probed inertia's
+    return a.screw_speed_rad_s, s_w, a.screw_angle_rad, s_th
+
+
+def coupling_torque(model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
+                    phi0: float, k: float, c: float, th_sfree: float, s_th: float, h_s: float, rotor_inertia_kgm2: float):
+    """The compliant coupling's torque held over the step, solved to consistency with the screw model.
+
+    τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
+    acceleration, the screw by the model itself. The residual is strictly increasing in τ_c
+    (the screw turns further, the motor less, the more torque the coupling carries), so the
+    root is unique: Newton from the linear estimate, then secant steps, to 1e-12 of the
+    torque scale (one model step for the linear models). Its work is then ΔV + c Δφ²/h:
+    the ledger stays exact and the scheme cannot gain energy, so a stiff coupling stays
+    stable at the step (trapezoidal rule). `th_r_free`: the rotor's end angle with no coupling torque;
+    `h_s`, `rotor_inertia_kgm2`: the sub-step and the rotor's inertia on the screw side. Returns (τ_c,
+    screw state, outputs).
+    """
+    h, jr = h_s, rotor_inertia_kgm2
+    G, H = 0.5 * k + c / h, 0.5 * k - c / h
+    q_r = 0.5 * h * h / jr
+
+    def residual(tau):
+        new, out = model.step(screw, tau + tau_st, load_n)
+        phi1 = th_r_free + q_r * (tau_d - tau) - new.screw_angle_rad
+        return tau - (G * phi1 + H * phi0), new, out
+
+    slope = 1.0 + G * (q_r + s_th)
+    t0 = (G * (th_r_free + q_r * tau_d - th_sfree) + H * phi0) / slope  # the linear solution
+    r0, new, out = residual(t0)
+    scale = 1e-12 * max(1.0, abs(t0), abs(tau_d))
+    if abs(r0) <= scale:
+        return t0, new, out
+    t1 = t0 - r0 / slope
+    for _ in range(30):
+        r1, new, out = residual(t1)
+        if abs(r1) <= scale or r1 == r0:
+            break
+        t0, t1, r0 = t1, t1 - r1 * (t1 - t0) / (r1 - r0), r1
+    return t1, new, out
