@@ -23,7 +23,6 @@ import sys
 from typing import Any
 
 import numpy as np
-import yaml
 
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, SessionConfig, Simulator
@@ -50,10 +49,8 @@ def _overrides(items: list[str]) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise CliError(f"--set {item!r}: expected group.name=value, e.g. friction.mu_screw_roller=0.1")
-        try:
-            out[key] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise CliError(f"--set {item!r}: cannot read the value {value!r}") from None
+        from prsm_ros.limits import load_yaml
+        out[key] = load_yaml(value, source=f"--set {key[:80]}", error=CliError)
     return out
 
 
@@ -375,17 +372,14 @@ def cmd_envelope(args) -> None:
 
 def _envelope_one(args) -> None:
     """`prsm-sim envelope --seed N | --case FILE [--node]`: one case, run here (and on the node)."""
-    from pathlib import Path
-
     from prsm_ros.sweep.envelope import run_one
     from prsm_sim.envelope import case_from_seed
     if args.seed is not None:
         case = case_from_seed(args.seed)
     else:
-        try:
-            doc = yaml.safe_load(Path(args.case).read_text(encoding="utf-8"))
-        except (OSError, yaml.YAMLError) as e:
-            raise CliError(f"--case {args.case}: cannot read it ({getattr(e, 'strerror', None) or e})") from None
+        from prsm_ros.limits import load_yaml, read_text_file
+        doc = load_yaml(read_text_file(args.case, what="case file", error=CliError), source=f"--case {args.case}",
+                        error=CliError)
         case = doc.get("case", doc) if isinstance(doc, dict) else None
         if not isinstance(case, dict):
             raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")

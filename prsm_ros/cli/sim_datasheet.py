@@ -21,7 +21,7 @@ from prsm_sim.calibration import Calibration, calibrate
 from prsm_sim.datasheet import Datasheet, ModelSheet, model_datasheet
 
 from prsm_ros.json_out import dumps
-from prsm_ros.param_files import _read_text, _yaml_mapping, params_to_yaml, resolve_params
+from prsm_ros.param_files import read_param_text, yaml_mapping, params_to_yaml, resolve_params
 
 SHEET_FIGURES = (("efficiency_forward", "η forward", 1.0, ""), ("efficiency_backward", "η backward", 1.0, ""),
                  ("no_load_torque_nm", "no-load torque", 1.0, "N·m"),
@@ -49,7 +49,7 @@ def cmd_datasheet(args, params_of) -> None:
 def load_datasheet(path: str) -> Datasheet:
     """A datasheet YAML file (the keys of `prsm_sim.datasheet.Datasheet`), errors naming the file."""
     from prsm_sim import ParamError
-    data = _yaml_mapping(_read_text(path, "datasheet"), path, "datasheet keys")
+    data = yaml_mapping(read_param_text(path, "datasheet"), path, "datasheet keys")
     try:
         return Datasheet.from_dict(data)
     except ParamError as e:
