@@ -1,4 +1,4 @@
-"""Mutated shipped bags through every `prsm-bag` verb under a memory limit (`prsm_ros.bag.fuzz`).
+"""Mutated shipped bags through every `prsm-bag` verb under a memory limit (`prsm_ros.cli.bag_fuzz`).
 
 hypothesis chooses one to four mutations (byte flips, 4- and 8-byte fields set to edge values,
 truncation, zeroed and duplicated ranges, damage aimed at record headers); derandomised, so a run
@@ -6,7 +6,7 @@ is repeatable. Each case runs in a forked child limited to DEFAULT_MEMORY_MIB of
 no verb may end in a traceback, a MemoryError, a signal or a hang, and `repair` must keep at least
 the messages mcap's stream reader reads from the same data section. The default tier runs a
 handful of cases on the smallest verbs; the `slow` tier many more through every verb.
-Thousands of cases: `python -m prsm_ros.bag.fuzz --cases 5000`.
+Thousands of cases: `python -m prsm_ros.cli.bag_fuzz --cases 5000`.
 """
 
 import tempfile
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from prsm_ros.bag import fuzz
+from prsm_ros.cli import bag_fuzz as fuzz
 from prsm_ros.bag.reader import open_bag
 
 ROOT = Path(__file__).resolve().parent.parent

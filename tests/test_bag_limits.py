@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 import hostile_bags as hb
-from prsm_ros.bag import fuzz
+from prsm_ros.cli import bag_fuzz as fuzz
 from prsm_ros.bag.reader import MAX_CHUNK_BYTES, ChunkSkipped, chunk_data, open_bag
 from prsm_ros.cli.bag import EXIT_ERROR, main
 

@@ -1,6 +1,6 @@
 """Fuzzing `prsm-bag`: mutated copies of the shipped bags through every verb, under a memory limit.
 
-    python -m prsm_ros.bag.fuzz --cases 5000 [--seed 1] [--verbs info,check,...] [--memory-mib 2048]
+    python -m prsm_ros.cli.bag_fuzz --cases 5000 [--seed 1] [--verbs info,check,...] [--memory-mib 2048]
                                 [--timeout-s 60] [--keep DIR] [--plots] [BAG ...]
 
 Each case applies one to four mutations (`apply`) to a bag (default: bags/*.mcap) and runs every
@@ -334,7 +334,7 @@ def _cases(originals, cases: int, rng, verbs, failures: list, t0: float, *, memo
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m prsm_ros.bag.fuzz", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m prsm_ros.cli.bag_fuzz", description=__doc__.split("\n\n")[0])
     ap.add_argument("bags", nargs="*", type=Path, help="bags to mutate (default: the shipped bags/*.mcap)")
     ap.add_argument("--cases", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
