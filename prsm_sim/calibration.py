@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from prsm_sim.datasheet import Datasheet, ModelSheet, datasheet_load_n, model_datasheet, params_from_datasheet
 from prsm_sim.datasheet import DEFAULT_SPEED_RAD_S, RUN_S, steady_run

@@ -13,7 +13,7 @@ Only the schema text is parsed (field lines, here); nothing named by it is impor
 from __future__ import annotations
 
 import re
-from functools import lru_cache
+from functools import cache
 
 from prsm_sim.errors import InputError
 
@@ -76,7 +76,7 @@ def signature(name: str, text: str) -> tuple:
     return tuple(fields)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _reference_text(name: str) -> str | None:
     try:
         from prsm_ros.mcap.codec import TypestoreCodec
@@ -90,7 +90,7 @@ def _reference_text(name: str) -> str | None:
         return None
 
 
-@lru_cache(maxsize=None)
+@cache
 def reference_signatures() -> dict[str, tuple]:
     """Signatures of the interface's types and the types they embed, from the standard definitions."""
     out: dict[str, tuple] = {}

@@ -25,7 +25,7 @@ import json
 import os
 import re
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 from prsm_sim.errors import PrsmError
@@ -100,7 +100,7 @@ def _definition_file(package: str, type_: str, suffix: str) -> Path:
     raise SchemaError(f"no {type_}{suffix} for message type {package}/msg/{type_} (looked in {looked})")
 
 
-@lru_cache(maxsize=None)
+@cache
 def msg_text(package: str, type_: str) -> str:
     """The .msg text of `package/Type` exactly as installed."""
     return _definition_file(package, type_, ".msg").read_text(encoding="utf-8")
@@ -125,7 +125,7 @@ def dependencies(text: str, package: str) -> list[str]:
     return sorted(deps)
 
 
-@lru_cache(maxsize=None)
+@cache
 def full_definition(name: str) -> str:
     """The `ros2msg` schema text of a type: its .msg text then each dependency once, depth first.
 
@@ -148,7 +148,7 @@ def full_definition(name: str) -> str:
     return expand(name, 0)
 
 
-@lru_cache(maxsize=None)
+@cache
 def type_hash(name: str) -> str:
     """The RIHS01 type hash of `pkg/msg/Type` from its generated type description, "" when absent."""
     package, type_ = _split_type(name)

@@ -33,7 +33,8 @@ The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple, TypeVar
+from typing import NamedTuple, TypeVar
+from collections.abc import Callable
 
 from prsm_sim.actuator.params import StopParams
 
