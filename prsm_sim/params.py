@@ -13,7 +13,7 @@ from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from typing import Any
 
 from prsm_sim.errors import ParamError
-from prsm_sim.physics.load_sharing import iso76_static_rating_n
+from prsm_sim.physics.ratings import ISO76_LINE_CONTACT_PRESSURE_PA, dynamic_load_rating_n, static_load_rating_n
 
 
 def check_field(group: str, name: str, value: Any, ok: bool, allowed: str) -> None:
@@ -43,6 +43,14 @@ def check_non_negative(group: str, obj: Any, *names: str) -> None:
 
 def _set(obj: Any, name: str, value: Any) -> None:
     object.__setattr__(obj, name, value)
+
+
+# Thread form: tooth height per pitch. A roller-screw catalogue's screw outer and root diameters
+# differ by 0.8 P in every row (docs/validation/data/srs_c_roller_screws.csv; docs/model.md "Thread form").
+TOOTH_HEIGHT_PER_PITCH = 0.4
+# f_c of the dynamic rating (physics.ratings): the value that gives the SRS-C 30 × 5 row's C_a = 123 kN
+# with the datasheet rules of prsm_sim.datasheet (docs/model.md "Ratings").
+DYNAMIC_FACTOR_DEFAULT = 164.6
 
 
 @dataclass(frozen=True)
@@ -75,6 +83,15 @@ class Geometry:
         The nut stays on the threads: x = 0 is the nut centred on the screw, and a stiff, damped
         stop (the actuator's stop law) holds it within ±(screw_length_m − nut_length_m)/2.
         False removes the ends (a screw of unlimited length); the lengths move them.
+    tooth_height_per_pitch : float, default 0.4
+        Thread form: radial tooth height h_t (root to crest) per pitch, so h_t = 0.4 P by default (the
+        screw thread depth of a roller-screw catalogue, docs/model.md "Thread form"); at most the
+        sharp V's depth 1 / (2 tan β). Sets the tooth compliance and, with the next, the ratings.
+    flank_contact_fraction : float, default 1
+        Thread form: the fraction of the straight flank (h_t / cos β along its generator in the
+        axial section) a contact can spread over, in (0, 1]; ℓ_f = fraction × h_t / cos β is what
+        limits a contact's size on the flank (`physics.ratings`). The contact point itself stays
+        where docs/model.md §3 puts it (roller profile radius r_R / sin β).
 
     Raises
     ------
@@ -95,6 +112,8 @@ class Geometry:
     pin_radius_m: float | None = None  # roller journal radius in the carrier; default r_R / 2
     nut_length_m: float | None = None  # threaded nut length; default n_teeth × pitch
     thread_ends: bool = True  # the nut stops at ±(screw_length_m − nut_length_m)/2 (False: no ends)
+    tooth_height_per_pitch: float = TOOTH_HEIGHT_PER_PITCH  # thread form: h_t / P (root to crest)
+    flank_contact_fraction: float = 1.0  # share of the straight flank h_t / cos β a contact can span
 
     def __post_init__(self) -> None:
         g = "geometry"
@@ -121,6 +140,7 @@ class Geometry:
         if self.nut_length_m is None:
             _set(self, "nut_length_m", self.n_teeth * self.pitch_m)
         check_positive(g, self, "screw_length_m", "pin_radius_m", "nut_length_m")
+        self._check_thread_form()
         check_field(g, "thread_ends", self.thread_ends, isinstance(self.thread_ends, bool), "must be true or false")
         if self.thread_ends:
             check_field(g, "nut_length_m", self.nut_length_m, self.nut_length_m < self.screw_length_m,
@@ -128,6 +148,25 @@ class Geometry:
         n_max = math.floor(math.pi / math.asin(min(1.0, self.roller_radius_m / self.carrier_radius_m)))
         check_field(g, "n_rollers", self.n_rollers, self.n_rollers <= n_max,
                f"at most {n_max} rollers of radius {self.roller_radius_m:g} m fit on the {self.carrier_radius_m:g} m pin circle")
+
+    def _check_thread_form(self) -> None:
+        g = "geometry"
+        v_depth = 1 / (2 * math.tan(math.radians(self.flank_angle_deg)))
+        v = self.tooth_height_per_pitch
+        check_field(g, "tooth_height_per_pitch", v, is_finite_number(v) and 0 < v <= v_depth * (1 + 1e-12),
+                    f"must lie in (0, {v_depth:.6g}] (the sharp V's depth 1 / (2 tan β))")
+        v = self.flank_contact_fraction
+        check_field(g, "flank_contact_fraction", v, is_finite_number(v) and 0 < v <= 1, "must lie in (0, 1]")
+
+    @property
+    def tooth_height_m(self) -> float:
+        """Radial tooth height h_t from root to crest (thread form), m."""
+        return self.tooth_height_per_pitch * self.pitch_m
+
+    @property
+    def flank_contact_length_m(self) -> float:
+        """ℓ_f: the flank length, along its generator in the axial section, a contact can span, m."""
+        return self.flank_contact_fraction * self.tooth_height_m / math.cos(self.flank_angle_rad)
 
     @property
     def flank_angle_rad(self) -> float:
@@ -445,20 +484,48 @@ Elastic = ElasticParams  # the group's name before `ElasticParams` (the model is
 
 @dataclass(frozen=True)
 class Ratings:
-    """Basic axial load ratings of the nut (N): static C_0a and dynamic C_a (docs/model.md §5 item 10).
+    """Basic axial load ratings of the nut (N): static C_0a and dynamic C_a, and the factors they come from.
 
-    `static_load_rating_n` None: derived where Params is built, as the axial load that takes the
-    peak Hertz pressure of uniformly shared thread contacts to 4.2 GPa (the ISO 76 static-rating
-    criterion for point contacts). `dynamic_load_rating_n` 0: not rated (life estimates need it).
+    Either rating None: derived where Params is built from the geometry's thread form, the material
+    and the factors below (`physics.ratings`, docs/model.md "Ratings"): C_0a as the axial load that
+    takes the flank-limited thread contacts to the ISO 76 line-contact pressure, C_a by ISO 281's
+    thrust roller bearing formula. A number given here is used as it stands (0 for C_a: not
+    rated; life estimates need it).
+
+    Attributes
+    ----------
+    static_load_rating_n, dynamic_load_rating_n : float or None
+        The ratings, N; None derives them.
+    static_contact_pressure_pa : float, default 4.0e9
+        p₀ of the static rating: ISO 76:2006's 4000 MPa for roller (line) contacts.
+    static_factor : float, default 1
+        f_0, the static profile factor (a datasheet calibrates it).
+    dynamic_factor : float
+        f_c of ISO 281's thrust roller bearing formula (N, lengths in mm); the default is the value
+        that reproduces a catalogue size (docs/model.md "Ratings").
     """
 
     static_load_rating_n: float | None = None
-    dynamic_load_rating_n: float = 0.0
+    dynamic_load_rating_n: float | None = None
+    static_contact_pressure_pa: float = ISO76_LINE_CONTACT_PRESSURE_PA
+    static_factor: float = 1.0
+    dynamic_factor: float = DYNAMIC_FACTOR_DEFAULT
 
     def __post_init__(self) -> None:
         if self.static_load_rating_n is not None:
             check_positive("ratings", self, "static_load_rating_n")
-        check_non_negative("ratings", self, "dynamic_load_rating_n")
+        if self.dynamic_load_rating_n is not None:
+            check_non_negative("ratings", self, "dynamic_load_rating_n")
+        check_positive("ratings", self, "static_contact_pressure_pa", "static_factor", "dynamic_factor")
+
+    def resolved(self, geo: Geometry, material: Material) -> Ratings:
+        """Fill each None rating from the thread form (the Params constructor calls this)."""
+        return replace(
+            self,
+            static_load_rating_n=static_load_rating_n(geo, material, self) if self.static_load_rating_n is None
+            else self.static_load_rating_n,
+            dynamic_load_rating_n=dynamic_load_rating_n(geo, material, self) if self.dynamic_load_rating_n is None
+            else self.dynamic_load_rating_n)
 
 
 STICTION_LAWS = ("stribeck",)
@@ -525,7 +592,7 @@ class Params:
     elastic : ElasticParams
         Axial compliance chain of `elastic` (clearance, preload, bearing, housing).
     ratings : Ratings
-        Axial load ratings of the nut (the static one derived by ISO 76 where left None).
+        Axial load ratings of the nut (derived from the thread form where left None).
     stiction : Stiction
         Breakaway beyond the running friction (`elastic`).
 
@@ -564,8 +631,7 @@ class Params:
         if self.friction.drag_radius_m is None:
             _set(self, "friction", replace(self.friction, drag_radius_m=self.geometry.nut_radius_m))
         _set(self, "elastic", self.elastic.resolved(self.geometry))
-        if self.ratings.static_load_rating_n is None:
-            _set(self, "ratings", replace(self.ratings, static_load_rating_n=iso76_static_rating_n(self)))
+        _set(self, "ratings", self.ratings.resolved(self.geometry, self.material))
         c0 = self.ratings.static_load_rating_n
         check_field("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
                f"must not exceed the static load rating ratings.static_load_rating_n = {c0:.6g} N")
@@ -617,13 +683,22 @@ class Params:
         return cls(name=str(name), **groups)
 
     def with_overrides(self, overrides: dict[str, Any]) -> Params:
-        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}."""
+        """A new validated Params with dotted-key overrides, e.g. {"friction.mu_screw_roller": 0.1}.
+
+        Ratings the base derived (`Ratings`) are derived again for the new values; ratings given
+        as numbers stay as given unless overridden.
+        """
         nested: dict[str, Any] = {}
         for key, value in overrides.items():
             parts = key.split(".")
             if len(parts) != 2:
                 raise ParamError(f"parameter override {key!r}: expected group.name, e.g. friction.mu_screw_roller")
             nested.setdefault(parts[0], {})[parts[1]] = value
+        # a rating the base derived is derived again from the new thread form, material and factors
+        r = self.ratings
+        for name, law in (("static_load_rating_n", static_load_rating_n), ("dynamic_load_rating_n", dynamic_load_rating_n)):
+            if name not in nested.get("ratings", {}) and getattr(r, name) == law(self.geometry, self.material, r):
+                nested.setdefault("ratings", {})[name] = None
         return Params.from_dict(nested, base=self)
 
     @staticmethod

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from prsm_sim.params import ElasticParams, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params, Ratings
+from prsm_sim.params import ElasticParams, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params
 
 
 def _jones2016() -> Params:
@@ -37,7 +37,7 @@ def _jones2016_literal() -> Params:
                              "friction": {"drag_radius_m": None},
                              "elastic": {"bearing_position_m": None, "root_diameter_m": None,
                                          "nut_outer_diameter_m": None, "tooth_effective_width_m": None},
-                             "ratings": {"static_load_rating_n": None}},
+                             "ratings": {"static_load_rating_n": None, "dynamic_load_rating_n": None}},
                             base=base)
 
 
@@ -47,14 +47,11 @@ def _s30() -> Params:
     Elastic chain (docs/model.md §4.3): steel E = 206 GPa, ν = 0.3 (docs/model.md §1); screw fixed
     bearing 150 mm behind the nut's reference position and root diameter 27 mm (the shaft figure of
     docs/model.md §4.3, K ≈ 0.8 kN/µm); same-end mounting (a nut flange pushing on a load that the
-    screw's bearing reacts, the usual actuator arrangement) [assumed]. Static rating: the ISO 76
-    4.2 GPa criterion on the solved contacts (`load_sharing.iso76_static_rating_n`, about 236 kN).
-    Dynamic rating 100 kN [assumed]: an order of magnitude, not a catalogue value. Ratings of this size
-    are listed in the vendors' tables, e.g. SKF "Roller screws" (PUB MT/P1 14489 EN, 2014), planetary
-    roller screws SR, and Bosch Rexroth "Planetary Screw Assemblies PLSA" (R310EN 3308), nut sizes
-    around d₀ = 30 mm; no row of those tables was at hand to transcribe, so the figure was not taken
-    from either; it was chosen below the derived static rating (236 kN) [assumed]. Replace it with the
-    rating of the screw you model; only the life estimates (docs/model.md §5 item 10) use it.
+    screw's bearing reacts, the usual actuator arrangement) [assumed]. Ratings: derived from the
+    thread form (`physics.ratings`, docs/model.md "Ratings"): C_0a ≈ 281 kN by the ISO 76 line-contact
+    criterion on flank-limited contacts, C_a by ISO 281's thrust roller formula with the f_c that
+    reproduces a catalogue 30 × 5 size; the SRS-C line lists C_0a = 280 kN, C_a = 123 kN for its
+    30 × 5 nut (docs/validation.md), which has a longer nut than this preset's 30 engaged teeth.
     """
     return Params(
         name="s30",
@@ -65,7 +62,6 @@ def _s30() -> Params:
         loads=Loads(nut_load_n=5000.0, screw_speed_rad_s=100.0),
         material=Material(youngs_modulus_pa=206e9, poisson_ratio=0.3),
         elastic=ElasticParams(mounting="same_end", bearing_position_m=-0.15, root_diameter_m=0.027),
-        ratings=Ratings(dynamic_load_rating_n=100e3),
     )
 
 

@@ -99,7 +99,7 @@ def test_joint_states_only_counts_quasi_steady_samples():
 def test_life_uses_the_rating_the_bag_records(braking, capsys, tmp_path):
     path, _ = braking
     rated = preset("s30").ratings.dynamic_load_rating_n
-    assert rated == 100_000.0 != DEFAULT_DYNAMIC_LOAD_RATING_N
+    assert rated > 0 and rated != DEFAULT_DYNAMIC_LOAD_RATING_N  # derived from the thread form (docs/model.md §4.5)
     rc, out, _ = _cli(capsys, "report", path, "--json", "--no-plots", "-o", tmp_path)
     assert rc == 0
     life = json.loads(out)["life"]

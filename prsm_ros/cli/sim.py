@@ -2,6 +2,8 @@
 
     prsm-sim presets
     prsm-sim params --preset s30
+    prsm-sim params --datasheet SHEET.yaml [--base PARAMS.yaml] [--model fu2018] [-o OUT.yaml]
+    prsm-sim datasheet --preset s30 --model fu2018 [--load N] [--speed RAD_S] --json
     prsm-sim contact --preset jones2016
     prsm-sim steady-state --preset jones2016 --model jones2016 --json
     prsm-sim run --preset s30 --model fu2018 --scenario heavy --duration 1 --json [--csv F] [--mcap F]
@@ -30,6 +32,7 @@ from prsm_sim.physics.kinematics import ideal_speed_ratio
 from prsm_sim.models.registry import model_class
 from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_session_scenario, summarise
 
+from prsm_ros.cli import sim_datasheet
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
 from prsm_ros.limits import run_steps
@@ -370,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE", help="override one parameter (repeatable)")
     common.add_argument("--json", action="store_true", help="machine-readable output")
     sub.add_parser("presets", parents=[common], help="list the presets").set_defaults(func=cmd_presets)
-    sub.add_parser("params", parents=[common], help="print every parameter as YAML").set_defaults(func=cmd_params)
+    sim_datasheet.register(sub, common, cmd_params, _params)  # params (also --datasheet), datasheet
     sub.add_parser("contact", parents=[common], help="exact thread contact geometry").set_defaults(func=cmd_contact)
     ss = sub.add_parser("steady-state", parents=[common], help="steady state of a model")
     ss.add_argument("--model", choices=list(MODELS), default="jones2016")

@@ -175,17 +175,19 @@ def _zero_load_stiffness(joint: Joint) -> float:
 def tooth_compliance_m_per_n(params: Params) -> float:
     """Axial compliance of the teeth on one roller's load path: screw, roller (two flanks), nut [assumed].
 
-    Each tooth a cantilever of length h = P/4 (pitch line to root), axial thickness 0.75 P (mean of
-    the pitch-line thickness P/2 and the root thickness at 45°), width w (elastic.tooth_effective_width_m),
-    loaded at the pitch line: δ = f h³/(3EI) + 1.2 f h/(G w t) (Euler–Bernoulli bending plus
-    Timoshenko shear, I = w t³/12). A coarse stand-in for Yamamoto's thread compliance
-    (docs/model.md §4.3); `elastic.tooth_model = none` removes it.
+    Each tooth a cantilever from the pitch line to the root, of length h = h_t / 2 (h_t the thread
+    form's tooth height, `geometry.tooth_height_m`), axial thickness t = P/2 + h tan β (mean of the
+    pitch-line thickness P/2 and the root thickness P/2 + 2 h tan β), width w
+    (elastic.tooth_effective_width_m), loaded at the pitch line: δ = f h³/(3EI) + 1.2 f h/(G w t)
+    (Euler–Bernoulli bending plus Timoshenko shear, I = w t³/12). A coarse stand-in for Yamamoto's
+    thread compliance (docs/model.md §4.3); `elastic.tooth_model = none` removes it.
     """
     el = params.elastic
     if el.tooth_model == "none":
         return 0.0
     mat, g = params.material, params.geometry
-    h, t, w = g.pitch_m / 4, 0.75 * g.pitch_m, el.tooth_effective_width_m
+    h = g.tooth_height_m / 2
+    t, w = g.pitch_m / 2 + h * math.tan(g.flank_angle_rad), el.tooth_effective_width_m
     one = h**3 / (3 * mat.youngs_modulus_pa * w * t**3 / 12) + 1.2 * h / (mat.shear_modulus_pa * w * t)
     return 4 * one
 
