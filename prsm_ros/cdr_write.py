@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import functools
 import struct
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 

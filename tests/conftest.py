@@ -25,7 +25,7 @@ HERMETIC_ENV = {
     # when many participants start at once (it then picks another port): harmless, but it breaks the
     # tests that read a refused start-up's stderr as exactly one line. Loopback UDP has no such race.
     "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
-    # an embedded Ray on loopback only (prsm_ros.sweep.runner.LOCAL_ONLY_ENV), read when Ray is imported:
+    # an embedded Ray on loopback only (prsm_ros.ray_runner.LOCAL_ONLY_ENV), read when Ray is imported:
     # test modules import Ray before their fixtures start it
     "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
 }

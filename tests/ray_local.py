@@ -13,7 +13,7 @@ import pytest
 
 @pytest.fixture(scope="session")
 def embedded_ray():
-    from prsm_ros.sweep.runner import LOCAL_ONLY_ENV, start_embedded
+    from prsm_ros.ray_runner import LOCAL_ONLY_ENV, start_embedded
     os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported (see start_embedded)
     import ray  # the test extra installs it: a missing Ray is a failure, not a skip
     if ray.is_initialized():  # started by this fixture for an earlier module: its teardown stops it

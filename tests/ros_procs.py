@@ -70,7 +70,7 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-                raise AssertionError(f"node did not exit within {timeout} s of signal {sig}; stderr:\n{self.stderr}")
+                raise AssertionError(f"node did not exit within {timeout} s of signal {sig}; stderr:\n{self.stderr}") from None
         return self.proc.returncode
 
     @property

@@ -321,7 +321,7 @@ def test_example_bags_are_readable_and_current(tmp_path):
     bags = {p.stem: open_bag(p) for p in sorted((ROOT / "bags").glob("*.mcap"))}
     assert set(bags) == {"step_response", "sine_tracking", "heavy_load", "light_load"}
     assert sum(b.path.stat().st_size for b in bags.values()) < 8e6
-    for name, bag in bags.items():
+    for bag in bags.values():
         assert bag.complete and bag.topics["/joint_states"].count >= 500
         if "prsm_example" in bag.metadata:  # written offline
             assert bag.metadata["prsm_example"]["made_by"] == "python -m prsm_ros.cli.make_bags"

@@ -21,6 +21,9 @@ import pytest
 
 from ray_local import embedded_ray  # noqa: F401 (a fixture)
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("mcap")
 pq = pytest.importorskip("pyarrow.parquet")
 pd = pytest.importorskip("pandas")
@@ -131,7 +134,3 @@ def test_bag_tools_stay_free_of_ray():
     code = ("import sys, prsm_ros.cli.bag, prsm_ros.bag.fleet, prsm_ros.bag.compare, prsm_ros.bag.parquet; "
             "assert not any(m == 'ray' or m.startswith('ray.') for m in sys.modules), 'ray imported'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

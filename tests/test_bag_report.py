@@ -9,7 +9,6 @@ categories (what is a slip, what is an internal load).
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np

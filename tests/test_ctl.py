@@ -23,6 +23,9 @@ import yaml
 from prsm_ros.cli import ctl
 from ros_procs import CEILING_FACTOR, NodeProcess, RosClient, ros_test_env
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 ENV = ros_test_env("test_ctl")
 PARAMS = {"model": "ideal", "preset": "s30", "start_paused": True, "record": False, "cmd_timeout": 0.0,
           "diagnostics_rate": 10.0,  # `state` waits for one report
@@ -231,7 +234,3 @@ def test_a_command_refused_by_the_owner_rule_says_so(tmp_path, capsys):
             assert proc.stop() == 0, proc.stderr
     finally:
         os.environ.update({k: v for k, v in saved.items() if v is not None})
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

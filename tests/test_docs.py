@@ -64,7 +64,7 @@ def page_steps(markdown: str) -> list[dict]:
     """The page's blocks as steps: kind (shell, python, file, skip), body, expected output (or None)."""
     blocks = fenced_blocks(markdown)
     steps: list[dict] = []
-    for k, (info, body, line) in enumerate(blocks):
+    for info, body, line in blocks:
         lang = info.split()[0] if info else ""
         first = body.split("\n", 1)[0].strip()
         if lang == "text" and steps and steps[-1].get("expects") is None and steps[-1]["kind"] in ("shell", "python") \
@@ -220,7 +220,7 @@ def test_every_block_of_the_page_runs_as_written(page, tmp_path, monkeypatch, ca
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     out, err = proc.communicate()
-                    raise AssertionError(f"{where}: still running after {BLOCK_TIMEOUT_S} s\n{err[-3000:]}")
+                    raise AssertionError(f"{where}: still running after {BLOCK_TIMEOUT_S} s\n{err[-3000:]}") from None
                 assert proc.returncode == 0, f"{where}: exit status {proc.returncode}\n{out[-2000:]}\n{err[-4000:]}"
             elif step["kind"] == "python":
                 buf = io.StringIO()
@@ -251,8 +251,13 @@ def test_every_block_of_the_page_runs_as_written(page, tmp_path, monkeypatch, ca
 
 
 def test_readme_test_command_is_the_one_ci_runs():
-    """The quick start's second command is, verbatim, the line `.ci/run` runs."""
-    ci = [ln for ln in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines() if ln.startswith("python3 -m venv")]
+    """The quick start's second command is, verbatim, what `.ci/run` runs: its install line, the
+    quality gate (ruff, mypy on the core), then `python -m pytest`."""
+    lines = [ln for ln in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+             if ln.strip() and not ln.startswith("#")]
+    install = next(i for i, ln in enumerate(lines) if ln.startswith("python3 -m venv"))
+    assert lines[install + 1:install + 4] == ["ruff check .", "python -m mypy prsm_sim", "python -m pytest"]
+    ci = [lines[install] + " && python -m pytest"]
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     start = readme.index("## Quick start")
     quick = fenced_blocks(readme[start:])[0][1]

@@ -17,6 +17,9 @@ import rclpy  # noqa: F401  (the test extra installs it; a missing install must 
 from prsm_sim.envelope import case_from_seed  # noqa: E402
 from ros_procs import CEILING_FACTOR, ros_test_env  # noqa: E402
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 ENV = ros_test_env("test_envelope_node")
 
 
@@ -40,7 +43,3 @@ def test_the_command_replays_a_failure_file_through_the_node(tmp_path):
     assert p.returncode == 0, p.stderr
     doc = json.loads(p.stdout)
     assert doc["ok"] and doc["node"]["ok"] and doc["node"]["compared"] == doc["steps"] > 200
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

@@ -49,7 +49,7 @@ def test_energy_fault_event_is_recorded_and_listed_by_the_bag_report(tmp_path, c
     rec.write(TOPICS["labels"].resolved(), mapper.labels(), 0)
     state, reported = model.initial_state(), None
     lead = p.geometry.lead_per_rad_m
-    for k in range(600):
+    for _ in range(600):
         state, out = model.step(state, 20_000 * lead * 1.5, 20_000.0)
         if out.energy_fault and reported is None:  # what the node does on the first faulty step
             reported = event_message(out.time_s, "energy_guard", "error", "energy_balance", "energy balance violated",

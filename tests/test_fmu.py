@@ -19,6 +19,7 @@ import sys
 import sysconfig
 import zipfile
 from pathlib import Path
+from time import time_ns
 
 import fmpy
 import numpy as np
@@ -111,7 +112,10 @@ def make_core(tmp_path, config: dict):
     res.mkdir(parents=True, exist_ok=True)
     (res / CONFIG_NAME).write_text(json.dumps(config), encoding="utf-8")
     logs: list[tuple[str, str]] = []
-    return SlaveCore(str(res), lambda msg, status: logs.append((status, msg))), logs
+    core = SlaveCore(str(res), lambda msg, status: logs.append((status, msg)))
+    core.enter_initialization()  # as an importer does before its first doStep
+    core.exit_initialization()
+    return core, logs
 
 
 def core_run(core: SlaveCore, cmd, load, k: int = K, t0: int = 0) -> list[dict[str, float]]:
@@ -393,7 +397,7 @@ def test_an_fmu_of_another_prsm_version_is_refused_at_instantiation(fmus, tmp_pa
     with pytest.raises(Exception, match="instantiate"):
         instantiate_fmu(extract(str(other)), md, debug_logging=True,
                         logger=lambda *a: messages.append(a[-1].decode()))
-    assert any(f"built by prsm 0.0.1" in m and f"has prsm {__version__}" in m for m in messages), messages
+    assert any("built by prsm 0.0.1" in m and f"has prsm {__version__}" in m for m in messages), messages
 
 
 def test_cli_builds_an_fmu_that_validates(tmp_path):
@@ -459,3 +463,92 @@ def test_flags_and_actuator_outputs_follow_the_actuator(tmp_path):
     assert all((flag == 1.0) == (x > 5e-4) for flag, _, x in seen["stop"])  # penetration: past the stop
     assert all(force < 0.0 for flag, force, _ in seen["stop"] if flag == 1.0)  # the upper stop pushes back: −x
     assert logs == []
+
+
+# -- misuse through fmpy: out-of-order calls, huge steps, damaged states ---------------------------------
+DAMAGED_SCRIPT = r"""
+import json, sys
+from prsm_ros.fmu.driver import FmuDriver
+drv = FmuDriver(sys.argv[1])
+good = drv.serialize(drv.get_state())
+marker = "SECRET" * 200
+damaged = [good[: len(good) // 2], b"\xff" * 64 + good[64:], b"{}", b"[" * 100000, b"\x00" * 10,
+           json.dumps({"format": "prsm-fmu-state/1", "x": marker}).encode(), good.replace(b'"inputs"', b'"inpots"'),
+           good.replace(b"prsm-fmu-state/1", b"prsm-fmu-state/9")]
+statuses = []
+for blob in damaged * 2:  # the third damaged blob into one instance used to crash the host
+    drv.set_state(drv.deserialize(blob))
+    statuses.append(drv.do_step(0.0, 1e-3))
+drv.set_state(drv.deserialize(good))  # a good state is taken again and the instance steps on
+statuses.append(drv.do_step(0.0, 1e-3))
+print(json.dumps({"statuses": statuses, "messages": drv.messages}))
+drv.close()
+"""
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_damaged_states_give_an_error_never_a_crash_and_never_print_the_blob(fmus, fmi):
+    """Damaged blobs (cut, not UTF-8, not JSON, nested 1e5 deep, another format, a wrong key) set
+    into one instance, twice each: every one refused with an error, the host alive (it segfaulted at
+    the third), the next doStep failed, and a good state then taken. In a child process, so a crash is
+    an exit status, not the end of the test run."""
+    from prsm_ros.fmu.core import MAX_LOG_CHARS
+    path, _ = fmus(fmi, "fu2018", "bare")
+    r = subprocess.run([sys.executable, "-c", DAMAGED_SCRIPT, str(path)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    failed = FMI_ERROR if fmi == 3 else FMI_DISCARD
+    assert out["statuses"] == [failed] * 16 + [OK]
+    refused = [s for s, m in out["messages"] if m.startswith("FMU state refused") and "the step was not taken" not in m]
+    assert refused == [FMI_ERROR] * 16
+    assert all(s < 4 for s, _ in out["messages"]), "no fatal status"
+    assert all("SECRET" * 3 not in m and len(m) <= MAX_LOG_CHARS + 60 for _, m in out["messages"])
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_calls_out_of_order_and_huge_steps_give_an_error(fmus, fmi):
+    """doStep before initialisation, at a time behind or ahead of the instance, with 1e9 model steps
+    (the library's runs stop at MAX_RUN_STEPS = 1e7) or after terminate: an error, nothing stepped."""
+    from prsm_ros.limits import MAX_RUN_STEPS
+    path, _ = fmus(fmi, "fu2018", "bare")
+    failed = FMI_ERROR if fmi == 3 else FMI_DISCARD
+    md = read_model_description(str(path))
+    unzipped = extract(str(path))
+    messages: list[str] = []
+    fmu = instantiate_fmu(unzipped, md, debug_logging=True, logger=lambda *a: messages.append(a[-1].decode()))
+    try:
+        with pytest.raises(Exception, match=f"status {failed}"):
+            fmu.doStep(0.0, DT)  # before initialisation
+        assert "before initialisation" in messages[-1]
+    finally:
+        fmu.freeInstance()
+        shutil.rmtree(unzipped, ignore_errors=True)
+    with FmuDriver(path) as drv:
+        pos = drv.refs(["nut_position_m"])
+        drv.set(drv.refs(["screw_torque_nm"]), [1.0])
+        t0 = time_ns()
+        assert drv.do_step(0.0, 1e6) == failed  # 1e9 steps refused at once, not run for minutes
+        assert (time_ns() - t0) < 5e9 and f"at most {MAX_RUN_STEPS}" in drv.messages[-1][1]
+        assert drv.do_step(0.0, 2 * DT) == OK
+        at = drv.get(pos)
+        assert drv.do_step(0.0, DT) == failed and "back in time" in drv.messages[-1][1]
+        assert drv.do_step(5 * DT, DT) == failed and "a gap" in drv.messages[-1][1]
+        assert drv.get(pos) == at  # nothing stepped
+        assert drv.do_step(2 * DT, DT) == OK
+        drv.fmu.terminate()
+        assert drv.do_step(3 * DT, DT) == failed and "after terminate" in drv.messages[-1][1]
+
+
+def test_a_refused_state_changes_nothing(tmp_path):
+    """A state whose tunable parameter is good but whose session part is not: the tunable is not
+    taken either (all or nothing), and the instance steps on as before once a good state is set."""
+    cfg = config_for("fu2018", "velocity")
+    core, logs = make_core(tmp_path, cfg)
+    good = core.get_state()
+    bad = json.loads(json.dumps(good))
+    bad["tunables"]["drive_speed_kp_nm_s_rad"] = 2 * good["tunables"]["drive_speed_kp_nm_s_rad"]
+    bad["session"] = {"not": "a session"}
+    assert core.set_state(bad) is False
+    assert core.tunables == good["tunables"] and core.get_state() == good
+    assert core.do_step(0.0, DT) is not None
+    assert core.set_state(good) is True and core.do_step(0.0, DT) is None

@@ -16,6 +16,9 @@ import sys
 
 import pytest
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
@@ -107,7 +110,3 @@ def test_cdr_padding_is_zeroed_and_nothing_else_changes(type_name):
         dirty[i] ^= 0xA5
     assert bytes(dirty) != clean
     assert CdrNormaliser()(type_name, bytes(dirty)) == clean
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

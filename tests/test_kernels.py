@@ -15,7 +15,7 @@ import math
 import pickle
 import subprocess
 import sys
-from dataclasses import astuple, replace
+from dataclasses import replace
 
 import numpy as np
 import pytest

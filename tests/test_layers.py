@@ -44,8 +44,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "prsm_ros.param_files", "prsm_ros.limits"),  # the ROS interface as plain data, CDR reading, JSON, parameter files, input limits
     ("prsm_ros.cdr_write",),  # per-step messages as CDR bytes (rclpy)
     ("prsm_ros.messages",),  # the interface bound to rclpy
-    ("prsm_ros.mcap",),  # MCAP schema, codec, recorder, offline runs
-    ("prsm_ros.sweep",),  # studies, and the Ray runner the bag fleet uses too
+    ("prsm_ros.mcap", "prsm_ros.ray_runner"),  # MCAP schema, codec, recorder, offline runs; joining or starting Ray
+    ("prsm_ros.sweep",),  # studies on Ray
     ("prsm_ros.bag",),  # reading, exporting, reporting, comparing bags
     ("prsm_ros.viz",),  # Rerun views, live and from bags
     ("prsm_ros.node",),  # the rclpy node

@@ -21,6 +21,9 @@ from prsm_ros.cli.demo import main as demo_main  # noqa: E402
 from prsm_ros.cli.demo_controller import PositionController, reference  # noqa: E402
 from ros_procs import ros_test_env  # noqa: E402
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 ENV = ros_test_env("test_node_demo")
 
 
@@ -125,7 +128,3 @@ def test_prsm_demo_takes_a_gains_file(tmp_path, capsys):
     assert demo_main(["--gains", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "controller.bandwith_hz: unknown gain" in err
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

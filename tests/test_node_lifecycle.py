@@ -14,6 +14,9 @@ import rclpy  # noqa: F401  (the test extra installs it; a missing install must 
 
 from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 ENV = ros_test_env("test_node_lifecycle")
 
 
@@ -172,7 +175,3 @@ def test_rerun_save_writes_an_rrd_that_the_rerun_cli_verifies(tmp_path):
     assert res.returncode == 0, res.stderr
     rows = rrd_rows(rrd)
     assert rows[("/series/nut_position_m", "Scalars:scalars")] == 200, sorted(rows)[:20]
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

@@ -106,7 +106,7 @@ def test_requests_in_many_orders_never_kill_the_node_and_a_thread_end_is_an_even
         ops = [lambda: pause(True), lambda: pause(False), step, reset, lambda: brake(True), lambda: brake(False),
                inject, clear, lambda: command(1.5), lambda: command(-2.0), lambda: command(0.0)]
         rng = random.Random(24)
-        for i in range(60):
+        for _ in range(60):
             rng.choice(ops)()
             alive(proc)
         # the sequence left no lasting damage: released, running, from the middle, it steps on

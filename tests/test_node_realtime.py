@@ -22,6 +22,9 @@ import rclpy  # noqa: F401  (the test extra installs it; a missing install must 
 
 from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 ENV = ros_test_env("test_node_realtime")
 
 
@@ -280,7 +283,3 @@ def test_a_stalled_reader_loses_nothing_within_the_queue_and_only_the_oldest_bey
 
 if __name__ == "__main__":
     raise SystemExit(pytest.main([__file__, "-q"]))
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

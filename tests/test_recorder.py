@@ -151,7 +151,7 @@ def test_rosbags_reads_the_file_with_its_own_types_and_with_the_file_schemas(rec
     assert qos["/joint_states"].reliability.name == "RELIABLE" and qos["/joint_states"].depth == 100
     with AnyReader([path]) as reader:  # types parsed from the concatenated definitions in the file
         first = {}
-        for c, ts, raw in reader.messages():
+        for c, _ts, raw in reader.messages():
             first.setdefault(c.topic, reader.deserialize(raw, c.msgtype))
     js = first["/joint_states"]
     assert list(js.name) == ["screw_joint", "nut_joint"]

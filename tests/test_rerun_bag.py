@@ -14,7 +14,7 @@ from prsm_sim import OUTPUT_FIELDS, Simulator, preset
 from test_rerun_support import entities, has_blueprint, rrd_component, rrd_rows, rrd_verify
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
-import rerun as rr  # the test extra installs it; a missing install must fail, not skip
+import rerun as rr  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 from prsm_ros.bag.reader import BagError  # noqa: E402
 from prsm_ros.mcap.offline import write_trajectory_mcap  # noqa: E402
 from prsm_ros.viz.from_bag import bag_to_rrd  # noqa: E402

@@ -13,7 +13,7 @@ from prsm_sim import InternalBlock, InternalLayout, Simulator, preset
 from test_rerun_support import entities, rrd_rows, rrd_verify
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
-import rerun as rr  # the test extra installs it; a missing install must fail, not skip
+import rerun as rr  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 from prsm_ros.viz.blueprint import default_blueprint  # noqa: E402
 from prsm_ros.viz.scene import (FORCE_REF_N, arrow_length_m, color_by_magnitude, force_families,  # noqa: E402
                                   helix, scene_frame_indices, tooth_quantities)

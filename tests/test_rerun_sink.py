@@ -25,7 +25,7 @@ from prsm_sim.physics.contact import contact_for
 from test_rerun_support import RERUN_BIN, entities, has_blueprint, rrd_component, rrd_rows, rrd_verify
 from test_rerun_support import strict_rerun  # noqa: F401  (fixture, used by pytestmark)
 
-import rerun as rr  # the test extra installs it; a missing install must fail, not skip
+import rerun as rr  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 from prsm_ros.viz.scene import arrow_length_m  # noqa: E402
 from prsm_ros.viz.sink import RerunSink  # noqa: E402
 
@@ -349,6 +349,16 @@ def _wait_port(port: int, timeout_s: float = 20.0) -> None:
     raise TimeoutError(f"nothing listening on port {port} after {timeout_s} s")
 
 
+def _wait_display(display: str, server: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    """Until the X server of `display` (":N") listens on its socket, /tmp/.X11-unix/XN."""
+    sock = os.path.join("/tmp/.X11-unix", f"X{display.lstrip(':')}")
+    end = time.monotonic() + timeout_s
+    while not os.path.exists(sock):
+        if server.poll() is not None or time.monotonic() > end:
+            raise TimeoutError(f"no X server on {display} after {timeout_s} s (exit status {server.poll()})")
+        time.sleep(0.05)
+
+
 def _stop(proc: subprocess.Popen) -> None:
     proc.terminate()
     try:
@@ -425,7 +435,7 @@ def test_spawn_mode_starts_a_native_viewer(tmp_path, monkeypatch):
     port = _free_port()
     viewer = None
     try:
-        time.sleep(0.5)
+        _wait_display(display, xvfb)
         monkeypatch.setenv("DISPLAY", display)
         monkeypatch.setenv("PATH", f"{RERUN_BIN.parent}{os.pathsep}{os.environ['PATH']}")
         params = preset("jones2016")

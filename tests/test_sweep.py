@@ -27,6 +27,9 @@ import pytest
 
 from ray_local import embedded_ray  # noqa: F401 (a fixture)
 
+# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
+pytestmark = pytest.mark.slow
+
 ray = pytest.importorskip("ray")
 pa_parquet = pytest.importorskip("pyarrow.parquet")
 pd = pytest.importorskip("pandas")
@@ -426,7 +429,3 @@ def test_a_study_with_an_actuator_steps_it_through_a_session():
 def test_study_actuator_refusals_name_the_field(extra, msg):
     with pytest.raises(study.StudyError, match=msg):
         study.normalise({"preset": "s30", **extra})
-
-
-# the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
-pytestmark = pytest.mark.slow

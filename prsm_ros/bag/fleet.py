@@ -100,11 +100,10 @@ def report_many(paths: list[Path], options: dict, *, address: str | None = None,
                 rows.append(report_one(str(p), options))
                 bar.update(1)
             return rows
-        from prsm_ros.sweep.runner import connect, disconnect
-        from prsm_ros.sweep.study import StudyError
+        from prsm_ros.ray_runner import RayUnavailable, connect, disconnect
         try:
             ray, owned, tmp = connect(address, workers)
-        except StudyError as e:  # Ray unreachable or not startable: the bag tools' one error family
+        except RayUnavailable as e:  # Ray unreachable or not startable: the bag tools' one error family
             raise BagError(str(e)) from None
         try:
             task = ray.remote(num_cpus=1)(report_one)

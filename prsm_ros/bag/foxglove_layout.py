@@ -98,105 +98,126 @@ def build_layout(bag: Bag, *, screw_joint: str = SCREW_JOINT, nut_joint: str = N
     if screw_joint not in names or nut_joint not in names:
         raise BagError(f"{js} has joints {names}; the layout needs {screw_joint!r} and {nut_joint!r} "
                        f"(name them with --screw-joint / --nut-joint)")
-    i_s, i_n = names.index(screw_joint), names.index(nut_joint)
-    labels = _labels(bag, roles)
-    index = {e["label"]: k for k, e in enumerate(labels["elements"])} if labels else {}
-    il = roles["internal_loads"]
-    truth = TOPIC_DEFS["ground_truth"].resolved()
-    truth = truth if truth in bag.topics else None
+    b = _Panels(fl, bag, roles, names.index(screw_joint), names.index(nut_joint))
+    motion, scripts = b.motion_tab()
+    tabs = [("Motion", motion), ("Torque and force", b.torque_tab())]
+    if b.index:
+        tabs += [("Efficiency", b.efficiency_tab()), ("Rollers and teeth", b.rollers_tab())]
+    tabs.append(("Events", b.events_tab()))
+    content = fl.TabContainer(tabs=[fl.TabItem(title=title, content=c) for title, c in tabs if c is not None])
+    return fl.Layout(content=content, user_scripts=scripts)
 
-    stamped_topics: dict[str, bool] = {}
 
-    def series(path: str, label: str, **kw):
+class _Panels:
+    """The panels of one bag's layout: plotted message paths by the topics' roles and the labels' names."""
+
+    def __init__(self, fl, bag: Bag, roles: dict, i_s: int, i_n: int) -> None:
+        self.fl, self.bag, self.roles, self.i_s, self.i_n = fl, bag, roles, i_s, i_n
+        self.js = roles["joint_states"]
+        self.labels = _labels(bag, roles)
+        self.index = {e["label"]: k for k, e in enumerate(self.labels["elements"])} if self.labels else {}
+        self.il = roles["internal_loads"]
+        truth = TOPIC_DEFS["ground_truth"].resolved()
+        self.truth = truth if truth in bag.topics else None
+        self._stamped: dict[str, bool] = {}
+
+    def series(self, path: str, label: str, **kw):
         """One plotted message path; by header stamp where the topic has one (its log time otherwise)."""
         topic = path.split(".", 1)[0]
-        if topic not in stamped_topics:
-            stamped_topics[topic] = _stamped(bag, topic)
-        stamped = stamped_topics[topic]
-        return fl.PlotSeries(value=path, label=label, timestamp_method="headerStamp" if stamped else None, **kw)
+        if topic not in self._stamped:
+            self._stamped[topic] = _stamped(self.bag, topic)
+        return self.fl.PlotSeries(value=path, label=label,
+                                  timestamp_method="headerStamp" if self._stamped[topic] else None, **kw)
 
-    def internal(name: str, label: str | None = None, **kw):
-        return series(f"{il}.data[{index[name]}]", label or name, **kw) if name in index else None
+    def internal(self, name: str, label: str | None = None, **kw):
+        return self.series(f"{self.il}.data[{self.index[name]}]", label or name, **kw) if name in self.index else None
 
-    def plot(title: str, paths, y_label: str):
+    def plot(self, title: str, paths, y_label: str):
         paths = [p for p in paths if p is not None][:MAX_SERIES]
         if not paths:
             return None
+        fl = self.fl
         return fl.PlotPanel(title=title, config=fl.PlotConfig(paths=paths, y_axis_label=y_label, show_legend=True,
                                                               legend_display="top", is_synced=True))
 
-    def column(*panels):
+    def column(self, *panels):
         panels = [p for p in panels if p is not None]
         if not panels:
             return None
         if len(panels) == 1:
             return panels[0]
-        return fl.SplitContainer(direction="column", items=[fl.SplitItem(content=p) for p in panels])
+        return self.fl.SplitContainer(direction="column", items=[self.fl.SplitItem(content=p) for p in panels])
 
-    scripts = None
-    ref = roles["reference"]
-    motion = [series(f"{js}.position[{i_n}]", "nut position [m]")]
-    if truth:
-        motion.append(series(f"{truth}.position[{i_n}]", "ground truth [m]", line_style="dashed"))
-    error_plot = None
-    if ref:
-        if _stamped(bag, ref):
-            motion.append(series(f"{ref}.position[0]", "reference [m]", line_style="dashed"))
+    def motion_tab(self):
+        """(nut position against the reference, screw speed, tracking error; the user script that computes it)."""
+        fl, js, truth, ref = self.fl, self.js, self.truth, self.roles["reference"]
+        scripts, error_plot = None, None
+        motion = [self.series(f"{js}.position[{self.i_n}]", "nut position [m]")]
+        if truth:
+            motion.append(self.series(f"{truth}.position[{self.i_n}]", "ground truth [m]", line_style="dashed"))
+        if ref and _stamped(self.bag, ref):
+            motion.append(self.series(f"{ref}.position[0]", "reference [m]", line_style="dashed"))
             scripts = {"prsm_tracking_error": fl.UserScript(name="prsm tracking error", source_code=_TRACKING_SCRIPT % {
                 "state": json.dumps(js), "reference": json.dumps(ref), "output": json.dumps(TRACKING_ERROR_TOPIC),
-                "nut_index": i_n})}
-            error_plot = plot("Tracking error (reference − nut position)",
-                              [fl.PlotSeries(value=f"{TRACKING_ERROR_TOPIC}.error_m", label="error [m]",
-                                             timestamp_method="headerStamp")], "m")
-        else:
-            motion.append(series(f"{ref}.data", "reference [m]", line_style="dashed", line_interpolation="step"))
-    speed = [series(f"{js}.velocity[{i_s}]", "screw speed [rad/s]")]
-    if truth:
-        speed.append(series(f"{truth}.velocity[{i_s}]", "ground truth [rad/s]", line_style="dashed"))
-    tabs = [("Motion", column(plot("Nut position and reference", motion, "m"), plot("Screw speed", speed, "rad/s"),
-                              error_plot))]
+                "nut_index": self.i_n})}
+            error_plot = self.plot("Tracking error (reference − nut position)",
+                                   [fl.PlotSeries(value=f"{TRACKING_ERROR_TOPIC}.error_m", label="error [m]",
+                                                  timestamp_method="headerStamp")], "m")
+        elif ref:
+            motion.append(self.series(f"{ref}.data", "reference [m]", line_style="dashed", line_interpolation="step"))
+        speed = [self.series(f"{js}.velocity[{self.i_s}]", "screw speed [rad/s]")]
+        if truth:
+            speed.append(self.series(f"{truth}.velocity[{self.i_s}]", "ground truth [rad/s]", line_style="dashed"))
+        return self.column(self.plot("Nut position and reference", motion, "m"),
+                           self.plot("Screw speed", speed, "rad/s"), error_plot), scripts
 
-    wrench = roles["wrench"]
-    tabs.append(("Torque and force", column(
-        plot("Screw torque", [series(f"{js}.effort[{i_s}]", "screw torque [N·m]"),
-                              internal("actuator.motor_torque_nm", "motor torque [N·m]")], "N·m"),
-        plot("Forces", [series(f"{js}.effort[{i_n}]", "nut force [N]"),
-                        series(f"{truth}.effort[{i_n}]", "ground truth [N]", line_style="dashed") if truth else None,
-                        internal("load_force_n", "load [N]", line_style="dashed"),
-                        series(f"{wrench}.wrench.force.z", "nut wrench force.z [N]") if wrench else None], "N"))))
-    if index:
-        tabs.append(("Efficiency", column(
-            plot("Power", [internal(k, k.removesuffix("_w").replace("_", " ") + " [W]")
-                           for k in ("power_in_w", "power_out_w", "power_dissipated_w")], "W"),
-            plot("Efficiency and slip", [internal("efficiency", "efficiency [1]"),
-                                         internal("slip_speed_m_s", "slip speed [m/s]", use_right_y_axis=True)], "1"))))
-        q_roller, q_tooth = _force_quantity(labels, "per_roller"), _force_quantity(labels, "per_tooth")
+    def torque_tab(self):
+        js, truth, wrench, i_n = self.js, self.truth, self.roles["wrench"], self.i_n
+        return self.column(
+            self.plot("Screw torque", [self.series(f"{js}.effort[{self.i_s}]", "screw torque [N·m]"),
+                                       self.internal("actuator.motor_torque_nm", "motor torque [N·m]")], "N·m"),
+            self.plot("Forces", [self.series(f"{js}.effort[{i_n}]", "nut force [N]"),
+                                 self.series(f"{truth}.effort[{i_n}]", "ground truth [N]", line_style="dashed")
+                                 if truth else None,
+                                 self.internal("load_force_n", "load [N]", line_style="dashed"),
+                                 self.series(f"{wrench}.wrench.force.z", "nut wrench force.z [N]") if wrench else None],
+                      "N"))
+
+    def efficiency_tab(self):
+        internal = self.internal
+        return self.column(
+            self.plot("Power", [internal(k, k.removesuffix("_w").replace("_", " ") + " [W]")
+                                for k in ("power_in_w", "power_out_w", "power_dissipated_w")], "W"),
+            self.plot("Efficiency and slip", [internal("efficiency", "efficiency [1]"),
+                                              internal("slip_speed_m_s", "slip speed [m/s]", use_right_y_axis=True)],
+                      "1"))
+
+    def rollers_tab(self):
+        index, internal = self.index, self.internal
+        q_roller, q_tooth = _force_quantity(self.labels, "per_roller"), _force_quantity(self.labels, "per_tooth")
         rollers = [internal(lab, lab.split(".")[0]) for lab in index
                    if lab.startswith("per_roller[") and lab.endswith(f"].{q_roller}")] if q_roller else []
         teeth = [internal(lab, lab.split(".")[0]) for lab in index
                  if lab.startswith(f"per_tooth[{PER_TOOTH_ROLLER},") and lab.endswith(f"].{q_tooth}")] if q_tooth else []
         carrier = [internal(lab) for lab in index if lab.startswith("carrier.") and lab.endswith("_n")]
-        tabs.append(("Rollers and teeth", column(
-            plot(f"{q_roller}, per roller", rollers, "N") if q_roller else None,
-            plot(f"{q_tooth}, roller {PER_TOOTH_ROLLER}, per tooth", teeth, "N") if q_tooth else None,
-            plot("Carrier", carrier, "N"))))
+        return self.column(
+            self.plot(f"{q_roller}, per roller", rollers, "N") if q_roller else None,
+            self.plot(f"{q_tooth}, roller {PER_TOOTH_ROLLER}, per tooth", teeth, "N") if q_tooth else None,
+            self.plot("Carrier", carrier, "N"))
 
-    event_panels = []
-    events = [t for t in bag.topics_of_type("std_msgs/msg/String") if t.endswith("/events")]
-    for t in events:
-        event_panels.append(fl.RawMessagesPanel(title=f"Events ({t})", config=fl.RawMessagesConfig(topic_path=t)))
-    if "/diagnostics" in bag.topics:
-        event_panels.append(fl.DiagnosticsSummaryPanel(title="Diagnostics"))
-    states = [fl.StateTransitionsSeries(value=f"{il}.data[{index[f'actuator.{q}']}]", label=q)
-              for q in ("brake_level", "faults_active", "torque_limited", "mode") if f"actuator.{q}" in index]
-    if states:
-        event_panels.append(fl.StateTransitionsPanel(title="Actuator states",
-                                                     config=fl.StateTransitionsConfig(paths=states, is_synced=True)))
-    if event_panels:
-        tabs.append(("Events", column(*event_panels)))
-
-    content = fl.TabContainer(tabs=[fl.TabItem(title=title, content=c) for title, c in tabs if c is not None])
-    return fl.Layout(content=content, user_scripts=scripts)
+    def events_tab(self):
+        """The node's events, diagnostics and the actuator's state transitions; None when the bag has none."""
+        fl, bag = self.fl, self.bag
+        panels = [fl.RawMessagesPanel(title=f"Events ({t})", config=fl.RawMessagesConfig(topic_path=t))
+                  for t in bag.topics_of_type("std_msgs/msg/String") if t.endswith("/events")]
+        if "/diagnostics" in bag.topics:
+            panels.append(fl.DiagnosticsSummaryPanel(title="Diagnostics"))
+        states = [fl.StateTransitionsSeries(value=f"{self.il}.data[{self.index[f'actuator.{q}']}]", label=q)
+                  for q in ("brake_level", "faults_active", "torque_limited", "mode") if f"actuator.{q}" in self.index]
+        if states:
+            panels.append(fl.StateTransitionsPanel(title="Actuator states",
+                                                   config=fl.StateTransitionsConfig(paths=states, is_synced=True)))
+        return self.column(*panels) if panels else None
 
 
 def _force_quantity(labels: dict, block: str) -> str | None:

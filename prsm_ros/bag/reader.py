@@ -695,10 +695,6 @@ class Bag:
                     _, _, channel, message = heapq.heappop(heap)
                     yield self._schemas.get(channel.schema_id), channel, message
 
-    def read_topic(self, topic: str, start_ns: int | None = None, end_ns: int | None = None,
-                   progress: bool = False) -> list[BagMessage]:
-        return list(self.messages([topic], start_ns, end_ns, progress=progress, desc=topic))
-
 
 def open_bag(path) -> Bag:
     """Open an MCAP file (or a rosbag2 directory with one .mcap); BagError with a clear message otherwise."""

@@ -13,11 +13,11 @@ import os
 import platform
 import sys
 import time
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from prsm_sim import PrsmError
+from prsm_sim import PrsmError, __version__
 
 from prsm_ros.json_out import dumps
 
@@ -65,10 +65,12 @@ def _fmt(v) -> str:
     return f"{v:.3g}"
 
 
-def run(areas: Mapping[str, Measure], quick: bool) -> list[dict]:
-    """Every area's figures in turn, each tagged with its area."""
-    figures = []
-    for area, measure in areas.items():
+def run(areas: Mapping[str, Measure], quick: bool, figures: list[dict] | None = None) -> list[dict]:
+    """Every area's figures in turn, each tagged with its area, appended to `figures` as each area ends
+    (so that a caller interrupted by Ctrl-C still holds the areas that finished)."""
+    figures = [] if figures is None else figures
+    for i, (area, measure) in enumerate(areas.items()):
+        print(f"[{area}: measuring, area {i + 1} of {len(areas)}]", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         try:
             figs = measure(quick=quick)
@@ -107,20 +109,32 @@ def main(areas: Mapping[str, Measure], argv: list[str] | None = None, *, prog: s
          description: str = "") -> int:
     """The command line over `areas`: --quick, --json, --only AREA (repeatable)."""
     ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     ap.add_argument("--quick", action="store_true", help="smoke run, under a minute; figures indicative only")
     ap.add_argument("--json", action="store_true", help="machine-readable figures")
     ap.add_argument("--only", action="append", choices=list(areas), help="measure only these areas (repeatable)")
     a = ap.parse_args(argv)
-    figures = run({k: areas[k] for k in (a.only or areas)}, a.quick)
+    chosen = {k: areas[k] for k in (a.only or areas)}
+    figures: list[dict] = []
+    interrupted = False
+    try:
+        run(chosen, a.quick, figures)
+    except KeyboardInterrupt:
+        interrupted = True
     meta = {"machine": platform.machine(), "python": platform.python_version(), "quick": a.quick,
             "cpus": os.cpu_count()}
+    if interrupted:
+        done = list(dict.fromkeys(f["area"] for f in figures))
+        meta["interrupted"] = True
+        print(f"{prog}: interrupted: {len(done)} of {len(chosen)} areas measured"
+              + (f" ({', '.join(done)}), their figures below" if done else ", no figures"), file=sys.stderr)
     if a.json:
         print(dumps({"meta": meta, "figures": figures}))
     else:
         print(f"prsm-bench on {meta['machine']}, {meta['cpus']} CPUs, Python {meta['python']}"
               f"{' (quick: indicative only)' if a.quick else ''}")
         print(table(figures))
-    return 0
+    return 130 if interrupted else 0
 
 
 def area_main(area: str, measure: Measure, argv: list[str] | None = None) -> int:

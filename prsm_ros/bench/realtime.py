@@ -242,6 +242,33 @@ def _median_spread(times: list[float]) -> tuple[float, float]:
     return med, (max(times) - min(times)) / med if med > 0 else 0.0
 
 
+def _mujoco_path(params, torque: list[float], load: float):
+    """(MuJoCo's rigid screw–nut run over `torque`, or None without mujoco; a note on its exactness)."""
+    try:
+        import mujoco
+    except ImportError:
+        return None, "mujoco not installed (pip install 'prsm[bench]'): no baseline"
+    mj_model, mj_data, m_total = mujoco_screw_nut(params)
+    p = params.geometry.lead_per_rad_m
+
+    def run_mujoco():
+        mujoco.mj_resetData(mj_model, mj_data)
+        ctrl, qpos, mj_step = mj_data.ctrl, mj_data.qpos, mujoco.mj_step
+        for t in torque:
+            ctrl[0] = t - load * p  # net screw torque (the load through the lead), as the models see it
+            mj_step(mj_model, mj_data)
+            x = qpos[0]
+        return x
+    # exactness check against the closed form: constant net torque, x = ½ (τ/p / m_total) t²
+    mujoco.mj_resetData(mj_model, mj_data)
+    mj_data.ctrl[0] = 0.01
+    for _ in range(1000):
+        mujoco.mj_step(mj_model, mj_data)
+    v_exact = 0.01 / p / m_total * 1000 * DT
+    return run_mujoco, (f"MuJoCo {mujoco.__version__}, slide + armature; velocity after 1 s of constant torque "
+                        f"within {abs(mj_data.qvel[0] / v_exact - 1):.1e} of τ t /(p m_eff)")
+
+
 def step_cost_figures(quick: bool) -> list[dict]:
     """Per-step cost of every model's `Simulator.step`, its `Session.step` and MuJoCo's `mj_step`, interleaved rounds."""
     n = 2000 if quick else 20000
@@ -271,31 +298,9 @@ def step_cost_figures(quick: bool) -> list[dict]:
                 out = step(t)  # the gate takes the command at the step's time, the load is held
             return out.nut_position_m
         paths[name, "session"] = run_session
-    mj_note = ""
-    try:
-        import mujoco
-        mj_model, mj_data, m_total = mujoco_screw_nut(params)
-        p = params.geometry.lead_per_rad_m
-
-        def run_mujoco():
-            mujoco.mj_resetData(mj_model, mj_data)
-            ctrl, qpos, mj_step = mj_data.ctrl, mj_data.qpos, mujoco.mj_step
-            for t in torque:
-                ctrl[0] = t - load * p  # net screw torque (the load through the lead), as the models see it
-                mj_step(mj_model, mj_data)
-                x = qpos[0]
-            return x
+    run_mujoco, mj_note = _mujoco_path(params, torque, load)
+    if run_mujoco is not None:
         paths["mujoco"] = run_mujoco
-        # exactness check against the closed form: constant net torque, x = ½ (τ/p / m_total) t²
-        mujoco.mj_resetData(mj_model, mj_data)
-        mj_data.ctrl[0] = 0.01
-        for _ in range(1000):
-            mujoco.mj_step(mj_model, mj_data)
-        v_exact = 0.01 / p / m_total * 1000 * DT
-        mj_note = (f"MuJoCo {mujoco.__version__}, slide + armature; velocity after 1 s of constant torque "
-                   f"within {abs(mj_data.qvel[0] / v_exact - 1):.1e} of τ t /(p m_eff)")
-    except ImportError:
-        mj_note = "mujoco not installed (pip install 'prsm[bench]'): no baseline"
     times = {k: [] for k in paths}
     for _ in range(rounds):
         for k, fn in paths.items():

@@ -48,6 +48,86 @@ def _percentiles(values: list[float]) -> dict[str, float | None]:
             "n": int(a.size)}
 
 
+class _Probe:
+    """What the controller saw: torques sent, states and echoes received, with their times (thread-safe)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.sent: dict[float, float] = {}  # torque → perf_counter at publish (pruned as the run goes)
+        self.state_wall_ns: dict[int, int] = {}  # joint_states stamp (ns) → time.time_ns() at receipt
+        self.echo_ref_ns: dict[int, int] = {}  # step stamp (ns) → the command stamp the node echoed for it
+        self.lat_value: list[float] = []
+        self.stamps: list[int] = []
+        self.walls: list[float] = []
+        self.first_state = threading.Event()
+        self.measuring = threading.Event()
+        self.stop = threading.Event()
+        self.published = 0
+
+    def on_state(self, raw: bytes) -> None:
+        now_pc, now_ns = time.perf_counter(), time.time_ns()
+        self.first_state.set()
+        if not self.measuring.is_set():
+            return
+        st, effort0 = joint_state_stamp_effort0(raw)
+        with self.lock:
+            self.stamps.append(st)
+            self.walls.append(now_pc)
+            self.state_wall_ns[st] = now_ns
+            if effort0 is not None:
+                t_sent = self.sent.pop(effort0, None)
+                if t_sent is not None:
+                    self.lat_value.append(now_pc - t_sent)
+
+    def on_echo(self, raw: bytes) -> None:
+        st, ref = time_reference_stamps(raw)
+        with self.lock:
+            self.echo_ref_ns.setdefault(st, ref)
+
+    def pace(self, publish, rate_hz: float) -> None:
+        """Publish a distinct torque every period on absolute deadlines until `stop` (the pacing thread)."""
+        from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack
+        reduce_timer_slack()  # precise sleeps; the thread stays at normal priority
+        pacer = DeadlinePacer(1.0 / rate_hz, spin_s=0.0)
+        k = 0
+        while not self.stop.is_set():
+            pacer.wait()
+            k += 1
+            # distinct values (k is unique within the prune window), all below 1 mN·m
+            torque = 1e-3 * ((k % 20011) / 20011.0 - 0.5)
+            with self.lock:
+                self.sent[torque] = time.perf_counter()
+                if len(self.sent) > 20000:  # a command never reflected (overwritten in the node's queue)
+                    for old in list(self.sent)[:10000]:
+                        del self.sent[old]
+            publish(torque)
+            self.published += 1
+
+    def summary(self, n_pub: int) -> dict:
+        """The JSON line's figures (see the module doc)."""
+        with self.lock:
+            stamps, walls = self.stamps, self.walls
+            uniq = sorted(set(stamps))
+            lat_echo = [(self.state_wall_ns[st] - ref) * 1e-9 for st, ref in self.echo_ref_ns.items()
+                        if st in self.state_wall_ns]
+            period_ns = int(np.median(np.diff(uniq))) if len(uniq) > 1 else None
+            expected = (uniq[-1] - uniq[0]) // period_ns + 1 if period_ns else len(uniq)
+            rate = None
+            if len(stamps) > 1 and period_ns:
+                # least-squares slope of stamp (s) against receipt wall time (s): simulated s per wall s
+                slope = float(np.polyfit(np.asarray(walls) - walls[0], (np.asarray(stamps) - stamps[0]) * 1e-9, 1)[0])
+                rate = slope * 1e9 / period_ns
+            lat_value = list(self.lat_value)
+        ms = lambda p: {k: (v * 1e3 if isinstance(v, float) else v) for k, v in p.items()}  # noqa: E731
+        return {
+            "commands_published": n_pub,
+            "states_received": len(uniq), "states_expected": int(expected), "duplicates": len(stamps) - len(uniq),
+            "period_s": period_ns * 1e-9 if period_ns else None, "rate_hz": rate,
+            "latency_value_ms": ms(_percentiles(lat_value)), "latency_echo_ms": ms(_percentiles(lat_echo)),
+            "echo_seen": bool(self.echo_ref_ns),
+        }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rt_controller", description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=10.0, help="measured wall seconds (after the first state)")
@@ -66,113 +146,43 @@ def main(argv: list[str] | None = None) -> int:
     from sensor_msgs.msg import JointState, TimeReference
     from std_msgs.msg import Float64
 
-    from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack
-
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node("prsm_rt_controller")
     reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=a.depth, reliability=ReliabilityPolicy.RELIABLE)
     pub = node.create_publisher(Float64, f"{a.node}/screw_torque",
                                 QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                                            reliability=ReliabilityPolicy.RELIABLE))
-    lock = threading.Lock()
-    sent: dict[float, float] = {}  # torque → perf_counter at publish (pruned as the run goes)
-    state_wall_ns: dict[int, int] = {}  # joint_states stamp (ns) → time.time_ns() at receipt
-    echo_ref_ns: dict[int, int] = {}  # step stamp (ns) → the command stamp the node echoed for it
-    lat_value: list[float] = []
-    first_state = threading.Event()
-    measuring = threading.Event()
-    stamps: list[int] = []
-    walls: list[float] = []
-
-    def on_state(raw: bytes) -> None:
-        now_pc, now_ns = time.perf_counter(), time.time_ns()
-        first_state.set()
-        if not measuring.is_set():
-            return
-        st, effort0 = joint_state_stamp_effort0(raw)
-        with lock:
-            stamps.append(st)
-            walls.append(now_pc)
-            state_wall_ns[st] = now_ns
-            if effort0 is not None:
-                t_sent = sent.pop(effort0, None)
-                if t_sent is not None:
-                    lat_value.append(now_pc - t_sent)
-
-    def on_echo(raw: bytes) -> None:
-        st, ref = time_reference_stamps(raw)
-        with lock:
-            echo_ref_ns.setdefault(st, ref)
-
-    node.create_subscription(JointState, a.joint_states, on_state, reliable, raw=True)
-    node.create_subscription(TimeReference, f"{a.node}/command_echo", on_echo, reliable, raw=True)
+    probe = _Probe()
+    node.create_subscription(JointState, a.joint_states, probe.on_state, reliable, raw=True)
+    node.create_subscription(TimeReference, f"{a.node}/command_echo", probe.on_echo, reliable, raw=True)
     executor = Executor()
     executor.add_node(node)
-    stop = threading.Event()
-    published = [0]
 
-    def pace() -> None:
-        reduce_timer_slack()  # precise sleeps; the thread stays at normal priority
-        pacer = DeadlinePacer(1.0 / a.rate, spin_s=0.0)
-        k = 0
-        while not stop.is_set():
-            pacer.wait()
-            k += 1
-            # distinct values (k is unique within the prune window), all below 1 mN·m
-            torque = 1e-3 * ((k % 20011) / 20011.0 - 0.5)
-            with lock:
-                sent[torque] = time.perf_counter()
-                if len(sent) > 20000:  # a command never reflected (overwritten in the node's queue)
-                    for old in list(sent)[:10000]:
-                        del sent[old]
-            pub.publish(Float64(data=torque))
-            published[0] += 1
-
-    pacer_thread = threading.Thread(target=pace, name="controller-pacer", daemon=True)
+    pacer_thread = threading.Thread(target=probe.pace, args=(lambda t: pub.publish(Float64(data=t)), a.rate),
+                                    name="controller-pacer", daemon=True)
     deadline = time.monotonic() + WARMUP_TIMEOUT_S
     pacer_thread.start()
-    while not first_state.is_set() and time.monotonic() < deadline:
+    while not probe.first_state.is_set() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
-    if not first_state.is_set():
+    if not probe.first_state.is_set():
         print(json.dumps({"error": f"no joint_states on {a.joint_states} within {WARMUP_TIMEOUT_S:g} s"}))
         return 1
     warm_end = time.monotonic() + 1.0  # let discovery of the echo topic and the queues settle
     while time.monotonic() < warm_end:
         executor.spin_once(timeout_sec=0.01)
-    with lock:
-        sent.clear()
-    measuring.set()
+    with probe.lock:
+        probe.sent.clear()
+    probe.measuring.set()
     print("measuring", flush=True)  # the bench samples the node's CPU from here to the summary
-    pub0 = published[0]
+    pub0 = probe.published
     end = time.monotonic() + a.duration
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.01)
-    measuring.clear()
+    probe.measuring.clear()
     print("measured", flush=True)
-    stop.set()
+    probe.stop.set()
     pacer_thread.join(timeout=5.0)
-    n_pub = published[0] - pub0
-
-    with lock:
-        uniq = sorted(set(stamps))
-        lat_echo = [(state_wall_ns[st] - ref) * 1e-9 for st, ref in echo_ref_ns.items() if st in state_wall_ns]
-        period_ns = None
-        if len(uniq) > 1:
-            period_ns = int(np.median(np.diff(uniq)))
-        expected = (uniq[-1] - uniq[0]) // period_ns + 1 if period_ns else len(uniq)
-        rate = None
-        if len(stamps) > 1 and period_ns:
-            # least-squares slope of stamp (s) against receipt wall time (s): simulated s per wall s
-            slope = float(np.polyfit(np.asarray(walls) - walls[0], (np.asarray(stamps) - stamps[0]) * 1e-9, 1)[0])
-            rate = slope * 1e9 / period_ns
-    summary = {
-        "commands_published": n_pub,
-        "states_received": len(uniq), "states_expected": int(expected), "duplicates": len(stamps) - len(uniq),
-        "period_s": period_ns * 1e-9 if period_ns else None, "rate_hz": rate,
-        "latency_value_ms": {k: (v * 1e3 if isinstance(v, float) else v) for k, v in _percentiles(lat_value).items()},
-        "latency_echo_ms": {k: (v * 1e3 if isinstance(v, float) else v) for k, v in _percentiles(lat_echo).items()},
-        "echo_seen": bool(echo_ref_ns),
-    }
+    summary = probe.summary(probe.published - pub0)
     executor.shutdown()
     node.destroy_node()
     rclpy.try_shutdown()

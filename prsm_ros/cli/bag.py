@@ -22,6 +22,8 @@ import os
 import sys
 from pathlib import Path
 
+from prsm_sim import __version__
+
 from prsm_ros.bag.reader import BagError, open_bag
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 from prsm_ros.json_out import dumps
@@ -277,6 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
     ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
                                  "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True,
                             metavar="{info,export,report,compare,play,layout,to-rrd,repair}")
 

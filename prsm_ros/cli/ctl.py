@@ -39,6 +39,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from prsm_sim import __version__
 from prsm_sim.errors import PrsmError
 
 PROG = "prsm-ctl"
@@ -526,7 +527,7 @@ def run(args) -> int:
 
 
 def _emitter(as_json: bool) -> Callable[[Any, str], None]:
-    from prsm_ros.cli.json_out import jsonable
+    from prsm_ros.json_out import jsonable
 
     def emit(record: Any, text: str) -> None:
         print(json.dumps(jsonable(record), ensure_ascii=False, allow_nan=False) if as_json else text, flush=True)
@@ -563,6 +564,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="one JSON object per line")
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0], parents=[common],
                                  epilog="See the module help: python -m prsm_ros.cli.ctl --help; README.md and docs/ros.md.")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="verb", required=True, metavar="VERB")
     sub.add_parser("pause", parents=[common], help="pause stepping (~/pause true)")
     sub.add_parser("resume", parents=[common], help="resume stepping (~/pause false)")

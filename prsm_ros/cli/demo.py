@@ -31,6 +31,7 @@ import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
+from prsm_ros.json_out import dumps
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
 # How long the controller waits for the node to come up. A first start on a fresh install compiles the
@@ -40,10 +41,11 @@ TIME_MODES = ("realtime", "lockstep")  # fast: the node does not wait for the co
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from prsm_sim import MODELS, PRESETS
+    from prsm_sim import MODELS, PRESETS, __version__
     p = argparse.ArgumentParser(prog="prsm-demo", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     p.add_argument("--duration", type=float, default=4.0, help="simulation seconds to run (default 4)")
     p.add_argument("--preset", default="s30", choices=sorted(PRESETS))
     p.add_argument("--model", default="jones2016", choices=list(MODELS))
@@ -69,48 +71,84 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _refusal(args) -> str | None:
+    """Why the options cannot run, in one line, or None."""
     if not (0 < args.duration <= 3600):
-        print(f"prsm-demo: error: --duration {args.duration:g}: must be in (0, 3600] s", file=sys.stderr)
-        return 2
+        return f"--duration {args.duration:g}: must be in (0, 3600] s"
     if args.time_mode not in TIME_MODES:
         why = (": the node steps as fast as it can without waiting for the controller, so the loop cannot close"
                if args.time_mode == "fast" else "")
-        print(f"prsm-demo: error: --time-mode {args.time_mode}{why}; allowed: {', '.join(TIME_MODES)}",
-              file=sys.stderr)
-        return 2
+        return f"--time-mode {args.time_mode}{why}; allowed: {', '.join(TIME_MODES)}"
     if not 0 <= args.realtime_priority <= 99:
-        print(f"prsm-demo: error: --realtime-priority {args.realtime_priority}: must be in 0..99 (0: normal)",
-              file=sys.stderr)
-        return 2
-    if args.gains:
+        return f"--realtime-priority {args.realtime_priority}: must be in 0..99 (0: normal)"
+    return None
+
+
+def _prepare(args) -> tuple[str | None, dict | None, dict]:
+    """(why the options cannot run or None, the --gains file's gains, the ROS environment of the run)."""
+    why = _refusal(args)
+    gains, env = None, {}
+    if why is None and args.gains:
         from prsm_ros.sweep.gains import load_gains
         from prsm_sim.errors import InputError
         try:
             gains = load_gains(args.gains)
         except InputError as e:
-            print(f"prsm-demo: error: --gains {e}", file=sys.stderr)
-            return 2
-    try:
-        env = isolated_env(args.domain_id)
-    except ValueError as e:
-        print(f"prsm-demo: error: --domain-id: {e}", file=sys.stderr)
+            why = f"--gains {e}"
+    if why is None:
+        try:
+            env = isolated_env(args.domain_id)
+        except ValueError as e:
+            why = f"--domain-id: {e}"
+    return why, gains, env
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    why, gains, env = _prepare(args)
+    if why is not None:
+        print(f"prsm-demo: error: {why}", file=sys.stderr)
         return 2
     record = None if args.no_record else Path(
         args.record or f"prsm_demo_{datetime.now(timezone.utc).strftime('%Y%m%d_%H%M%S')}.mcap").resolve()
+    print(f"prsm-demo: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} "
+          f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}; "
+          f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N, "
+          f"{args.command_interface} commands"
+          + (f"; gains {', '.join(f'{k} {v:g}' for k, v in gains.items())} from {args.gains}" if gains else ""),
+          file=sys.stderr if args.json else sys.stdout, flush=True)
+    out, node_rc, ctl_rc, node_text, interrupted = _run(args, env, record)
+    if interrupted:
+        kept = f"the bag so far is in {record} (the node closed it)" if record and record.exists() else "nothing kept"
+        print(f"prsm-demo: interrupted: {kept}", file=sys.stderr)
+        return 130
+    lines = [line for line in out.decode(errors="replace").splitlines() if line.startswith("{")]
+    if node_rc != 0 or not lines:
+        print(f"prsm-demo: the run failed (node exit code {node_rc}, controller exit code {ctl_rc})",
+              file=sys.stderr)
+        print(node_text, file=sys.stderr)
+        return 1
+    s = json.loads(lines[-1])
+    dt_s = 1e-3
+    if args.json:
+        print(dumps({**s, "steps": round(s["sim_time_s"] / dt_s), "bag": str(record) if record else None,
+                     "time_mode": args.time_mode, "model": args.model, "preset": args.preset}))
+    else:
+        print(summary_text(s, dt_s, record))
+    return 0 if s["completed"] else 1
+
+
+def _run(args, env: dict, record: Path | None) -> tuple[bytes, int | None, int | None, str, bool]:
+    """Start the node and the controller, wait for the controller, stop the node (SIGINT: it closes its bag).
+
+    Returns the controller's output, both exit codes, the node's log and whether Ctrl-C ended the run.
+    """
     node_params = {"preset": args.preset, "model": args.model, "time_mode": args.time_mode,
                    "load_force": args.load, "record": record is not None, "record_path": str(record or ""),
                    "rerun": args.rerun, "rerun_target": args.rerun_target, "command_interface": args.command_interface,
                    "start_paused": True, "realtime_priority": args.realtime_priority}
     realtime_priority = args.realtime_priority if args.time_mode == "realtime" else 0
-    print(f"prsm-demo: ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} "
-          f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}; "
-          f"{args.model} / {args.preset}, {args.time_mode}, {args.duration:g} s, load {args.load:g} N, "
-          f"{args.command_interface} commands"
-          + (f"; gains {', '.join(f'{k} {v:g}' for k, v in gains.items())} from {args.gains}" if args.gains else ""),
-          file=sys.stderr if args.json else sys.stdout, flush=True)
-
+    interrupted = False
     with tempfile.TemporaryDirectory(prefix="prsm_demo_") as tmp:
         node_log = Path(tmp) / "node.log"
         with open(node_log, "wb") as log:
@@ -120,34 +158,33 @@ def main(argv: list[str] | None = None) -> int:
                                 "--connect-timeout", repr(NODE_START_CEILING_S),
                                 "--wall-timeout", repr(60.0 + 20 * args.duration),
                                 "--command-interface", args.command_interface,
-                                "--realtime-priority", str(realtime_priority)]
+                                "--realtime-priority", str(realtime_priority), "--progress"]
                                + (["--gains", str(Path(args.gains).resolve())] if args.gains else []),
                                env, stdout=subprocess.PIPE)
             try:
                 out = wait_for_controller(ctl, node)
             except KeyboardInterrupt:
                 ctl.kill()
-                out = b""
+                out, interrupted = b"", True
             finally:
-                if node.poll() is None:
-                    node.send_signal(signal.SIGINT)
-                node_rc = node.wait(timeout=30)
+                node_rc = _stop(node)
+            ctl.wait()
         node_text = node_log.read_text(errors="replace")
-    lines = [line for line in out.decode(errors="replace").splitlines() if line.startswith("{")]
-    if node_rc != 0 or not lines:
-        print(f"prsm-demo: the run failed (node exit code {node_rc}, controller exit code {ctl.returncode})",
-              file=sys.stderr)
-        print(node_text, file=sys.stderr)
-        return 1
-    s = json.loads(lines[-1])
-    dt_s = 1e-3
-    if args.json:
-        from prsm_ros.cli.json_out import dumps
-        print(dumps({**s, "steps": round(s["sim_time_s"] / dt_s), "bag": str(record) if record else None,
-                          "time_mode": args.time_mode, "model": args.model, "preset": args.preset}))
-    else:
-        print(summary_text(s, dt_s, record))
-    return 0 if s["completed"] else 1
+    return out, node_rc, ctl.returncode, node_text, interrupted
+
+
+def _stop(node: subprocess.Popen) -> int | None:
+    """SIGINT to the node and its exit code once it has closed its bag; a second Ctrl-C does not cut that short."""
+    if node.poll() is None:
+        node.send_signal(signal.SIGINT)
+    while True:
+        try:
+            return node.wait(timeout=30)
+        except KeyboardInterrupt:
+            continue
+        except subprocess.TimeoutExpired:
+            node.kill()
+            return node.wait()
 
 
 def wait_for_controller(ctl: subprocess.Popen, node: subprocess.Popen) -> bytes:

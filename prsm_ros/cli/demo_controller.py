@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> dict:
     pause = node.create_client(SetBool, resolve_name("~/pause"))
     track = Tracking()
     # callbacks run in this thread, inside spin_once: st has one owner and needs no lock
-    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_ns": None, "nut": None}
+    st = {"t": 0.0, "x": 0.0, "wall0": None, "t0": None, "done": False, "last_ns": None, "nut": None, "shown": -1.0}
 
     def on_state(raw: bytes) -> None:
         if st["done"]:
@@ -124,6 +124,8 @@ def run(args: argparse.Namespace) -> dict:
         track.add(x_ref - x)
         ref_msg.header.stamp.sec, ref_msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         ref_msg.position[0], ref_msg.velocity[0] = x_ref, v_ref
+        if args.progress:
+            show_progress(st, t, args.duration)
         if t >= args.duration:  # the last state is tracked too: its reference goes to the bag, no command
             ref_pub.publish(ref_msg)
             st["done"] = True
@@ -144,34 +146,7 @@ def run(args: argparse.Namespace) -> dict:
     # after the middleware's threads exist, so that they are raised too (a state must not wait in a socket)
     scheduling = raise_process_threads(args.realtime_priority)
     try:
-        deadline = time.monotonic() + args.connect_timeout
-        # matched both ways and the pause service up: the node waits, paused, for us to resume it,
-        # so no step runs before we listen (in lockstep a first state sent before then is lost for good)
-        while (tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0
-               or not pause.service_is_ready()):
-            if time.monotonic() > deadline:
-                print(f"prsm-demo controller: no node listening on {cmd_topic.resolved()} with {pause.srv_name} "
-                      f"after {args.connect_timeout:g} s", file=sys.stderr)
-                break
-            executor.spin_once(timeout_sec=0.05)
-        else:
-            resumed = pause.call_async(SetBool.Request(data=False))
-            executor.spin_until_future_complete(resumed, timeout_sec=max(0.0, deadline - time.monotonic()))
-            if not resumed.done():
-                print(f"prsm-demo controller: {pause.srv_name} did not answer within {args.connect_timeout:g} s",
-                      file=sys.stderr)
-            else:
-                tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
-                kicked = time.monotonic()
-                wall_limit = kicked + args.wall_timeout
-                while not st["done"] and time.monotonic() < wall_limit:
-                    executor.spin_once(timeout_sec=0.1)
-                    if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
-                        tau_pub.publish(Float64(data=0.0))
-                        kicked = time.monotonic()
-                # pause the node where the run ends, so the bag stops with the tracked profile rather
-                # than with the load pushing an uncontrolled nut (not waited for beyond a few seconds)
-                executor.spin_until_future_complete(pause.call_async(SetBool.Request(data=True)), timeout_sec=5.0)
+        _drive(executor, tau_pub, state_sub, pause, st, args, cmd_topic.resolved())
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -184,6 +159,52 @@ def run(args: argparse.Namespace) -> dict:
             "completed": st["done"], "scheduling": scheduling,
             "gains": {"bandwidth_hz": ctl.bandwidth_hz, "damping": ctl.damping, "integral_ratio": ctl.integral_ratio,
                       "max_torque_nm": ctl.max_torque_nm}}
+
+
+def _drive(executor, tau_pub, state_sub, pause, st: dict, args, cmd_name: str) -> None:
+    """Wait for the node (matched both ways, its pause service up), resume it, spin until the run is done
+    (`st["done"]`) or the wall limit, then pause it again."""
+    from std_msgs.msg import Float64
+    from std_srvs.srv import SetBool
+    deadline = time.monotonic() + args.connect_timeout
+    # matched both ways and the pause service up: the node waits, paused, for us to resume it,
+    # so no step runs before we listen (in lockstep a first state sent before then is lost for good)
+    while (tau_pub.get_subscription_count() == 0 or state_sub.get_publisher_count() == 0
+           or not pause.service_is_ready()):
+        if time.monotonic() > deadline:
+            print(f"prsm-demo controller: no node listening on {cmd_name} with {pause.srv_name} "
+                  f"after {args.connect_timeout:g} s", file=sys.stderr)
+            return
+        executor.spin_once(timeout_sec=0.05)
+    resumed = pause.call_async(SetBool.Request(data=False))
+    executor.spin_until_future_complete(resumed, timeout_sec=max(0.0, deadline - time.monotonic()))
+    if not resumed.done():
+        print(f"prsm-demo controller: {pause.srv_name} did not answer within {args.connect_timeout:g} s",
+              file=sys.stderr)
+        return
+    tau_pub.publish(Float64(data=0.0))  # starts a lockstep node; harmless otherwise
+    kicked = time.monotonic()
+    wall_limit = kicked + args.wall_timeout
+    while not st["done"] and time.monotonic() < wall_limit:
+        executor.spin_once(timeout_sec=0.1)
+        if st["t0"] is None and time.monotonic() > kicked + 2.0:  # no first state yet: kick again
+            tau_pub.publish(Float64(data=0.0))
+            kicked = time.monotonic()
+    # pause the node where the run ends, so the bag stops with the tracked profile rather
+    # than with the load pushing an uncontrolled nut (not waited for beyond a few seconds)
+    executor.spin_until_future_complete(pause.call_async(SetBool.Request(data=True)), timeout_sec=5.0)
+
+
+PROGRESS_EVERY_S = 0.25  # simulated seconds between progress updates (a line on stderr, rewritten in place)
+
+
+def show_progress(st: dict, t: float, duration_s: float) -> None:
+    """The run's simulated time on stderr, every PROGRESS_EVERY_S, and a newline when it ends."""
+    if t - st["shown"] < PROGRESS_EVERY_S and t < duration_s:
+        return
+    st["shown"] = t
+    end = "\n" if t >= duration_s else ""
+    print(f"\rprsm-demo: {min(t, duration_s):.2f} of {duration_s:g} s simulated", end=end, file=sys.stderr, flush=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -203,6 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--connect-timeout", type=float, default=120.0,
                    help="wall seconds to wait for the node (a first start compiles its kernels)")
     p.add_argument("--wall-timeout", type=float, default=120.0, help="wall seconds before giving up")
+    p.add_argument("--progress", action="store_true", help="show the simulated time on stderr as the run goes")
     return p
 
 

@@ -165,25 +165,20 @@ def cmd_run(args) -> None:
     def progress(k: int) -> None:
         if bar is not None:
             bar.update(k - done[0])
-            done[0] = k
+        done[0] = k
 
-    traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
-    if bar is not None:
-        bar.close()
+    try:
+        traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
+    except KeyboardInterrupt:
+        _interrupted(f"at step {done[0]} of {n}: nothing written (a run's outputs are written when it ends; "
+                     "a shorter --duration ends sooner)")
+    finally:
+        if bar is not None:
+            bar.close()
     summary = {"preset": p.name, "model": args.model, "scenario": args.scenario, "dt_s": args.dt,
                "load_n": spec.load_n, "torque_nm": spec.torque_nm, "speed_reference_rad_s": spec.speed_rad_s,
                **summarise(traj)}
-    if args.csv:
-        _write_csv(args.csv, traj)
-        summary["csv"] = args.csv
-    if args.mcap:
-        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
-        try:
-            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
-                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
-        except OSError as e:
-            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
-        summary["mcap"] = args.mcap
+    summary.update(_write_outputs(args, traj, p, n))
     f = summary["final"]
     text = "\n".join([
         f"{p.name} / {args.model} / {args.scenario}: {summary['steps']} steps of {args.dt} s",
@@ -198,6 +193,36 @@ def cmd_run(args) -> None:
           f"(residual {summary['energy_guard']['residual_j']:.6g} J of {summary['energy_guard']['flow_j']:.6g} J); "
           "do not trust these results"] if summary["energy_guard"]["fault"] else []))
     _emit(args, summary, text)
+
+
+def _write_outputs(args, traj, p: Params, n: int) -> dict:
+    """Write the run's --csv and --mcap files; {"csv": path, "mcap": path} of those written."""
+    written: dict[str, str] = {}
+    if args.csv:
+        try:
+            _write_csv(args.csv, traj)
+        except KeyboardInterrupt:
+            _interrupted(f"while writing {args.csv}: the run ended ({len(traj)} steps) but the CSV is incomplete")
+        written["csv"] = args.csv
+    if args.mcap:
+        from prsm_ros.mcap.offline import write_trajectory_mcap  # no ROS needed: pip install 'prsm[bag]'
+        try:
+            write_trajectory_mcap(args.mcap, traj, p, args.model, preset_name=args.preset or p.name,
+                                  progress=not args.no_progress and n >= PROGRESS_MIN_STEPS)
+        except OSError as e:
+            raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
+        except KeyboardInterrupt:
+            kept = f"{args.csv} is complete; " if args.csv else ""
+            _interrupted(f"while writing {args.mcap}: {kept}the MCAP holds the steps written so far, without its "
+                         f"index (prsm-bag repair {args.mcap} rebuilds it)")
+        written["mcap"] = args.mcap
+    return written
+
+
+def _interrupted(what: str) -> None:
+    """Ctrl-C: say what was kept, in one line, and exit 130 (128 + SIGINT, as a shell reports it)."""
+    print(f"prsm-sim: interrupted {what}", file=sys.stderr)
+    raise SystemExit(130)
 
 
 def _actuator(args):
@@ -315,32 +340,9 @@ def _envelope_on_node(case: dict, args) -> dict:
 def cmd_envelope(args) -> None:
     from pathlib import Path
 
-    from prsm_ros.sweep.envelope import run_envelope, run_one
-    from prsm_sim.envelope import case_from_seed
+    from prsm_ros.sweep.envelope import run_envelope
     if args.seed is not None or args.case is not None:
-        if args.seed is not None:
-            case = case_from_seed(args.seed)
-        else:
-            try:
-                doc = yaml.safe_load(Path(args.case).read_text(encoding="utf-8"))
-            except (OSError, yaml.YAMLError) as e:
-                raise CliError(f"--case {args.case}: cannot read it ({getattr(e, 'strerror', None) or e})") from None
-            case = doc.get("case", doc) if isinstance(doc, dict) else None
-            if not isinstance(case, dict):
-                raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")
-        r = run_one(case)
-        node = _envelope_on_node(case, args) if args.node else None
-        if args.json:
-            print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
-        else:
-            print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
-                  f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
-                  + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
-            if node is not None:
-                print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
-                      + ("the same states" if node["ok"] else f"DIFFERS at {node['mismatch']}"))
-        if not r["ok"] or (node is not None and not node["ok"]):
-            raise SystemExit(1)
+        _envelope_one(args)
         return
     if args.node:
         raise CliError("--node: replays one case; give --seed N or --case FILE")
@@ -355,17 +357,57 @@ def cmd_envelope(args) -> None:
         if bar is not None:
             bar.update(done - bar.n)
 
-    summary = run_envelope(args.runs, Path(args.output), first_seed=args.first_seed, address=args.address,
-                           workers=args.workers, progress=progress)
-    if bar is not None:
-        bar.close()
+    try:
+        summary = run_envelope(args.runs, Path(args.output), first_seed=args.first_seed, address=args.address,
+                               workers=args.workers, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    if summary.get("interrupted"):
+        print(f"prsm-sim: interrupted: {summary['runs']} of {summary['requested']} runs done, {summary['failed']} "
+              f"broke an invariant (cases in {args.output}/failures, counts in {args.output}/summary.json); go on "
+              f"with --first-seed {summary['next_seed']}", file=sys.stderr)
+        raise SystemExit(130)
     print(dumps(summary) if args.json else
           f"{summary['runs']} runs on {summary['workers']} workers in {summary['wall_s']} s: {summary['failed']} "
           f"broke an invariant" + (f" (cases in {args.output}/failures)" if summary["failed"] else ""))
 
 
+def _envelope_one(args) -> None:
+    """`prsm-sim envelope --seed N | --case FILE [--node]`: one case, run here (and on the node)."""
+    from pathlib import Path
+
+    from prsm_ros.sweep.envelope import run_one
+    from prsm_sim.envelope import case_from_seed
+    if args.seed is not None:
+        case = case_from_seed(args.seed)
+    else:
+        try:
+            doc = yaml.safe_load(Path(args.case).read_text(encoding="utf-8"))
+        except (OSError, yaml.YAMLError) as e:
+            raise CliError(f"--case {args.case}: cannot read it ({getattr(e, 'strerror', None) or e})") from None
+        case = doc.get("case", doc) if isinstance(doc, dict) else None
+        if not isinstance(case, dict):
+            raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")
+    r = run_one(case)
+    node = _envelope_on_node(case, args) if args.node else None
+    if args.json:
+        print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
+    else:
+        print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
+              f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
+              + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
+        if node is not None:
+            print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
+                  + ("the same states" if node["ok"] else f"DIFFERS at {node['mismatch']}"))
+    if not r["ok"] or (node is not None and not node["ok"]):
+        raise SystemExit(1)
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from prsm_sim import __version__
     ap = argparse.ArgumentParser(prog="prsm-sim", description="Offline planetary roller screw simulation.")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--preset", choices=list(PRESETS), help="named parameter set (default jones2016)")

@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from prsm_sim import __version__
 from prsm_sim.errors import PrsmError
 
 from prsm_ros.json_out import dumps
@@ -31,7 +32,7 @@ def _workers(v: str) -> int:
 
 
 def cmd_run(args) -> int:
-    from prsm_ros.sweep import runner, study
+    from prsm_ros.sweep import execute, runner, study
     raw, norm, ex = study.load(args.study)
     out = Path(args.output)
     text = read_text_file(args.study, what="study file", error=study.StudyError)  # the file load() accepted
@@ -50,6 +51,8 @@ def cmd_run(args) -> int:
         rate = f" ({s['ran'] / s['wall_time_s']:.1f} runs/s incl. Ray start)" if s["ran"] else ""
         print(f"study {s['study']}: {s['runs']} runs, {s['ran']} run now{rate}, "
               f"{s['skipped']} already recorded, {s['failed']} failed → {out / runner.RUNS}")
+        for line in execute.undefined_text(s["undefined"]):
+            print(f"  {line}")
     return 0
 
 
@@ -98,6 +101,7 @@ def cmd_tune(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     ray_opts = argparse.ArgumentParser(add_help=False)
     ray_opts.add_argument("--address", metavar="HOST:PORT", help="run on this Ray cluster (default: an embedded Ray)")

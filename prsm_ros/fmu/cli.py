@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from prsm_sim import MODELS, PRESETS, PrsmError
+from prsm_sim import MODELS, PRESETS, PrsmError, __version__
 from prsm_sim.actuator import COMMAND_INTERFACES
 
 from prsm_ros.param_files import resolve_params
@@ -47,6 +47,7 @@ def cmd_build(args) -> None:
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="prsm-fmu", description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     b = sub.add_parser("build", help="build a co-simulation FMU of the actuator")
     b.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (2: pythonfmu, 3: pythonfmu3)")

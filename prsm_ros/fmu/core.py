@@ -7,7 +7,10 @@ prsm version), builds the session, and compiles the model's first step at instan
 
 The FMI contract as kept here:
 - doStep(t, h) with h a whole multiple k of the model step runs k `Session.step` calls with the
-  inputs held (a zero-order hold, as the library's own loop); any other h is refused.
+  inputs held (a zero-order hold, as the library's own loop); any other h is refused, and so is a k
+  above the library's run limit (`prsm_ros.limits.MAX_RUN_STEPS`), which would hold the importer
+  for hours. A doStep before initialisation ends, after terminate, or at a time other than where
+  the last step ended (backwards, or skipping ahead) is refused.
 - A NaN or infinite input, or a parameter value the library refuses, is not taken: the setter logs
   the variable, the value and why, and the next doStep fails with the same message (the instance's
   state unchanged) until a valid value is set. pythonfmu maps a Python exception to a fatal status,
@@ -15,7 +18,15 @@ The FMI contract as kept here:
 - A model failure (`ModelError`) fails the step with its reason; the session keeps its last finite
   state and refuses to step until the instance is reset.
 - The FMU state is the whole `Session.get_state()` plus the inputs and the tunable parameters, as
-  JSON-able data, so get/set/serialise continue a run bit for bit.
+  JSON-able data, so get/set/serialise continue a run bit for bit. A state that is refused (damaged
+  bytes, another build or version, values the session refuses) changes nothing and fails the next
+  doStep until a good state is set.
+- No Python exception reaches the FMI wrappers: pythonfmu's and pythonfmu3's C++ wrappers answer one
+  with a fatal status and release a reference to the slave's class and instance each time, so the
+  third one frees the class and the next call into the instance crashes the importer (a segfault).
+  Deserialising therefore never raises (`state_from_bytes`), and the slave's entry points turn
+  every refusal into a logged error. Log messages are cut to `MAX_LOG_CHARS`, so no state blob or
+  long value is ever printed.
 """
 
 from __future__ import annotations
@@ -24,15 +35,20 @@ import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
 from prsm_sim import InputError, ModelError, ParamError, PrsmError, __version__
-from prsm_sim.actuator import ACTUATOR_QUANTITIES
+from prsm_sim.actuator import ACTUATOR_QUANTITIES, MEASURED_QUANTITIES
 from prsm_ros.fmu.config import CONFIG_NAME, check_version, session_from_config
+from prsm_ros.limits import MAX_RUN_STEPS
 
 STATE_FORMAT = "prsm-fmu-state/1"
+UNREADABLE = "unreadable"  # the key of what `state_from_bytes` returns for bytes that hold no state
+MAX_LOG_CHARS = 400  # a log message longer than this is cut (a refused value or state is never printed whole)
+# What a state's content can raise as it is checked and applied (wrong types, shapes, huge numbers, nesting)
+_STATE_ERRORS = (PrsmError, AttributeError, KeyError, TypeError, ValueError, OverflowError, RecursionError)
 
 # FMI unit names and their SI base-unit exponents (FMI's BaseUnit attributes)
 UNITS: dict[str, dict[str, int]] = {
@@ -84,15 +100,16 @@ _FLAG_OUTPUTS = (
     ("at_stop", "1", "1 while the nut presses on an end stop, else 0"),
     ("brake_engaged", "1", "1 while the holding brake is commanded engaged, else 0"),
 )
-_MEASURED_OUTPUTS = (  # (FMU name, unit, description, index into MEASURED_QUANTITIES)
-    ("measured_motor_angle_rad", "rad", "motor encoder angle (screw side) as measured", 0),
-    ("measured_screw_angle_rad", "rad", "screw angle as measured", 1),
-    ("measured_screw_speed_rad_s", "rad/s", "screw speed as measured", 2),
-    ("measured_nut_position_m", "m", "nut position as measured", 3),
-    ("measured_nut_velocity_m_s", "m/s", "nut velocity as measured", 4),
-    ("measured_nut_force_n", "N", "nut force as measured by the load cell", 5),
+_MEASURED_OUTPUTS = (  # (FMU name, unit, description, the quantity's name in MEASURED_QUANTITIES)
+    ("measured_motor_angle_rad", "rad", "motor encoder angle (screw side) as measured", "motor_angle_rad"),
+    ("measured_screw_angle_rad", "rad", "screw angle as measured", "screw_angle_rad"),
+    ("measured_screw_speed_rad_s", "rad/s", "screw speed as measured", "screw_speed_rad_s"),
+    ("measured_nut_position_m", "m", "nut position as measured", "nut_position_m"),
+    ("measured_nut_velocity_m_s", "m/s", "nut velocity as measured", "nut_velocity_m_s"),
+    ("measured_nut_force_n", "N", "nut force as measured by the load cell", "nut_force_n"),
 )
 _ACTUATOR_NAMES = tuple(n for n, _ in ACTUATOR_QUANTITIES)
+_MEASURED_NAMES = tuple(n for n, _ in MEASURED_QUANTITIES)
 # Tunable parameters with an actuator: FMU name → (group, field, unit, description); the drive's gains
 # start at the values it was tuned to (DriveParams.tuned), so setting one changes only that one.
 _DRIVE_TUNABLES = {
@@ -105,6 +122,23 @@ _MOTOR_TUNABLES = {
     "motor_torque_limit_nm": ("motor", "torque_limit_nm", "N.m", "motor torque limit"),
     "motor_current_limit_a": ("motor", "current_limit_a", "A", "motor current limit"),
 }
+
+
+def brief(msg: str, limit: int = MAX_LOG_CHARS) -> str:
+    """`msg` cut to `limit` characters, saying how much was left out."""
+    return msg if len(msg) <= limit else f"{msg[:limit]}… ({len(msg) - limit} more characters not shown)"
+
+
+def state_from_bytes(data: bytes) -> dict:
+    """The FMU state serialised in `data` (UTF-8 JSON), or `{UNREADABLE: why}`; never raises.
+
+    The slaves use it as pythonfmu's `_fmu_state_from_bytes`: an exception there would be fatal and
+    corrupt the wrapper (see the module's notes); `SlaveCore.set_state` refuses the marker instead.
+    """
+    try:
+        return json.loads(bytes(data).decode("utf-8"))
+    except (ValueError, RecursionError, TypeError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        return {UNREADABLE: f"{len(data)} bytes that are not a serialised state ({type(e).__name__})"}
 
 
 def _step_count(h: float, dt: float) -> int | None:
@@ -134,7 +168,7 @@ class SlaveCore:
             raise ParamError(f"{path}: cannot read the FMU's configuration ({e})") from None
         check_version(config)
         self.config = config
-        self.log = log
+        self.log = lambda msg, status: log(brief(msg), status)
         self.session = session_from_config(config)
         session_from_config(config).step()  # a throwaway copy compiles the first step here, not in a doStep
         s = self.session
@@ -168,6 +202,18 @@ class SlaveCore:
         self._row: dict[str, float] | None = None
         self._h = None  # the last communication step and its step count
         self._k = 0
+        self.phase = "instantiated"  # → "initialising" → "stepping" → "terminated" (FMI's order of calls)
+        self._origin_s: float | None = None  # importer time at session time 0, fixed by the first step taken
+
+    # -- the FMI life cycle -------------------------------------------------------------------
+    def enter_initialization(self) -> None:
+        self.phase = "initialising"
+
+    def exit_initialization(self) -> None:
+        self.phase = "stepping"
+
+    def terminate(self) -> None:
+        self.phase = "terminated"
 
     # -- the variable list ------------------------------------------------------------------
     def _variables(self, with_actuator: bool) -> list[Variable]:
@@ -249,6 +295,9 @@ class SlaveCore:
     # -- stepping -----------------------------------------------------------------------------
     def do_step(self, current_time: float, step_size: float) -> str | None:
         """Advance the communication step; None, or why it failed (already logged)."""
+        why = self._out_of_order(current_time)
+        if why is not None:
+            return self._fail(why + "; the step was not taken")
         if self._refused:
             return self._fail("; ".join(self._refused.values()) + "; the step was not taken")
         if step_size != self._h:
@@ -256,7 +305,12 @@ class SlaveCore:
             if k is None:
                 return self._fail(f"communication step {step_size!r} s: must be a whole multiple of the model "
                                   f"step dt_s = {self.dt_s!r} s")
+            if k > MAX_RUN_STEPS:
+                return self._fail(f"communication step {step_size!r} s: {k} model steps of {self.dt_s!r} s; at most "
+                                  f"{MAX_RUN_STEPS} per doStep (the library's limit for one run)")
             self._h, self._k = step_size, k
+        if self._origin_s is None:
+            self._origin_s = current_time - self.session.time_s
         step, cmd, load = self.session.step, self.inputs[self.command_name], self.inputs["load_force_n"]
         self._row = None
         try:
@@ -264,6 +318,23 @@ class SlaveCore:
                 step(cmd, load)
         except ModelError as e:
             return self._fail(f"model failure at t = {self.session.time_s!r} s: {e}")
+        except PrsmError as e:  # an input the session refuses (e.g. a position command off the threads)
+            return self._fail(f"step refused at t = {self.session.time_s!r} s: {e}")
+        return None
+
+    def _out_of_order(self, current_time: float) -> str | None:
+        """Why a doStep at `current_time` is out of FMI's order of calls, or None."""
+        if self.phase != "stepping":
+            return (f"doStep {'after terminate' if self.phase == 'terminated' else 'before initialisation ended'}: "
+                    "steps are taken between exitInitializationMode and terminate")
+        if not math.isfinite(current_time):
+            return f"doStep at t = {current_time!r} s: the communication point must be a finite time"
+        if self._origin_s is not None:
+            at = self._origin_s + self.session.time_s
+            if abs(current_time - at) > 0.5 * self.dt_s:  # to rounding of the importer's sum of steps
+                return (f"doStep at t = {current_time!r} s: this instance is at t = {at!r} s "
+                        f"({'back in time' if current_time < at else 'a gap'}); a step starts where the last one "
+                        "ended, or at a saved state's time after setting it")
         return None
 
     def _fail(self, msg: str) -> str:
@@ -290,9 +361,9 @@ class SlaveCore:
             row["peak_tooth_load_n"] = float(np.abs(view("per_tooth")).max())
         if s.actuator is not None:
             a = dict(zip(_ACTUATOR_NAMES, view("actuator").tolist()))
-            m = view("measured").tolist()
-            for n, _, _, i in _MEASURED_OUTPUTS:
-                row[n] = m[i]
+            m = dict(zip(_MEASURED_NAMES, view("measured").tolist()))
+            for n, _, _, q in _MEASURED_OUTPUTS:
+                row[n] = m[q]
             row["motor_current_a"] = a["motor_current_a"]
             row["motor_torque_nm"] = a["motor_torque_nm"]
             row["stop_force_n"] = a["stop_force_n"]
@@ -307,28 +378,56 @@ class SlaveCore:
         return {"format": STATE_FORMAT, "prsm_version": __version__, "session": self.session.get_state(),
                 "inputs": dict(self.inputs), "tunables": dict(self.tunables)}
 
-    def set_state(self, state: dict) -> None:
-        """Continue from a state of `get_state` (this process or another); refused → logged, next doStep fails."""
+    def set_state(self, state: dict) -> bool:
+        """Continue from a state of `get_state` (this process or another): True when taken; refused →
+        False, nothing changed, logged, and the next doStep fails until a good state is set."""
+        before = self.get_state()
         try:
-            if not isinstance(state, dict) or state.get("format") != STATE_FORMAT:
-                raise InputError(f"FMU state: not a prsm FMU state ({STATE_FORMAT})")
-            if state.get("prsm_version") != __version__:
-                raise InputError(f"FMU state saved by prsm {state.get('prsm_version')!r}: this is prsm "
-                                 f"{__version__!r}; a state continues only on the version that saved it")
-            if set(state["inputs"]) != set(self.inputs) or set(state["tunables"]) != set(self.tunables):
-                raise InputError("FMU state: its variables are not this FMU's (another build)")
-            for name, value in state["tunables"].items():
-                if value != self.tunables[name]:
-                    self._tune(name, value)
-            self.session.set_state(state["session"])
-            self.inputs = {k: float(v) for k, v in state["inputs"].items()}
-        except (PrsmError, AttributeError, KeyError, TypeError, ValueError) as e:  # whatever the bytes held
+            self._apply_state(state)
+        except _STATE_ERRORS as e:  # whatever the bytes held: nothing of it stays
+            self._apply_state(before)
             msg = f"FMU state refused: {e}"
             self._refused["FMU state"] = msg
             self.log(msg, "error")
-            return
+            return False
         self._refused.pop("FMU state", None)
         self._row = None
+        return True
+
+    def _apply_state(self, state: dict) -> None:
+        """Check and apply a state of `get_state`; raises what the content gives rise to."""
+        if isinstance(state, dict) and UNREADABLE in state:
+            raise InputError(f"FMU state: {state[UNREADABLE]}")
+        if not isinstance(state, dict) or state.get("format") != STATE_FORMAT:
+            raise InputError(f"FMU state: not a prsm FMU state ({STATE_FORMAT})")
+        if state.get("prsm_version") != __version__:
+            raise InputError(f"FMU state saved by prsm {state.get('prsm_version')!r}: this is prsm "
+                             f"{__version__!r}; a state continues only on the version that saved it")
+        if set(state["inputs"]) != set(self.inputs) or set(state["tunables"]) != set(self.tunables):
+            raise InputError("FMU state: its variables are not this FMU's (another build)")
+        for name, value in state["tunables"].items():
+            if value != self.tunables[name]:
+                self._tune(name, float(value))
+        self.session.set_state(state["session"])
+        inputs = {k: float(v) for k, v in state["inputs"].items()}
+        bad = [k for k, v in inputs.items() if not math.isfinite(v)]
+        if bad:
+            raise InputError(f"FMU state: input {bad[0]} = {inputs[bad[0]]!r}: must be a finite number")
+        self.inputs = inputs
+
+
+def life_cycle():
+    """The slave's enterInitializationMode, exitInitializationMode and terminate, passed to its core
+    (which then refuses a doStep out of FMI's order)."""
+    def enter_initialization_mode(slave) -> None:
+        slave.core.enter_initialization()
+
+    def exit_initialization_mode(slave) -> None:
+        slave.core.exit_initialization()
+
+    def terminate(slave) -> None:
+        slave.core.terminate()
+    return enter_initialization_mode, exit_initialization_mode, terminate
 
 
 def attach(slave, statuses: dict, experiment) -> SlaveCore:

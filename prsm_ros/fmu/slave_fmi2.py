@@ -13,7 +13,7 @@ from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
-from prsm_ros.fmu.core import UNITS, attach
+from prsm_ros.fmu.core import UNITS, attach, life_cycle, state_from_bytes
 
 _STATUS = {"ok": Fmi2Status.ok, "warning": Fmi2Status.warning, "error": Fmi2Status.error}
 _CAUSALITY = {"input": Fmi2Causality.input, "output": Fmi2Causality.output, "parameter": Fmi2Causality.parameter}
@@ -33,6 +33,10 @@ class PrsmActuator(Fmi2Slave):
                                         getter=getter, setter=setter))
             self._units[v.name] = v.unit
 
+    # FMI's order of calls, kept by the core; deserialising never raises (see prsm_ros.fmu.core)
+    enter_initialization_mode, exit_initialization_mode, terminate = life_cycle()
+    _fmu_state_from_bytes = staticmethod(state_from_bytes)
+
     def do_step(self, current_time, step_size):
         return self.core.do_step(current_time, step_size) is None
 
@@ -42,9 +46,9 @@ class PrsmActuator(Fmi2Slave):
     def _set_fmu_state(self, state):
         self.core.set_state(state)
 
-    def to_xml(self, model_options=dict()):
+    def to_xml(self, model_options=None):
         """pythonfmu's description plus units (FMI 2.0 UnitDefinitions) and the outputs' InitialUnknowns."""
-        root = super().to_xml(model_options)
+        root = super().to_xml(model_options or {})
         used = sorted(set(self._units.values()))
         defs = Element("UnitDefinitions")
         for u in used:

@@ -10,7 +10,7 @@ from pythonfmu3 import Fmi3Causality, Fmi3Slave, Fmi3Status, Fmi3StepResult, Fmi
 from pythonfmu3.default_experiment import DefaultExperiment
 from pythonfmu3.unit import Unit
 
-from prsm_ros.fmu.core import UNITS, attach
+from prsm_ros.fmu.core import UNITS, attach, life_cycle, state_from_bytes
 
 _STATUS = {"ok": Fmi3Status.ok, "warning": Fmi3Status.warning, "error": Fmi3Status.error}
 _CAUSALITY = {"input": Fmi3Causality.input, "output": Fmi3Causality.output, "parameter": Fmi3Causality.parameter}
@@ -37,13 +37,17 @@ class PrsmActuator(Fmi3Slave):
             used.add(v.unit)
         self.register_units([Unit(u, **UNITS[u]) for u in sorted(used)])
 
-    def to_xml(self, model_options=dict()):
+    def to_xml(self, model_options=None):
         """pythonfmu3's description with start values written to come back exact (it writes 16 digits)."""
-        root = super().to_xml(model_options)
+        root = super().to_xml(model_options or {})
         for v in root.find("ModelVariables"):
             if v.get("start") is not None and v.get("name") != "time":
                 v.set("start", repr(self.core.get(v.get("name"))))
         return root
+
+    # FMI's order of calls, kept by the core; deserialising never raises (see prsm_ros.fmu.core)
+    enter_initialization_mode, exit_initialization_mode, terminate = life_cycle()
+    _fmu_state_from_bytes = staticmethod(state_from_bytes)
 
     def do_step(self, current_time, step_size):
         if self.core.do_step(current_time, step_size) is not None:
@@ -55,6 +59,6 @@ class PrsmActuator(Fmi3Slave):
         return {"time": self.time, "core": self.core.get_state()}
 
     def _set_fmu_state(self, state):
-        self.core.set_state(state.get("core") if isinstance(state, dict) else None)
-        if isinstance(state, dict) and isinstance(state.get("time"), float):
+        core = state.get("core") if isinstance(state, dict) and "core" in state else state  # or an unreadable one
+        if self.core.set_state(core) and isinstance(state.get("time"), float):
             self.time = state["time"]

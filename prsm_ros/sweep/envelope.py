@@ -41,34 +41,25 @@ def failure_yaml(case: dict, violations: list[str]) -> str:
 
 def run_envelope(runs: int, out: Path, *, first_seed: int = 0, address: str | None = None,
                  workers: int | None = None, progress=None) -> dict:
-    """Run `runs` cases from `first_seed` on Ray; write failures and the summary under `out`."""
-    from prsm_ros.sweep.runner import connect, disconnect
-    from prsm_sim.envelope import case_from_seed
+    """Run `runs` cases from `first_seed` on Ray; write failures and the summary under `out`.
+
+    Ctrl-C stops the run and keeps what finished: the failures written so far and a summary with
+    `interrupted: true` and `next_seed`, the first seed not run (to go on with `--first-seed`).
+    """
+    from prsm_ros.ray_runner import connect, disconnect
 
     out.mkdir(parents=True, exist_ok=True)
-    fail_dir = out / "failures"
     ray, owned, tmp = connect(address, workers)
     t0 = time.time()
+    seeds = list(range(first_seed, first_seed + runs))
+    done_rows: list[dict] = []
+    interrupted = False
+    n_workers = 0
     try:
-        task = ray.remote(_run_batch)
-        seeds = list(range(first_seed, first_seed + runs))
-        batches = [seeds[i:i + BATCH] for i in range(0, len(seeds), BATCH)]
         n_workers = int(ray.cluster_resources().get("CPU", 1))
-        pending, done_rows, next_batch = [], [], 0
-        while next_batch < len(batches) or pending:
-            while next_batch < len(batches) and len(pending) < 2 * n_workers:
-                pending.append(task.remote(batches[next_batch]))
-                next_batch += 1
-            ready, pending = ray.wait(pending, num_returns=1)
-            for rows in ray.get(ready):
-                for row in rows:
-                    done_rows.append(row)
-                    if row["violations"]:
-                        fail_dir.mkdir(exist_ok=True)
-                        (fail_dir / f"seed-{row['seed']}.yaml").write_text(
-                            failure_yaml(case_from_seed(row["seed"]), row["violations"]), encoding="utf-8")
-            if progress:
-                progress(len(done_rows), runs)
+        _run_batches(ray, seeds, n_workers, out / "failures", done_rows, progress)
+    except KeyboardInterrupt:
+        interrupted = True
     finally:
         disconnect(ray, owned, tmp)
     failed = [r for r in done_rows if r["violations"]]
@@ -80,8 +71,34 @@ def run_envelope(runs: int, out: Path, *, first_seed: int = 0, address: str | No
                "wall_s": round(time.time() - t0, 1), "cpu_s": round(sum(r["seconds"] for r in done_rows), 1),
                "steps": sum(r["steps"] for r in done_rows), "failures_by_kind": by_kind,
                "failed_seeds": [r["seed"] for r in failed][:200]}
+    if interrupted:
+        ran = {r["seed"] for r in done_rows}
+        summary.update(interrupted=True, requested=runs, next_seed=min(s for s in seeds if s not in ran))
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     return summary
+
+
+def _run_batches(ray, seeds: list[int], n_workers: int, fail_dir: Path, done_rows: list[dict], progress) -> None:
+    """Run `seeds` in batches as Ray tasks, two per CPU in flight; each failure written as its batch ends."""
+    from prsm_sim.envelope import case_from_seed
+    task = ray.remote(_run_batch)
+    batches = [seeds[i:i + BATCH] for i in range(0, len(seeds), BATCH)]
+    pending: list = []
+    next_batch = 0
+    while next_batch < len(batches) or pending:
+        while next_batch < len(batches) and len(pending) < 2 * n_workers:
+            pending.append(task.remote(batches[next_batch]))
+            next_batch += 1
+        ready, pending = ray.wait(pending, num_returns=1)
+        for rows in ray.get(ready):
+            for row in rows:
+                done_rows.append(row)
+                if row["violations"]:
+                    fail_dir.mkdir(exist_ok=True)
+                    (fail_dir / f"seed-{row['seed']}.yaml").write_text(
+                        failure_yaml(case_from_seed(row["seed"]), row["violations"]), encoding="utf-8")
+        if progress:
+            progress(len(done_rows), len(seeds))
 
 
 def run_one(case: dict) -> dict:

@@ -138,6 +138,39 @@ def failed_row(norm: dict, spec: dict, error: BaseException, wall_time_s: float 
             "wall_time_s": wall_time_s}
 
 
+# Why a metric of a finished run is NaN (undefined, not failed): by the metric's name (before any @selector)
+UNDEFINED_WHY = {
+    "efficiency": "no net power reached the load in the run's tail (the screw stood still, e.g. a load held by "
+                  "static friction, or a run shorter than the scenario's 0.1 s speed ramp)",
+    "speed_ratio": "the screw did not turn in the run's tail",
+    "energy_residual_rel": "no work went in",
+}
+UNDEFINED_PEAK_WHY = "the model has no such internal load"
+
+
+def undefined(rows: list[dict], metrics: list[str]) -> dict[str, dict]:
+    """Metrics that are NaN in finished runs: {metric: {"runs", "of", "why"}}, only those with any.
+
+    A failed run's metrics are NaN because it failed (its error says why); these are runs that
+    finished and measured nothing, which a study's statistics would otherwise pass over in silence.
+    """
+    ok = [r for r in rows if r.get("status") == "ok"]
+    out = {}
+    for m in metrics:
+        n = sum(1 for r in ok if not (isinstance(r.get(m), (int, float)) and math.isfinite(r[m])))
+        if n:
+            base = m.partition("@")[0]
+            why = UNDEFINED_PEAK_WHY if base.startswith("peak_") else UNDEFINED_WHY.get(
+                base, "the metric is not defined for these runs")
+            out[m] = {"runs": n, "of": len(ok), "why": why}
+    return out
+
+
+def undefined_text(undef: dict[str, dict]) -> list[str]:
+    """One line per metric of `undefined`, for the CLI's summary and the report."""
+    return [f"{m}: NaN in {u['runs']} of {u['of']} finished runs: {u['why']}" for m, u in undef.items()]
+
+
 def run_batch(norm: dict, specs: list[dict], decimate: int | None = None) -> list[tuple[dict, object]]:
     """Several runs in one task: amortises the task overhead over runs too short to carry it."""
     return [run_one(norm, s, decimate) for s in specs]

@@ -13,10 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from prsm_ros.sweep.execute import undefined, undefined_text
 from prsm_ros.sweep.runner import read_study_dir, recorded_rows
 from prsm_ros.sweep.study import StudyError
 
 PERCENTILES = (5, 50, 95)
+MIN_PLOTTED = 2  # a metric with values in fewer runs gets no plots (one point shows no spread or trend)
 
 
 def load_runs(out: Path):
@@ -91,6 +93,8 @@ def plots(df, inputs: list[str], metrics: list[str], sens: dict, out: Path) -> l
     for m in metrics:
         v = ok[m].to_numpy(dtype=float)
         v = v[np.isfinite(v)]
+        if v.size < MIN_PLOTTED:  # the report's text says how many runs have a value, and why the rest do not
+            continue
         if v.size:
             fig, ax = plt.subplots(figsize=(5, 3.5))
             ax.hist(v, bins=min(30, max(5, v.size // 5)))
@@ -127,6 +131,7 @@ def build(out: Path, make_plots: bool = True) -> dict:
               "runs_ok": int((df["status"] == "ok").sum()), "runs_failed": int(len(failed)),
               "failures": [{"run_id": int(r["run_id"]), "error": r["error"]} for _, r in failed.head(20).iterrows()],
               "statistics": statistics(df, metrics), "sensitivities": sens,
+              "undefined": undefined(df.to_dict("records"), metrics),
               "wall_time_s_per_run": float(df["wall_time_s"].mean())}
     from prsm_ros.sweep.study import run_specs
     report["runs_planned"] = len(run_specs(norm))
@@ -148,6 +153,10 @@ def text(report: dict) -> str:
                      f"p50 {s['p50']:.6g}  p95 {s['p95']:.6g}  max {s['max']:.6g}  (n={s['count']})")
         for r in report["sensitivities"].get(m, []):
             lines.append(f"      ρ = {r['spearman_rho']:+.3f}  {r['input']}")
+    lines += [f"  {line}" for line in undefined_text(report["undefined"])]
+    unplotted = [m for m, s in report["statistics"].items() if s.get("count", 0) < MIN_PLOTTED]
+    if report["plots"] and unplotted:
+        lines.append(f"  no plots of {', '.join(unplotted)}: fewer than {MIN_PLOTTED} runs with a value")
     for f in report["failures"]:
         lines.append(f"  failed run {f['run_id']}: {f['error']}")
     if report["plots"]:

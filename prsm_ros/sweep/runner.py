@@ -13,13 +13,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
-import socket
 import sys
-import tempfile
 import time
 from pathlib import Path
 
+from prsm_ros.ray_runner import (  # noqa: F401  (public names kept here)
+    LOCAL_ONLY_ENV, LOOPBACK, RayUnavailable, connect, disconnect, reachable, start_embedded)
 from prsm_ros.sweep import execute
 from prsm_ros.sweep.study import StudyError, run_specs, study_hash
 
@@ -28,19 +27,6 @@ PARTS = "parts"
 TRAJECTORIES = "trajectories"
 STUDY_JSON = "study.json"
 TASKS_PER_WORKER = 4  # batches per worker for `runs_per_task: auto`: enough to balance, few enough to amortise
-# An embedded Ray is for this machine only. Ray takes the node's address from the network (its
-# route to the outside) and its gRPC servers (GCS, raylet, object manager, workers) then listen
-# on every interface; with cluster mode off (Ray's switch for single-machine platforms, read when
-# Ray is imported and inherited by the processes it starts) the node address is the loopback
-# one and every server listens on 127.0.0.1 only. Token authentication, which Ray 2.60 turns on
-# for a new local cluster unless RAY_AUTH_MODE says otherwise, guards those ports against other
-# users of this machine.
-LOCAL_ONLY_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
-LOOPBACK = "127.0.0.1"
-
-
-class RayUnavailable(StudyError):
-    """Ray could not be started or reached."""
 
 
 def prepare_dir(out: Path, norm: dict, source_text: str | None = None) -> str:
@@ -114,76 +100,6 @@ def consolidate(out: Path) -> int:
     return len(rows)
 
 
-def _reachable(address: str, timeout_s: float = 3.0) -> None:
-    host, sep, port = address.rpartition(":")
-    if not sep or not port.isdigit():
-        raise RayUnavailable(f"--address {address!r}: expected HOST:PORT of a Ray head (e.g. 10.0.0.5:6379) or auto")
-    try:
-        socket.create_connection((host, int(port)), timeout=timeout_s).close()
-    except OSError as e:
-        raise RayUnavailable(f"--address {address}: no Ray head reachable there ({e.strerror or e})") from None
-
-
-def connect(address: str | None, workers: int | None):
-    """Start or join Ray → (ray module, shutdown-when-done, temp dir to remove).
-
-    An already initialised Ray (a caller's own, e.g. a test's) is used as it is. An embedded
-    Ray gets its own short temp dir (unix socket paths are limited to ~100 characters), no
-    dashboard and listens on loopback only (`start_embedded`); `workers` caps its CPUs.
-    """
-    if not address:
-        os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported (see start_embedded)
-    try:
-        import ray
-    except ImportError as e:
-        raise ImportError("ray is not installed; install the sweep extra: pip install 'prsm[sweep]'", name="ray") from e
-    if ray.is_initialized():
-        return ray, False, None
-    if address and address != "auto":
-        _reachable(address)
-    tmp = None
-    try:
-        if address:
-            ray.init(address=address, logging_level="ERROR", log_to_driver=False)
-        else:
-            tmp = tempfile.mkdtemp(prefix="prsmray-", dir="/tmp")
-            start_embedded(workers or os.cpu_count() or 1, tmp)
-    except Exception as e:  # Ray's own errors (ConnectionError, RuntimeError, ...): one line for the user
-        if tmp:
-            shutil.rmtree(tmp, ignore_errors=True)
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        hint = " (a head with token authentication needs RAY_AUTH_MODE=token here)" if address else ""
-        raise RayUnavailable(f"cannot {'join Ray at ' + address if address else 'start Ray'}: {first}{hint}") from None
-    return ray, True, tmp
-
-
-def start_embedded(num_cpus: int, temp_dir: str) -> None:
-    """`ray.init` of a Ray on this machine only (loopback, no dashboard, workers at normal priority).
-
-    StudyError when Ray would still listen on another address.
-    """
-    os.environ.update(LOCAL_ONLY_ENV)  # before Ray is imported, and for the processes it starts
-    import ray
-    # worker_niceness 0: Ray nices its workers (15) by default, which starves a study's runs
-    # behind any normal-priority process on a busy machine; here the tasks are the work
-    ray.init(num_cpus=num_cpus, _temp_dir=temp_dir, include_dashboard=False, _node_ip_address=LOOPBACK,
-             logging_level="ERROR", log_to_driver=False, _system_config={"worker_niceness": 0})
-    node_ip = ray.util.get_node_ip_address()
-    if node_ip != LOOPBACK:
-        ray.shutdown()
-        # Ray reads the switch when it is imported: a caller (a notebook) imported it before this ran
-        raise StudyError(f"the embedded Ray would listen on {node_ip}, not only on {LOOPBACK}: set "
-                           f"{', '.join(f'{k}={v}' for k, v in LOCAL_ONLY_ENV.items())} in the environment "
-                           "before Ray is imported")
-
-
-def disconnect(ray, owned: bool, tmp: str | None) -> None:
-    if owned:
-        ray.shutdown()
-    if tmp:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def batch_size(n_runs: int, workers: int, runs_per_task) -> int:
     if runs_per_task != "auto":
         return int(runs_per_task)
@@ -195,63 +111,69 @@ def run_study(norm: dict, out: Path, *, address: str | None = None, workers: int
               progress: bool = True, source_text: str | None = None) -> dict:
     """Run every run of `norm` not yet recorded in `out`; returns counts and the wall time."""
     if address and address != "auto":
-        _reachable(address)  # before anything is written
+        reachable(address)  # before anything is written
     h = prepare_dir(out, norm, source_text)
     specs = run_specs(norm)
     done = {int(r["run_id"]): r["status"] for r in recorded_rows(out)}
     todo = [s for s in specs if s["run_id"] not in done or (retry_failed and done[s["run_id"]] != "ok")]
     summary = {"study": h, "dir": str(out), "runs": len(specs), "skipped": len(specs) - len(todo), "ran": 0,
                "failed": 0, "wall_time_s": 0.0}
-    if not todo:
-        consolidate(out)
-        summary["failed"] = sum(1 for r in recorded_rows(out) if r["status"] != "ok")
-        return summary
     t0 = time.perf_counter()
-    ray, owned, tmp = connect(address, workers)
-    try:
-        n_workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
-        # --workers N: at most N tasks at once (a cap on a shared cluster too); otherwise two per CPU,
-        # so a CPU never waits for the driver to hand it the next batch
-        window = workers or 2 * n_workers
-        size = batch_size(len(todo), n_workers, runs_per_task)
-        batches = [todo[i:i + size] for i in range(0, len(todo), size)]
-        task = ray.remote(num_cpus=1)(execute.run_batch)
-        norm_ref = ray.put(norm)
-        (out / PARTS).mkdir(exist_ok=True)
-        from tqdm import tqdm
-        bar = tqdm(total=len(todo), unit="run", file=sys.stderr, disable=not progress, desc=f"study {h}")
-        pending: dict = {}
-        queue = list(batches)
+    if todo:
+        ray, owned, tmp = connect(address, workers)
         try:
-            while queue or pending:
-                while queue and len(pending) < window:  # a bounded window: memory stays flat
-                    b = queue.pop(0)
-                    pending[task.remote(norm_ref, b, decimate)] = b
-                ready, _ = ray.wait(list(pending), num_returns=1)
-                for ref in ready:
-                    batch = pending.pop(ref)
-                    try:
-                        results = ray.get(ref)
-                    except (ray.exceptions.RayTaskError, ray.exceptions.WorkerCrashedError,
-                            ray.exceptions.TaskCancelledError) as e:  # the task died, not a run: its runs failed
-                        results = [(execute.failed_row(norm, spec, e), None) for spec in batch]
-                    _record(out, batch[0]["run_id"], results)
-                    summary["ran"] += len(results)
-                    summary["failed"] += sum(1 for row, _ in results if row["status"] != "ok")
-                    bar.update(len(results))
+            _run_batches(ray, owned, norm, out, todo, summary, workers=workers, runs_per_task=runs_per_task,
+                         decimate=decimate, progress=progress)
         finally:
-            bar.close()
-            if not owned:  # our own embedded Ray ends its workers at shutdown; a shared cluster is asked
-                # to stop ours. Never force=True: a batch finishing as its worker is killed makes Ray 2.60's
-                # driver abort ("Tried to complete task that was not pending"), losing the exit status.
-                for ref in pending:
-                    ray.cancel(ref)
-            consolidate(out)
-    finally:
-        disconnect(ray, owned, tmp)
-    summary["failed"] = sum(1 for r in recorded_rows(out) if r["status"] != "ok")
-    summary["wall_time_s"] = time.perf_counter() - t0
+            disconnect(ray, owned, tmp)
+        summary["wall_time_s"] = time.perf_counter() - t0
+    else:
+        consolidate(out)
+    rows = recorded_rows(out)
+    summary["failed"] = sum(1 for r in rows if r["status"] != "ok")
+    summary["undefined"] = execute.undefined(rows, norm["metrics"])
     return summary
+
+
+def _run_batches(ray, owned: bool, norm: dict, out: Path, todo: list[dict], summary: dict, *,
+                 workers: int | None, runs_per_task, decimate: int | None, progress: bool) -> None:
+    """Run `todo` in batches as Ray tasks, a bounded window in flight, each batch recorded as it ends."""
+    n_workers = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+    # --workers N: at most N tasks at once (a cap on a shared cluster too); otherwise two per CPU,
+    # so a CPU never waits for the driver to hand it the next batch
+    window = workers or 2 * n_workers
+    size = batch_size(len(todo), n_workers, runs_per_task)
+    queue = [todo[i:i + size] for i in range(0, len(todo), size)]
+    task = ray.remote(num_cpus=1)(execute.run_batch)
+    norm_ref = ray.put(norm)
+    (out / PARTS).mkdir(exist_ok=True)
+    from tqdm import tqdm
+    bar = tqdm(total=len(todo), unit="run", file=sys.stderr, disable=not progress, desc=f"study {summary['study']}")
+    pending: dict = {}
+    try:
+        while queue or pending:
+            while queue and len(pending) < window:  # a bounded window: memory stays flat
+                b = queue.pop(0)
+                pending[task.remote(norm_ref, b, decimate)] = b
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                batch = pending.pop(ref)
+                try:
+                    results = ray.get(ref)
+                except (ray.exceptions.RayTaskError, ray.exceptions.WorkerCrashedError,
+                        ray.exceptions.TaskCancelledError) as e:  # the task died, not a run: its runs failed
+                    results = [(execute.failed_row(norm, spec, e), None) for spec in batch]
+                _record(out, batch[0]["run_id"], results)
+                summary["ran"] += len(results)
+                bar.update(len(results))
+    finally:
+        bar.close()
+        if not owned:  # our own embedded Ray ends its workers at shutdown; a shared cluster is asked
+            # to stop ours. Never force=True: a batch finishing as its worker is killed makes Ray 2.60's
+            # driver abort ("Tried to complete task that was not pending"), losing the exit status.
+            for ref in pending:
+                ray.cancel(ref)
+        consolidate(out)
 
 
 def _record(out: Path, first_id: int, results: list) -> None:

@@ -63,9 +63,6 @@ CONTROLLER_KEYS = ("bandwidth_hz", "damping", "integral_ratio", "max_torque_nm",
 REFERENCE_KEYS = ("amplitude_m", "frequency_hz")
 TOP_KEYS = ("preset", "params", "model", "scenario", "duration_s", "dt_s", "set", "vary", "samples", "seed",
             "metrics", "runs_per_task", "trajectories", "life", "tune", "actuator")
-# not part of the study's identity: how it is executed and what is kept besides the table
-EXECUTION_KEYS = ("runs_per_task", "trajectories", "tune")
-
 SELECTORS = ("final", "mean", "max", "min", "rms")
 COLUMN_NAMES = tuple(n for n, _ in OUTPUT_FIELDS)
 # run-level figures (no @selector): the summary of `prsm-sim run --json` and the study's own
@@ -111,12 +108,7 @@ def _distribution(key: str, spec: Any) -> dict:
     if kind not in kinds:
         raise StudyError(f"{where}: unknown distribution {kind!r}; allowed: {', '.join(kinds)}")
     if kind == "values":
-        if not isinstance(args, list) or not args:
-            raise StudyError(f"{where}.values = {args!r}: expected a non-empty list")
-        for v in args:
-            if not (_finite(v) or isinstance(v, str)):
-                raise StudyError(f"{where}.values: {v!r} is not a finite number or a string")
-        return {"kind": kind, "args": [float(v) if _finite(v) else v for v in args]}
+        return {"kind": kind, "args": _values(where, args)}
     want = 3 if kind == "linspace" else 2
     if not isinstance(args, list) or len(args) != want or not all(_finite(a) for a in args):
         form = {"linspace": "[start, stop, count]", "normal": "[mean, sd]", "uniform": "[low, high]",
@@ -128,13 +120,28 @@ def _distribution(key: str, spec: Any) -> dict:
         if float(n) != int(n) or int(n) < 1:
             raise StudyError(f"{where}.linspace count = {n!r}: must be a whole number >= 1")
         return {"kind": kind, "args": [a, b, int(n)]}
+    _check_random(where, kind, args, a, b)
+    return {"kind": kind, "args": [a, b]}
+
+
+def _values(where: str, args: Any) -> list:
+    """A `values` grid: a non-empty list of finite numbers (as floats) or strings."""
+    if not isinstance(args, list) or not args:
+        raise StudyError(f"{where}.values = {args!r}: expected a non-empty list")
+    for v in args:
+        if not (_finite(v) or isinstance(v, str)):
+            raise StudyError(f"{where}.values: {v!r} is not a finite number or a string")
+    return [float(v) if _finite(v) else v for v in args]
+
+
+def _check_random(where: str, kind: str, args: list, a: float, b: float) -> None:
+    """The two parameters of a random draw within the distribution's domain."""
     if kind == "normal" and b < 0:
         raise StudyError(f"{where}.normal sd = {b!r}: must be >= 0")
     if kind == "uniform" and b < a:
         raise StudyError(f"{where}.uniform = {args!r}: low must not exceed high")
     if kind == "lognormal" and (a <= 0 or b < 0):
         raise StudyError(f"{where}.lognormal = {args!r}: median must be > 0 and sigma_ln >= 0")
-    return {"kind": kind, "args": [a, b]}
 
 
 def _metric(name: Any) -> str:
@@ -185,10 +192,27 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
         out["params"] = pdata
     else:
         out["preset"] = str(data.get("preset", "jones2016"))
-    model = data.get("model", "jones2016")
+    out["model"] = _model(data.get("model", "jones2016"))
+    out.update(_timing(data))
+    out.update(_inputs(data, out["scenarios"]))
+    out["samples"] = _number("samples", data.get("samples", 1), whole=True, lo=1)
+    _check_run_count(out)
+    out["seed"] = _number("seed", data.get("seed", 0), whole=True, lo=0)
+    out.update(_measures(data, out["scenarios"]))
+    if data.get("actuator") is not None:  # only then in the identity: a study without one keeps its hash
+        out["actuator"] = _actuator(data["actuator"], out)
+    base_params(out)  # the base parameter set must build
+    return out
+
+
+def _model(model: Any) -> str:
     if model not in MODELS:
         raise StudyError(f"model = {model!r}: unknown model; allowed: {', '.join(MODELS)}")
-    out["model"] = model
+    return model
+
+
+def _timing(data: dict) -> dict:
+    """The study's `scenarios` (a list), `duration_s` and `dt_s`, checked."""
     scen = data.get("scenario", "step")
     scen_list = scen if isinstance(scen, list) else [scen]
     for s in scen_list:
@@ -196,16 +220,20 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
             raise StudyError(f"scenario = {s!r}: unknown scenario; allowed: {', '.join(ALL_SCENARIOS)}")
     if not scen_list:
         raise StudyError("scenario = []: name at least one scenario")
-    out["scenarios"] = list(scen_list)
-    out["duration_s"] = _number("duration_s", data.get("duration_s", 1.0), positive=True)
-    out["dt_s"] = _number("dt_s", data.get("dt_s", 1e-3), positive=True)
+    out = {"scenarios": list(scen_list), "duration_s": _number("duration_s", data.get("duration_s", 1.0), positive=True),
+           "dt_s": _number("dt_s", data.get("dt_s", 1e-3), positive=True)}
     if out["duration_s"] < out["dt_s"]:
         raise StudyError(f"duration_s = {out['duration_s']}: shorter than one step ({out['dt_s']} s)")
     run_steps(out["duration_s"], out["dt_s"], error=StudyError)
+    return out
+
+
+def _inputs(data: dict, scenarios: list[str]) -> dict:
+    """The study's `set` (fixed values) and `vary` (distributions), keys checked, each key in one of them."""
     fixed = data.get("set") or {}
     if not isinstance(fixed, dict):
         raise StudyError(f"set = {fixed!r}: expected a mapping of group.name: value")
-    out["set"] = {_check_key("set", k): v for k, v in sorted(fixed.items(), key=lambda kv: str(kv[0]))}
+    out = {"set": {_check_key("set", k): v for k, v in sorted(fixed.items(), key=lambda kv: str(kv[0]))}}
     vary = data.get("vary") or {}
     if not isinstance(vary, dict):
         raise StudyError(f"vary = {vary!r}: expected a mapping of group.name: {{distribution: args}}")
@@ -213,23 +241,30 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
     both = sorted(set(out["set"]) & set(out["vary"]))
     if both:
         raise StudyError(f"{both[0]}: both set and varied; give it in one of them")
-    if POSITION in out["scenarios"]:
+    if POSITION in scenarios:
         extra = sorted(k for k in [*out["set"], *out["vary"]] if k.startswith("scenario.") and k != "scenario.load_n")
         if extra:
             raise StudyError(f"{extra[0]}: the {POSITION} scenario takes scenario.load_n only (its motion is the "
                              f"reference.* settings)")
-    out["samples"] = _number("samples", data.get("samples", 1), whole=True, lo=1)
-    runs = out["samples"] * len(out["scenarios"]) * math.prod(  # counted before anything is built
+    return out
+
+
+def _check_run_count(norm: dict) -> None:
+    """Refuse a study of more than MAX_STUDY_RUNS runs, counted before anything is built."""
+    runs = norm["samples"] * len(norm["scenarios"]) * math.prod(
         len(d["args"]) if d["kind"] == "values" else int(d["args"][2])
-        for d in out["vary"].values() if d["kind"] in GRID_KINDS)
+        for d in norm["vary"].values() if d["kind"] in GRID_KINDS)
     if runs > MAX_STUDY_RUNS:
-        raise StudyError(f"samples = {out['samples']} over {runs // out['samples']} grid point(s) = {runs} runs: "
+        raise StudyError(f"samples = {norm['samples']} over {runs // norm['samples']} grid point(s) = {runs} runs: "
                          f"more than the {MAX_STUDY_RUNS} runs a study may have")
-    out["seed"] = _number("seed", data.get("seed", 0), whole=True, lo=0)
+
+
+def _measures(data: dict, scenarios: list[str]) -> dict:
+    """The study's `metrics` and `life` (the rating the l10 metrics need), checked against each other."""
     metrics = data.get("metrics", list(DEFAULT_METRICS))
     if not isinstance(metrics, list) or not metrics:
         raise StudyError(f"metrics = {metrics!r}: expected a non-empty list of metric names")
-    out["metrics"] = [_metric(m) for m in metrics]
+    out: dict[str, Any] = {"metrics": [_metric(m) for m in metrics]}
     if len(set(out["metrics"])) != len(out["metrics"]):
         raise StudyError(f"metrics = {metrics!r}: a metric is named twice")
     life = data.get("life") or {}
@@ -240,11 +275,8 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
     if any(m.startswith("l10_") for m in out["metrics"]) and not out["life"]:
         raise StudyError("metrics: the l10 metrics need life.dynamic_load_rating_n (the screw's C_a, N)")
     tracking = [m for m in out["metrics"] if m.startswith("tracking_error")]
-    if tracking and out["scenarios"] != [POSITION]:
+    if tracking and scenarios != [POSITION]:
         raise StudyError(f"metrics: {tracking[0]} needs scenario: {POSITION} (the closed position loop)")
-    if data.get("actuator") is not None:  # only then in the identity: a study without one keeps its hash
-        out["actuator"] = _actuator(data["actuator"], out)
-    base_params(out)  # the base parameter set must build
     return out
 
 

@@ -59,21 +59,7 @@ def settings(data: dict, norm: dict) -> dict:
     gains = t.get("gains")
     if not isinstance(gains, dict) or not gains:
         raise StudyError(f"tune.gains = {gains!r}: expected a mapping of controller.NAME: {{uniform|loguniform|values: ..}}")
-    space = {}
-    for k, d in gains.items():
-        if k not in GAIN_KEYS:
-            raise StudyError(f"tune.gains: unknown gain {k!r}; allowed: {', '.join(GAIN_KEYS)}")
-        if k in norm["vary"] or k in norm["set"]:
-            raise StudyError(f"tune.gains.{k}: also set or varied in the study; give it in one place")
-        if not isinstance(d, dict) or len(d) != 1 or next(iter(d)) not in DOMAINS:
-            raise StudyError(f"tune.gains.{k} = {d!r}: expected one of {', '.join(DOMAINS)}")
-        kind, args = next(iter(d.items()))
-        ok = isinstance(args, list) and args and all(isinstance(a, (int, float)) and not isinstance(a, bool)
-                                                      and math.isfinite(a) and a > 0 for a in args)
-        if not ok or (kind != "values" and (len(args) != 2 or args[0] >= args[1])):
-            raise StudyError(f"tune.gains.{k}.{kind} = {args!r}: expected positive finite numbers "
-                             f"{'[..]' if kind == 'values' else '[low, high] with low < high'}")
-        space[k] = {"kind": kind, "args": [float(a) for a in args]}
+    space = {k: _gain_domain(k, d, norm) for k, d in gains.items()}
     metric = t.get("metric", norm["metrics"][0])
     if metric not in norm["metrics"]:
         raise StudyError(f"tune.metric = {metric!r}: not one of the study's metrics ({', '.join(norm['metrics'])})")
@@ -90,6 +76,23 @@ def settings(data: dict, norm: dict) -> dict:
     if out["holdout_seed"] == norm["seed"]:
         raise StudyError(f"tune.holdout_seed = {out['holdout_seed']}: must differ from the study's seed")
     return out
+
+
+def _gain_domain(k: str, d, norm: dict) -> dict:
+    """One gain's search domain, `{kind: args}` → {"kind", "args"}; refused with what is allowed."""
+    if k not in GAIN_KEYS:
+        raise StudyError(f"tune.gains: unknown gain {k!r}; allowed: {', '.join(GAIN_KEYS)}")
+    if k in norm["vary"] or k in norm["set"]:
+        raise StudyError(f"tune.gains.{k}: also set or varied in the study; give it in one place")
+    if not isinstance(d, dict) or len(d) != 1 or next(iter(d)) not in DOMAINS:
+        raise StudyError(f"tune.gains.{k} = {d!r}: expected one of {', '.join(DOMAINS)}")
+    kind, args = next(iter(d.items()))
+    ok = isinstance(args, list) and args and all(isinstance(a, (int, float)) and not isinstance(a, bool)
+                                                  and math.isfinite(a) and a > 0 for a in args)
+    if not ok or (kind != "values" and (len(args) != 2 or args[0] >= args[1])):
+        raise StudyError(f"tune.gains.{k}.{kind} = {args!r}: expected positive finite numbers "
+                         f"{'[..]' if kind == 'values' else '[low, high] with low < high'}")
+    return {"kind": kind, "args": [float(a) for a in args]}
 
 
 def score(values: list[float], objective: str) -> float:
@@ -117,7 +120,7 @@ def _trainable(config: dict, norm: dict, metric: str, objective: str) -> None:
 def run_tune(norm: dict, ts: dict, storage: Path, *, address: str | None = None, workers: int | None = None) -> dict:
     """Search (Ray Tune's experiment folder under `storage`), then compare the best and the demo's
     default gains on held-out draws."""
-    from prsm_ros.sweep.runner import connect, disconnect
+    from prsm_ros.ray_runner import connect, disconnect
     ray, owned, tmp = connect(address, workers)
     try:
         from ray import tune

@@ -1,0 +1,164 @@
+"""What every command-line tool does alike: `--version`, and Ctrl-C on a long command (a message
+saying what was kept, exit 130, no traceback).
+
+Oracle: the installed console scripts (pyproject's [project.scripts]) and the package version;
+for Ctrl-C, a real SIGINT into a running `prsm-sim run`, and KeyboardInterrupt raised where the
+other commands spend their time.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from prsm_sim import __version__
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["scripts"]
+
+
+@pytest.mark.parametrize("command", sorted(SCRIPTS))
+def test_every_command_has_version(command):
+    module = SCRIPTS[command].split(":")[0]
+    r = subprocess.run([sys.executable, "-m", module, "--version"], capture_output=True, text=True, timeout=120,
+                       cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"{command} {__version__}", (r.stdout, r.stderr)
+
+
+def test_ctrl_c_in_prsm_sim_run_says_what_was_kept_and_exits_130(tmp_path):
+    """A long run interrupted while it steps: one line saying nothing was written, exit 130."""
+    csv = tmp_path / "run.csv"
+    p = subprocess.Popen([sys.executable, "-m", "prsm_ros.cli.sim", "run", "--model", "ideal", "--duration", "5000",
+                          "--csv", str(csv)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        seen = ""
+        while "step" not in seen:  # the progress bar is up: the run is stepping
+            ch = p.stderr.read(1)
+            assert ch, "prsm-sim run ended before showing progress"
+            seen += ch
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, err
+    assert "prsm-sim: interrupted at step" in err and "nothing written" in err
+    assert "Traceback" not in err and not csv.exists()
+
+
+def test_ctrl_c_in_prsm_bench_prints_the_areas_measured_and_exits_130(capsys):
+    from prsm_ros.bench.common import figure, main
+
+    def measured(quick):
+        return [figure("a figure", 1.0, "s", "≤ 2", True)]
+
+    def interrupted(quick):
+        raise KeyboardInterrupt
+
+    assert main({"first": measured, "second": interrupted, "third": measured}, ["--json"]) == 130
+    out, err = capsys.readouterr()
+    assert "prsm-bench: interrupted: 1 of 3 areas measured (first)" in err
+    assert '"area": "first"' in out and '"interrupted": true' in out and "third" not in out
+
+
+def test_ctrl_c_in_prsm_sim_envelope_keeps_the_failures_and_names_the_next_seed(tmp_path, monkeypatch, capsys):
+    """Interrupted after some cases: their failures and a summary stay, the message says where to go on."""
+    from prsm_ros.cli import sim
+    from prsm_ros.sweep import envelope
+
+    class FakeRay:
+        def cluster_resources(self):
+            return {"CPU": 1}
+
+    monkeypatch.setattr("prsm_ros.ray_runner.connect", lambda address, workers: (FakeRay(), True, None))
+    monkeypatch.setattr("prsm_ros.ray_runner.disconnect", lambda ray, owned, tmp: None)
+
+    def two_cases_then_ctrl_c(ray, seeds, n_workers, fail_dir, done_rows, progress):
+        done_rows.extend(envelope._run_batch(seeds[:1]))
+        done_rows.append({"seed": seeds[2], "violations": ["a broken invariant at t = 0.1 s"], "steps": 1,
+                          "seconds": 0.0, "model": "ideal", "interface": "effort"})
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(envelope, "_run_batches", two_cases_then_ctrl_c)
+    with pytest.raises(SystemExit) as e:
+        sim.main(["envelope", "--runs", "10", "--first-seed", "100", "-o", str(tmp_path), "--no-progress"])
+    assert e.value.code == 130
+    err = capsys.readouterr().err
+    assert "prsm-sim: interrupted: 2 of 10 runs done, 1 broke an invariant" in err
+    assert "--first-seed 101" in err
+    import json
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["interrupted"] and summary["runs"] == 2 and summary["next_seed"] == 101
+
+
+def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(tmp_path, monkeypatch, capsys):
+    """The node is stopped with SIGINT (it closes its bag then); the demo names the bag and exits 130."""
+    from prsm_ros.cli import demo
+    bag = tmp_path / "run.mcap"
+    stopped = tmp_path / "node-stopped"
+    node_code = ("import signal, sys, time, pathlib\n"
+                 f"pathlib.Path({str(bag)!r}).write_bytes(b'bag')\n"
+                 f"signal.signal(signal.SIGINT, lambda *a: (pathlib.Path({str(stopped)!r}).touch(), sys.exit(0)))\n"
+                 "time.sleep(120)\n")
+
+    def start_module(module, args, env, **kw):
+        code = node_code if module == "prsm_ros.cli.node" else "import time; time.sleep(120)"
+        return subprocess.Popen([sys.executable, "-c", code], env={**os.environ, **env}, **kw)
+
+    def ctrl_c(ctl, node):
+        while not bag.exists():  # the node is up
+            if node.poll() is not None:
+                raise AssertionError("the stand-in node died")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(demo, "start_module", start_module)
+    monkeypatch.setattr(demo, "wait_for_controller", ctrl_c)
+    assert demo.main(["--record", str(bag), "--domain-id", "7"]) == 130
+    err = capsys.readouterr().err
+    assert f"prsm-demo: interrupted: the bag so far is in {bag}" in err
+    assert stopped.exists(), "the node was not stopped with SIGINT"
+
+
+DEPRECATED = {"prsm_ros.cli.json_out": "prsm_ros.json_out", "prsm_ros.cli.param_files": "prsm_ros.param_files"}
+
+
+@pytest.mark.parametrize("module", sorted(DEPRECATED))
+def test_compatibility_modules_warn_and_nothing_in_the_project_imports_them(module, monkeypatch):
+    """The old homes of the JSON and parameter-file helpers still work for users, warn with the
+    version that removes them (CHANGES.md says the same), and no module of the project uses them."""
+    import ast
+    import importlib
+    monkeypatch.delitem(sys.modules, module, raising=False)
+    with pytest.warns(DeprecationWarning, match=f"{module} is deprecated and is removed in prsm 0.2.0"):
+        mod = importlib.import_module(module)
+    new = importlib.import_module(DEPRECATED[module])
+    assert all(getattr(mod, n) is getattr(new, n) for n in mod.__all__)
+    assert f"`{module}`" in (ROOT / "CHANGES.md").read_text(encoding="utf-8").split("\n## ")[1]
+    users = []
+    for path in sorted([*(ROOT / "prsm_sim").rglob("*.py"), *(ROOT / "prsm_ros").rglob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+                     if isinstance(node, ast.ImportFrom) else [])
+            if module in names:
+                users.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not users, f"{module} is imported by {users}; import {DEPRECATED[module]}"
+
+
+def test_the_demo_controller_shows_the_simulated_time_as_the_run_goes(capsys):
+    """prsm-demo's progress: the controller rewrites one stderr line every quarter simulated second."""
+    from prsm_ros.cli.demo_controller import PROGRESS_EVERY_S, show_progress
+    st = {"shown": -1.0}
+    for k in range(2001):  # 2 s at 1 ms
+        show_progress(st, k * 1e-3, 2.0)
+    err = capsys.readouterr().err
+    updates = err.split("\r")[1:]
+    assert len(updates) == round(2.0 / PROGRESS_EVERY_S) + 1
+    assert updates[0] == "prsm-demo: 0.00 of 2 s simulated" and updates[-1] == "prsm-demo: 2.00 of 2 s simulated\n"
