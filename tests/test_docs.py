@@ -290,7 +290,16 @@ def test_docs_command_builds_reference_and_guide(tmp_path, capsys):
     out = tmp_path / "site"
     assert docs.main(["-o", str(out)]) == 0
     assert "pages in" in capsys.readouterr().out
-    assert (out / "index.html").is_file()
+    # the landing page: what prsm is, the quick start, every page by its title, both APIs
+    index = (out / "index.html").read_text(encoding="utf-8")
+    assert "planetary roller screw" in index and 'id="quick-start"' in index and "prsm-demo" in index
+    for page in ROOT.glob("docs/*.md"):
+        title = page.read_text(encoding="utf-8").split("\n", 1)[0].lstrip("# ").split("`")[0].strip()
+        assert f'href="manual/{page.stem.replace("-", "_")}.html"' in index and title in index, page.name
+    assert 'href="prsm_sim.html"' in index and 'href="prsm_ros.html"' in index
+    assert "tolerance=" not in index and "the docs test runs" not in index
+    live = (out / "prsm_ros" / "live" / "foxglove_server.html").read_text(encoding="utf-8")
+    assert 'id="FoxgloveLive"' in live  # the prsm_ros API, walked by pdoc
     # the prose pages are in the site: the README as the manual's front page, one page per docs/ file
     manual = (out / "manual.html").read_text(encoding="utf-8")
     assert 'id="quick-start"' in manual

@@ -41,13 +41,13 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_sim",),
     # prsm_ros: all I/O
     ("prsm_ros.interface", "prsm_ros.cdr_read", "prsm_ros.ros_env", "prsm_ros.json_out",
-     "prsm_ros.param_files", "prsm_ros.limits"),  # the ROS interface as plain data, CDR reading, JSON, parameter files, input limits
+     "prsm_ros.param_files", "prsm_ros.limits", "prsm_ros.description"),  # the ROS interface as plain data, CDR reading, JSON, parameter files, input limits; the xacro macro (data)
     ("prsm_ros.cdr_write",),  # per-step messages as CDR bytes (rclpy)
     ("prsm_ros.messages",),  # the interface bound to rclpy
     ("prsm_ros.mcap", "prsm_ros.ray_runner"),  # MCAP schema, codec, recorder, offline runs; joining or starting Ray
     ("prsm_ros.sweep",),  # studies on Ray
     ("prsm_ros.bag",),  # reading, exporting, reporting, comparing bags
-    ("prsm_ros.viz",),  # Rerun views, live and from bags
+    ("prsm_ros.viz", "prsm_ros.live"),  # Rerun views, live and from bags; the live Foxglove server
     ("prsm_ros.node",),  # the rclpy node
     ("prsm_ros.fmu",),  # the actuator as an FMU
     ("prsm_ros.cli",),  # the command-line tools

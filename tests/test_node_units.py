@@ -162,7 +162,7 @@ def test_node_close_is_bounded_when_the_step_thread_hangs(tmp_path, monkeypatch)
 
         def __init__(self):
             self._stop, self._resumed = threading.Event(), threading.Event()
-            self.recorder, self.rerun, self.errors = rec, None, []
+            self.recorder, self.rerun, self.live, self.errors = rec, None, None, []
             self._thread = threading.Thread(target=stuck_step, daemon=True)
             self._thread.start()
 

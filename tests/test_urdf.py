@@ -140,7 +140,8 @@ def test_documented_actuator_command_lines_in_a_shell(tmp_path, line):
     r = shell(line.replace("prsm-node", shlex.join(NODE), 1), tmp_path)
     assert r.returncode == 0, r.stderr
     nut = load(r.stdout).joint_map["nut_joint"]
-    assert (nut.limit.lower, nut.limit.upper) == (0.0, 0.3)
+    # the stop at 0.0, and the thread end (±0.135 m for s30) before the stop at 0.3 beyond it
+    assert (nut.limit.lower, nut.limit.upper) == (0.0, pytest.approx(0.135))
     assert '<command_interface name="velocity">' in r.stdout  # the screw's speed is commanded
     # the motor is fitted: its rotor joins the screw's inertia about z
     screw = load(r.stdout).link_map["screw_link"].inertial.inertia

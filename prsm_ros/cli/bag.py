@@ -7,6 +7,7 @@
     prsm-bag compare A_DIR B_DIR [--threshold 0.05] [--json] [--fail-on-regression]
     prsm-bag play BAG [--rate R] [--start S] [--end S] [-t TOPIC ...] [--no-clock] [--delay S] [--wait-for-subscribers]
     prsm-bag layout BAG [-o FILE.json] [--screw-joint NAME] [--nut-joint NAME]   (a Foxglove layout)
+    prsm-bag serve BAG [--port N] [--host H] [--rate R] [--loop] [--no-wait]   (live to Foxglove, WebSocket)
     prsm-bag to-rrd BAG -o FILE.rrd [--screw-joint NAME] [--nut-joint NAME] [--joint-states-topic T]
     prsm-bag repair BAG OUT.mcap   (a killed recording's bag → a finished file every MCAP reader opens)
 
@@ -27,6 +28,7 @@ from prsm_sim import __version__
 from prsm_ros.bag.reader import BagError, open_bag
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 from prsm_ros.json_out import dumps
+from prsm_ros.live.serve_bag import add_parser as add_serve_parser
 
 EXIT_ERROR = 2  # a user error: a bad argument, file or bag (the one exit status of every prsm tool)
 INFO_CHECK_MAX_MESSAGES = 100_000  # info decodes every message of a bag up to this size (~20 s) unless told
@@ -281,7 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True,
-                            metavar="{info,export,report,compare,play,layout,to-rrd,repair}")
+                            metavar="{info,export,report,compare,play,layout,serve,to-rrd,repair}")
 
     p = sub.add_parser("info", help="topics, counts, rates, duration, run metadata")
     p.add_argument("bag")
@@ -349,6 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="FILE.json", help="write the layout here (default: stdout)")
     _joint_options(p, report_opts)
     p.set_defaults(func=_cmd_layout)
+    add_serve_parser(sub)
 
     p = sub.add_parser("to-rrd", help="convert to a Rerun .rrd recording")
     p.add_argument("bag")

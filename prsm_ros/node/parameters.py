@@ -167,6 +167,10 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
               read_only=True),
     NodeParam("rerun_target", "", "", "save: .rrd path; spawn: port; connect: viewer address ('' → default)",
               read_only=True),
+    NodeParam("foxglove_port", 0, "", "serve every topic live to Foxglove (WebSocket) on this port (0: off)",
+              lo=0, hi=65535, read_only=True),
+    NodeParam("foxglove_host", "127.0.0.1", "", "address the Foxglove server binds to (127.0.0.1: this machine "
+              "only; 0.0.0.0 exposes every topic to the network, unauthenticated)", read_only=True),
 )
 
 

@@ -128,7 +128,7 @@ class PrsmNode(Node):
     def __init__(self, param_sources: ParamSources | None = None, **node_kwargs: Any) -> None:
         self.param_sources = param_sources  # where the start-up names came from (the command line); None: all ours
         super().__init__(NODE_NAME, **node_kwargs)
-        self.recorder = self.rerun = None
+        self.recorder = self.rerun = self.live = None
         self._unrecorded: frozenset[str] = frozenset()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -169,7 +169,8 @@ class PrsmNode(Node):
         self._unrecorded = frozenset(WALL_CLOCK_TOPICS) if cfg.time_mode == "lockstep" else frozenset()
         channels = {name: (TOPICS[k].msg_class, (self.pub.get(k) or self.sub[k]).qos_profile, k in self.sub)
                     for k, name in self._topic_names.items() if k not in self._unrecorded}
-        self.recorder, self.rerun = open_sinks(cfg, self.get_fully_qualified_name(), channels, self.session.layout)
+        self.recorder, self.rerun, self.live = open_sinks(cfg, self.get_fully_qualified_name(), channels,
+                                                          self.session.layout)
 
         for srv_type, name, callback in ((SetBool, "~/pause", self._srv_pause), (Trigger, "~/step", self._srv_step),
                                          (Trigger, "~/reset", self._srv_reset),
@@ -204,6 +205,7 @@ class PrsmNode(Node):
             f"{cfg.model} model, preset {cfg.preset}, {cfg.update_rate} Hz, {cfg.time_mode}"
             + (f" ×{cfg.real_time_factor:g}" if cfg.time_mode == "realtime" else "")
             + (f", recording to {self.recorder.path}" if self.recorder else "")
+            + (f", serving Foxglove on {self.live.url}" if self.live else "")
             + (", waiting for a controller's first command" if cfg.wait_for_controller
                else ", paused" if cfg.start_paused else ""))
 
@@ -326,9 +328,13 @@ class PrsmNode(Node):
 
     def _record(self, key: str, data, stamp_ns: int | None = None) -> None:
         """Into the bag (lock held): with the step's batch when a step is being published, else at once."""
-        if self.recorder is None or key in self._unrecorded:
+        if (self.recorder is None and self.live is None) or key in self._unrecorded:
             return
         item = (self._topic_names[key], data, time_ns(self.session.time_s) if stamp_ns is None else stamp_ns)
+        if self.live is not None:  # the live view gets what the bag gets, as it happens
+            self.live.write(*item)
+        if self.recorder is None:
+            return
         if self._batch is not None:
             self._batch.append(item)
         else:
@@ -736,14 +742,14 @@ class PrsmNode(Node):
         }
         self._step_wall_max_s = 0.0
         problems = []
-        for sink, prefix in ((self.recorder, "record"), (self.rerun, "rerun")):
+        for sink, prefix in ((self.recorder, "record"), (self.rerun, "rerun"), (self.live, "foxglove")):
             if sink is None:
                 continue
             if prefix == "record":
                 values.update(record_path=str(sink.path), record_written=sink.messages_written,
                               record_dropped=sink.messages_dropped, record_error=sink.error or "")
             else:
-                values.update({f"rerun_{k}": v for k, v in sink.stats().items() if v is not None})
+                values.update({f"{prefix}_{k}": v for k, v in sink.stats().items() if v is not None})
             if sink.error:
                 problems.append(str(sink.error))
         if ps.overruns > over0:
@@ -775,6 +781,8 @@ class PrsmNode(Node):
             self.get_logger().error(f"{self.recorder.error} ({self.recorder.messages_dropped} messages not recorded)")
         if self.rerun is not None and not self.rerun.close(timeout_s=RERUN_CLOSE_S):
             self.get_logger().error(str(self.rerun.error))
+        if self.live is not None and not self.live.close():
+            self.get_logger().error(str(self.live.error))
 
 
 def _float64(raw: bytes) -> float:

@@ -1,8 +1,9 @@
-"""The node's outputs besides DDS: the MCAP recording and the live Rerun view, opened from the configuration.
+"""The node's outputs besides DDS: the MCAP recording, the live Rerun view and the live Foxglove server,
+opened from the configuration.
 
-Both are optional and imported only when asked for (the recorder needs mcap, the sink rerun-sdk).
-A refusal (a path not writable, a bad Rerun target) is a `ConfigError` naming the parameter; a
-refused start leaves no empty bag behind.
+All are optional and imported only when asked for (the recorder needs mcap, the sink rerun-sdk,
+the server foxglove-sdk). A refusal (a path not writable, a bad Rerun target, a port taken) is a
+`ConfigError` naming the parameter; a refused start leaves no empty bag behind.
 """
 
 from __future__ import annotations
@@ -14,11 +15,12 @@ from prsm_ros.node.record_path import RecordPathError, claim_record_path
 
 
 def open_sinks(cfg: NodeConfig, node_name: str, channels: dict, layout: InternalLayout):
-    """(recorder or None, Rerun sink or None) for `cfg`; `channels` maps each topic name to
-    (message class, QoS profile), recorded as the node offers or requests them."""
+    """(recorder, Rerun sink, Foxglove server), each None when off, for `cfg`; `channels` maps each
+    topic name to (message class, QoS profile, untrusted), recorded and served as the node offers or
+    requests them."""
     recorder = open_recorder(cfg, node_name, channels)
     try:
-        return recorder, open_rerun(cfg, layout)
+        return recorder, open_rerun(cfg, layout), open_foxglove(cfg, node_name, channels)
     except BaseException:
         if recorder is not None:  # no run happened: leave no empty bag behind
             recorder.close()
@@ -55,3 +57,21 @@ def open_rerun(cfg: NodeConfig, layout: InternalLayout):
         return RerunSink(cfg.rerun, cfg.rerun_target, cfg.params, layout, cfg.model)
     except (ValueError, RuntimeError) as e:
         raise ConfigError(str(e)) from None
+
+
+def open_foxglove(cfg: NodeConfig, node_name: str, channels: dict):
+    """The live Foxglove server on `foxglove_host`:`foxglove_port` serving `channels`, or None (port 0)."""
+    if cfg.foxglove_port == 0:
+        return None
+    from prsm_ros.live.foxglove_server import FoxgloveLive, LiveError
+    try:
+        live = FoxgloveLive(cfg.foxglove_host, cfg.foxglove_port, name=node_name)
+    except LiveError as e:
+        raise ConfigError(f"parameters foxglove_host = {cfg.foxglove_host!r}, foxglove_port = {cfg.foxglove_port}: "
+                          f"{e}") from None
+    try:
+        live.add_ros_channels(channels)
+    except BaseException:
+        live.close()
+        raise
+    return live
