@@ -1,0 +1,95 @@
+"""Short horizons re-started from the measured state (multiple shooting), run on a `Session`.
+
+The plant is an integrator: a run simulated from the command alone drifts from a recording by any
+small error in its friction and never comes back, and a recording of a closed loop holds the nut
+where the controller wanted it, not where the open-loop command would take it. Each horizon
+therefore starts from the measured screw angle, screw speed and nut position (at rest in
+everything the bench cannot see: the friction state under the load in force, the chain deflected
+by it) and runs the recorded command and load through the model's own stepping path, the same
+`Session` the node steps, for a fixed number of steps. The predictions are taken as increments
+from the horizon's start, so the sensors' offsets do not matter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from prsm_sim.actuator import ActuatorState
+from prsm_sim.errors import ModelError
+from prsm_sim.identify.recording import Recording
+from prsm_sim.physics.kinematics import ideal_carrier_ratio
+from prsm_sim.session import Session, SessionConfig
+
+SIGNALS = ("nut_position_m", "screw_position_rad", "screw_speed_rad_s")
+HORIZON_S = 0.1  # a horizon's length: long enough for inertia and friction to show in the motion
+
+
+@dataclass(frozen=True)
+class Horizons:
+    """Where the horizons of one recording start and how many steps each runs."""
+
+    starts: np.ndarray
+    steps: int
+
+    @classmethod
+    def of(cls, rec: Recording, horizon_s: float = HORIZON_S) -> Horizons:
+        steps = max(5, min(rec.samples - 1, int(round(horizon_s / rec.dt_s))))
+        return cls(starts=np.arange(0, rec.samples - steps, steps), steps=steps)
+
+    def indices(self) -> np.ndarray:
+        """The sample indices predicted, horizon after horizon (steps per horizon, each after its start)."""
+        return (self.starts[:, None] + np.arange(1, self.steps + 1)[None, :]).ravel()
+
+
+def _restart(session: Session, rec: Recording, k: int, speed: float) -> float:
+    """Put `session` at the measured state of sample `k`; return the model's screw angle there."""
+    session.initial_load_n = float(rec.load_n[k])
+    session.reset(nut_position_m=float(rec.nut_position_m[k]))
+    sim = session.simulator
+    st = sim.state
+    screw = st.screw if isinstance(st, ActuatorState) else st
+    moved = {"screw_speed_rad_s": speed,
+             "carrier_speed_rad_s": speed * ideal_carrier_ratio(session.params.geometry)}
+    if "nut_speed_m_s" in getattr(screw.part, "_fields", ()):  # a nut on its own axial DOF moves with the screw
+        moved["nut_speed_m_s"] = speed * session.params.geometry.lead_per_rad_m
+    screw = replace(screw, **moved)
+    sim.state = replace(st, screw=screw) if isinstance(st, ActuatorState) else screw
+    return float(screw.screw_angle_rad)
+
+
+def simulate(config: SessionConfig, rec: Recording, horizons: Horizons, delay_steps: int = 0) -> dict[str, np.ndarray]:
+    """Predicted signals at `horizons.indices()` (`SIGNALS`), each an increment on the measured value at
+    its horizon's start; a horizon the model cannot run through (a model fault) predicts NaN there.
+
+    `delay_steps` delays the command path: the torque applied over step k is the one recorded at
+    k − delay_steps (the first sample's before the recording starts).
+    """
+    config = replace(config, dt_s=rec.dt_s, interface="effort", nut_position_m=float(rec.nut_position_m[0]))
+    session = Session.from_config(config)
+    speed = rec.speed()
+    u = rec.screw_torque_nm
+    if delay_steps:
+        u = np.concatenate([np.full(delay_steps, u[0]), u[:-delay_steps]])
+    n, h = len(horizons.starts), horizons.steps
+    out = {s: np.full((n, h), np.nan) for s in SIGNALS}
+    for j, k in enumerate(horizons.starts):
+        theta0 = _restart(session, rec, int(k), float(speed[k]))
+        x0 = session.last.nut_position_m
+        try:
+            for i in range(h):
+                o = session.step(float(u[k + i]), float(rec.load_n[k + i]))
+                out["nut_position_m"][j, i] = rec.nut_position_m[k] + o.nut_position_m - x0
+                out["screw_position_rad"][j, i] = rec.screw_position_rad[k] + o.screw_angle_rad - theta0
+                out["screw_speed_rad_s"][j, i] = o.screw_speed_rad_s
+        except ModelError:  # parameters the model cannot run end the horizon: what it could not predict stays NaN
+            session.reset()
+    return {s: v.ravel() for s, v in out.items()}
+
+
+def measured(rec: Recording, horizons: Horizons) -> dict[str, np.ndarray]:
+    """The measured signals at `horizons.indices()` (speed: measured, or derived from the angle)."""
+    idx = horizons.indices()
+    return {"nut_position_m": rec.nut_position_m[idx], "screw_position_rad": rec.screw_position_rad[idx],
+            "screw_speed_rad_s": rec.speed()[idx]}
