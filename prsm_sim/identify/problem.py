@@ -33,14 +33,40 @@ def quantum(x: np.ndarray) -> float:
     return float(d.min()) if d.size else 0.0
 
 
+def noise(x: np.ndarray, dt_s: float) -> float:
+    """The sensor noise of `x` (one standard deviation): its scatter about a local cubic over ~10 ms
+    (Savitzky–Golay), which follows the motion and leaves the noise."""
+    from scipy.signal import savgol_filter
+    w = max(7, int(round(0.01 / dt_s)) | 1)
+    if len(x) <= w:
+        return 0.0
+    e = x - savgol_filter(x, w, 3)
+    return float(np.std(e) / math.sqrt(1.0 - 4.0 / w))  # the fit takes ~4 of the window's w degrees of freedom
+
+
 def resolution(recs: tuple[Recording, ...], signal: str) -> float:
-    """A signal's sensor resolution as one standard deviation: a quantum q found in the data counts as
-    q/√12 (uniform rounding error), never below `RESOLUTION_FLOOR`."""
-    q = 0.0
+    """A signal's scale (one standard deviation): the larger of its noise, a quantum q found in the data
+    as q/√12 (uniform rounding error) and `RESOLUTION_FLOOR`."""
+    s = RESOLUTION_FLOOR[signal]
     for r in recs:
         x = r.speed() if signal == "screw_speed_rad_s" else getattr(r, signal)
-        q = max(q, quantum(x))
-    return max(q / math.sqrt(12.0), RESOLUTION_FLOOR[signal])
+        s = max(s, quantum(x) / math.sqrt(12.0), noise(x, r.dt_s))
+    return s
+
+
+def free_start(r: np.ndarray, steps: int, signal: str) -> np.ndarray:
+    """Residuals of one signal with each horizon's start error taken out (rows: horizons).
+
+    The start of a horizon is measured, not known: an encoder count or the noise of the nut scale
+    offsets the whole horizon, an error in the start speed tilts it. Both are removed by least squares
+    per horizon (an offset and a slope in time for a position, an offset for a speed), the way
+    multiple shooting frees each horizon's start, so they neither bias the fit nor count as its misfit.
+    """
+    m = r.reshape(-1, steps)
+    t = np.arange(1, steps + 1, dtype=float)
+    basis = np.stack([np.ones(steps), t]) if signal != "screw_speed_rad_s" else np.ones((1, steps))
+    q, _ = np.linalg.qr(basis.T)
+    return (m - (m @ q) @ q.T).ravel()
 
 
 @dataclass(frozen=True)
@@ -58,6 +84,7 @@ class FitProblem:
     kernel: str = "compiled"
     signals: tuple[str, ...] = ()
     scale: dict = field(default_factory=dict)
+    free_start: bool = True
 
     @classmethod
     def build(cls, recordings, base: Params, model: str, free, **kw) -> FitProblem:
@@ -99,9 +126,11 @@ class FitProblem:
         parts = []
         for rec, pred in zip(self.recordings, self.predictions(params, delay_steps)):
             meas = measured(rec, self.horizons(rec))
+            steps = self.horizons(rec).steps
             for s in self.signals:
                 r = (pred[s] - meas[s]) / self.scale[s]
-                parts.append(np.where(np.isfinite(r), r, NAN_RESIDUAL))
+                r = np.where(np.isfinite(r), r, NAN_RESIDUAL)
+                parts.append(free_start(r, steps, s) if self.free_start else r)
         return np.concatenate(parts)
 
     def residuals(self, u) -> np.ndarray:
