@@ -43,15 +43,30 @@ class Horizons:
         return (self.starts[:, None] + np.arange(1, self.steps + 1)[None, :]).ravel()
 
 
+def _carrier_ratio(session: Session) -> float:
+    """ω_C/ω_S the model itself runs at: the last step's where the screw turns, else the rolling ratio."""
+    st = session.simulator.state
+    screw = st.screw if isinstance(st, ActuatorState) else st
+    if session.stepped and abs(screw.screw_speed_rad_s) > 1e-3:
+        return screw.carrier_speed_rad_s / screw.screw_speed_rad_s
+    return ideal_carrier_ratio(session.params.geometry)
+
+
 def _restart(session: Session, rec: Recording, k: int, speed: float) -> float:
-    """Put `session` at the measured state of sample `k`; return the model's screw angle there."""
+    """Put `session` at the measured state of sample `k`; return the model's screw angle there.
+
+    The carrier is unseen: it starts at the ratio to the screw the model ran at at the end of the
+    previous horizon (the rolling ratio for the first), so a model whose rollers slip does not
+    start each horizon with a carrier jerked to the ideal ratio.
+    """
+    ratio = _carrier_ratio(session)
     session.initial_load_n = float(rec.load_n[k])
     session.reset(nut_position_m=float(rec.nut_position_m[k]))
     sim = session.simulator
     st = sim.state
     screw = st.screw if isinstance(st, ActuatorState) else st
     moved = {"screw_speed_rad_s": speed,
-             "carrier_speed_rad_s": speed * ideal_carrier_ratio(session.params.geometry)}
+             "carrier_speed_rad_s": speed * ratio}
     if "nut_speed_m_s" in getattr(screw.part, "_fields", ()):  # a nut on its own axial DOF moves with the screw
         moved["nut_speed_m_s"] = speed * session.params.geometry.lead_per_rad_m
     screw = replace(screw, **moved)
