@@ -552,6 +552,59 @@ class Stiction:
         check_field("stiction", "breakaway_ratio", v, is_finite_number(v) and v >= 1, "must be a finite number >= 1")
 
 
+PIN_BEARINGS = ("journal", "needle")
+# constant coefficient of friction of needle roller bearings with a cage, frictional moment M = ½ μ P d at the bore
+# d (SKF "Rolling bearings" general catalogue, 2016, "Friction", table 1: 0.0020)
+NEEDLE_BEARING_MU = 0.0020
+
+
+@dataclass(frozen=True)
+class DragParams:
+    """Load-independent losses of a real screw (`fu2018`, `elastic`; `ideal` as an equivalent torque), and the
+    carrier pins' bearing type. docs/model.md §4.5 lists each law and the source of each default.
+
+    `enabled` false: none of the drag acts (the papers' screw, bit for bit). `pin_bearing` acts either way:
+    ``"journal"`` is a plain pin with `friction.mu_pin`, ``"needle"`` a needle bearing with μ = 0.0020
+    (`NEEDLE_BEARING_MU`) at the same lever, the pin radius.
+
+    Attributes
+    ----------
+    enabled : bool
+        Seals, film traction and the internal preload act.
+    seal_friction_n_per_m : float
+        Friction force of a seal or wiper lip per metre of its circumference on the screw, N/m: a seal torque
+        T_s = n_seals · f′ · 2π r_S · r_S, regularised Coulomb on the screw, held statically at rest.
+    n_seals : int
+        Seals or wipers on the screw (one at each end of the nut).
+    film_thickness_m, film_area_m2 : float
+        Lubricant film h and wetted area A of one screw–roller thread contact: a Newtonian shear traction
+        f = −(ρ ν A / h) v_s at every contact, present at zero load.
+    internal_preload_n : float
+        Axial force P_i each flank set carries with no external load (the nut's play class or light preload
+        of a rigid nut, N): its contact forces act through the screw–roller Coulomb law on the idle flanks.
+    pin_bearing : str
+        ``"journal"`` or ``"needle"``.
+    """
+
+    enabled: bool = False
+    seal_friction_n_per_m: float = 32.0
+    n_seals: int = 2
+    film_thickness_m: float = 0.5e-6
+    film_area_m2: float = 1e-6
+    internal_preload_n: float = 800.0
+    pin_bearing: str = "journal"
+
+    def __post_init__(self) -> None:
+        g = "drag"
+        check_field(g, "enabled", self.enabled, isinstance(self.enabled, bool), "must be true or false")
+        check_non_negative(g, self, "seal_friction_n_per_m", "film_area_m2", "internal_preload_n")
+        check_positive(g, self, "film_thickness_m")
+        check_field(g, "n_seals", self.n_seals, isinstance(self.n_seals, int) and not isinstance(self.n_seals, bool)
+                    and self.n_seals >= 0, "must be an integer >= 0")
+        check_field(g, "pin_bearing", self.pin_bearing, self.pin_bearing in PIN_BEARINGS,
+                    f"must be one of {', '.join(PIN_BEARINGS)}")
+
+
 _GROUPS: dict[str, type] = {
     "geometry": Geometry,
     "mass": MassProperties,
@@ -562,6 +615,7 @@ _GROUPS: dict[str, type] = {
     "elastic": ElasticParams,
     "ratings": Ratings,
     "stiction": Stiction,
+    "drag": DragParams,
 }
 
 
@@ -595,6 +649,8 @@ class Params:
         Axial load ratings of the nut (derived from the thread form where left None).
     stiction : Stiction
         Breakaway beyond the running friction (`elastic`).
+    drag : DragParams
+        Load-independent losses of a real screw (seals, film traction, internal preload) and the pin bearing.
 
     Raises
     ------
@@ -621,6 +677,7 @@ class Params:
     elastic: ElasticParams = field(default_factory=ElasticParams)
     ratings: Ratings = field(default_factory=Ratings)
     stiction: Stiction = field(default_factory=Stiction)
+    drag: DragParams = field(default_factory=DragParams)
 
     def __post_init__(self) -> None:
         for gname, cls in _GROUPS.items():
@@ -707,10 +764,11 @@ class Params:
         return [f"{g}.{f.name}" for g, cls in _GROUPS.items() for f in fields(cls)]
 
 
-_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth")}
-_BOOL_FIELDS = {("geometry", "thread_ends")}
+_INT_FIELDS = {("geometry", "starts"), ("geometry", "n_rollers"), ("geometry", "n_teeth"), ("drag", "n_seals")}
+_BOOL_FIELDS = {("geometry", "thread_ends"), ("drag", "enabled")}
 _STR_FIELDS = {("friction", "contact_evaluation"), ("friction", "screw_roller_law"), ("friction", "load_distribution"),
-               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law")}
+               ("elastic", "mounting"), ("elastic", "tooth_model"), ("elastic", "preload_kind"), ("stiction", "law"),
+               ("drag", "pin_bearing")}
 
 
 def _coerce(gcls: type, key: str, value: Any, gname: str) -> Any:

@@ -273,8 +273,11 @@ class ElasticModel(Model):
         self.law = AxialLaw(params)
         self.m = params.mass.moved_mass_kg
         self.p = self.geo.lead_per_rad_m
-        # the rotating core: fu2018 with the moved mass taken off (the nut is its own body here)
-        core_params = params.with_overrides({"mass.moved_mass_kg": 1e-9 * self.m})
+        # the rotating core: fu2018 with the moved mass taken off (the nut is its own body here); its idle flanks
+        # press with this model's preload P₀ (held at its zero-load value: exact at zero load, where a preload
+        # torque is specified), not the rigid nut's internal preload, which the chain's clearance replaces
+        core_params = params.with_overrides({"mass.moved_mass_kg": 1e-9 * self.m,
+                                             "drag.internal_preload_n": params.elastic.preload_n})
         ms, _ = ls.axial_masses_kg(params)
         self.screw_side_mass_kg = ms
         self.mu = ms * self.m / (ms + self.m)

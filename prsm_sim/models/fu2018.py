@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from prsm_sim.errors import ParamError
-from prsm_sim.models import kernels
+from prsm_sim.models import drag, kernels
 from prsm_sim.models.kernels import FlankConstants, Fu2018Constants, ScrewRollerLaw, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
 from prsm_sim.physics.contact import ContactPoint, contact_for
@@ -81,7 +81,7 @@ PER_ROLLER_QUANTITIES = (
 PER_TOOTH_QUANTITIES = (("screw_normal_force_n", "N"), ("nut_normal_force_n", "N"))
 CARRIER_QUANTITIES = (("carrier_drag_torque_nm", "N·m"), ("axial_force_n", "N"), ("load_sign", "1"))
 GEAR_PRESSURE_ANGLE_RAD = math.radians(20.0)  # standard involute spur/ring gear
-# Adaptive sub-steps (`Fu2018._step`): where the friction state changes within a step (a speed
+# Adaptive sub-steps (`kernels.step`): where the friction state changes within a step (a speed
 # changes sign, the flank pair switches, or the screw–roller slip is within SLIP_ZONE
 # regularisation speeds of zero, where the regularised Coulomb law is far from saturated and
 # stiff) the step is checked by step doubling and halved, down to dt / 2**MAX_HALVINGS.
@@ -253,65 +253,28 @@ class Fu2018(Model):
         self.kernel = kernel
         self.check_params(params)
         super().__init__(params, dt_s)
-        geo, fr, m = self.geo, params.friction, params.mass
+        geo = self.geo
         self.sides = {s: self._side(s) for s in (1, -1)}
         self.zeta = load_distribution(params)
         self.p = geo.lead_per_rad_m
         self.a = geo.carrier_radius_m
-        self.k_mig = geo.pitch_m * (geo.starts - geo.gear_ratio) / (2 * math.pi)
+        fr = params.friction
         self.k_drag = 2 * 2 * math.pi * fr.lubricant_density_kg_m3 * fr.lubricant_viscosity_m2_s \
             * fr.drag_width_m * fr.drag_radius_m**3 / fr.drag_gap_m
         self.eps_v = fr.coulomb_regularisation_m_s
-        # the same regularisation, as an angular speed at the roller's rolling radius
-        self.eps_w = fr.coulomb_regularisation_m_s / geo.roller_radius_m
-        nr, nt = geo.n_rollers, geo.n_teeth
         self.screw_roller_law = ScrewRollerLaw.from_name(fr.screw_roller_law)
-        self._c_nt = fr.viscous_n_s_m * nt
-        self._nr, self._r_r, self._g = nr, geo.roller_radius_m, geo.gear_ratio
-        # pitch radius of the roller's gear: its mesh with the fixed ring rolls, a ω_C + (1 − g) ω_C r_g = 0, so
-        # r_g = a/(g − 1) (= r_R in the standard design g = r_N/r_R); the gear force's lever about the roller axis
-        self._r_gear = self.a / (geo.gear_ratio - 1.0)
-        self._mp = m.moved_mass_kg * self.p
-        self._i_s, self._i_c = m.screw_inertia_kgm2, m.carrier_inertia_kgm2
-        self._mr_p = m.roller_mass_kg * self.p
-        self._mr_kmig = m.roller_mass_kg * self.k_mig
-        self._mr_a = m.roller_mass_kg * self.a
-        self._mu_pin_r = fr.mu_pin * geo.pin_radius_m
-        self._mu_rr_r = fr.mu_nut_roller_rolling * geo.roller_radius_m
-        self._tan_gear = math.tan(GEAR_PRESSURE_ANGLE_RAD)
-        # I_R (1 − g) − r_R m_R a − r_R I_C / (N_R a): the carrier-mode inertia of the spin equation
-        self._j_spin = (m.roller_inertia_kgm2 * (1.0 - geo.gear_ratio) - self._r_gear * self._mr_a
-                        - self._r_gear * m.carrier_inertia_kgm2 / (nr * self.a))
-        self._zeta_share = self.zeta / nt
+        self._zeta_share = self.zeta / geo.n_teeth
         self._gather = self._gather_index()
         self._side_k = {sg: flank_constants(side, self.a) for sg, side in self.sides.items()}
-        # the nut contact slides only off the standard design (g ≠ r_N/r_R: roller migration)
-        nut_slides = max(float(np.abs(side.H).max()) for side in self.sides.values()) > 1e-12 * self.a
-        mu_nut = fr.mu_nut_roller_sliding if nut_slides else 0.0
-        # sign of the roller's spin relative to the nut, (1 − g) ω_C, per sign of ω_C (g > 0, any side of 1)
-        s_1g = 0.0 if geo.gear_ratio == 1.0 else math.copysign(1.0, 1.0 - geo.gear_ratio)
-        # pins/gears j = 1, 2 at the two ends of the threaded length (assumed span)
-        self._span = geo.roller_length_m
-        self._zbar = load_centroid_m(params)
         M = mass_matrix(params)
         self.kinetic = (float(M[0, 0]), float(M[0, 1]), float(M[1, 1]))  # energy guard
-        self._h_min = self.dt_s / 2**MAX_HALVINGS
-        self._h_zone = self.dt_s / 2**ZONE_HALVINGS
-        self._slip_tol = max(SUBSTEP_TOL * self.eps_v, SUBSTEP_TOL_FLOOR_M_S)
+        nr, nt = geo.n_rollers, geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
             InternalBlock("carrier", ("quantity",), (len(CARRIER_QUANTITIES),), CARRIER_QUANTITIES),
         ))
-        self.constants = Fu2018Constants(
-            screw_roller_law=float(self.screw_roller_law), mu=fr.mu_screw_roller, mu_n=mu_nut, eps_v2=self.eps_v**2,
-            eps_w2=self.eps_w**2, c_nt=self._c_nt, mu_pin_r=self._mu_pin_r, k_drag=self.k_drag, mu_rr_r=self._mu_rr_r,
-            nr=float(nr), a=self.a, r_g=self._r_gear, mp=self._mp, i_s=self._i_s, i_c=self._i_c, mr_p=self._mr_p,
-            mr_kmig=self._mr_kmig, mr_a=self._mr_a, j_spin=self._j_spin, tan_gear=self._tan_gear, g=self._g,
-            s_1g=s_1g, span=self._span, zbar=self._zbar, nut_slides=float(nut_slides), h=self.dt_s,
-            h_min=self._h_min, h_zone=self._h_zone, slip_tol=self._slip_tol, eps_v=self.eps_v, kss=self.kinetic[0],
-            ksc=self.kinetic[1], kcc=self.kinetic[2], jacobian_refresh=float(JACOBIAN_REFRESH_STEPS),
-            slip_zone=SLIP_ZONE, balance_tol=STEP_BALANCE_TOL, balance_floor=STEP_BALANCE_FLOOR_J, p=self.p)
+        self.constants = self._step_constants()
         # the step's constants (`kernels.Fu2018Constants`, `kernels.FlankConstants` per flank pair): float arrays
         # for numba, tuples of Python floats for the interpreter (numpy scalars would slow every operation)
         k_arr: tuple | np.ndarray = tuple(self.constants)
@@ -324,6 +287,42 @@ class Fu2018(Model):
             # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
             # the model is built, rather than in the first step of a realtime loop
             self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
+
+    def _step_constants(self) -> Fu2018Constants:
+        """The step's constants (`kernels.Fu2018Constants`) from the parameters."""
+        geo, fr, m, a, p = self.geo, self.params.friction, self.params.mass, self.a, self.p
+        nr = geo.n_rollers
+        k_mig = geo.pitch_m * (geo.starts - geo.gear_ratio) / (2 * math.pi)
+        # pitch radius of the roller's gear: its mesh with the fixed ring rolls, a ω_C + (1 − g) ω_C r_g = 0, so
+        # r_g = a/(g − 1) (= r_R in the standard design g = r_N/r_R); the gear force's lever about the roller axis
+        r_gear = a / (geo.gear_ratio - 1.0)
+        mr_a = m.roller_mass_kg * a
+        # the nut contact slides only off the standard design (g ≠ r_N/r_R: roller migration)
+        nut_slides = max(float(np.abs(side.H).max()) for side in self.sides.values()) > 1e-12 * a
+        eps_w = self.eps_v / geo.roller_radius_m  # the regularisation as an angular speed at the rolling radius
+        return Fu2018Constants(
+            screw_roller_law=float(self.screw_roller_law), mu=fr.mu_screw_roller,
+            mu_n=fr.mu_nut_roller_sliding if nut_slides else 0.0, eps_v2=self.eps_v**2, eps_w2=eps_w**2,
+            c_nt=fr.viscous_n_s_m * geo.n_teeth, mu_pin_r=drag.pin_friction_coefficient(self.params) * geo.pin_radius_m,
+            k_drag=self.k_drag,
+            mu_rr_r=fr.mu_nut_roller_rolling * geo.roller_radius_m, nr=float(nr), a=a, r_g=r_gear,
+            mp=m.moved_mass_kg * p, i_s=m.screw_inertia_kgm2, i_c=m.carrier_inertia_kgm2, mr_p=m.roller_mass_kg * p,
+            mr_kmig=m.roller_mass_kg * k_mig, mr_a=mr_a,
+            # I_R (1 − g) − r_R m_R a − r_R I_C / (N_R a): the carrier-mode inertia of the spin equation
+            j_spin=(m.roller_inertia_kgm2 * (1.0 - geo.gear_ratio) - r_gear * mr_a
+                    - r_gear * m.carrier_inertia_kgm2 / (nr * a)),
+            tan_gear=math.tan(GEAR_PRESSURE_ANGLE_RAD), g=geo.gear_ratio,
+            # sign of the roller's spin relative to the nut, (1 − g) ω_C, per sign of ω_C (g > 0, any side of 1)
+            s_1g=0.0 if geo.gear_ratio == 1.0 else math.copysign(1.0, 1.0 - geo.gear_ratio),
+            span=geo.roller_length_m,  # pins/gears j = 1, 2 at the two ends of the threaded length (assumed span)
+            zbar=load_centroid_m(self.params), nut_slides=float(nut_slides), h=self.dt_s,
+            h_min=self.dt_s / 2**MAX_HALVINGS, h_zone=self.dt_s / 2**ZONE_HALVINGS,
+            slip_tol=max(SUBSTEP_TOL * self.eps_v, SUBSTEP_TOL_FLOOR_M_S), eps_v=self.eps_v, kss=self.kinetic[0],
+            ksc=self.kinetic[1], kcc=self.kinetic[2], jacobian_refresh=float(JACOBIAN_REFRESH_STEPS),
+            slip_zone=SLIP_ZONE, balance_tol=STEP_BALANCE_TOL, balance_floor=STEP_BALANCE_FLOOR_J, p=p,
+            drag_on=float(self.params.drag.enabled), seal_torque=drag.seal_torque_nm(self.params),
+            eps_ws=self.eps_v / geo.screw_radius_m, film_nt=drag.film_traction_n_s_per_m(self.params) * geo.n_teeth,
+            idle_axial=2.0 * drag.idle_flank_force_n(self.params) / nr)
 
     def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> State:
         """At rest; under a nut load the friction state (flank pair, pin forces, gear force) is the static

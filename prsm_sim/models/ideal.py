@@ -23,6 +23,8 @@ import math
 import numpy as np
 
 from prsm_sim.errors import InputError
+from prsm_sim.models.drag import ideal_no_load_torque_nm
+from prsm_sim.models.elastic import sliding_efficiencies
 from prsm_sim.params import Params
 from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.physics.kinematics import ideal_carrier_ratio, ideal_speed_ratio
@@ -38,7 +40,8 @@ class Ideal(Model):
     def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
                                  torque_nm: float | None = None, load_n: float | None = None) -> dict | None:
         """Steady rolling at a screw speed: τ = τ_L/η_f forward, τ_L η_b backward, plus b ω (the model's
-        own efficiency law, LossyGear's modes; no fading: steady power is above its threshold)."""
+        own efficiency law, LossyGear's modes; no fading: steady power is above its threshold), plus the drag's
+        no-load torque T₀ against the motion."""
         if torque_nm is not None:
             raise InputError(f"torque_nm = {torque_nm!r}: the ideal model's steady state is given by a speed")
         w = params.loads.screw_speed_rad_s if screw_speed_rad_s is None else screw_speed_rad_s
@@ -48,6 +51,9 @@ class Ideal(Model):
         forward = tau_l * w >= 0
         tau = tau_l / il.efficiency_forward if forward else tau_l * il.efficiency_backward
         tau += il.viscous_nm_s_rad * w
+        geo = params.geometry
+        tau += math.copysign(ideal_no_load_torque_nm(params, sliding_efficiencies(geo, params.friction.mu_screw_roller)[0]),
+                             w) if w != 0.0 else 0.0
         return {"method": "closed form (efficiency law)", "screw_speed_rad_s": w, "carrier_over_screw": 1.0 / ideal_speed_ratio(params.geometry),
                 "speed_ratio_screw_over_carrier": ideal_speed_ratio(params.geometry), "torque_nm": tau,
                 "load_force_n": f,
@@ -63,6 +69,9 @@ class Ideal(Model):
         self.k_backward = 1.0 - il.efficiency_backward
         self.self_locking = il.efficiency_backward <= 0.0
         self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
+        # the drag's equivalent no-load torque (`models.drag`): a Coulomb torque that holds at rest like the loss
+        self.no_load_torque_nm = ideal_no_load_torque_nm(
+            params, sliding_efficiencies(self.geo, params.friction.mu_screw_roller)[0])
 
     def _make_step(self):
         """The step: the step law (`_step_law`) and the ledger."""
@@ -83,13 +92,15 @@ class Ideal(Model):
 
         Mesh loss for motion in direction d = ±1 with the load torque τ_L = F L/2π: |τ_L| (1/η_f − 1)
         rolling forward (d τ_L ≥ 0), |τ_L| (1 − η_b) backward, faded by tanh(|τ_L ω|/P_th) except
-        when backward and self-locking (then a stiction that holds the screw).
+        when backward and self-locking (then a stiction that holds the screw); plus the drag's no-load torque
+        T₀ (`models.drag.ideal_no_load_torque_nm`), not faded: a Coulomb torque that holds the screw at rest.
         """
         h, J = self.dt_s, self.J
         b = self.params.ideal.viscous_nm_s_rad
         p = self.geo.lead_per_rad_m
         j_hb = J + h * b
         k_forward, k_backward, self_locking = self.k_forward, self.k_backward, self.self_locking
+        t0 = self.no_load_torque_nm
         power_threshold_w = self.params.ideal.power_threshold_w
         tanh, copysign = math.tanh, math.copysign
 
@@ -104,6 +115,8 @@ class Ideal(Model):
                 mu = abs(tau_l) * (k_forward if forward else k_backward)
                 if forward or not self_locking:
                     mu *= tanh(abs(tau_l * w_free) / power_threshold_w)
+                if t0 != 0.0:
+                    mu += t0
                 w_slide = w_free - d * h * mu / j_hb
                 w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
             dtheta = 0.5 * h * (w0 + w1)

@@ -91,6 +91,11 @@ class Fu2018Constants(NamedTuple):
     balance_tol: float  # a step's own energy balance: relative tolerance
     balance_floor: float  # ... and absolute, J
     p: float  # lead per radian, m
+    drag_on: float  # 1.0: the load-independent losses below act (`DragParams.enabled`)
+    seal_torque: float  # seal/wiper torque T_s on the screw, N·m
+    eps_ws: float  # the Coulomb regularisation ε as a screw speed at the seal radius (ε / r_S), rad/s
+    film_nt: float  # film shear traction coefficient × N_T (all contacts of one roller), N·s/m
+    idle_axial: float  # axial force of the idle-flank contacts per roller, 2 P_i / N_R, N
 
 
 class FlankConstants(NamedTuple):
@@ -185,12 +190,20 @@ def check_kernel(kernel) -> None:
 
 
 _COMPILED: list[str] = []  # the functions `load` compiles, in definition order
+_INLINED: set[str] = set()  # ... of which numba inlines these into their callers (small helpers on the hot path)
 
 
 def _compiled(fn):
     """Mark a function for numba (compiled by `load`, which replaces it in this module by its dispatcher)."""
     _COMPILED.append(fn.__name__)
     return fn
+
+
+def _inlined(fn):
+    """`_compiled`, and inlined by numba into its callers: a helper that splits a step into readable parts
+    without the cost of a call on the hot path."""
+    _INLINED.add(fn.__name__)
+    return _compiled(fn)
 
 
 _REFERENCE: list[types.SimpleNamespace] = []  # the uncompiled functions, bound to one another (made once)
@@ -219,25 +232,30 @@ def load(kernel: str):
         from numba import njit  # here, on first use: `import prsm_sim` stays light
 
         # every dispatcher made before any is published (one dict update): a caller never sees a mix
-        g.update({name: njit(cache=True)(getattr(g[name], "py_func", g[name])) for name in _COMPILED})
+        g.update({name: njit(cache=True, inline="always" if name in _INLINED else "never")(
+            getattr(g[name], "py_func", g[name])) for name in _COMPILED})
     return sys.modules[__name__]
 
 
 # -- fu2018 -------------------------------------------------------------------------------------
-@_compiled
-def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, st1, st2, st3, st4, K, S):
-    """`Fu2018._solve`: equations 1–7 eliminated to a 2×2 system; 29 floats (`Forces` order). Without
-    `forces` only the accelerations are meaningful (the rest is NaN)."""
-    row = S[0] if sign > 0.0 else S[1]
+@_inlined
+def _contact_laws(w_s, w_c, stick_on, st0, st1, st2, row, K):
+    """The contacts' friction laws: the sliding velocities v_s = G u (screw), v_n = H u (nut), the directions
+    e = n + friction per unit normal force of the screw and nut contacts and the screw friction f₀ that does not
+    scale with the normal force (the viscous law), per roller. At rest (`stick_on`) the screw's static friction
+    per unit normal force (st0, st1, st2) as `_stick` solved it. Returns (v_s, e_S, f₀, v_n, e_N), 15 floats.
+
+    Screw–roller (`ScrewRollerLaw`): COULOMB f = −μ N v_s/√(|v_s|² + ε²), VISCOUS f = −c N_T v_s (Jones
+    2016's limit, load-independent). Nut–roller sliding (off the standard design only): regularised Coulomb.
+    With the drag on (`DragParams`), while sliding, two load-independent terms join f₀: the film's Newtonian
+    shear traction −c_f N_T v_s (c_f = ρ ν A/h per contact) and the idle flanks' contact force N_i = 2 P_i/(N_R
+    |n_z|) through the Coulomb law, −μ N_i v_s/√(|v_s|² + ε²) (its direction taken as the loaded flank's slip).
+    """
     g00, g01, g10, g11, g20, g21 = row[FL.g00], row[FL.g01], row[FL.g10], row[FL.g11], row[FL.g20], row[FL.g21]
     nsx, nsy, nsz = row[FL.nsx], row[FL.nsy], row[FL.nsz]
-    psx, psy, rsx, rsy = row[FL.psx], row[FL.psy], row[FL.rsx], row[FL.rsy]
-    nnx, nny, nnz, rnx, rny = row[FL.nnx], row[FL.nny], row[FL.nnz], row[FL.rnx], row[FL.rny]
+    nnx, nny, nnz = row[FL.nnx], row[FL.nny], row[FL.nnz]
     h00, h01, h10, h11, h20, h21 = row[FL.h00], row[FL.h01], row[FL.h10], row[FL.h11], row[FL.h20], row[FL.h21]
-    mu, mu_n, eps_v2, eps_w2, c_nt = K[FU.mu], K[FU.mu_n], K[FU.eps_v2], K[FU.eps_w2], K[FU.c_nt]
-    mu_pin_r, k_drag, mu_rr_r, nr, a, r_g = K[FU.mu_pin_r], K[FU.k_drag], K[FU.mu_rr_r], K[FU.nr], K[FU.a], K[FU.r_g]
-    mp, i_s, i_c, mr_p, mr_kmig, mr_a = K[FU.mp], K[FU.i_s], K[FU.i_c], K[FU.mr_p], K[FU.mr_kmig], K[FU.mr_a]
-    j_spin, tan_gear, g, s_1g, span, zbar = K[FU.j_spin], K[FU.tan_gear], K[FU.g], K[FU.s_1g], K[FU.span], K[FU.zbar]
+    mu, mu_n, eps_v2, c_nt = K[FU.mu], K[FU.mu_n], K[FU.eps_v2], K[FU.c_nt]
     vx = g00 * w_s + g01 * w_c
     vy = g10 * w_s + g11 * w_c
     vz = g20 * w_s + g21 * w_c
@@ -250,6 +268,12 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
     else:
         esx, esy, esz = nsx, nsy, nsz
         f0x, f0y, f0z = -c_nt * vx, -c_nt * vy, -c_nt * vz
+    if K[FU.drag_on] != 0.0 and not stick_on:
+        # load-independent: the film's shear traction, and the idle flanks' contact force through the Coulomb law
+        kd = K[FU.film_nt]
+        if int(K[FU.screw_roller_law]) == ScrewRollerLaw.COULOMB:
+            kd += mu * (K[FU.idle_axial] / abs(nsz)) / math.sqrt(vx * vx + vy * vy + vz * vz + eps_v2)
+        f0x, f0y, f0z = f0x - kd * vx, f0y - kd * vy, f0z - kd * vz
     if K[FU.nut_slides] != 0.0:
         wx = h00 * w_s + h01 * w_c
         wy = h10 * w_s + h11 * w_c
@@ -261,6 +285,30 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
         enx, eny, enz = nnx - kn * wx, nny - kn * wy, nnz - kn * wz
     else:
         enx, eny, enz = nnx, nny, nnz
+    return vx, vy, vz, esx, esy, esz, f0x, f0y, f0z, wx, wy, wz, enx, eny, enz
+
+
+@_compiled
+def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, st1, st2, st3, st4, K, S):
+    """Equations 1–7 (`fu2018` module doc) eliminated by hand to a 2×2 system in (ω̇_S, ω̇_C); 29 floats
+    (`Forces` order). Without `forces` only the accelerations are meaningful (the rest is NaN).
+
+    Nut (2) and screw (1) give N_N and N_S linearly in ω̇_S; the carriers (7) give F_pt, the roller
+    tangential balance (5) F_gt; roller axial (3) and spin (6) are then two equations in the two
+    accelerations; the radial balance (4) gives F_pr, the tilting balance the two pin reactions. `stick_on`:
+    at rest (u = 0) with the static friction `_stick` solved (st0..st2 per unit N_S, st3 the share σ of the
+    pin and rolling moments, st4 = N_S); the accelerations are then zero.
+    """
+    row = S[0] if sign > 0.0 else S[1]
+    nsx, nsy, nsz = row[FL.nsx], row[FL.nsy], row[FL.nsz]
+    psx, psy, rsx, rsy = row[FL.psx], row[FL.psy], row[FL.rsx], row[FL.rsy]
+    nnx, nny, nnz, rnx, rny = row[FL.nnx], row[FL.nny], row[FL.nnz], row[FL.rnx], row[FL.rny]
+    eps_w2 = K[FU.eps_w2]
+    mu_pin_r, k_drag, mu_rr_r, nr, a, r_g = K[FU.mu_pin_r], K[FU.k_drag], K[FU.mu_rr_r], K[FU.nr], K[FU.a], K[FU.r_g]
+    mp, i_s, i_c, mr_p, mr_kmig, mr_a = K[FU.mp], K[FU.i_s], K[FU.i_c], K[FU.mr_p], K[FU.mr_kmig], K[FU.mr_a]
+    j_spin, tan_gear, g, s_1g, span, zbar = K[FU.j_spin], K[FU.tan_gear], K[FU.g], K[FU.s_1g], K[FU.span], K[FU.zbar]
+    (vx, vy, vz, esx, esy, esz, f0x, f0y, f0z, wx, wy, wz, enx, eny, enz) = _contact_laws(w_s, w_c, stick_on, st0, st1,
+                                                                                       st2, row, K)
     spin_n = rnx * eny - rny * enx
     mom_s = psx * esy - psy * esx
     mom_f0 = psx * f0y - psy * f0x
@@ -273,6 +321,10 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
     alpha_n = mp / (nr * enz)
     beta_n = load / (nr * enz)
     rhs7 = -nr * m_pin + m_drag
+    m_seal = 0.0
+    if K[FU.drag_on] != 0.0 and not stick_on:  # the seals on the screw: regularised Coulomb (held at rest elsewhere)
+        m_seal = -K[FU.seal_torque] * w_s / math.sqrt(w_s * w_s + K[FU.eps_ws] * K[FU.eps_ws])
+        tau = tau + m_seal
     if stick_on:  # the static state `_stick` solved: no acceleration, its own N_S (mom_s may be 0)
         acc_s = acc_c = 0.0
         if not forces:
@@ -309,7 +361,7 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
     m_y = zbar * sx - rsx * sz + zbar * nx_ - rnx * nz_
     dx, dy = -2.0 * m_y / span, 2.0 * m_x / span
     diss = nr * (-(fx * vx + fy * vy + fz * vz) - (fnx * wx + fny * wy + fnz * wz) - m_pin * (-g * w_c)
-                 - m_rr * ((1.0 - g) * w_c)) - m_drag * w_c
+                 - m_rr * ((1.0 - g) * w_c)) - m_drag * w_c - m_seal * w_s
     return (acc_s, acc_c, diss, n_s, n_n, fx, fy, fz, vx, vy, vz, m_rr, f_gt, -tan_g * f_gt, f_pr, f_pt,
             m_pin, fnx, fny, fnz, math.sqrt(wx * wx + wy * wy + wz * wz), m_y,
             0.5 * (f_pr + dx), 0.5 * (f_pt + dy), 0.5 * (f_pr - dx), 0.5 * (f_pt - dy),
@@ -318,7 +370,8 @@ def solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, forces, stick_on, st0, 
 
 @_compiled
 def solve_forces(w_s, w_c, tau, load, sign, pin_abs, gear_sign, K, S):
-    """`Fu2018.solve_forces` while sliding: the other flank pair if a normal force comes out in tension."""
+    """The force system while sliding (`Fu2018.solve_forces`): `solve` with the flank pair `sign`, or the other
+    pair if a normal force comes out in tension (the pair that carries the load compressively)."""
     f = solve(w_s, w_c, tau, load, sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
     if f[3] < 0.0 or f[4] < 0.0:
         g = solve(w_s, w_c, tau, load, -sign, pin_abs, gear_sign, True, False, 0.0, 0.0, 0.0, 0.0, 0.0, K, S)
@@ -335,7 +388,7 @@ def _pin_sum(f):
 
 @_compiled
 def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
-    """`Fu2018._stick`: (found, forces, r)."""
+    """The static state at rest for one pass (`Fu2018.stick_forces` describes it): (found, forces, r)."""
     mu, mu_pin_r, mu_rr_r, nr, a, r_g, s_1g = K[FU.mu], K[FU.mu_pin_r], K[FU.mu_rr_r], K[FU.nr], K[FU.a], K[FU.r_g], \
         K[FU.s_1g]
     cands = np.empty(5)
@@ -402,7 +455,8 @@ def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
 
 @_compiled
 def stick_forces(tau, load, sign, pin_abs, gear_sign, K, S):
-    """`Fu2018.stick_forces`: (found, forces, r)."""
+    """The static state at rest (`Fu2018.stick_forces`): (found, forces, r), `_stick` solved again with the pin
+    forces it sets when they differ from `pin_abs` by more than 1 %."""
     ok, f, r = _stick(tau, load, sign, pin_abs, gear_sign, K, S)
     if ok:
         ps = _pin_sum(f)
@@ -413,7 +467,9 @@ def stick_forces(tau, load, sign, pin_abs, gear_sign, K, S):
 
 @_compiled
 def rosenbrock(ws, wc, flank_sign, pin_abs, gear_force, mem, tau, load, h, K, S):
-    """`Fu2018._rosenbrock`: (ω_S, ω_C, end forces, start forces, memory)."""
+    """One ROS2 step of length h (Verwer et al. 1999, γ = 1 + 1/√2, L-stable) with a finite-difference
+    Jacobian frozen for `jacobian_refresh` steps while the flank pair holds: (ω_S, ω_C, end forces, start forces,
+    memory). The pin force sum is refreshed when it moved by more than 1 %."""
     gsign = 1.0 if gear_force >= 0.0 else -1.0
     f0 = solve_forces(ws, wc, tau, load, flank_sign, pin_abs, gsign, K, S)
     ps = _pin_sum(f0)
@@ -455,7 +511,9 @@ def _stored(ws, wc, K):
 
 @_compiled
 def _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K):
-    """`Fu2018._books_open`."""
+    """The step's own energy balance misses by more than `balance_tol` of the energy it moved (+ `balance_floor`):
+    a cheap error indicator (the same ledger as the energy guard, per step) that sends the step to error control,
+    where it is halved until its halves close their books."""
     dth = 0.5 * h * (ws + ws1)
     w_in, w_out = tau * dth, load * K[FU.p] * dth
     d_e = _stored(ws1, wc1, K) - _stored(ws, wc, K)
@@ -465,32 +523,106 @@ def _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K):
 
 
 
+@_inlined
+def _slip2(f):
+    """|v_s|² of an evaluation (m²/s²)."""
+    return f[8] * f[8] + f[9] * f[9] + f[10] * f[10]
+
+
+@_inlined
+def _transition(ws, wc, ws1, wc1, f0, f1, sign, h, tau, load, K):
+    """The friction state changes within a step of length h (a speed changes sign or would by the start slope,
+    the flank pair switches) or the step's own books stay open (`_books_open`)."""
+    return (ws * ws1 < 0.0 or wc * wc1 < 0.0 or f1[28] != f0[28] or f0[28] != sign
+            or ws * (ws + h * f0[0]) < 0.0 or wc * (wc + h * f0[1]) < 0.0
+            or _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K))
+
+
 @_compiled
 def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
-    """`Fu2018._step`: (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces, sign, pin force, gear force, memory)."""
+    """One output step: error-controlled ROS2 sub-steps where the friction state changes, stick at rest.
+
+    Returns (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, forces at the end, flank sign, pin force sum, gear force,
+    solver memory). Away from friction transitions this is one ROS2 step with a frozen Jacobian (the
+    common case, no extra cost). Where a speed changes sign, the flank pair switches or the slip is within
+    SLIP_ZONE ε of zero (the regularised Coulomb law is stiff and far from saturation there), the step goes
+    to `_controlled_step`.
+    """
     h = K[FU.h]
     zone2 = (K[FU.slip_zone] * K[FU.eps_v]) ** 2
-    if ws != 0.0 or wc != 0.0:
+    if ws != 0.0 or wc != 0.0:  # fast path: one plain step when nothing about the friction changes
         ws1, wc1, f1, f0, m1 = rosenbrock(ws, wc, sign, pin_abs, gear, mem, tau, load, h, K, S)
-        if not (ws * ws1 < 0.0 or wc * wc1 < 0.0 or f1[28] != f0[28] or f0[28] != sign
-                or f0[8] * f0[8] + f0[9] * f0[9] + f0[10] * f0[10] < zone2
-                or f1[8] * f1[8] + f1[9] * f1[9] + f1[10] * f1[10] < zone2
-                or ws * (ws + h * f0[0]) < 0.0 or wc * (wc + h * f0[1]) < 0.0
-                or _books_open(ws, wc, ws1, wc1, f0, f1, h, tau, load, K)):
+        if not (_slip2(f0) < zone2 or _slip2(f1) < zone2 or _transition(ws, wc, ws1, wc1, f0, f1, sign, h, tau,
+                                                                           load, K)):
             return (ws1, wc1, 0.5 * h * (ws + ws1), 0.5 * h * (wc + wc1), 0.5 * h * (f0[2] + f1[2]), f1, f1[28],
                     _pin_sum(f1), f1[12], m1)
+    return _controlled_step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S)
+
+
+@_compiled
+def _halves(ws, wc, sign, pin_abs, gear, tau, load, hs, f1, K, S):
+    """Step doubling: the sub-step hs as two halves (a, b); `ok` when they agree with the whole step's end slip
+    within `slip_tol` and each closes its books."""
+    wsa, wca, fa1, fa0, ma = rosenbrock(ws, wc, sign, pin_abs, gear, NO_MEMORY, tau, load, 0.5 * hs, K, S)
+    wsb, wcb, fb1, fb0, mb = rosenbrock(wsa, wca, fa1[28], _pin_sum(fa1), fa1[12], NO_MEMORY, tau, load, 0.5 * hs,
+                                        K, S)
+    err = math.sqrt((fb1[8] - f1[8]) ** 2 + (fb1[9] - f1[9]) ** 2 + (fb1[10] - f1[10]) ** 2)
+    ok = not (err > K[FU.slip_tol] + 1e-6 * math.sqrt(fb1[8] ** 2 + fb1[9] ** 2 + fb1[10] ** 2)
+              or _books_open(ws, wc, wsa, wca, fa0, fa1, 0.5 * hs, tau, load, K)
+              or _books_open(wsa, wca, wsb, wcb, fb0, fb1, 0.5 * hs, tau, load, K))
+    return ok, wsa, wca, fa1, fa0, ma, wsb, wcb, fb1, fb0, mb
+
+
+@_inlined
+def _seal_holds(tau, load, K):
+    """At rest the seals alone hold the screw: the net torque τ − (L/2π) F of the frictionless mechanism lies
+    within their static torque T_s (the drag on)."""
+    return K[FU.drag_on] != 0.0 and K[FU.seal_torque] > 0.0 and abs(tau - K[FU.p] * load) <= K[FU.seal_torque]
+
+
+@_compiled
+def _seal_rest(tau, load, sign, pin_abs, gear, K, S):
+    """The forces at rest where the seals hold the screw: the mechanism carries the load with the
+    frictionless holding torque (L/2π) F, the seals the rest of τ."""
+    return solve_forces(0.0, 0.0, K[FU.p] * load, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
+
+
+@_compiled
+def _captured(w0s, w0c, w1s, w1c, g1, sign, pin_abs, gear, tau, load, zone2, K, S):
+    """(holds, static forces): the slip passed through zero, or reached the band where the regularised law would
+    creep (v_c = ε r/√(1 − r²)), while static friction can hold (`stick_forces`, r < 1)."""
+    v2 = _slip2(g1)
+    if w0s * w1s < 0.0 or w0c * w1c < 0.0 or v2 < zone2:
+        ok, st, r = stick_forces(tau, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
+        if ok and r < 1.0 and (w0s * w1s < 0.0 or w0c * w1c < 0.0 or
+                               v2 <= (2.0 * K[FU.eps_v] * (1.0 + r / math.sqrt(1.0 - r * r))) ** 2):
+            return True, st
+    # the seals' regularised law creeps within a few ε_ws of rest: where they can hold, they do
+    if (w0s * w1s < 0.0 or abs(w1s) < 2.0 * K[FU.eps_ws]) and _seal_holds(tau, load, K):
+        return True, _seal_rest(tau, load, sign, pin_abs, gear, K, S)
+    return False, _NAN29
+
+
+@_compiled
+def _controlled_step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
+    """`step` where the friction state changes: sub-steps checked by step doubling (`_halves`) and halved (down
+    to dt/2**MAX_HALVINGS; slow slip alone to dt/2**ZONE_HALVINGS) until the two answers agree within
+    SUBSTEP_TOL ε of slip and close their books. At rest, or when the slip reaches zero (or the regularised
+    creep band) while the static friction can hold (`stick_forces`, `_captured`), the mechanism sticks:
+    speeds are set to zero, and the kinetic energy left (slip within a few ε: tiny) is booked as the work of
+    the static friction impulse."""
+    h = K[FU.h]
+    zone2 = (K[FU.slip_zone] * K[FU.eps_v]) ** 2
     left = h
     hs = h
     dth_s = dth_c = diss = 0.0
     f_end = _NAN29
-    wsa = wca = wsb = wcb = 0.0
-    fa1 = fa0 = fb1 = fb0 = _NAN29
-    ma = mb = NO_MEMORY
-    h_min, h_zone, slip_tol, eps_v = K[FU.h_min], K[FU.h_zone], K[FU.slip_tol], K[FU.eps_v]
     while left > 1e-9 * h:
         if ws == 0.0 and wc == 0.0:
             ok, st, r = stick_forces(tau, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
-            if ok and r <= 1.0:
+            if not (ok and r <= 1.0) and _seal_holds(tau, load, K):
+                ok, st, r = True, _seal_rest(tau, load, sign, pin_abs, gear, K, S), 0.0
+            if ok and r <= 1.0:  # inputs are held over the step: it stays stuck
                 f_end, sign, gear, pin_abs = st, st[28], st[12], _pin_sum(st)
                 break
         hs = min(hs, left)
@@ -498,19 +630,14 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
                                           hs, K, S)
         # sub-steps to take: the full one, or its two halves (a, b)
         two = False
-        if hs > h_min and (ws * ws1 < 0.0 or wc * wc1 < 0.0 or f1[28] != f0[28] or f0[28] != sign
-                           or ws * (ws + hs * f0[0]) < 0.0 or wc * (wc + hs * f0[1]) < 0.0
-                           or _books_open(ws, wc, ws1, wc1, f0, f1, hs, tau, load, K)
-                           or (hs > h_zone
-                               and (f0[8] * f0[8] + f0[9] * f0[9] + f0[10] * f0[10] < zone2
-                                    or f1[8] * f1[8] + f1[9] * f1[9] + f1[10] * f1[10] < zone2))):
-            wsa, wca, fa1, fa0, ma = rosenbrock(ws, wc, sign, pin_abs, gear, NO_MEMORY, tau, load, 0.5 * hs, K, S)
-            wsb, wcb, fb1, fb0, mb = rosenbrock(wsa, wca, fa1[28], _pin_sum(fa1), fa1[12], NO_MEMORY, tau, load,
-                                                0.5 * hs, K, S)
-            err = math.sqrt((fb1[8] - f1[8]) ** 2 + (fb1[9] - f1[9]) ** 2 + (fb1[10] - f1[10]) ** 2)
-            if err > slip_tol + 1e-6 * math.sqrt(fb1[8] ** 2 + fb1[9] ** 2 + fb1[10] ** 2) \
-                    or _books_open(ws, wc, wsa, wca, fa0, fa1, 0.5 * hs, tau, load, K) \
-                    or _books_open(wsa, wca, wsb, wcb, fb0, fb1, 0.5 * hs, tau, load, K):
+        wsa, wca, fa1, fa0, ma, wsb, wcb, fb1, fb0, mb = ws1, wc1, f1, f0, m1, ws1, wc1, f1, f0, m1
+        if hs > K[FU.h_min] and (_transition(ws, wc, ws1, wc1, f0, f1, sign, hs, tau, load, K)
+                                 # slow slip: refined less deep (creep near the stick band's edge can last many
+                                 # steps, and the layer is resolved by the checks above)
+                                 or (hs > K[FU.h_zone] and (_slip2(f0) < zone2 or _slip2(f1) < zone2))):
+            ok, wsa, wca, fa1, fa0, ma, wsb, wcb, fb1, fb0, mb = _halves(ws, wc, sign, pin_abs, gear, tau, load, hs,
+                                                                         f1, K, S)
+            if not ok:
                 hs *= 0.5
                 continue
             two = True
@@ -527,16 +654,13 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
             diss += 0.5 * hk * (g0[2] + g1[2])
             left -= hk
             ws, wc, sign, pin_abs, gear, mem, f_end = w1s, w1c, g1[28], _pin_sum(g1), g1[12], mk, g1
-            v2 = g1[8] * g1[8] + g1[9] * g1[9] + g1[10] * g1[10]
-            if w0s * w1s < 0.0 or w0c * w1c < 0.0 or v2 < zone2:
-                ok, st, r = stick_forces(tau, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
-                if ok and r < 1.0 and (w0s * w1s < 0.0 or w0c * w1c < 0.0 or
-                                       v2 <= (2.0 * eps_v * (1.0 + r / math.sqrt(1.0 - r * r))) ** 2):
-                    diss += _stored(ws, wc, K)
-                    ws = wc = 0.0
-                    f_end, sign, gear, pin_abs, mem = st, st[28], st[12], _pin_sum(st), NO_MEMORY
-                    grow = False
-                    break
+            held, st = _captured(w0s, w0c, w1s, w1c, g1, sign, pin_abs, gear, tau, load, zone2, K, S)
+            if held:
+                diss += _stored(ws, wc, K)
+                ws = wc = 0.0
+                f_end, sign, gear, pin_abs, mem = st, st[28], st[12], _pin_sum(st), NO_MEMORY
+                grow = False
+                break
         if grow and hs < h:
             hs *= 2.0
     return ws, wc, dth_s, dth_c, diss, f_end, sign, pin_abs, gear, mem
@@ -544,7 +668,8 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
 
 @_compiled
 def fu2018_run(ws, wc, th_s, th_c, sign, pin_abs, gear, mem, tau_a, load_a, K, S, rows, comp):
-    """`Fu2018._run_impl`'s loop: fills rows (n × 8: ω_S, ω_C, θ_S, θ_C, Δθ_S, dissipated, slip, nut force) and
+    """The batch loop of `step` (`Fu2018._run_impl`): fills rows (n × 8: ω_S, ω_C, θ_S, θ_C, Δθ_S, dissipated,
+    slip, nut force) and
     comp (n × 26, `Forces.compact`); returns the final (ω_S, ω_C, θ_S, θ_C, sign, pin force, gear force,
     memory). The ledger is the caller's (its column form, from these rows)."""
     for i in range(tau_a.shape[0]):
@@ -604,7 +729,9 @@ def _complementary_at_root(s, a, b):
 
 @_compiled
 def law_evaluate(delta, x_n, extra, E):
-    """`AxialLaw.evaluate`: (F, K, V, lost motion)."""
+    """The chain law (`elastic.AxialLaw`): (F, K = dF/dδ, V, lost motion) at deflection δ and nut position x_N,
+    the clearance widened by `extra`. Unpreloaded: a dead zone of the clearance, then δ = a F^(2/3) + (b + c_ext) F.
+    Preloaded pair: shift x_p with δ = x_p + F c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
     ell = x_n - E[EL.x_bearing]
     c_ext = max(abs(ell), 1e-6) / E[EL.ea] + E[EL.c_housing]
     a, b = E[EL.law_a], E[EL.law_b]
@@ -653,7 +780,7 @@ def _nut_side_force(force_n, x_n, E):
 
 @_compiled
 def _el_force(th_s, w_s, x_n, v_n, extra, E):
-    """`ElasticModel._force`: (F + c δ̇, F, K, V, lost, δ, c)."""
+    """The thread force with contact damping c = 2ζ√(K μ): (F + c δ̇, F, K, V, lost, δ, c)."""
     p = E[EL.p]
     delta = p * th_s - x_n
     f, k, v, lost = law_evaluate(delta, x_n, extra, E)
@@ -669,7 +796,9 @@ def _sliding_eff(czs, sb, mu):
 
 @_compiled
 def _excess(direction, thread_force_n, g, E):
-    """`ElasticModel._excess`."""
+    """|excess torque| (N m) over the running friction for motion in `direction` (sign of ω_S) at Stribeck decay
+    g = exp(−(v/v_s)²): driving (ω_S F ≥ 0) p|F|/η_f(μ) less its running value; back-driven p|F| η_b(μ_c) less
+    p|F| η_b(μ), with μ = μ_c + (μ_s − μ_c) g (sliding-only efficiencies, docs/model.md §4.2)."""
     mu = E[EL.mu_c] + E[EL.d_mu] * g
     eta_f, eta_b = _sliding_eff(E[EL.czs], E[EL.sin_beta], mu)
     t = abs(E[EL.p] * thread_force_n)
@@ -678,7 +807,9 @@ def _excess(direction, thread_force_n, g, E):
 
 @_compiled
 def _stribeck_torque(ws, thread_force_n, E):
-    """`ElasticModel._stribeck_torque`."""
+    """Excess friction torque (N m, resisting ω_S) of the Stribeck law over `fu2018`'s running friction at the
+    screw–roller slip v = |ω_S| p / sin β (docs/model.md §3). Zero when `breakaway_ratio` is 1 or at rest
+    (`_rest_torque` then)."""
     if E[EL.breakaway] == 0.0 or ws == 0.0:
         return 0.0
     r = ws * E[EL.p_sb_vs]
@@ -691,7 +822,10 @@ def _stribeck_torque(ws, thread_force_n, E):
 
 @_compiled
 def _rest_torque(torque_nm, thread_force_n, E):
-    """`ElasticModel._rest_torque`."""
+    """Screw torque the core sees at rest: the Stribeck excess at zero slip acts as extra static friction against
+    the net torque τ − p F, up to its full value (the v → 0 limit of `_stribeck_torque`), so the screw breaks
+    away where the running law's stick band plus that excess ends, and the friction just after breakaway is the
+    friction just before it."""
     d = torque_nm - E[EL.p] * thread_force_n
     if E[EL.breakaway] == 0.0 or d == 0.0:
         return torque_nm
@@ -701,7 +835,8 @@ def _rest_torque(torque_nm, thread_force_n, E):
 
 @_compiled
 def _holds(torque_nm, thread_force_n, E):
-    """`ElasticModel._holds`."""
+    """Static friction holds the screw at rest: the torque lies inside the breakaway band [p F η_b,s, p F/η_f,s]
+    (mirrored for F < 0), efficiencies at μ_s = breakaway_ratio · μ."""
     eta_f, eta_b = E[EL.eta_sf], E[EL.eta_sb]
     t = E[EL.p] * thread_force_n
     if t >= 0:
@@ -716,17 +851,53 @@ def _core_kinetic(ws, wc, E):
     return 0.5 * (E[EL.m00] * ws * ws + 2 * E[EL.m01] * ws * wc + E[EL.m11] * wc * wc)
 
 
+@_inlined
+def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra, torque_nm,
+             load_n, E, K, S):
+    """One try of a sub-step with the elastic force `f_el` (+ damping c · rate) held: the core steps (or stays
+    held by static friction: `_holds`) and the nut moves under it. Returns (miss of the held force's work against
+    ΔV, the Stribeck torque applied, stuck, the core's end forces, ω_S, ω_C, Δθ_S, Δθ_C, the core's dissipation,
+    flank sign, pin force, gear force, solver memory, v_N, Δx_N, Δδ, the chain's F, K, V, lost motion, δ and
+    damping at the end, the thread force held)."""
+    hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
+    f_mid = f_el + c * rate
+    stuck = E[EL.breakaway] != 0.0 and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
+    if stuck:  # static friction holds the screw: no creep below breakaway
+        ff = solve_forces(0.0, 0.0, torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0, K, S)
+        ws1, wc1, dth_s, dth_c, d_core = 0.0, 0.0, 0.0, 0.0, 0.0
+        sign1, pin1, gear1, mem1 = sign, pin_abs, gear, mem
+    else:
+        if ws == 0.0 and wc == 0.0:
+            f_str = torque_nm - _rest_torque(torque_nm, f_mid, E)
+        ws1, wc1, dth_s, dth_c, d_core, ff, sign1, pin1, gear1, mem1 = step(
+            ws, wc, sign, pin_abs, gear, mem, torque_nm - f_str, f_mid, K, S)
+    nsf = _nut_side_force(f_el, x_mid, E)
+    v1 = v_n + hs * (f_mid - load_n + nsf) / m
+    dx = 0.5 * hs * (v_n + v1)
+    d_delta = p * dth_s - dx
+    _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E)
+    err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
+    return (err, f_str, stuck, ff, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1, v1, dx, d_delta, f_el1,
+            k1, v_el1, lost1, delta1, c1, f_mid, nsf)
+
+
 @_compiled
 def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, K, S):
-    """`ElasticModel._substeps`: (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin force, gear force, memory,
-    acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread force, stored energy
-    at the end (`ElasticModel.total_stored_energy_j`))."""
+    """One output step of `substeps` sub-steps (`elastic` module doc): (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin
+    force, gear force, memory, acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread
+    force, stored energy at the end (`ElasticModel.total_stored_energy_j`)).
+
+    Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with the
+    accelerations at its start): equal and opposite impulses, second order in the axial mode. Energy
+    consistency of the held elastic force: its work f Δδ (+ the nut-side term) must equal the change of V.
+    Where the contact closes or opens inside the sub-step (a backlash crossing, an impact) the midpoint force
+    does not see it; there the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ of the last
+    attempt (a discrete gradient: its work is ΔV exactly), a contraction since (ωh)²/2 < 1; the attempt with
+    the smallest miss is kept. The held damping force and Stribeck torque take out exactly the work they did.
+    """
     hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
-    breakaway = E[EL.breakaway] != 0.0
-    n_iter = int(E[EL.impact_iter])
-    diss = 0.0
+    diss = w_out = 0.0
     f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
-    w_out = 0.0
     f1 = _NAN29
     for _ in range(int(E[EL.substeps])):
         a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) / m
@@ -735,66 +906,40 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
                                                x_mid, v_n + 0.5 * hs * a_n, extra, E)
         rate = p * (ws + 0.5 * hs * acc) - (v_n + 0.5 * hs * a_n)
         f_str = _stribeck_torque(ws, f_el + c * rate, E)
-        have = False
-        # the best attempt (`best` of the reference path)
-        b_err = b_f_el = b_c = b_rate = b_ws1 = b_wc1 = b_dth_s = b_dth_c = b_d_core = 0.0
-        b_sign1 = b_pin1 = b_gear1 = b_v1 = b_dx = b_d_delta = b_f_el1 = b_k1 = b_v_el1 = b_lost1 = 0.0
-        b_delta1 = b_c1 = b_f_mid = 0.0
-        b_stuck = False
-        b_f1 = _NAN29
-        b_mem1 = NO_MEMORY
-        for attempt in range(n_iter + 1):
-            f_mid = f_el + c * rate
-            stuck = breakaway and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
-            if stuck:
-                ff = solve_forces(0.0, 0.0, torque_nm, f_mid, sign, pin_abs, 1.0 if gear >= 0 else -1.0, K, S)
-                ws1, wc1, dth_s, dth_c, d_core = 0.0, 0.0, 0.0, 0.0, 0.0
-                sign1, pin1, gear1, mem1 = sign, pin_abs, gear, mem
-            else:
-                if ws == 0.0 and wc == 0.0:
-                    f_str = torque_nm - _rest_torque(torque_nm, f_mid, E)
-                ws1, wc1, dth_s, dth_c, d_core, ff, sign1, pin1, gear1, mem1 = step(
-                    ws, wc, sign, pin_abs, gear, mem, torque_nm - f_str, f_mid, K, S)
-            nsf = _nut_side_force(f_el, x_mid, E)
-            v1 = v_n + hs * (f_mid - load_n + nsf) / m
-            dx = 0.5 * hs * (v_n + v1)
-            d_delta = p * dth_s - dx
-            _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E)
-            err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
-            if not have or abs(err) < abs(b_err):
-                have = True
-                b_err, b_f_el, b_c, b_rate, b_stuck, b_f1, b_ws1, b_wc1 = err, f_el, c, rate, stuck, ff, ws1, wc1
-                b_dth_s, b_dth_c, b_d_core, b_sign1, b_pin1, b_gear1, b_mem1 = dth_s, dth_c, d_core, sign1, pin1, \
-                    gear1, mem1
-                b_v1, b_dx, b_d_delta, b_f_el1, b_k1, b_v_el1, b_lost1 = v1, dx, d_delta, f_el1, k1, v_el1, lost1
-                b_delta1, b_c1, b_f_mid = delta1, c1, f_mid
-            if (attempt == n_iter or abs(d_delta) < 1e-15
-                    or abs(err) <= E[EL.impact_tol] * abs(torque_nm * dth_s)
+        best = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra,
+                        torque_nm, load_n, E, K, S)
+        b_c, b_rate, last = c, rate, best
+        for _attempt_no in range(int(E[EL.impact_iter])):
+            err, f_str, dth_s, d_delta, v_el1, dx, nsf = last[0], last[1], last[6], last[15], last[18], last[14], \
+                last[23]
+            if (abs(d_delta) < 1e-15 or abs(err) <= E[EL.impact_tol] * abs(torque_nm * dth_s)
                     + E[EL.impact_floor] * (abs(v_el1) + abs(v_el0))):
                 break
             f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
             rate = d_delta / hs
-            kk = max(k_mid, k1)
+            # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen (at a
+            # contact entry the predicted midpoint may still lie in the gap, K = 0)
+            kk = max(k_mid, last[17])
             c = 2.0 * E[EL.zeta] * math.sqrt(kk * E[EL.mu]) if kk > 0 else 0.0
-        f_el, c, rate, stuck, f1, ws1, wc1 = b_f_el, b_c, b_rate, b_stuck, b_f1, b_ws1, b_wc1
-        dth_s, dth_c, d_core, sign1, pin1, gear1, mem1 = b_dth_s, b_dth_c, b_d_core, b_sign1, b_pin1, b_gear1, b_mem1
-        v1, dx, d_delta, f_el1, k1, v_el1, lost1 = b_v1, b_dx, b_d_delta, b_f_el1, b_k1, b_v_el1, b_lost1
-        delta1, c1, f_mid = b_delta1, b_c1, b_f_mid
-        diss += d_core + c * rate * d_delta + f_str * dth_s
-        sign, pin_abs, gear, mem = sign1, pin1, gear1, mem1
+            last = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem,
+                            extra, torque_nm, load_n, E, K, S)
+            if abs(last[0]) < abs(best[0]):
+                best, b_c, b_rate = last, c, rate
+        f_str = last[1]  # the Stribeck torque as the last attempt left it
+        (_, _, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign, pin_abs, gear, mem, v1, dx, d_delta, f_el1, k1, v_el1,
+         lost1, delta1, c1, f_mid, _) = best
+        diss += d_core + b_c * b_rate * d_delta + f_str * dth_s
         acc = (ws1 - ws) / hs
         th_s += dth_s
         th_c += dth_c
-        if breakaway and not stuck and abs(ws1) < E[EL.w_stick]:
-            holds = _holds(torque_nm, f_mid, E)
-            if not holds:  # `ElasticModel._core_holds`
-                ok, _st, r = stick_forces(_rest_torque(torque_nm, f_mid, E), f_mid, sign, pin_abs,
-                                          1.0 if gear >= 0.0 else -1.0, K, S)
-                holds = ok and r <= 1.0
-            if holds:
-                diss += _core_kinetic(ws1, wc1, E)
-                ws1 = wc1 = acc = 0.0
-                _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s, 0.0, x_n + dx, v1, extra, E)
+        if E[EL.breakaway] != 0.0 and not stuck and abs(ws1) < E[EL.w_stick] \
+                and _sticks(torque_nm, f_mid, sign, pin_abs, gear, E, K, S):
+            # Karnopp: slower than the stick window with the torque inside the breakaway band (or the running
+            # law's stick band widened by the static excess), the screw sticks; its kinetic energy (and the
+            # carrier's) goes to friction, counted in the ledger
+            diss += _core_kinetic(ws1, wc1, E)
+            ws1 = wc1 = acc = 0.0
+            _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s, 0.0, x_n + dx, v1, extra, E)
         x_n += dx
         v_n = v1
         w_out += load_n * dx
@@ -808,9 +953,20 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
 
 
 @_compiled
+def _sticks(torque_nm, f_mid, sign, pin_abs, gear, E, K, S):
+    """The torque lies inside the breakaway band (`_holds`) or the running law's stick band widened by the
+    static Stribeck excess (`stick_forces` at `_rest_torque`)."""
+    if _holds(torque_nm, f_mid, E):
+        return True
+    ok, _st, r = stick_forces(_rest_torque(torque_nm, f_mid, E), f_mid, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0,
+                              K, S)
+    return ok and r <= 1.0
+
+
+@_compiled
 def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a, load_a, E, K, S, cols,
                 comp):
-    """`ElasticModel._run_impl`'s loop over `elastic_advance`. Fills cols (n × 17: θ_S, ω_S, θ_C, ω_C, x_N, v_N,
+    """The batch loop over `elastic_advance` (`ElasticModel._run_impl`). Fills cols (n × 17: θ_S, ω_S, θ_C, ω_C, x_N, v_N,
     thread force, slip, Δθ_S, the load's work, dissipated, stored energy, then the chain's F, K, V, lost, δ) and
     comp (n × 26). Returns the final (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin, gear, memory, acc). The ledger
     is the caller's (its column form, from these columns)."""

@@ -35,6 +35,7 @@ import copyreg
 import math
 from dataclasses import replace
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -108,7 +109,7 @@ class Model:
     # kinetic energy T = ½ (k_ss ω_S² + 2 k_sc ω_S ω_C + k_cc ω_C²): the model's mass matrix in
     # (ω_S, ω_C), set by every subclass; `stored_energy_j` uses it (models with springs add theirs)
     kinetic: tuple[float, float, float] = (math.nan, math.nan, math.nan)
-    part_type = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
+    part_type: Any = None  # the NamedTuple class of the model's own memory in `State.part` (None: none)
     packed = True  # the model steps on the packed state (`step_packed`); the actuator does not
     command_name = "torque_nm"  # what the first input of a step is (a bare model: the screw torque, N·m)
     # -- capabilities: what callers ask of a model instead of comparing its name ------------------
