@@ -131,11 +131,11 @@ def run(args, tmp: Path) -> dict:
     doc["validation"] = {}
     for r in held:
         doc["validation"][r.name] = validate(result, r)
-        plot_recording(result.problem, result.params, result.problem.base, r, result.delay_steps,
+        plot_recording(result.problem, result.params, result.base, r, result.delay_steps,
                        tmp / f"validate_{Path(r.name).stem}.png", "held out")
         progress("plots", 1, 1)
     for r in recs:
-        plot_recording(result.problem, result.params, result.problem.base, r, result.delay_steps,
+        plot_recording(result.problem, result.params, result.base, r, result.delay_steps,
                        tmp / f"fit_{Path(r.name).stem}.png", "fitted")
         progress("plots", 1, 1)
     bar.close()

@@ -29,6 +29,6 @@ def validate(result: FitResult, recording: Recording) -> dict:
     """The fitted and the base plant on `recording` (not fitted on): RMS nut position (m) and screw speed (rad/s)."""
     prob = result.problem
     fitted = prob.signal_rms(result.params, [recording], result.delay_steps)
-    base = prob.signal_rms(prob.base, [recording], 0)
+    base = prob.signal_rms(result.base, [recording], 0)
     pick = lambda d: {"rms_nut_position_m": d["nut_position_m"], "rms_screw_speed_rad_s": d["screw_speed_rad_s"]}
     return pick(fitted) | {"base": pick(base)}

@@ -139,6 +139,7 @@ class FitResult:
     base_residual_rms: dict
     starts: tuple[StartResult, ...]
     problem: FitProblem
+    base: Params  # the base as given, before the fit (`problem.base` may have a freed drag switched on)
 
     def to_dict(self) -> dict:
         return {"parameters": self.parameters, "correlation": self.correlation, "residual_rms": self.residual_rms,
@@ -189,8 +190,8 @@ def fit(recordings, base: Params, model: str, free: list[FreeParameter], *, actu
     """
     say = progress or (lambda stage, done, total: None)
     kw = {"actuator": actuator, "kernel": kernel} | ({"horizon_s": horizon_s} if horizon_s else {})
-    base = prepared_base(base, [p.name for p in free])
-    problem = FitProblem.build(recordings, base, model, free, **kw)
+    given = base
+    problem = FitProblem.build(recordings, prepared_base(base, [p.name for p in free]), model, free, **kw)
     fit_delay = any(p.name == DELAY_KEY for p in free)
     u, results = _best(problem, start_points(problem, starts, seed), map_fn, say) if problem.free else (
         np.zeros(0), [])
@@ -200,10 +201,11 @@ def fit(recordings, base: Params, model: str, free: list[FreeParameter], *, actu
         if delay:
             problem = replace(problem, delay_steps=delay)
             u = np.array(solve_start(problem, u).u) if problem.free else u
-    return _report(problem, u, results, fit_delay, band, say)
+    return _report(problem, u, results, fit_delay, band, say, given)
 
 
-def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: list[int], say: Progress) -> FitResult:
+def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: list[int], say: Progress,
+            given: Params) -> FitResult:
     """Identifiability, the refit of what is identifiable, intervals, the report (module doc, steps 3–4)."""
     names = [p.name for p in problem.free]
     r0 = problem.residuals(u)
@@ -236,8 +238,8 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
     R = correlation_of(C)
     correlation = {a: {b: float(R[i, j]) for j, b in enumerate(names)} for i, a in enumerate(names)}
     return FitResult(params=params, delay_steps=problem.delay_steps, parameters=parameters, correlation=correlation,
-                     residual_rms=problem.signal_rms(params), base_residual_rms=problem.signal_rms(problem.base, None, 0),
-                     starts=tuple(results), problem=problem)
+                     residual_rms=problem.signal_rms(params), base_residual_rms=problem.signal_rms(given, None, 0),
+                     starts=tuple(results), problem=problem, base=given)
 
 
 def _entry(p: FreeParameter, u: float, var: float, base: Params, why: str | None, value: float) -> dict:
