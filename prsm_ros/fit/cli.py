@@ -12,7 +12,6 @@ describes the loop excite → record → fit → validate → use.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import sys

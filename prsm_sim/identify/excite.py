@@ -39,7 +39,7 @@ def excitation(kind: str, duration_s: float, dt_s: float, amplitude: float, *, f
         phase = -math.pi * k * (k - 1) / len(f)  # Schroeder phases
         x = np.sin(2 * math.pi * f[None, :] * t[:, None] + phase[None, :]).sum(axis=1)
     elif kind == "chirp":
-        from scipy.signal import chirp
+        from scipy.signal import chirp  # type: ignore[import-untyped]
         x = chirp(t, f_low_hz, t[-1], f_high_hz, method="logarithmic")
     else:
         hold = max(1, int(round(0.5 / (f_high_hz * dt_s))))

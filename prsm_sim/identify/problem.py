@@ -36,7 +36,7 @@ def quantum(x: np.ndarray) -> float:
 def noise(x: np.ndarray, dt_s: float) -> float:
     """The sensor noise of `x` (one standard deviation): its scatter about a local cubic over ~10 ms
     (Savitzky–Golay), which follows the motion and leaves the noise."""
-    from scipy.signal import savgol_filter
+    from scipy.signal import savgol_filter  # type: ignore[import-untyped]
     w = max(7, int(round(0.01 / dt_s)) | 1)
     if len(x) <= w:
         return 0.0

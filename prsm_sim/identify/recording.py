@@ -113,7 +113,7 @@ class Recording:
         (Savitzky–Golay over about 10 ms, so an encoder's counts do not turn into speed spikes)."""
         if self.screw_speed_rad_s is not None:
             return self.screw_speed_rad_s
-        from scipy.signal import savgol_filter
+        from scipy.signal import savgol_filter  # type: ignore[import-untyped]
         window = max(5, int(round(0.01 / self.dt_s)) | 1)
         window = min(window, (self.samples - 1) | 1 if (self.samples - 1) % 2 else self.samples - 2)
         return savgol_filter(self.screw_position_rad, window, 2, deriv=1, delta=self.dt_s)

@@ -13,6 +13,7 @@ from the horizon's start, so the sensors' offsets do not matter.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -65,11 +66,10 @@ def _restart(session: Session, rec: Recording, k: int, speed: float) -> float:
     sim = session.simulator
     st = sim.state
     screw = st.screw if isinstance(st, ActuatorState) else st
-    moved = {"screw_speed_rad_s": speed,
-             "carrier_speed_rad_s": speed * ratio}
-    if "nut_speed_m_s" in getattr(screw.part, "_fields", ()):  # a nut on its own axial DOF moves with the screw
-        moved["nut_speed_m_s"] = speed * session.params.geometry.lead_per_rad_m
-    screw = replace(screw, **moved)
+    screw = replace(screw, screw_speed_rad_s=speed, carrier_speed_rad_s=speed * ratio)
+    part: Any = screw.part
+    if "nut_speed_m_s" in getattr(part, "_fields", ()):  # a nut on its own axial DOF moves with the screw
+        screw = replace(screw, part=part._replace(nut_speed_m_s=speed * session.params.geometry.lead_per_rad_m))
     sim.state = replace(st, screw=screw) if isinstance(st, ActuatorState) else screw
     return float(screw.screw_angle_rad)
 

@@ -25,10 +25,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from prsm_sim.identify.free import DELAY_KEY, MAX_DELAY_STEPS, FreeParameter, base_value, prepared_base
 from prsm_sim.identify.problem import FitProblem
@@ -53,6 +52,7 @@ class StartResult:
 
 def solve_start(problem: FitProblem, u0) -> StartResult:
     """One bounded least-squares run from `u0` (a task of its own: `map_fn` runs several)."""
+    from scipy.optimize import least_squares  # type: ignore[import-untyped]  # here: `import prsm_sim` stays quick
     res = least_squares(problem.residuals, np.asarray(u0, float), bounds=(0.0, 1.0), method="trf",
                         diff_step=DIFF_STEP, x_scale="jac", max_nfev=MAX_NFEV)
     return StartResult(u0=tuple(map(float, u0)), u=tuple(map(float, res.x)), cost=float(res.cost), nfev=int(res.nfev))
@@ -63,7 +63,7 @@ def start_points(problem: FitProblem, starts: int, seed: int = 0) -> list[np.nda
     u_base = problem.unit_of(problem.base)
     if starts <= 1 or not problem.free:
         return [u_base]
-    from scipy.stats import qmc
+    from scipy.stats import qmc  # type: ignore[import-untyped]
     extra = qmc.Sobol(len(problem.free), scramble=True, seed=seed).random(starts - 1)
     return [u_base] + [0.05 + 0.9 * x for x in extra]
 
@@ -116,7 +116,7 @@ def unidentifiable(J: np.ndarray, C: np.ndarray, names: list[str]) -> dict[str, 
     if ok.sum() >= 2:
         _, s, vt = np.linalg.svd(J[:, ok] / norms[ok], full_matrices=False)
         for k in np.flatnonzero(s < NULL_RATIO * s[0]):
-            for j, i in enumerate(np.flatnonzero(ok)):
+            for j, i in enumerate(np.flatnonzero(ok).tolist()):
                 if abs(vt[k, j]) > 0.3:
                     why.setdefault(names[i], "it weighs in a near-null direction of the Jacobian")
     R = correlation_of(C)
