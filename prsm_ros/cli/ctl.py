@@ -528,7 +528,7 @@ def run(args) -> int:
 
 def _play(ctl: Ctl, args, emit) -> None:
     from prsm_ros.cli.ctl_play import cmd_play
-    cmd_play(ctl, args, emit)
+    cmd_play(ctl, args, emit, CtlError)
 
 
 def _emitter(as_json: bool) -> Callable[[Any, str], None]:

@@ -18,7 +18,6 @@ import time
 
 import numpy as np
 
-from prsm_ros.cli.ctl import CtlError, _finite
 from prsm_ros.interface import NUT_JOINT
 
 COLUMNS = {"screw_torque_nm": ("effort", "screw_torque"), "screw_speed_rad_s": ("velocity", "velocity_command")}
@@ -34,39 +33,50 @@ def register(sub, common) -> None:
     p.add_argument("--speed-kp", default="2000", help="hold: screw rad/s per m of nut position error (speed)")
 
 
-def read_signal(path: str) -> tuple[str, np.ndarray, np.ndarray]:
-    """(column, times, values) of an excitation CSV; CtlError naming what is wrong."""
+def _finite(text: str, what: str, error: type[Exception]) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise error(f"{what} = {text!r}: expected a number") from None
+    if not math.isfinite(v):
+        raise error(f"{what} = {text!r}: must be finite")
+    return v
+
+
+def read_signal(path: str, error: type[Exception]) -> tuple[str, np.ndarray, np.ndarray]:
+    """(column, times, values) of an excitation CSV; `error` (prsm-ctl's one-line error) naming what is wrong."""
     from prsm_ros.limits import read_text_file
-    text = read_text_file(path, what="excitation", error=CtlError)
+    text = read_text_file(path, what="excitation", error=error)
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
     header = [h.strip() for h in lines[0].split(",")] if lines else []
     col = next((c for c in COLUMNS if c in header), None)
     if "time_s" not in header or col is None:
-        raise CtlError(f"{path}: needs the columns time_s and screw_torque_nm or screw_speed_rad_s (has "
+        raise error(f"{path}: needs the columns time_s and screw_torque_nm or screw_speed_rad_s (has "
                        f"{', '.join(header) or 'none'})")
     it, iv = header.index("time_s"), header.index(col)
     t, v = [], []
     for k, ln in enumerate(lines[1:], 2):
         cells = ln.split(",")
-        t.append(_finite(cells[it] if len(cells) > it else "", f"{path} row {k} time_s"))
-        v.append(_finite(cells[iv] if len(cells) > iv else "", f"{path} row {k} {col}"))
+        t.append(_finite(cells[it] if len(cells) > it else "", f"{path} row {k} time_s", error))
+        v.append(_finite(cells[iv] if len(cells) > iv else "", f"{path} row {k} {col}", error))
     if len(t) < 2 or np.any(np.diff(t) <= 0):
-        raise CtlError(f"{path}: time_s must increase over at least two rows")
+        raise error(f"{path}: time_s must increase over at least two rows")
     return col, np.asarray(t), np.asarray(v)
 
 
-def cmd_play(ctl, args, emit) -> None:
-    """Play the file (module docstring) and report how many commands went out over how long."""
+def cmd_play(ctl, args, emit, error: type[Exception]) -> None:
+    """Play the file (module docstring) and report how many commands went out over how long; `error` is
+    prsm-ctl's one-line error (exit 2)."""
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from prsm_ros.messages import TOPICS, with_depth
-    col, ts, vs = read_signal(args.file)
+    col, ts, vs = read_signal(args.file, error)
     interface, key = COLUMNS[col]
-    gains = {k: _finite(getattr(args, k), f"--{k.replace('_', '-')}") for k in ("kp", "kd", "ki", "speed_kp")}
+    gains = {k: _finite(getattr(args, k), f"--{k.replace('_', '-')}", error) for k in ("kp", "kd", "ki", "speed_kp")}
     active = ctl.get_params(["command_interface"])["command_interface"]
     if active != interface:
-        raise CtlError(f"play {args.file}: {col} needs command_interface {interface}, the node's is {active} "
+        raise error(f"play {args.file}: {col} needs command_interface {interface}, the node's is {active} "
                        f"(prsm-ctl interface {interface})")
     pub = ctl.node.create_publisher(Float64, ctl.topic(key), with_depth(TOPICS[key].qos, 10))
     ctl.spin_until(lambda: pub.get_subscription_count() > 0, f"nobody reads {ctl.topic(key)}")
@@ -102,6 +112,6 @@ def cmd_play(ctl, args, emit) -> None:
     while not st["done"]:
         ctl.executor.spin_once(timeout_sec=0.05)
         if st["t0"] is None and time.monotonic() - start > ctl.timeout_s:
-            raise CtlError(f"no joint state from {ctl.target} within {ctl.timeout_s:g} s (paused? prsm-ctl resume)")
+            raise error(f"no joint state from {ctl.target} within {ctl.timeout_s:g} s (paused? prsm-ctl resume)")
     emit({"file": args.file, "column": col, "commands": st["sent"], "duration_s": float(ts[-1])},
          f"played {args.file}: {st['sent']} commands over {ts[-1]:g} s ({col} around a hold at the start position)")

@@ -4,7 +4,7 @@ Steps (docs/fit.md "How the fit works"):
 
 1. Every free parameter is searched in the unit box between its bounds (log-scaled where it spans
    decades) by `scipy.optimize.least_squares` (trust-region reflective, bounds), from the base
-   values and from `starts − 1` more points spread over the box; the lowest cost wins, so a local
+   values and from `starts − 1` Latin-hypercube points of the box; the lowest cost wins, so a local
    minimum of one start is not taken for the answer. The starts are independent tasks handed to
    `map_fn` (serial by default; `prsm-fit` runs them on Ray).
 2. The command-path delay is a whole number of steps: each delay up to `MAX_DELAY_STEPS` is tried at
@@ -59,12 +59,13 @@ def solve_start(problem: FitProblem, u0) -> StartResult:
 
 
 def start_points(problem: FitProblem, starts: int, seed: int = 0) -> list[np.ndarray]:
-    """The base point and `starts − 1` scrambled Sobol points of the unit box."""
+    """The base point and `starts − 1` Latin-hypercube points of the unit box (every parameter's range
+    cut in `starts − 1` strata, each stratum drawn once)."""
     u_base = problem.unit_of(problem.base)
     if starts <= 1 or not problem.free:
         return [u_base]
     from scipy.stats import qmc  # type: ignore[import-untyped]
-    extra = qmc.Sobol(len(problem.free), scramble=True, seed=seed).random(starts - 1)
+    extra = qmc.LatinHypercube(d=len(problem.free), seed=seed).random(starts - 1)
     return [u_base] + [0.05 + 0.9 * x for x in extra]
 
 
