@@ -171,3 +171,24 @@ def test_excite_writes_a_bounded_signal(tmp_path, capsys):
     assert main(["-o", str(tmp_path / "no.csv"), "--amplitude", "80"]) == 2  # above the 50 N·m effort limit
     assert "must lie in (0, 50]" in capsys.readouterr().err and not (tmp_path / "no.csv").exists()
     assert cli.main(["excite", "-o", str(tmp_path / "ms.csv"), "--duration", "1"]) == 0
+
+
+def test_ctrl_c_leaves_nothing_and_exits_130(hidden, tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+    rec = record(hidden, "ideal", load_n=500.0, duration_s=1.0)
+    _write_csv(tmp_path / "run.csv", rec)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "prsm_ros.fit.cli", f"{tmp_path / 'run.csv'}@500", "--model", "ideal",
+                             "--serial", "--starts", "4", "-o", str(out)], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any(p.name.startswith(".prsm-fit-") for p in tmp_path.iterdir()):  # the fit has started
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.stderr else ""
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted; nothing written" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.csv"]
