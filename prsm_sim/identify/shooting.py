@@ -3,11 +3,12 @@
 The plant is an integrator: a run simulated from the command alone drifts from a recording by any
 small error in its friction and never comes back, and a recording of a closed loop holds the nut
 where the controller wanted it, not where the open-loop command would take it. Each horizon
-therefore starts from the measured screw angle, screw speed and nut position (at rest in
-everything the bench cannot see: the friction state under the load in force, the chain deflected
-by it) and runs the recorded command and load through the model's own stepping path, the same
-`Session` the node steps, for a fixed number of steps. The predictions are taken as increments
-from the horizon's start, so the sensors' offsets do not matter.
+therefore starts from the measured screw angle, screw speed and nut position and runs the recorded
+command and load through the model's own stepping path, the same `Session` the node steps, for a
+fixed number of steps. What the bench cannot see (the chain's deflection, the carrier's slip, the
+friction state) continues from the end of the previous horizon (`_carry`); the first horizon starts
+at rest in it, in equilibrium under the load in force (`_restart`). The predictions are taken as
+increments from the horizon's start, so the sensors' offsets do not matter.
 """
 
 from __future__ import annotations
@@ -74,6 +75,28 @@ def _restart(session: Session, rec: Recording, k: int, speed: float) -> float:
     return float(screw.screw_angle_rad)
 
 
+def _carry(session: Session, rec: Recording, k: int, speed: float) -> float:
+    """Move the model's state at the end of the previous horizon (which ends at sample `k`) onto the
+    measured state there: the screw and nut shifted by the nut-position error, the speeds by the
+    screw-speed error; what the bench cannot see (the chain's deflection, the carrier's slip, the
+    friction state) continues as the model had it. Returns the model's screw angle there."""
+    sim = session.simulator
+    st = sim.state
+    screw = st.screw if isinstance(st, ActuatorState) else st
+    geo = session.params.geometry
+    dx = float(rec.nut_position_m[k]) - session.last.nut_position_m
+    dth, dw, ratio = dx / geo.lead_per_rad_m, speed - screw.screw_speed_rad_s, ideal_carrier_ratio(geo)
+    screw = replace(screw, screw_angle_rad=screw.screw_angle_rad + dth, screw_speed_rad_s=speed,
+                    carrier_angle_rad=screw.carrier_angle_rad + dth * ratio,
+                    carrier_speed_rad_s=screw.carrier_speed_rad_s + dw * ratio)
+    part: Any = screw.part
+    if "nut_axial_m" in getattr(part, "_fields", ()):  # a nut on its own axial DOF: shifted with the screw
+        screw = replace(screw, part=part._replace(nut_axial_m=part.nut_axial_m + dx,
+                                                  nut_speed_m_s=part.nut_speed_m_s + dw * geo.lead_per_rad_m))
+    sim.state = replace(st, screw=screw) if isinstance(st, ActuatorState) else screw
+    return float(screw.screw_angle_rad)
+
+
 def simulate(config: SessionConfig, rec: Recording, horizons: Horizons, delay_steps: int = 0) -> dict[str, np.ndarray]:
     """Predicted signals at `horizons.indices()` (`SIGNALS`), each an increment on the measured value at
     its horizon's start; a horizon the model cannot run through (a model fault) predicts NaN there.
@@ -90,7 +113,8 @@ def simulate(config: SessionConfig, rec: Recording, horizons: Horizons, delay_st
     n, h = len(horizons.starts), horizons.steps
     out = {s: np.full((n, h), np.nan) for s in SIGNALS}
     for j, k in enumerate(horizons.starts):
-        theta0 = _restart(session, rec, int(k), float(speed[k]))
+        carry = j > 0 and session.stepped and session.fault is None and horizons.starts[j - 1] + h == k
+        theta0 = (_carry if carry else _restart)(session, rec, int(k), float(speed[k]))
         x0 = session.last.nut_position_m
         try:
             for i in range(h):
