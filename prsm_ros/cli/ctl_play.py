@@ -33,14 +33,15 @@ def register(sub, common) -> None:
     p.add_argument("--speed-kp", default="2000", help="hold: screw rad/s per m of nut position error (speed)")
 
 
-def _finite(text: str, what: str, error: type[Exception]) -> float:
+def _numbers(rows: list[list[str]], what: str, error: type[Exception]) -> np.ndarray:
+    """`rows` of text as a 2-D array of finite numbers; `error` naming `what` otherwise."""
     try:
-        v = float(text)
+        data = np.array(rows, dtype=float)
     except ValueError:
-        raise error(f"{what} = {text!r}: expected a number") from None
-    if not math.isfinite(v):
-        raise error(f"{what} = {text!r}: must be finite")
-    return v
+        raise error(f"{what}: every value must be a number, every row as long as the header") from None
+    if data.ndim != 2 or not np.isfinite(data).all():
+        raise error(f"{what}: every value must be a finite number")
+    return data
 
 
 def read_signal(path: str, error: type[Exception]) -> tuple[str, np.ndarray, np.ndarray]:
@@ -52,16 +53,11 @@ def read_signal(path: str, error: type[Exception]) -> tuple[str, np.ndarray, np.
     col = next((c for c in COLUMNS if c in header), None)
     if "time_s" not in header or col is None:
         raise error(f"{path}: needs the columns time_s and screw_torque_nm or screw_speed_rad_s (has "
-                       f"{', '.join(header) or 'none'})")
-    it, iv = header.index("time_s"), header.index(col)
-    t, v = [], []
-    for k, ln in enumerate(lines[1:], 2):
-        cells = ln.split(",")
-        t.append(_finite(cells[it] if len(cells) > it else "", f"{path} row {k} time_s", error))
-        v.append(_finite(cells[iv] if len(cells) > iv else "", f"{path} row {k} {col}", error))
-    if len(t) < 2 or np.any(np.diff(t) <= 0):
+                    f"{', '.join(header) or 'none'})")
+    data = _numbers([ln.split(",") for ln in lines[1:]], path, error)
+    if len(data) < 2 or np.any(np.diff(data[:, header.index("time_s")]) <= 0):
         raise error(f"{path}: time_s must increase over at least two rows")
-    return col, np.asarray(t), np.asarray(v)
+    return col, data[:, header.index("time_s")], data[:, header.index(col)]
 
 
 def cmd_play(ctl, args, emit, error: type[Exception]) -> None:
@@ -73,7 +69,8 @@ def cmd_play(ctl, args, emit, error: type[Exception]) -> None:
     from prsm_ros.messages import TOPICS, with_depth
     col, ts, vs = read_signal(args.file, error)
     interface, key = COLUMNS[col]
-    gains = {k: _finite(getattr(args, k), f"--{k.replace('_', '-')}", error) for k in ("kp", "kd", "ki", "speed_kp")}
+    names = ("kp", "kd", "ki", "speed_kp")
+    gains = dict(zip(names, _numbers([[getattr(args, k) for k in names]], "--kp/--kd/--ki/--speed-kp", error)[0]))
     active = ctl.get_params(["command_interface"])["command_interface"]
     if active != interface:
         raise error(f"play {args.file}: {col} needs command_interface {interface}, the node's is {active} "

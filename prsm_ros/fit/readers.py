@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from prsm_sim.identify import Recording
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, TOPIC_DEFS
 from prsm_ros.limits import read_text_file
 
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
 REQUIRED = ("time_s", "screw_torque_nm", "screw_position_rad", "nut_position_m")
 OPTIONAL = ("screw_speed_rad_s", "load_n")
 TABLE_SUFFIXES = (".csv", ".parquet")
@@ -49,12 +51,9 @@ def parse_source(text: str) -> tuple[Path, float | None]:
     path, sep, load = text.rpartition("@")
     if not sep or not path:
         return Path(text), None
-    try:
-        value = float(load)
-    except ValueError:
-        raise InputError(f"{text}: the part after @ must be a constant load in N (e.g. bench1.mcap@3000)") from None
+    value = float(load) if _NUMBER.fullmatch(load.strip()) else math.nan
     if not math.isfinite(value):
-        raise InputError(f"{text}: load {load!r} must be a finite number of N")
+        raise InputError(f"{text}: the part after @ must be a constant load, a finite number of N (e.g. bench1.mcap@3000)")
     return Path(path), value
 
 
