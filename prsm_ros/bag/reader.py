@@ -353,11 +353,10 @@ def scan_records(path, on_message=None) -> Scan:
     return scan
 
 
-def walk_records(path, scan: Scan) -> Iterator[tuple]:
-    """The generator behind `scan_records`: yields (schema, channel, message), fills `scan`."""
-    from mcap.data_stream import ReadDataStream
-    from mcap.opcode import Opcode
-    from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
+def _taker(scan: Scan):
+    """`take(record)`: keeps a schema or channel in `scan`; a message → (schema, channel, message), None
+    when its channel is unknown. A closure, so that the record types are looked up once per file."""
+    from mcap.records import Channel, Message, Schema
 
     def take(rec):
         if isinstance(rec, Schema):
@@ -370,7 +369,62 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 return scan.schemas.get(ch.schema_id), ch, rec
             scan.undeclared += 1
         return None
+    return take
 
+
+def _resume_after(mm, pos: int, size: int, scan: Scan) -> int | None:
+    """Where reading goes on past an unreadable record at `pos`: the next record (the gap noted in `scan`).
+
+    None when no record follows (`scan.stopped_at` set): the file ends there for us."""
+    nxt = _next_record(mm, pos + 1, size)
+    if nxt is None:
+        scan.stopped_at = pos
+        return None
+    scan.gaps.append((pos, nxt))
+    return nxt
+
+
+def _record_reader(scan: Scan, take):
+    """`read(body, opcode, length, pos)`: one record's `body` (`length` bytes, at byte `pos`) into `scan`
+    through `take` (`_taker`), giving the (schema, channel, message) it holds; None at the footer, the
+    record that ends the file. It raises one of `damaged_data_errors()` for a damaged body; a chunk that
+    fails its checks is listed in `scan.bad_chunks`, the records after it stay readable. A closure, so
+    that the mcap names are looked up once per file, not once per record."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
+
+    def read(body: bytes, opcode: int, length: int, pos: int) -> list | None:
+        stream = ReadDataStream(io.BytesIO(body))
+        found = []
+        if opcode == Opcode.HEADER:
+            scan.header = Header.read(stream)
+        elif opcode == Opcode.SCHEMA:
+            take(Schema.read(stream))
+        elif opcode == Opcode.CHANNEL:
+            take(Channel.read(stream))
+        elif opcode == Opcode.MESSAGE:
+            found.append(take(Message.read(stream, length)))
+        elif opcode == Opcode.METADATA:
+            scan.metadata.append(Metadata.read(stream))
+        elif opcode == Opcode.CHUNK:
+            try:
+                found = [take(rec) for rec in chunk_records(Chunk.read(stream))]
+                scan.chunks += 1
+            except ChunkSkipped as e:  # framed by its length: the records after it are still readable
+                scan.bad_chunks.append((pos, str(e)))
+        elif opcode == Opcode.FOOTER:
+            return None
+        return [item for item in found if item is not None]
+    return read
+
+
+def walk_records(path, scan: Scan) -> Iterator[tuple]:
+    """The generator behind `scan_records`: yields (schema, channel, message), fills `scan`."""
+    from mcap.opcode import Opcode
+
+    take = _taker(scan)
+    read_record = _record_reader(scan, take)
     damaged = damaged_data_errors()
     with open(path, "rb") as f, _mapped(f) as mm:
         size = os.fstat(f.fileno()).st_size
@@ -393,11 +447,9 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                     f.seek(pos)
                     continue
             if length > size - pos - 9:  # cut short, or a damaged length: read on from the next record, if any
-                nxt = _next_record(mm, pos + 1, size)
+                nxt = _resume_after(mm, pos, size, scan)
                 if nxt is None:
-                    scan.stopped_at = pos
                     break
-                scan.gaps.append((pos, nxt))
                 pos = nxt
                 f.seek(pos)
                 continue
@@ -408,39 +460,20 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 pos += 9 + length
                 continue
             body = f.read(length)
-            stream = ReadDataStream(io.BytesIO(body))
-            found = []
             try:
-                if opcode == Opcode.HEADER:
-                    scan.header = Header.read(stream)
-                elif opcode == Opcode.SCHEMA:
-                    take(Schema.read(stream))
-                elif opcode == Opcode.CHANNEL:
-                    take(Channel.read(stream))
-                elif opcode == Opcode.MESSAGE:
-                    found.append(take(Message.read(stream, length)))
-                elif opcode == Opcode.METADATA:
-                    scan.metadata.append(Metadata.read(stream))
-                elif opcode == Opcode.CHUNK:
-                    try:
-                        found = [take(rec) for rec in chunk_records(Chunk.read(stream))]
-                        scan.chunks += 1
-                    except ChunkSkipped as e:  # framed by its length: the records after it are still readable
-                        scan.bad_chunks.append((pos, str(e)))
-                elif opcode == Opcode.FOOTER:
-                    scan.complete = f.read(8) == MAGIC
-                    break
+                found = read_record(body, opcode, length, pos)
             except damaged as e:  # a damaged record: read on from the next record, if any
-                nxt = _next_record(mm, pos + 1, size)
+                nxt = _resume_after(mm, pos, size, scan)
                 if nxt is None:
-                    scan.stopped_at = pos
                     scan.problem = f"damaged record at byte {pos} ({type(e).__name__})"
                     break
-                scan.gaps.append((pos, nxt))
                 pos = nxt
                 f.seek(pos)
                 continue
-            yield from (item for item in found if item is not None)
+            if found is None:  # the footer: the file is finished when the closing magic follows
+                scan.complete = f.read(8) == MAGIC
+                break
+            yield from found
             pos += 9 + length
 
 
@@ -942,6 +975,36 @@ _BY_TYPE_ALONE = ("joint_states", "wrench")
 _ALSO_TYPES = {"reference": ("std_msgs/msg/Float64",)}
 
 
+def _given_topic(bag: Bag, role: str, topic: str, type_name: str) -> str:
+    """`topic`, named for `role` on the command line, checked: present, of the role's type, decodable."""
+    if topic not in bag.topics:
+        raise BagError(f"{bag.path.name}: no topic {topic!r} (given for {role}); "
+                       f"topics: {', '.join(sorted(bag.topics)) or 'none'}")
+    if bag.topics[topic].type not in (type_name, *_ALSO_TYPES.get(role, ())):
+        raise BagError(f"{bag.path.name}: topic {topic!r} is {bag.topics[topic].type}; {role} needs {type_name}")
+    bag.require_decodable([topic])
+    return topic
+
+
+def _found_topic(bag: Bag, role: str, type_name: str, suffix: str, default: str) -> str | None:
+    """The topic of `bag` that plays `role`, by type and name suffix (None: none; BagError: several)."""
+    typed = [t for ty in (type_name, *_ALSO_TYPES.get(role, ())) for t in bag.topics_of_type(ty)
+             if not bag.topics[t].problem]
+    named = [t for t in typed if t == suffix or t.endswith(suffix)]
+    if role in _BY_TYPE_ALONE and not named:
+        others = [t for t in typed if not any(t.endswith(s) for r, (ty, s, _) in ROLES.items()
+                                               if r != role and ty == type_name)]
+        named = others if len(others) == 1 else []
+    if len(named) > 1:
+        if default in named:
+            named = [default]
+        else:
+            flag = role.replace("_", "-")
+            raise BagError(f"{bag.path.name}: several topics could be {role}: {', '.join(named)}; "
+                           f"choose one with --{flag}-topic")
+    return named[0] if named else None
+
+
 def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> dict[str, str | None]:
     """role → topic in `bag` (None when absent). `overrides` names topics explicitly (checked).
 
@@ -953,28 +1016,7 @@ def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> 
     out: dict[str, str | None] = {}
     for role, (type_name, suffix, default) in ROLES.items():
         if role in overrides:
-            t = overrides[role]
-            if t not in bag.topics:
-                raise BagError(f"{bag.path.name}: no topic {t!r} (given for {role}); "
-                               f"topics: {', '.join(sorted(bag.topics)) or 'none'}")
-            if bag.topics[t].type not in (type_name, *_ALSO_TYPES.get(role, ())):
-                raise BagError(f"{bag.path.name}: topic {t!r} is {bag.topics[t].type}; {role} needs {type_name}")
-            bag.require_decodable([t])
-            out[role] = t
-            continue
-        typed = [t for ty in (type_name, *_ALSO_TYPES.get(role, ())) for t in bag.topics_of_type(ty)
-                 if not bag.topics[t].problem]
-        named = [t for t in typed if t == suffix or t.endswith(suffix)]
-        if role in _BY_TYPE_ALONE and not named:
-            others = [t for t in typed if not any(t.endswith(s) for r, (ty, s, _) in ROLES.items()
-                                                   if r != role and ty == type_name)]
-            named = others if len(others) == 1 else []
-        if len(named) > 1:
-            if default in named:
-                named = [default]
-            else:
-                flag = role.replace("_", "-")
-                raise BagError(f"{bag.path.name}: several topics could be {role}: {', '.join(named)}; "
-                               f"choose one with --{flag}-topic")
-        out[role] = named[0] if named else None
+            out[role] = _given_topic(bag, role, overrides[role], type_name)
+        else:
+            out[role] = _found_topic(bag, role, type_name, suffix, default)
     return out
