@@ -140,8 +140,26 @@ def cmd_steady_state(args) -> None:
               "speed_ratio_screw_over_carrier": 1.0 / s["tail_mean_speed_ratio"],
               "torque_nm": s["final"]["screw_torque_nm"], "load_force_n": spec.load_n,
               "efficiency": s["tail_efficiency"], "slip_speed_m_s": s["tail_mean_slip_speed_m_s"]}
-    text = "\n".join(f"{k}: {v}" for k, v in ss.items())
+    ss = _defined_only(ss)
+    text = "\n".join(f"{k}: {'undefined (a ratio over zero or reversed power)' if v is None else v}"
+                     for k, v in ss.items())
     _emit(args, ss, text)
+
+
+# ratios of powers or speeds: undefined where their denominator is zero (at zero load, at rest), so None (JSON null)
+_RATIOS = ("efficiency", "speed_ratio_screw_over_carrier", "carrier_over_screw")
+
+
+def _defined_only(ss: dict) -> dict:
+    """`ss` with an undefined ratio as None; any other non-finite figure a CliError naming it (never NaN, exit 0)."""
+    out = {}
+    for k, v in ss.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            if k not in _RATIOS:
+                raise CliError(f"steady state: {k} = {v!r}: not finite for these parameters and inputs")
+            v = None
+        out[k] = v
+    return out
 
 
 def cmd_run(args) -> None:
