@@ -68,3 +68,29 @@ def test_steady_state_never_prints_nan(args):
     assert "nan" not in r.stdout.lower() and "efficiency: undefined" in r.stdout
     r = _cli("steady-state", "--json", *args)
     assert r.returncode == 0 and "NaN" not in r.stdout and '"efficiency": null' in r.stdout
+
+
+# -- ideal at the largest steps, pressed onto an end or a stop -----------------------------------------
+@pytest.mark.parametrize("dt", [0.02, 0.05, 0.1])
+@pytest.mark.parametrize("where", ["thread end", "stop"])
+def test_ideal_pressed_onto_an_end_settles_at_a_large_step(dt, where):
+    """A rigid screw pushed onto a 1e8 N/m contact (ω = √(k/m) ≈ 518 rad/s, so h ω = 10–52: unresolved, and
+    physically damped at ζ ≈ 0.5 within ~10 ms) must come to rest there, the contact carrying the push: the
+    nut's static equilibrium (stop force = load). It flipped the screw speed ±4…±18 rad/s every step."""
+    from prsm_sim.actuator import ActuatorParams, DriveParams, MotorParams, StopParams
+    p = preset("s30")
+    half = 0.5 * p.geometry.travel_m
+    if where == "thread end":
+        sim = Simulator(p, "ideal", dt, nut_position_m=-half + 0.001)
+    else:
+        stops = StopParams(min_position_m=-0.01, max_position_m=0.05)
+        sim = Simulator(p, "ideal", dt, nut_position_m=-0.009,
+                        actuator=ActuatorParams(motor=MotorParams(), drive=DriveParams(mode="effort"), stops=stops))
+    w = np.array([sim.step(0.0, 500.0).screw_speed_rad_s for _ in range(40)])
+    # at rest to the stop solve's tolerance (1e-10 of the force): 1e-3 rad/s is a nut speed below 1 µm/s
+    assert np.all(np.abs(w[-20:]) <= 1e-3), w[-6:]
+    s = sim.state
+    screw = getattr(s, "screw", s)
+    assert abs(screw.energy_residual_j) <= 1e-9 * max(screw.energy_flow_j, 1.0)
+    if where == "thread end":
+        assert sim.thread_end_force_n == pytest.approx(500.0, rel=1e-3)

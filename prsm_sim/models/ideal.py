@@ -13,7 +13,9 @@ a self-locking backward loss is not faded, it is a stiction that holds the screw
 Integration: the loss is applied as a set-valued friction in an implicit step (velocity
 clipped at zero when the loss impulse exceeds the momentum), so stuck, forward and
 backward modes need no event detection at a fixed step; positions advance by the
-trapezoidal rule, which makes the step's work balance exactly with ΔT.
+trapezoidal rule, which makes the step's work balance exactly with ΔT, except on a step
+that reverses the screw: there by backward Euler (L-stable, so a stiff stop's unresolved
+ringing dies instead of flipping ω_S every step), its numerical dissipation booked.
 """
 
 from __future__ import annotations
@@ -119,10 +121,19 @@ class Ideal(Model):
                     mu += t0
                 w_slide = w_free - d * h * mu / j_hb
                 w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
-            dtheta = 0.5 * h * (w0 + w1)
-            # loss + bearing torque actually applied over the step, times the angle it acted through
+            # loss + bearing torque actually applied over the step
             friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
-            return w1, dtheta, friction_nm * dtheta
+            if w0 * w1 >= 0.0:
+                dtheta = 0.5 * h * (w0 + w1)
+                return w1, dtheta, friction_nm * dtheta
+            # reversed within the step: backward Euler. The trapezoidal rule is not L-stable: a stop (or
+            # thread end) far stiffer than the step resolves rings as ω_S flipping sign every step with the
+            # nut at rest (eigenvalue → −1 as h ω → ∞), and a rigid model has no damping of its own to end
+            # it. Backward Euler damps it within a step; its numerical dissipation ½ J (ω₁ − ω₀)² (the
+            # trapezoid's work balance less its own) is booked, so the ledger still closes exactly.
+            dtheta = h * w1
+            dw = w1 - w0
+            return w1, dtheta, friction_nm * dtheta + 0.5 * J * dw * dw
         return solve
 
 
