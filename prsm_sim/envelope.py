@@ -477,7 +477,8 @@ class _Run:
             if hist_contact[-1] > net / k + REST_SLACK_M:
                 stop_f = self._stop_force()
                 self.res.violations.append(f"at rest {hist_contact[-1] * 1e6:.2f} µm into the stop, the net force "
-                                           f"{net:.1f} N deflects it {net / k * 1e6:.2f} µm (stop force {stop_f:.1f} N)")
+                                           f"{net:.1f} N deflects it {net / k * 1e6:.2f} µm "
+                                           f"(stop force {stop_f:.1f} N)")
 
     def _stop_force(self) -> float:
         if self.act is None:

@@ -491,7 +491,8 @@ class ElasticParams:
                       nut_outer_diameter_m=v.nut_outer_diameter_m, tooth_effective_width_m=v.tooth_effective_width_m)
         check_positive("elastic", out, "root_diameter_m")
         check_field("elastic", "nut_outer_diameter_m", v.nut_outer_diameter_m,
-               v.nut_outer_diameter_m > 2 * geo.nut_radius_m, f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
+                    v.nut_outer_diameter_m > 2 * geo.nut_radius_m,
+                    f"must exceed the nut pitch diameter {2 * geo.nut_radius_m:g} m")
         return out
 
     def values(self, geo: Geometry) -> ElasticValues:

@@ -587,6 +587,6 @@ class Actuator(Model):
         Motor angle and speed come in screw coordinates (motor / gear ratio); the nut's are its own
         (`elastic`: across the axial chain from the thread, so a linear encoder sees the backlash)."""
         v_nut = screw.nut_speed_m_s if self.axial_chain else self.p * screw.screw_speed_rad_s
-        return TrueSample(motor_angle_rad * self.ratio, screw.screw_angle_rad,
-                          screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
-                          self._nut_x(screw), v_nut, nut_force_n)
+        return TrueSample(motor_angle_rad=motor_angle_rad * self.ratio, screw_angle_rad=screw.screw_angle_rad,
+                          screw_speed_rad_s=screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
+                          nut_position_m=self._nut_x(screw), nut_velocity_m_s=v_nut, nut_force_n=nut_force_n)

@@ -70,7 +70,7 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
     """
     if mode == "effort":
         tau = max(-torque_limit_nm, min(torque_limit_nm, command))
-        return DriveOut(tau, integral_nm, tau != command, 0.0)
+        return DriveOut(torque_nm=tau, integral_nm=integral_nm, limited=tau != command, speed_reference_rad_s=0.0)
     kp, ki, kx = drive.speed_kp_nm_s_rad, drive.speed_ki_nm_rad, drive.position_kp_1_s
     if kp is None or ki is None or kx is None:
         raise InputError("drive: gains left None (tune them first: DriveParams.tuned(inertia_kgm2))")
@@ -89,4 +89,4 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
         # anti-windup: the integrator stops where the output meets the limit (never beyond its new value)
         edge = math.copysign(torque_limit_nm, raw) - kp * e - feedforward_nm
         integ = min(integ, max(edge, integral_nm)) if raw > 0 else max(integ, min(edge, integral_nm))
-    return DriveOut(tau, integ, limited, w_ref)
+    return DriveOut(torque_nm=tau, integral_nm=integ, limited=limited, speed_reference_rad_s=w_ref)

@@ -93,7 +93,8 @@ def active(faults: tuple[Fault, ...], t_s: float) -> Active:
             off = True
         elif k.startswith("sensor_"):
             sens.append((str(f.sensor), k, f.value))  # a sensor fault names its sensor (`Fault` checks it)
-    return Active(ff, lf, jam, tf, off, tuple(sens))
+    return Active(friction_factor=ff, lubrication_factor=lf, jam_nm=jam, torque_factor=tf, drive_off=off,
+                  sensor=tuple(sens))
 
 
 def scaled_params(params: Params, friction_factor: float, lubrication_factor: float) -> Params:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from prsm_sim.stepping.model import Model
-from prsm_sim.stepping.records import State
+from prsm_sim.stepping.records import Outputs, State
 
 
 def probe_inertia(model: Model, h_s: float) -> float:
@@ -44,7 +44,8 @@ def linear_response(model: Model, screw: State, tau_nm: float, load_n: float, h_
 
 
 def coupling_torque(model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
-                    phi0: float, k: float, c: float, th_sfree: float, s_th: float, h_s: float, rotor_inertia_kgm2: float):
+                    phi0: float, k: float, c: float, th_sfree: float, s_th: float, h_s: float,
+                    rotor_inertia_kgm2: float) -> tuple[float, State, Outputs]:
     """The compliant coupling's torque held over the step, solved to consistency with the screw model.
 
     τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
