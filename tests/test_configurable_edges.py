@@ -94,3 +94,54 @@ def test_ideal_pressed_onto_an_end_settles_at_a_large_step(dt, where):
     assert abs(screw.energy_residual_j) <= 1e-9 * max(screw.energy_flow_j, 1.0)
     if where == "thread end":
         assert sim.thread_end_force_n == pytest.approx(500.0, rel=1e-3)
+
+
+# -- refuse or say, never round silently ---------------------------------------------------------------
+def _actuated(rate_hz, dt=1e-3):
+    from prsm_sim.actuator import ActuatorParams, DriveParams, MotorParams
+    return Simulator(preset("s30"), "ideal", dt, actuator=ActuatorParams(
+        motor=MotorParams(), drive=DriveParams(mode="velocity", loop_rate_hz=rate_hz)))
+
+
+@pytest.mark.parametrize("rate_hz,dt,runs_hz", [(700.0, 1e-3, "1000"), (2500.0, 1e-3, "2000"), (300.0, 1e-3, "333.333")])
+def test_a_loop_rate_off_the_step_grid_is_said(rate_hz, dt, runs_hz):
+    """The loops run on the step's grid: 700 Hz at a 1 ms step runs at 1000 Hz; said, with the rate it runs at."""
+    with pytest.warns(UserWarning, match=rf"drive\.loop_rate_hz = {rate_hz!r}.*run at {runs_hz} Hz"):
+        _actuated(rate_hz, dt)
+
+
+@pytest.mark.parametrize("rate_hz", [None, 1000.0, 4000.0, 500.0])
+def test_a_loop_rate_on_the_step_grid_is_quiet(rate_hz, recwarn):
+    sim = _actuated(rate_hz)
+    assert not [w for w in recwarn if "loop_rate_hz" in str(w.message)]
+    assert sim.model.n_sub / (sim.model.hold_steps * 1e-3) == pytest.approx(rate_hz or 1000.0)
+
+
+@pytest.mark.parametrize("args", [("--preset", "jones2016", "--runs", "1"), ("--set", "geometry.lead_m=0.01", "--seed", "3"),
+                                  ("--params", "x.yaml", "--seed", "1")])
+def test_envelope_refuses_a_screw_it_would_not_test(args, tmp_path):
+    r = _cli("envelope", *args, "-o", str(tmp_path / "out"), "--no-progress")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--case" in r.stderr
+    assert not (tmp_path / "out").exists()  # nothing run, nothing written
+
+
+def test_presets_refuses_a_parameter_set():
+    r = _cli("presets", "--set", "friction.mu_pin=0.1")
+    assert r.returncode == 2 and "--set" in r.stderr
+
+
+def test_derived_lengths_follow_a_geometry_override():
+    """The nut body's outer diameter is derived as 1.4 × the nut pitch diameter (docs/model.md, elastic) when
+    not given: after a larger nut (radius 25 → 50 mm) it is 140 mm, not the old screw's 70 mm refused as too small."""
+    from prsm_ros.param_files import params_from_yaml
+    big = {"geometry.nut_radius_m": 0.05, "geometry.roller_radius_m": 0.01, "geometry.screw_radius_m": 0.03}
+    p = preset("s30").with_overrides(big)
+    assert p.resolved_elastic.nut_outer_diameter_m == pytest.approx(1.4 * 2 * 0.05)
+    assert p.resolved_elastic.root_diameter_m == pytest.approx(2 * 0.03 - 3 * p.geometry.pitch_m)
+    f = params_from_yaml("preset: s30\ngeometry: {nut_radius_m: 0.05, roller_radius_m: 0.01, screw_radius_m: 0.03}\n")
+    assert f.resolved_elastic == p.resolved_elastic
+    # a length the user gives is kept, and refused by its own name when the new nut outgrows it
+    with pytest.raises(ParamError, match=r"elastic\.nut_outer_diameter_m = 0\.07:"):
+        preset("s30").with_overrides({**big, "elastic.nut_outer_diameter_m": 0.07})
+    kept = preset("s30").with_overrides({"elastic.nut_outer_diameter_m": 0.09})
+    assert kept.resolved_elastic.nut_outer_diameter_m == 0.09

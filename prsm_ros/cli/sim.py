@@ -61,11 +61,19 @@ def _params(args) -> Params:
     return resolve_params(args.preset, args.params, _overrides(args.set))
 
 
+def _refuse_params(args, why: str) -> None:
+    """CliError naming the parameter options given to a command that takes no parameter set (never ignored)."""
+    given = [f"--{n}" for n in ("preset", "params", "set") if getattr(args, n)]
+    if given:
+        raise CliError(f"{'/'.join(given)}: {why}")
+
+
 def _emit(args, data: dict, text: str) -> None:
     print(dumps(data) if args.json else text)
 
 
 def cmd_presets(args) -> None:
+    _refuse_params(args, "prsm-sim presets lists every preset; `prsm-sim params --preset P` shows one")
     rows = {}
     for name in PRESETS:
         p = resolve_params(name, None)
@@ -359,6 +367,10 @@ def cmd_envelope(args) -> None:
     from pathlib import Path
 
     from prsm_ros.sweep.envelope import run_envelope
+    # each case carries its own screw (`preset` and `overrides` in the case, drawn from its seed): a screw
+    # given here would not be the one tested, so it is refused rather than ignored
+    _refuse_params(args, "prsm-sim envelope draws each case's parameters from its seed; to run your screw, write "
+                         "its preset and overrides into a case file (`preset:`, `overrides:`) and run it with --case FILE")
     if args.seed is not None or args.case is not None:
         _envelope_one(args)
         return
