@@ -145,3 +145,51 @@ def test_derived_lengths_follow_a_geometry_override():
         preset("s30").with_overrides({**big, "elastic.nut_outer_diameter_m": 0.07})
     kept = preset("s30").with_overrides({"elastic.nut_outer_diameter_m": 0.09})
     assert kept.resolved_elastic.nut_outer_diameter_m == 0.09
+
+
+# -- loads and torques past the ratings ----------------------------------------------------------------
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+def test_a_load_past_the_static_rating_is_flagged(model):
+    """ISO 76: past C₀a the threads deform permanently, which no model represents: said once, flagged while it lasts."""
+    import warnings
+    p = preset("s30")
+    c0 = p.ratings.static_load_rating_n
+    sim = Simulator(p, model, 1e-3)
+    sim.step(0.0, 0.9 * c0)
+    assert sim.over_static_rating == 0.0
+    with pytest.warns(UserWarning, match=r"exceeds the static load rating ratings\.static_load_rating_n"):
+        sim.step(0.0, 1.2 * c0)
+    assert sim.over_static_rating == 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # one warning per simulator, not one per step
+        sim.step(0.0, -1.2 * c0)
+        assert sim.over_static_rating == 1.0
+        sim.step(0.0, 0.0)
+        assert sim.over_static_rating == 0.0
+
+
+def test_a_load_past_the_static_rating_is_an_event_of_the_session():
+    from prsm_sim import Session
+    from prsm_sim.simulator import RatingEvent
+    p = preset("s30")
+    c0 = p.ratings.static_load_rating_n
+    s = Session(p, "ideal", 1e-3)
+    with pytest.warns(UserWarning):
+        s.step(0.0, 1.1 * c0)
+    s.step(0.0, 0.0)
+    ev = [e for e in s.take_edge_events() if isinstance(e, RatingEvent)]
+    assert [e.what for e in ev] == ["exceeded", "within"] and ev[0].event_name == "static_rating_exceeded"
+    assert ev[0].force_n == pytest.approx(1.1 * c0) and ev[0].rating_n == pytest.approx(c0)
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+def test_a_non_finite_state_is_a_model_error_in_the_bare_simulator(model):
+    """1e300 N·m: the nut stays finite for a step in the rigid models, the kinetic energy ½ J ω² overflows."""
+    from prsm_sim.errors import ModelError
+    sim = Simulator(preset("s30"), model, 1e-3, nut_position_m=0.0)
+    before = sim.state
+    with np.errstate(all="ignore"), pytest.raises(ModelError):
+        sim.step(1e300, 0.0)
+    assert sim.state == before or sim.nstep == 0
+    with np.errstate(all="ignore"), pytest.raises(ModelError):
+        Simulator(preset("s30"), model, 1e-3).run(np.full(3, 1e300), 0.0)

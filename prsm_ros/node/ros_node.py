@@ -697,12 +697,13 @@ class PrsmNode(Node):
                 fault_event_details(e)))
 
     def _publish_edge_events(self, events) -> None:
-        """The nut reaching or leaving a thread end: logged and on ~/events (the bag keeps it)."""
+        """The nut reaching or leaving a thread end, its load past the static rating or back: logged and on
+        ~/events (the bag keeps it)."""
         for e in events:
-            self.get_logger().warning(f"t = {e.time_s:.6f} s: {e.describe()}") if e.what == "reached" \
+            self.get_logger().warning(f"t = {e.time_s:.6f} s: {e.describe()}") if e.what in ("reached", "exceeded") \
                 else self.get_logger().info(f"t = {e.time_s:.6f} s: {e.describe()}")
             self._publish(self.pub["events"], "events", event_message(
-                e.time_s, "plant", "warn" if e.what == "reached" else "info", f"thread_end_{e.what}", e.describe(),
+                e.time_s, "plant", "warn" if e.what in ("reached", "exceeded") else "info", e.event_name, e.describe(),
                 {"force_n": e.force_n}))
 
     # -- diagnostics -----------------------------------------------------------------------
