@@ -193,3 +193,19 @@ def test_a_non_finite_state_is_a_model_error_in_the_bare_simulator(model):
     assert sim.state == before or sim.nstep == 0
     with np.errstate(all="ignore"), pytest.raises(ModelError):
         Simulator(preset("s30"), model, 1e-3).run(np.full(3, 1e300), 0.0)
+
+
+# -- the limits of the motor and the drive, as docs/actuator.md states them ------------------------------
+@pytest.mark.parametrize("model", ["ideal", "fu2018"])
+def test_speed_limits_hold_as_the_docs_state(model):
+    """docs/actuator.md: the motor's overspeed cut-off lets the screw past 500 rad/s by at most the peak torque
+    over about a step of its inertia (505–520 at 1 ms); the speed loop overshoots a clamped 300 rad/s by ~6 %."""
+    from prsm_sim.actuator import ActuatorParams, DriveParams, MotorParams
+    dt, motor = 1e-3, MotorParams()
+    sim = Simulator(preset("s30"), model, dt, actuator=ActuatorParams(motor=motor, drive=DriveParams(mode="effort")))
+    w = np.array([sim.step(10.0, 0.0).screw_speed_rad_s for _ in range(600)])
+    j = sim.model.J  # the inertia the motor drives (screw side, rotor included)
+    assert motor.speed_limit_rad_s < w.max() <= motor.speed_limit_rad_s + 1.5 * motor.peak_torque_nm * dt / j
+    sim = Simulator(preset("s30"), model, dt, actuator=ActuatorParams(motor=motor, drive=DriveParams(mode="velocity")))
+    w = np.array([sim.step(1000.0, 0.0).screw_speed_rad_s for _ in range(600)])
+    assert 300.0 < w.max() <= 300.0 * 1.10
