@@ -513,8 +513,10 @@ def _derived_lengths(e: ElasticParams, geo: Geometry) -> dict[str, None]:
     """The lengths of `e` that were derived from `geo` (not given), as None: a group built on `e` derives them
     again from its own geometry instead of holding the old screw's value (e.g. the nut body's outer diameter
     after a larger nut radius, which would else be refused as smaller than the new nut)."""
-    return {name: None for name in ElasticValues._fields
-            if getattr(e, name) == getattr(replace(e, **{name: None}).values(geo), name)}
+    given = e.values(geo)
+    derived = replace(e, bearing_position_m=None, root_diameter_m=None, nut_outer_diameter_m=None,
+                      tooth_effective_width_m=None).values(geo)
+    return {name: None for name in ElasticValues._fields if getattr(given, name) == getattr(derived, name)}
 
 
 class ElasticValues(NamedTuple):
