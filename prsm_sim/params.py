@@ -278,6 +278,8 @@ class MassValues(NamedTuple):
 
 
 CONTACT_EVALUATIONS = ("exact", "line_of_centres")
+# the default contact stiffness of end stops and thread ends, N/m (`actuator.StopParams`; docs/model.md, end stop)
+END_STOP_STIFFNESS_N_M = 1e8
 
 
 @dataclass(frozen=True)
@@ -509,6 +511,16 @@ class ElasticParams:
             else self.nut_outer_diameter_m,
             tooth_effective_width_m=math.pi * geo.roller_radius_m if self.tooth_effective_width_m is None
             else self.tooth_effective_width_m)
+
+
+def _derived_lengths(e: ElasticParams, geo: Geometry) -> dict[str, None]:
+    """The lengths of `e` that were derived from `geo` (not given), as None: a group built on `e` derives them
+    again from its own geometry instead of holding the old screw's value (e.g. the nut body's outer diameter
+    after a larger nut radius, which would else be refused as smaller than the new nut)."""
+    given = e.values(geo)
+    derived = replace(e, bearing_position_m=None, root_diameter_m=None, nut_outer_diameter_m=None,
+                      tooth_effective_width_m=None).values(geo)
+    return {name: None for name in ElasticValues._fields if getattr(given, name) == getattr(derived, name)}
 
 
 class ElasticValues(NamedTuple):
@@ -795,6 +807,8 @@ class Params:
                 raise ParamError(f"unknown parameter {gname}.{sorted(map(str, bad))[0]}; "
                                  f"allowed in {gname}: {', '.join(sorted(allowed))}")
             values = asdict(getattr(base, gname)) if base is not None else {}
+            if gname == "elastic" and base is not None:
+                values.update(_derived_lengths(base.elastic, base.geometry))
             values.update(section)
             missing = [f.name for f in fields(gcls) if f.name not in values and f.default is MISSING
                        and f.default_factory is MISSING]  # type: ignore[misc]

@@ -58,11 +58,19 @@ def _params(args) -> Params:
     return resolve_params(args.preset, args.params, _overrides(args.set))
 
 
+def _refuse_params(args, why: str) -> None:
+    """CliError naming the parameter options given to a command that takes no parameter set (never ignored)."""
+    given = [f"--{n}" for n in ("preset", "params", "set") if getattr(args, n)]
+    if given:
+        raise CliError(f"{'/'.join(given)}: {why}")
+
+
 def _emit(args, data: dict, text: str) -> None:
     print(dumps(data) if args.json else text)
 
 
 def cmd_presets(args) -> None:
+    _refuse_params(args, "prsm-sim presets lists every preset; `prsm-sim params --preset P` shows one")
     rows = {}
     for name in PRESETS:
         p = resolve_params(name, None)
@@ -137,8 +145,26 @@ def cmd_steady_state(args) -> None:
               "speed_ratio_screw_over_carrier": 1.0 / s["tail_mean_speed_ratio"],
               "torque_nm": s["final"]["screw_torque_nm"], "load_force_n": spec.load_n,
               "efficiency": s["tail_efficiency"], "slip_speed_m_s": s["tail_mean_slip_speed_m_s"]}
-    text = "\n".join(f"{k}: {v}" for k, v in ss.items())
+    ss = _defined_only(ss)
+    text = "\n".join(f"{k}: {'undefined (a ratio over zero or reversed power)' if v is None else v}"
+                     for k, v in ss.items())
     _emit(args, ss, text)
+
+
+# ratios of powers or speeds: undefined where their denominator is zero (at zero load, at rest), so None (JSON null)
+_RATIOS = ("efficiency", "speed_ratio_screw_over_carrier", "carrier_over_screw")
+
+
+def _defined_only(ss: dict) -> dict:
+    """`ss` with an undefined ratio as None; any other non-finite figure a CliError naming it (never NaN, exit 0)."""
+    out = {}
+    for k, v in ss.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            if k not in _RATIOS:
+                raise CliError(f"steady state: {k} = {v!r}: not finite for these parameters and inputs")
+            v = None
+        out[k] = v
+    return out
 
 
 def cmd_run(args) -> None:
@@ -338,6 +364,10 @@ def cmd_envelope(args) -> None:
     from pathlib import Path
 
     from prsm_ros.sweep.envelope import run_envelope
+    # each case carries its own screw (`preset` and `overrides` in the case, drawn from its seed): a screw
+    # given here would not be the one tested, so it is refused rather than ignored
+    _refuse_params(args, "prsm-sim envelope draws each case's parameters from its seed; to run your screw, write "
+                         "its preset and overrides into a case file (`preset:`, `overrides:`) and run it with --case FILE")
     if args.seed is not None or args.case is not None:
         _envelope_one(args)
         return

@@ -51,6 +51,10 @@ class ThreadEndEvent(NamedTuple):
     what: str  # "reached" or "left"
     force_n: float  # the end's force on the nut then (N, along +x_nut; 0 when it left)
 
+    @property
+    def event_name(self) -> str:
+        return f"thread_end_{self.what}"
+
     def describe(self) -> str:
         if self.what == "reached":
             return f"the nut reached a thread end (end force {self.force_n:.1f} N): the last of the threaded length"
