@@ -17,6 +17,9 @@ TEXT_FILE_MAX_BYTES = 1 << 20   # parameter and study files: a full parameter se
 MAX_RUN_STEPS = 10_000_000      # one offline run (prsm-sim run, a study's run): its trajectory is kept in memory
 MAX_STUDY_RUNS = 200_000        # runs of one study: each is a spec, a task and a result row
 MAX_TABLE_VALUES = 20_000_000   # values of one exported table after resampling (rows × columns)
+# trajectory memory one offline run may hold: a run keeps every step's outputs until it ends, about
+# 1.3 kB a step (ideal, jones2016) to 2.9 kB (elastic) on s30, so 10^7 steps would need 12-29 GB
+MAX_RUN_BYTES = 4 << 30
 
 _KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
           (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"))
@@ -64,6 +67,16 @@ def run_steps(duration_s: float, dt_s: float, *, error: type[Exception] = ValueE
                     f"{MAX_RUN_STEPS} steps a run may take (its trajectory is kept in memory); "
                     "shorten the run or lengthen the step")
     return int(round(n))
+
+
+def run_memory(n_steps: int, bytes_per_step: float, *, error: type[Exception] = ValueError) -> float:
+    """The trajectory memory of a run of `n_steps` (bytes); `error`, with the figure, above MAX_RUN_BYTES."""
+    need = n_steps * bytes_per_step
+    if need > MAX_RUN_BYTES:
+        raise error(f"a run of {n_steps} steps holds about {need / 2**30:.1f} GiB of outputs "
+                    f"({bytes_per_step:.0f} bytes a step, measured on a short run of this model): more than the "
+                    f"{MAX_RUN_BYTES / 2**30:.0f} GiB a run may hold; shorten the run or lengthen the step")
+    return need
 
 
 # ---- YAML and JSON from users and files ----------------------------------------------------------

@@ -34,9 +34,27 @@ from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_sessio
 from prsm_ros.cli import sim_datasheet
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
-from prsm_ros.limits import run_steps
+from prsm_ros.limits import run_memory, run_steps
 
 PROGRESS_MIN_STEPS = 20_000
+PROBE_STEPS = 400  # a run longer than this first measures what a step of it holds (`bytes_per_step`)
+
+
+def bytes_per_step(build, runner, spec, dt_s: float) -> float:
+    """Memory a step of this run adds to its trajectory (bytes), measured as the growth in traced peak
+    memory from a run of PROBE_STEPS/2 to one of PROBE_STEPS steps (the fixed part cancels)."""
+    import tracemalloc
+
+    peaks = []
+    for k in (PROBE_STEPS // 2, PROBE_STEPS):
+        sim = build()
+        tracemalloc.start()
+        try:
+            runner(sim, spec, k * dt_s)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    return max(peaks[1] - peaks[0], 0) / (PROBE_STEPS - PROBE_STEPS // 2)
 
 
 class CliError(PrsmError):
@@ -176,9 +194,14 @@ def cmd_run(args) -> None:
             raise CliError(f"{name} = {v!r}: must be a finite number > 0")
     n = run_steps(args.duration, args.dt, error=CliError)
     actuator = _actuator(args)
-    # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults in the session
-    sim = Simulator(p, args.model, args.dt) if actuator is None else \
-        Session.from_config(SessionConfig(params=p, model=args.model, dt_s=args.dt, actuator=actuator))
+
+    def build():  # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults
+        return Simulator(p, args.model, args.dt) if actuator is None else \
+            Session.from_config(SessionConfig(params=p, model=args.model, dt_s=args.dt, actuator=actuator))
+    runner = run_scenario if actuator is None else run_session_scenario
+    if n > PROBE_STEPS:
+        run_memory(n, bytes_per_step(build, runner, spec, args.dt), error=CliError)
+    sim = build()
     bar = None
     if n >= PROGRESS_MIN_STEPS and not args.no_progress:
         from tqdm import tqdm
@@ -191,7 +214,7 @@ def cmd_run(args) -> None:
         done[0] = k
 
     try:
-        traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
+        traj = runner(sim, spec, args.duration, progress)
     except KeyboardInterrupt:
         _interrupted(f"at step {done[0]} of {n}: nothing written (a run's outputs are written when it ends; "
                      "a shorter --duration ends sooner)")
