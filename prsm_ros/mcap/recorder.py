@@ -483,7 +483,7 @@ class McapRecorder:
                         self._malformed += 1
                         continue
                     f.write(ids[topic], msg, stamp)
-                    if clock() > slice_end:
+                    if not stopping and clock() > slice_end:  # closing: the producer has stopped, nobody waits
                         time.sleep(YIELD_S)  # let the step loop take the GIL (see WORK_SLICE_S)
                         slice_end = clock() + WORK_SLICE_S
                 if f is not None:
