@@ -29,6 +29,14 @@ _MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 _MESSAGE_FIXED = 2 + 4 + 8 + 8  # record bytes besides the data
 
 
+def _extend_span(record, first: bool, log_time: int) -> None:
+    """A record's message start and end times (statistics, chunk) widened to `log_time`, as mcap does."""
+    if first or log_time < record.message_start_time:
+        record.message_start_time = log_time
+    if log_time > record.message_end_time:
+        record.message_end_time = log_time
+
+
 class PackedMessageIndex:
     """A chunk's message index for one channel: (log time, offset) pairs in one `array('Q')`, written
     as `mcap.records.MessageIndex` writes its list of tuples (same bytes)."""
@@ -81,20 +89,10 @@ class FastMessages:
     def add(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int) -> None:
         """As `Writer.add_message(channel_id, log_time, data, publish_time, sequence)`."""
         st, cb = self._stats, self._builder
-        if st.message_count == 0:
-            st.message_start_time = log_time
-        elif log_time < st.message_start_time:
-            st.message_start_time = log_time
-        if log_time > st.message_end_time:
-            st.message_end_time = log_time
+        _extend_span(st, st.message_count == 0, log_time)  # the file's statistics
         st.channel_message_counts[channel_id] += 1
         st.message_count += 1
-        if cb.num_messages == 0:
-            cb.message_start_time = log_time
-        elif log_time < cb.message_start_time:
-            cb.message_start_time = log_time
-        if log_time > cb.message_end_time:
-            cb.message_end_time = log_time
+        _extend_span(cb, cb.num_messages == 0, log_time)  # the chunk's
         buf = cb.record_writer._buffer
         offset = buf.tell()
         index = cb.message_indices.get(channel_id)
