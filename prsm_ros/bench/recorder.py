@@ -1,8 +1,9 @@
 """Benchmarks of the MCAP recorder: throughput, and its cost beside a 1 kHz step loop.
 
-- throughput: messages per second from the first `write` until `close()` returns (serialization,
-  chunking, zstd, indexes, summary), for the node's per-step topics of a real run (joint states,
-  wrench, internal loads of the model's layout, /clock, the torque command);
+- throughput: messages per second from the first `write` until `close()` returns (chunking, zstd,
+  indexes, summary), for the node's per-step topics of a real run (joint states, wrench, internal
+  loads of the model's layout, /clock, the torque command), handed over as the node hands them:
+  CDR bytes from its encoder (`cdr_write.StepEncoder`), in one batch per step (`write_many`);
 - CPU at 1 kHz: a loop paced on absolute 1 ms deadlines that maps each step's outputs to the
   messages (as the node does) and records them, against the same loop without recording; the
   difference in process CPU time per wall second is the recorder's cost (% of one core), and the
@@ -44,19 +45,30 @@ def _channels(rec):
     return topics, cmd.resolved()
 
 
-def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, float, int]:
-    """(median messages/s, spread, MB/s of file, messages per run)."""
+def _step_bytes(traj, model: str) -> list[tuple[int, list[bytes]]]:
+    """Each step's messages as the node records them: (stamp ns, [torque command, then STEP_TOPICS' CDR bytes])."""
+    from rclpy.serialization import serialize_message
     from std_msgs.msg import Float64
 
-    from prsm_ros.messages import MessageMapper, time_ns
-    from prsm_ros.mcap.recorder import McapRecorder
-
-    _, traj = _run_outputs(model, steps)
-    mapper = MessageMapper(traj.layout, model)
+    from prsm_ros.messages import STEP_TOPICS, MessageMapper, time_ns
+    enc = MessageMapper(traj.layout, model).encoder()
+    encode = {"joint_states": enc.joint_state, "wrench": enc.wrench,
+              "internal_loads": lambda out, ns: enc.internal_loads(out), "clock": lambda out, ns: enc.clock(ns)}
     prepared = []
     for k in range(len(traj)):
         out = traj.row(k)
-        prepared.append((time_ns(out.time_s), mapper.messages(out), Float64(data=out.screw_torque_nm)))
+        ns = time_ns(out.time_s)
+        prepared.append((ns, [serialize_message(Float64(data=out.screw_torque_nm)),
+                              *(encode[key](out, ns) for key in STEP_TOPICS)]))
+    return prepared
+
+
+def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, float, int]:
+    """(median messages/s, spread, MB/s of file, messages per run)."""
+    from prsm_ros.mcap.recorder import McapRecorder
+
+    _, traj = _run_outputs(model, steps)
+    prepared = _step_bytes(traj, model)
     rates, sizes = [], []
     n_msgs = 0
     with tempfile.TemporaryDirectory() as d:
@@ -65,10 +77,8 @@ def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, floa
             rec = McapRecorder(path, queue_size=10 * len(prepared) + 10)
             topics, cmd_topic = _channels(rec)
             t0 = time.perf_counter()
-            for stamp, msgs, cmd in prepared:
-                rec.write(cmd_topic, cmd, stamp)
-                for topic, (_, msg) in zip(topics, msgs):
-                    rec.write(topic, msg, stamp)
+            for stamp, msgs in prepared:
+                rec.write_many([(cmd_topic, msgs[0], stamp), *zip(topics, msgs[1:], [stamp] * len(topics), strict=True)])
             rec.close()
             wall = time.perf_counter() - t0
             n_msgs = rec.messages_written
@@ -83,28 +93,19 @@ def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, floa
 
 def loop_cost(model: str, seconds: float, record: bool) -> dict:
     """A 1 kHz loop mapping (and optionally recording) each step's messages, as the node does."""
-    from std_msgs.msg import Float64
-
-    from prsm_ros.messages import MessageMapper, time_ns
     from prsm_ros.mcap.recorder import McapRecorder
 
     steps = int(seconds * 1000)
     _, traj = _run_outputs(model, steps)
-    mapper = MessageMapper(traj.layout, model)
-    rows = [traj.row(k) for k in range(len(traj))]
+    prepared = _step_bytes(traj, model)
     with tempfile.TemporaryDirectory() as d:
         rec = McapRecorder(Path(d) / "loop.mcap") if record else None
         topics, cmd_topic = _channels(rec) if rec is not None else ([], "")
 
         def step(k: int) -> None:
-            out = rows[k]
-            msgs = mapper.messages(out)
-            cmd = Float64(data=out.screw_torque_nm)
+            stamp, msgs = prepared[k]
             if rec is not None:
-                stamp = time_ns(out.time_s)
-                rec.write(cmd_topic, cmd, stamp)
-                for topic, (_, msg) in zip(topics, msgs):
-                    rec.write(topic, msg, stamp)
+                rec.write_many([(cmd_topic, msgs[0], stamp), *zip(topics, msgs[1:], [stamp] * len(topics), strict=True)])
 
         result = paced_loop(steps, step)
         if rec is not None:

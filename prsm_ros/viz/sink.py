@@ -50,7 +50,16 @@ _OFF_VALUES = ("off", "0", "false", "no")
 
 class RerunError(PrsmError, RuntimeError):
     """The Rerun output could not be started (e.g. no viewer to spawn)."""
+
+
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, then again for the flush
+# The background thread turns a batch's rows into columns in Python (each row's derived outputs:
+# 25-60 µs a row on the 2-core VM) while holding the GIL, which a 1 kHz loop woken on its deadline
+# then waits for: up to the switch interval (5 ms by default) per hand-over. So it converts
+# ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real sleep: `sleep(0)` lets the
+# releasing thread win the race to re-take the GIL), which bounds the loop's wait near one slice.
+ROWS_PER_SLICE = 16
+YIELD_S = 5e-5
 
 
 def rerun_forced_off() -> bool:
@@ -101,7 +110,7 @@ def _save_path(target: str) -> Path:
 
 
 class _YieldingStream:
-    """A RecordingStream that hands the GIL back after every send (`time.sleep(0)`).
+    """A RecordingStream that hands the GIL back after every send (a sleep of YIELD_S).
 
     The background thread's Python work (building Arrow columns) otherwise holds the GIL until the
     interpreter's switch interval (5 ms) forces a hand-over, and the 1 kHz loop thread, woken on its
@@ -113,11 +122,11 @@ class _YieldingStream:
 
     def send_columns(self, *args, **kwargs) -> None:
         self._rec.send_columns(*args, **kwargs)
-        time.sleep(0)
+        time.sleep(YIELD_S)
 
     def log(self, *args, **kwargs) -> None:
         self._rec.log(*args, **kwargs)
-        time.sleep(0)
+        time.sleep(YIELD_S)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._rec, name)
@@ -329,13 +338,25 @@ class RerunSink:
         rows = [self._queue.popleft() for _ in range(n)]
         t0 = time.perf_counter()
         try:
-            traj = trajectory_from_rows(rows, self.layout, State())  # the batch as columns; the state is unused
-            self.writer.send(traj.columns, traj.internal)
+            columns, internal = self._columns(rows)
+            self.writer.send(columns, internal)
         except Exception as e:  # never propagate into the node: report and stop logging
             self.error = f"rerun logging failed: {type(e).__name__}: {e}"
             self._count_lost(n + self._discard_queued())
         self.batches += 1
         self.flush_time_s += time.perf_counter() - t0
+
+    def _columns(self, rows: list[Outputs]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The batch as columns, ROWS_PER_SLICE rows at a time with the GIL handed back between slices."""
+        parts = []
+        for i in range(0, len(rows), ROWS_PER_SLICE):
+            part = trajectory_from_rows(rows[i:i + ROWS_PER_SLICE], self.layout, State())  # the state is unused
+            parts.append((part.columns, part.internal))
+            time.sleep(YIELD_S)
+        if len(parts) == 1:
+            return parts[0]
+        columns = {k: np.concatenate([c[k] for c, _ in parts]) for k in parts[0][0]}
+        return columns, np.concatenate([i for _, i in parts])
 
     def _run(self) -> None:
         while not self._wake.wait(self.flush_period_s):
