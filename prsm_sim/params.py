@@ -807,7 +807,7 @@ class Params:
                 raise ParamError(f"unknown parameter {gname}.{sorted(map(str, bad))[0]}; "
                                  f"allowed in {gname}: {', '.join(sorted(allowed))}")
             values = asdict(getattr(base, gname)) if base is not None else {}
-            if gname == "elastic" and base is not None:
+            if gcls is ElasticParams and base is not None:
                 values.update(_derived_lengths(base.elastic, base.geometry))
             values.update(section)
             missing = [f.name for f in fields(gcls) if f.name not in values and f.default is MISSING

@@ -32,6 +32,7 @@ from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.simulator import RatingEvent, Simulator
 from prsm_sim.stepping.packed import PackedOutputs
 from prsm_sim.stepping.records import InternalLayout, Outputs
+from prsm_sim.stepping.model import Model
 
 
 STATE_FORMAT = "prsm_session/1"
@@ -165,7 +166,7 @@ class Session:
         self.fault: str | None = None
         self._last: Outputs | None = None
         self._events: list = []  # fault starts and clears (actuator.FaultEvent) not yet taken
-        self._screw_model = None  # the actuator's screw model, built when rest outputs first need it
+        self._screw_model: Model | None = None  # the actuator's screw model, built when rest outputs first need it
         reason = self.set_interface(interface) if interface != "effort" or actuator is not None else None
         if reason is not None:
             raise ParamError(reason)
@@ -471,21 +472,12 @@ class Session:
         sim, act = self.simulator, self.actuator
         s = sim.state
         screw = s.screw if isinstance(s, ActuatorState) else s
-        out = self._screw().rest_outputs(screw, self.gate.command_nm, self.load_n)
+        out = _rest_model(self).rest_outputs(screw, self.gate.command_nm, self.load_n)
         if act is None:
             return out
         internal = np.zeros(sim.layout.size)
         sim.layout.view(internal, "measured")[:] = s.measured
         return replace(out, internal=internal)
-
-    def _screw(self):
-        """The screw model whose state `rest_outputs` describes (the actuator's is built here once)."""
-        act = self.actuator
-        if act is None:
-            return self.simulator.model
-        if self._screw_model is None:
-            self._screw_model = build_model(act.screw_params, self.model_name, act.h_sub, self.kernel)
-        return self._screw_model
 
     # -- save and restore -------------------------------------------------------------------
     def get_state(self) -> dict:
@@ -557,6 +549,16 @@ class Session:
                              "motor_current_a": a.current_a, "torque_limited": a.limited,
                              "faults_active": [f.describe() for f in act.all_faults(a) if f.active(a.time_s)]}
         return d
+
+
+def _rest_model(session: Session):
+    """The screw model whose state `Session.rest_outputs` describes (an actuator's is built once, on first use)."""
+    act = session.actuator
+    if act is None:
+        return session.simulator.model
+    if session._screw_model is None:
+        session._screw_model = build_model(act.screw_params, session.model_name, act.h_sub, session.kernel)
+    return session._screw_model
 
 
 def _check_gate(gate: dict) -> None:

@@ -41,7 +41,7 @@ def test_every_command_has_version(command):
 def test_ctrl_c_in_prsm_sim_run_says_what_was_kept_and_exits_130(tmp_path):
     """A long run interrupted while it steps: one line saying nothing was written, exit 130."""
     csv = tmp_path / "run.csv"
-    p = subprocess.Popen([sys.executable, "-m", "prsm_ros.cli.sim", "run", "--model", "ideal", "--duration", "5000",
+    p = subprocess.Popen([sys.executable, "-m", "prsm_ros.cli.sim", "run", "--model", "ideal", "--duration", "2000",
                           "--csv", str(csv)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     try:
         seen = ""

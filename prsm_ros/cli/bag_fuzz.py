@@ -32,6 +32,8 @@ import time
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
+from prsm_sim.errors import InputError
+
 KINDS = ("flip", "set64", "set32", "truncate", "zero", "dup", "header")
 # values a damaged length, size, count or offset takes
 EDGE_VALUES = (0, 1, 0x7F, 0xFF, 0xFFFF, 2**31 - 1, 2**31, 2**32 - 1, 2**40, 2**62, 2**63 - 1, 2**64 - 1)
@@ -136,7 +138,7 @@ def verb_args(verb: str, bag: Path, work: Path, topics: list[str], plots: bool) 
         return ["play", str(bag), "--rate", "1e6", "--delay", "0", "--no-clock"]
     if verb == "to-rrd":
         return ["to-rrd", str(bag), "-o", str(out) + ".rrd"]
-    raise ValueError(f"unknown verb {verb!r}")
+    raise InputError(f"verbs: unknown verb {verb!r}; allowed: {', '.join(VERBS)}")
 
 
 def _run_verb(argv: list[str]) -> dict:

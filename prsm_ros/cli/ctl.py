@@ -595,7 +595,7 @@ def _play(ctl: Ctl, args, emit) -> None:
 
 
 def _emitter(as_json: bool) -> Callable[[Any, str], None]:
-    from prsm_ros.cli.json_out import jsonable
+    from prsm_ros.json_out import jsonable
 
     def emit(record: Any, text: str) -> None:
         print(json.dumps(jsonable(record), ensure_ascii=False, allow_nan=False) if as_json else text, flush=True)
