@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from prsm_sim.params import ElasticParams, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params
+from prsm_sim.params import DragParams, ElasticParams, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params
 
 
 def _jones2016() -> Params:
@@ -62,6 +62,7 @@ def _s30() -> Params:
         loads=Loads(nut_load_n=5000.0, screw_speed_rad_s=100.0),
         material=Material(youngs_modulus_pa=206e9, poisson_ratio=0.3),
         elastic=ElasticParams(mounting="same_end", bearing_position_m=-0.15, root_diameter_m=0.027),
+        drag=DragParams(enabled=True),
     )
 
 
