@@ -52,6 +52,9 @@ def _s30() -> Params:
     criterion on flank-limited contacts, C_a by ISO 281's thrust roller formula with the f_c that
     reproduces a catalogue 30 × 5 size; the SRS-C line lists C_0a = 280 kN, C_a = 123 kN for its
     30 × 5 nut (docs/validation.md), which has a longer nut than this preset's 30 engaged teeth.
+    Drag: a real screw's load-independent losses on, with their sourced defaults (docs/model.md §4.5:
+    about 0.22 N·m at zero load); the friction stays the illustrative set of docs/model.md §4.2, through
+    which the drag defaults were read. `drag.enabled: false` gives the papers' screw.
     """
     return Params(
         name="s30",
