@@ -58,7 +58,8 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -204,21 +205,68 @@ def parse_labels(json_str: str) -> dict[str, Any]:
 
     Raises ValueError naming what is wrong when the text is not a labels document of this format.
     """
-    try:
-        doc = json.loads(json_str)
-    except (TypeError, json.JSONDecodeError) as e:
-        raise InputError(f"internal_loads labels: not valid JSON ({e})") from None
+    from prsm_ros.limits import load_json  # nesting bounded before json.loads recurses
+    doc = load_json(json_str, source="internal_loads labels", error=InputError)
     if not isinstance(doc, dict) or doc.get("format") != LABELS_FORMAT:
         got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-        raise InputError(f"internal_loads labels: format {got!r}, expected {LABELS_FORMAT!r}")
+        raise InputError(f"internal_loads labels: format {str(got)[:40]!r}, expected {LABELS_FORMAT!r}")
     for key in ("model", "elements", "segments", "layout"):
         if key not in doc:
             raise InputError(f"internal_loads labels: missing key {key!r}")
+    _check_labels(doc)
     doc["layout_obj"] = InternalLayout(blocks=tuple(
         InternalBlock(b["name"], tuple(b["dims"]), tuple(b["shape"]),
                       tuple((q["name"], q["unit"]) for q in b["quantities"]))
         for b in doc["layout"]["blocks"]))
     return doc
+
+
+LABELS_MAX_ELEMENTS = 1_000_000  # elements of one ~/internal_loads message described by its labels
+
+
+def _is_count(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= LABELS_MAX_ELEMENTS
+
+
+def _check_block(where: str, b, *, segment: bool) -> None:
+    """InputError naming `where` unless `b` is a block: name, dims, shape (counts) and per-quantity name and unit."""
+    if not isinstance(b, dict) or not isinstance(b.get("name"), str):
+        raise InputError(f"internal_loads labels: {where}: expected an object with a name")
+    if segment and not (_is_count(b.get("offset")) and _is_count(b.get("size"))):
+        raise InputError(f"internal_loads labels: {where}: offset and size must be whole numbers 0…{LABELS_MAX_ELEMENTS}")
+    if not segment or b["name"] != SCALAR_SEGMENT or "quantities" in b:
+        dims, shape, qs = b.get("dims"), b.get("shape"), b.get("quantities")
+        if not (isinstance(dims, list) and all(isinstance(d, str) for d in dims)
+                and isinstance(shape, list) and shape and all(_is_count(n) for n in shape) and len(shape) == len(dims)
+                and isinstance(qs, list) and len(qs) == shape[-1]
+                and all(isinstance(q, dict) and isinstance(q.get("name"), str) and isinstance(q.get("unit"), str)
+                        for q in qs)):
+            raise InputError(f"internal_loads labels: {where}: dims, shape and quantities do not describe a block")
+        if segment and math.prod(shape) != b["size"]:
+            raise InputError(f"internal_loads labels: {where}: shape {shape} does not hold its size {b['size']}")
+
+
+def _check_labels(doc: dict) -> None:
+    """InputError naming the first part of a labels document that unpack_internal and the bag tools cannot use."""
+    elements, segments, layout = doc["elements"], doc["segments"], doc["layout"]
+    if not (isinstance(elements, list) and all(isinstance(e, dict) and isinstance(e.get("label"), str) for e in elements)):
+        raise InputError("internal_loads labels: elements: expected a list of objects with a label")
+    if not isinstance(segments, list) or not isinstance(layout, dict) or not isinstance(layout.get("blocks"), list):
+        raise InputError("internal_loads labels: segments and layout.blocks must be lists")
+    offset = 0
+    names = {e["label"] for e in elements}
+    for k, seg in enumerate(segments):
+        _check_block(f"segment {k}", seg, segment=True)
+        if seg["name"] != SCALAR_SEGMENT and seg["name"] in names:
+            raise InputError(f"internal_loads labels: segment {k}: its name is taken by another segment or element")
+        names.add(seg["name"])
+        if seg["offset"] != offset or offset + seg["size"] > LABELS_MAX_ELEMENTS:
+            raise InputError(f"internal_loads labels: segment {k}: offset {seg['offset']}, expected {offset}")
+        if seg["name"] == SCALAR_SEGMENT and seg["size"] > len(elements):
+            raise InputError(f"internal_loads labels: segment {k}: {seg['size']} scalars, {len(elements)} elements")
+        offset += seg["size"]
+    for k, b in enumerate(layout["blocks"]):
+        _check_block(f"layout block {k}", b, segment=False)
 
 
 def unpack_internal(msg, labels: dict[str, Any]) -> dict[str, np.ndarray]:

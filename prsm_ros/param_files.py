@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields
+import re
 from pathlib import Path
 from typing import Any
 
@@ -24,20 +25,48 @@ def params_to_yaml(params: Params) -> str:
     return yaml.safe_dump(params.to_dict(), sort_keys=False)
 
 
-def _yaml_mapping(text: str, source: str, what: str) -> dict:
-    """The YAML text's top-level mapping; ParamError names `source`, the line and what was wrong."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ParamError(f"{source}:{where} not valid YAML ({getattr(e, 'problem', None) or type(e).__name__})") from None
+def yaml_mapping(text: str, source: str, what: str) -> dict:
+    """The YAML text's top-level mapping, loaded within `limits.load_yaml`'s bounds; ParamError names
+    `source`, the line and what was wrong, never the text."""
+    from prsm_ros.limits import load_yaml
+    data = load_yaml(text, source=source, error=ParamError)
     if not isinstance(data, dict):
         raise ParamError(f"{source}: expected a mapping of {what}, got {type(data).__name__}")
     return dict(data)
 
 
-def _read_text(path: str | Path, what: str) -> str:
+# A key or value that reads as a name (a parameter, a preset, a model) may be echoed in an error;
+# any other text came from the file and is not printed back (a file given by mistake: a key, a log).
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,63}")
+HIDDEN = "<text from the file>"
+
+
+def _texts(doc) -> set[str]:
+    """Every string key and value of a loaded document that is not a name (`_NAME`)."""
+    found: set[str] = set()
+    seen: set[int] = set()
+    todo = [doc]
+    while todo:
+        item = todo.pop()
+        if isinstance(item, str):
+            if not _NAME.fullmatch(item):
+                found.add(item)
+        elif isinstance(item, (dict, list)) and id(item) not in seen:  # aliases share objects: visit once
+            seen.add(id(item))
+            todo.extend([*item.keys(), *item.values()] if isinstance(item, dict) else item)
+    return found
+
+
+def without_file_text(message: str, doc) -> str:
+    """`message` with every text of `doc` that is not a name replaced by HIDDEN (its repr too)."""
+    for text in sorted(_texts(doc), key=len, reverse=True):
+        for form in (repr(text), text):
+            if form:
+                message = message.replace(form, HIDDEN)
+    return message
+
+
+def read_param_text(path: str | Path, what: str) -> str:
     """A regular UTF-8 file within `limits.TEXT_FILE_MAX_BYTES` (ParamError naming the file otherwise)."""
     from prsm_ros.limits import read_text_file
     return read_text_file(path, what=what, error=ParamError)
@@ -45,28 +74,28 @@ def _read_text(path: str | Path, what: str) -> str:
 
 def params_from_yaml(text: str, source: str = "<string>") -> Params:
     """Parse and validate; ParamError names `source` and the offending field or line."""
-    data = _yaml_mapping(text, source, "parameter groups")
+    data = yaml_mapping(text, source, "parameter groups")
     base_name = data.pop("preset", None)
     try:
         base = preset(base_name) if base_name is not None else None
         return Params.from_dict(data, base=base)
     except ParamError as e:
-        raise ParamError(f"{source}: {e}") from None
+        raise ParamError(f"{source}: {without_file_text(str(e), [data, base_name])}") from None
 
 
 def load_params_file(path: str | Path) -> Params:
-    return params_from_yaml(_read_text(path, "parameter file"), str(Path(path)))
+    return params_from_yaml(read_param_text(path, "parameter file"), str(Path(path)))
 
 
 def load_actuator_file(path: str | Path) -> ActuatorParams:
     """The actuator around the screw from a YAML file: the groups of the node's `actuator`
     parameter (motor, drive, sensors, stops, brake, faults); ParamError names the file and the field."""
     source = str(Path(path))
-    data = _yaml_mapping(_read_text(path, "actuator file"), source, "actuator groups")
+    data = yaml_mapping(read_param_text(path, "actuator file"), source, "actuator groups")
     try:
         return actuator_params_from_dict(data)
     except ParamError as e:
-        raise ParamError(f"{source}: {e}") from None
+        raise ParamError(f"{source}: {without_file_text(str(e), data)}") from None
 
 
 def resolve_params(preset_name: str | None, params_file: str | None, overrides: dict[str, Any] | None = None) -> Params:

@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from prsm_sim.datasheet import Datasheet, ModelSheet, datasheet_load_n, model_datasheet, params_from_datasheet
-from prsm_sim.datasheet import DEFAULT_SPEED_RAD_S, RUN_S, _steady
+from prsm_sim.datasheet import DEFAULT_SPEED_RAD_S, RUN_S, steady_run
+from prsm_sim.models.registry import model_class
 from prsm_sim.params import ParamError, Params
 
 MU_MAX = 0.45  # upper end of the screw–roller friction search
@@ -75,8 +77,8 @@ class Calibration:
 
 def _efficiencies(params: Params, model: str, dt_s: float) -> tuple[float, float]:
     f = datasheet_load_n(params)
-    fwd = _steady(params, model, dt_s, f, DEFAULT_SPEED_RAD_S, RUN_S)["tail_efficiency"]
-    bwd = _steady(params, model, dt_s, -f, DEFAULT_SPEED_RAD_S, RUN_S)["tail_efficiency"]
+    fwd = steady_run(params, model, dt_s, f, DEFAULT_SPEED_RAD_S, RUN_S)["tail_efficiency"]
+    bwd = steady_run(params, model, dt_s, -f, DEFAULT_SPEED_RAD_S, RUN_S)["tail_efficiency"]
     return fwd, bwd
 
 
@@ -233,9 +235,9 @@ def calibrate(sheet: Datasheet, base: Params, model: str = "fu2018", *, dt_s: fl
 
     `progress(message)` is told of each stage (the friction fits run the model for tens of seconds).
     """
-    if model == "ideal":
-        raise ParamError("model = 'ideal': it takes its efficiencies as parameters (ideal.*); calibrate a model "
-                         "with friction laws (fu2018, elastic, jones2016)")
+    if model_class(model).takes_efficiencies:
+        raise ParamError(f"model = {model!r}: it takes its efficiencies as parameters; calibrate a model whose "
+                         "efficiencies follow from its friction (fu2018, elastic, jones2016)")
     say = progress or (lambda message: None)
     params, assumed = params_from_datasheet(sheet, base)
     params, fitted = fit_ratings(params, sheet)

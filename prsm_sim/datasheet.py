@@ -48,7 +48,7 @@ class ModelSheet:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-def _steady(params: Params, model: str, dt_s: float, load_n: float, speed_rad_s: float, duration_s: float) -> dict:
+def steady_run(params: Params, model: str, dt_s: float, load_n: float, speed_rad_s: float, duration_s: float) -> dict:
     # a steady state away from the thread ends: at a coarse lead the run travels farther than the nut can
     if params.geometry.thread_ends:
         params = params.with_overrides({"geometry.thread_ends": False})
@@ -70,7 +70,7 @@ def _no_load_steady(params: Params, model: str, dt_s: float) -> tuple[dict, floa
     `STEADY_SPEED_TOLERANCE` of the reference, up to `NO_LOAD_MAX_RUN_S` (the last run's tail otherwise)."""
     run_s = NO_LOAD_RUN_S
     while True:
-        s = _steady(params, model, dt_s, 0.0, NO_LOAD_SPEED_RAD_S, run_s)
+        s = steady_run(params, model, dt_s, 0.0, NO_LOAD_SPEED_RAD_S, run_s)
         if s["tail_speed_band"] <= STEADY_SPEED_TOLERANCE * NO_LOAD_SPEED_RAD_S or run_s >= NO_LOAD_MAX_RUN_S:
             return s, run_s
         run_s = min(2.0 * run_s, NO_LOAD_MAX_RUN_S)
@@ -100,8 +100,8 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
         raise ParamError(f"load_n = {load_n!r}: must be a finite number > 0 (N)")
     if not (math.isfinite(speed_rad_s) and speed_rad_s > 0):
         raise ParamError(f"speed_rad_s = {speed_rad_s!r}: must be a finite number > 0 (rad/s)")
-    fwd = _steady(params, model, dt_s, f, speed_rad_s, RUN_S)
-    bwd = _steady(params, model, dt_s, -f, speed_rad_s, RUN_S)
+    fwd = steady_run(params, model, dt_s, f, speed_rad_s, RUN_S)
+    bwd = steady_run(params, model, dt_s, -f, speed_rad_s, RUN_S)
     idle, idle_s = _no_load_steady(params, model, dt_s)
     stiffness = AxialChain(params).at(f).nut_stiffness_n_per_m
     conditions = {"model": model, "load_n": f, "speed_rad_s": speed_rad_s, "no_load_speed_rad_s": NO_LOAD_SPEED_RAD_S,

@@ -278,6 +278,8 @@ class MassValues(NamedTuple):
 
 
 CONTACT_EVALUATIONS = ("exact", "line_of_centres")
+# the default contact stiffness of end stops and thread ends, N/m (`actuator.StopParams`; docs/model.md, end stop)
+END_STOP_STIFFNESS_N_M = 1e8
 
 
 @dataclass(frozen=True)
@@ -347,6 +349,10 @@ class Friction:
                "must be one of uniform, exponential")
         check_field(f, "mu_screw_roller", self.mu_screw_roller, self.mu_screw_roller < 1, "must be < 1")
         check_field(f, "mu_nut_roller_sliding", self.mu_nut_roller_sliding, self.mu_nut_roller_sliding < 1, "must be < 1")
+
+    def drag_radius(self, geo: Geometry) -> float:
+        """R of the carrier's Couette drag, m: `drag_radius_m` where given, else the nut's pitch radius r_N."""
+        return geo.nut_radius_m if self.drag_radius_m is None else self.drag_radius_m
 
 
 @dataclass(frozen=True)
@@ -507,6 +513,16 @@ class ElasticParams:
             else self.tooth_effective_width_m)
 
 
+def _derived_lengths(e: ElasticParams, geo: Geometry) -> dict[str, None]:
+    """The lengths of `e` that were derived from `geo` (not given), as None: a group built on `e` derives them
+    again from its own geometry instead of holding the old screw's value (e.g. the nut body's outer diameter
+    after a larger nut radius, which would else be refused as smaller than the new nut)."""
+    given = e.values(geo)
+    derived = replace(e, bearing_position_m=None, root_diameter_m=None, nut_outer_diameter_m=None,
+                      tooth_effective_width_m=None).values(geo)
+    return {name: None for name in ElasticValues._fields if getattr(given, name) == getattr(derived, name)}
+
+
 class ElasticValues(NamedTuple):
     """The lengths of the elastic group a built `Params` holds (`Params.resolved_elastic`), each a float, m:
     the fields given, or derived from the geometry."""
@@ -558,12 +574,24 @@ class Ratings:
 
     def resolved(self, geo: Geometry, material: Material) -> Ratings:
         """Fill each None rating from the thread form (the Params constructor calls this)."""
-        return replace(
-            self,
+        v = self.values(geo, material)
+        return replace(self, static_load_rating_n=v.static_load_rating_n, dynamic_load_rating_n=v.dynamic_load_rating_n)
+
+    def values(self, geo: Geometry, material: Material) -> RatingValues:
+        """Both ratings as floats, N: those given, or derived from the thread form (`Params.resolved_ratings`)."""
+        return RatingValues(
             static_load_rating_n=static_load_rating_n(geo, material, self) if self.static_load_rating_n is None
             else self.static_load_rating_n,
             dynamic_load_rating_n=dynamic_load_rating_n(geo, material, self) if self.dynamic_load_rating_n is None
             else self.dynamic_load_rating_n)
+
+
+class RatingValues(NamedTuple):
+    """The axial load ratings a built `Params` holds (`Params.resolved_ratings`), each a float, N: static
+    C_0a and dynamic C_a (0: not rated), given or derived from the thread form."""
+
+    static_load_rating_n: float
+    dynamic_load_rating_n: float
 
 
 STICTION_LAWS = ("stribeck",)
@@ -724,10 +752,10 @@ class Params:
                 raise ParamError(f"{gname}: expected a {cls.__name__}, got {type(v).__name__}")
         _set(self, "mass", self.mass.resolved(self.geometry))
         if self.friction.drag_radius_m is None:
-            _set(self, "friction", replace(self.friction, drag_radius_m=self.geometry.nut_radius_m))
+            _set(self, "friction", replace(self.friction, drag_radius_m=self.friction.drag_radius(self.geometry)))
         _set(self, "elastic", self.elastic.resolved(self.geometry))
         _set(self, "ratings", self.ratings.resolved(self.geometry, self.material))
-        c0 = self.ratings.static_load_rating_n
+        c0 = self.resolved_ratings.static_load_rating_n
         check_field("elastic", "preload_n", self.elastic.preload_n, self.elastic.preload_n <= c0,
                f"must not exceed the static load rating ratings.static_load_rating_n = {c0:.6g} N")
         nt = self.geometry.n_teeth
@@ -744,6 +772,11 @@ class Params:
     def resolved_elastic(self) -> ElasticValues:
         """The elastic group's derived lengths as this set holds them (`elastic`, resolved), each a float, m."""
         return self.elastic.values(self.geometry)
+
+    @cached_property
+    def resolved_ratings(self) -> RatingValues:
+        """The axial load ratings as this set holds them (`ratings`, resolved), each a float, N."""
+        return self.ratings.values(self.geometry, self.material)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict of every (resolved) parameter; round-trips through from_dict."""
@@ -774,6 +807,8 @@ class Params:
                 raise ParamError(f"unknown parameter {gname}.{sorted(map(str, bad))[0]}; "
                                  f"allowed in {gname}: {', '.join(sorted(allowed))}")
             values = asdict(getattr(base, gname)) if base is not None else {}
+            if gname == "elastic" and base is not None:
+                values.update(_derived_lengths(base.elastic, base.geometry))
             values.update(section)
             missing = [f.name for f in fields(gcls) if f.name not in values and f.default is MISSING
                        and f.default_factory is MISSING]  # type: ignore[misc]

@@ -29,7 +29,7 @@ from prsm_sim.errors import InputError, ModelError, NonFiniteStateError, ParamEr
 from prsm_sim.models.registry import build_model
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
-from prsm_sim.simulator import Simulator
+from prsm_sim.simulator import RatingEvent, Simulator
 from prsm_sim.stepping.packed import PackedOutputs
 from prsm_sim.stepping.records import InternalLayout, Outputs
 
@@ -40,7 +40,7 @@ _STOP_FORCE = [n for n, _ in ACTUATOR_QUANTITIES].index("stop_force_n")
 # what a session holds besides its simulator and its gate, saved by `get_state`, and the types `set_state` takes
 _RUN_TYPES = {"nut_position_m": float, "load_n": float, "initial_load_n": float | None, "_paused": bool,
               "fault": str | None, "_last": Outputs | None, "_events": list[FaultEvent], "_at_thread_end": bool,
-              "_edge_events": list[ThreadEndEvent]}
+              "_edge_events": list[ThreadEndEvent | RatingEvent]}
 _RUN_FIELDS = tuple(_RUN_TYPES)
 _GATE_TYPES = {"value": float, "command_time_s": float | None, "timed_out": bool, "counters": GateCounters}
 
@@ -159,7 +159,8 @@ class Session:
         self.initial_load_n = None if initial_load_n is None else float(initial_load_n)
         self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else float(initial_load_n)
         self._at_thread_end = False  # the nut pressed on a thread end after the last step
-        self._edge_events: list = []  # thread-end events (stops.ThreadEndEvent) not yet taken
+        self._edge_events: list = []  # thread-end and rating events (ThreadEndEvent, RatingEvent) not yet taken
+        self._over_rating = False  # the last step's nut load exceeded the static rating
         self._paused = False
         self.fault: str | None = None
         self._last: Outputs | None = None
@@ -304,6 +305,11 @@ class Session:
         if at_end != self._at_thread_end:
             self._at_thread_end = at_end
             self._edge_events.append(ThreadEndEvent(out.time_s, "reached" if at_end else "left", float(end_force)))
+        over = sim.over_static_rating == 1.0
+        if over != self._over_rating:
+            self._over_rating = over
+            self._edge_events.append(RatingEvent(out.time_s, "exceeded" if over else "within", self.load_n,
+                                                 sim.params.ratings.static_load_rating_n or math.inf))
         self._last = out
         return out
 
@@ -319,7 +325,8 @@ class Session:
         return self.simulator.params.geometry.thread_ends
 
     def take_edge_events(self) -> list:
-        """The thread-end events (`ThreadEndEvent`: the nut reached or left an end) since the last call."""
+        """The plant's edge events since the last call: `ThreadEndEvent` (the nut reached or left an end) and
+        `RatingEvent` (its load went past the static rating or back within it)."""
         ev, self._edge_events = self._edge_events, []
         return ev
 
@@ -442,6 +449,7 @@ class Session:
         self._events = []
         self._at_thread_end = False
         self._edge_events = []
+        self._over_rating = False
 
     def rebuild(self, params: Params) -> None:
         """New parameters for the same model, keeping the state and the step count (a runtime change)."""
@@ -503,7 +511,8 @@ class Session:
             if data.get(k) != v:
                 raise InputError(f"state {k} = {data.get(k)!r}: this session has {k} = {v!r}; build it with "
                                  "the arguments of the session that saved the state")
-        types = reachable_types(self.simulator.state, Outputs, FaultEvent, GateCounters, ThreadEndEvent)
+        types = reachable_types(self.simulator.state, Outputs, FaultEvent, GateCounters, ThreadEndEvent,
+                                RatingEvent)
         gate, run = from_plain(data.get("gate"), types, "gate"), from_plain(data.get("session"), types, "session")
         if not (isinstance(gate, dict) and gate.keys() == vars(self.gate).keys()
                 and isinstance(run, dict) and run.keys() == set(_RUN_FIELDS)):

@@ -14,7 +14,7 @@ import math
 import sys
 import warnings
 from dataclasses import fields
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,8 @@ from prsm_sim.stepping.packed import NUT_POSITION_ITEM, PACKED_STATE_SIZE
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
+_RESIDUAL_ITEM = 9  # the packed state's energy residual (`Model.pack_state`)
+
 
 # the state-carrying columns of a run (with the nut force): efficiency and speed_ratio may be NaN by design
 _STATE_COLUMNS = ("screw_angle_rad", "screw_speed_rad_s", "carrier_angle_rad", "carrier_speed_rad_s")
@@ -43,6 +45,25 @@ def _check_state(state, kind: type, path: str) -> None:
     for f in fields(screw):
         if f.name != "part" and not math.isfinite(getattr(screw, f.name)):
             raise InputError(f"{path}.{f.name} = {getattr(screw, f.name)!r}: must be a finite number")
+
+
+class RatingEvent(NamedTuple):
+    """The nut load went past the static load rating C₀a, or back within it, at the end of the step ending at `time_s`."""
+
+    time_s: float
+    what: str  # "exceeded" or "within"
+    force_n: float  # the nut load then, N
+    rating_n: float  # the static load rating C₀a, N
+
+    @property
+    def event_name(self) -> str:
+        return f"static_rating_{self.what}"
+
+    def describe(self) -> str:
+        if self.what == "exceeded":
+            return (f"the nut load {self.force_n:.6g} N exceeds the static load rating {self.rating_n:.6g} N: "
+                    "past it the threads deform permanently (ISO 76)")
+        return f"the nut load is back within the static load rating {self.rating_n:.6g} N"
 
 
 class Simulator:
@@ -115,6 +136,10 @@ class Simulator:
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
             (-sys.float_info.max, sys.float_info.max)
         self._end_force, self._end_step = 0.0, -1
+        # the static load rating C₀a (ISO 76's permanent-deformation limit, `Ratings`): a load past it is said once
+        c0 = params.ratings.static_load_rating_n
+        self._static_rating_n = math.inf if c0 is None else float(c0)
+        self._over_step, self._over_warned = -1, False
         self.check_on_threads(nut_position_m)
         if initial_load_n is not None and not is_finite_number(initial_load_n):
             raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N) or None")
@@ -290,12 +315,16 @@ class Simulator:
         # `check_step_inputs`' test for the common case, here to save the call on the node's path
         if not (type(command) is float and type(load_n) is float and (command + load_n) * 0.0 == 0.0):
             command, load_n = check_step_inputs(command, load_n, self.command_name)
+        if not -self._static_rating_n <= load_n <= self._static_rating_n:
+            self._over_rating(load_n)
         x = self._packed
         if x is not None:  # the record is the outputs and the next packed state
             out = self._step_packed(x, command, load_n)
             xn = out[NUT_POSITION_ITEM]  # the item, not the property: read on every step
             if not self._lo <= xn <= self._hi:  # the free step ran past a thread end, or is not finite
                 out = self._at_end_packed(x, out, command, load_n)
+            if out[_RESIDUAL_ITEM] * 0.0 != 0.0:  # the ledger overflowed (a finite nut, an infinite energy)
+                self._non_finite(self.time_s + self.dt_s)
             self._packed = out
             self._before = x
         else:
@@ -304,6 +333,8 @@ class Simulator:
             xn = out.nut_position_m
             if not self._lo <= xn <= self._hi:
                 new, out = self._at_end_state(s0, (new, out), command, load_n)
+            if out.energy_residual_j * 0.0 != 0.0:
+                self._non_finite(self.time_s + self.dt_s)
             self._state = new
             self._before = s0
         self.nstep += 1
@@ -373,6 +404,20 @@ class Simulator:
         model = self.model
         return model.limits if isinstance(model, Actuator) else self._limits
 
+    def _over_rating(self, load_n: float) -> None:
+        """Flag a step whose nut load exceeds the static rating (`over_static_rating`); said once per simulator."""
+        self._over_step = self.nstep + 1
+        if not self._over_warned:
+            self._over_warned = True
+            warnings.warn(f"load_n = {load_n:g} N exceeds the static load rating ratings.static_load_rating_n = "
+                          f"{self._static_rating_n:g} N at t = {self.time_s:.6f} s: past it the threads deform "
+                          "permanently (ISO 76), which no model here represents", stacklevel=3)
+
+    @property
+    def over_static_rating(self) -> float:
+        """1.0 while the last step's nut load exceeded the static load rating C₀a, else 0.0."""
+        return 1.0 if self._over_step == self.nstep else 0.0
+
     @property
     def thread_end_force_n(self) -> float:
         """The thread end's force on the nut over the last step, N along +x_nut (0: off the ends)."""
@@ -389,7 +434,7 @@ class Simulator:
     def _check_finite_run(self, traj: Trajectory) -> None:
         """NonFiniteStateError at the first row whose state-carrying columns are not all finite."""
         cols = traj.columns
-        bad = ~np.isfinite(cols["nut_force_n"])
+        bad = ~np.isfinite(cols["nut_force_n"]) | ~np.isfinite(cols["energy_residual_j"])
         for name in _STATE_COLUMNS:
             bad |= ~np.isfinite(cols[name])
         if bad.any():
@@ -433,8 +478,13 @@ class Simulator:
             # the run reaches a thread end: stepped instead, each step against the end as `step` takes it
             tau = np.asarray(command, dtype=float)
             rows = [self.step(float(t), float(f)) for t, f in zip(tau, np.broadcast_to(np.asarray(load_n, float),
-                                                                                     tau.shape))]
+                                                                                     tau.shape), strict=True)]
             return trajectory_from_rows(rows, self.layout, self.state)
+        f = traj.columns["load_force_n"]
+        over = np.flatnonzero(np.abs(f) > self._static_rating_n)
+        if len(over):
+            self._over_rating(float(f[over[0]]))
+            self._over_step = self.nstep + len(traj) if over[-1] == len(traj) - 1 else -1
         self.state = traj.final_state
         self.nstep += len(traj)
         return traj

@@ -187,3 +187,67 @@ def joint_state_cdr(t_ns: int) -> bytes:
                                          position=np.array([10.0 * t_ns * 1e-9, 0.002 * t_ns * 1e-9]), velocity=np.array([10.0, 0.002]),
                                          effort=np.array([0.5, 2000.0]))
     return bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+
+
+def string_cdr(text: str) -> bytes:
+    """A std_msgs/String as CDR: encapsulation header, length with the NUL, the bytes, the NUL."""
+    raw = text.encode()
+    return b"\x00\x01\x00\x00" + struct.pack("<I", len(raw) + 1) + raw + b"\x00"
+
+
+def joint_states_bag(out: Path, n: int = 20, *, times_ns=None, position=None, strings=None, compression=None,
+                     finish: bool = True) -> Path:
+    """/joint_states (screw and nut joints, `joint_state_cdr`) at `times_ns` (default 10 ms apart), the
+    nut position replaced by `position` where given; `strings`: {topic: [text, ...]} as std_msgs/String."""
+    from mcap.writer import CompressionType, Writer
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    f = open(out, "wb")
+    w = Writer(f, compression=compression or CompressionType.ZSTD)
+    w.start(profile="ros2", library="hostile corpus")
+    sid = w.register_schema("sensor_msgs/msg/JointState", "ros2msg",
+                            ts.generate_msgdef("sensor_msgs/msg/JointState", ros_version=2)[0].encode())
+    js = w.register_channel("/joint_states", "cdr", sid, {})
+    times = list(times_ns) if times_ns is not None else [k * 10_000_000 for k in range(n)]
+    for k, t in enumerate(times):
+        body = joint_state_cdr(max(t, 0))
+        if position is not None:
+            T = ts.types
+            msg = ts.deserialize_cdr(body, "sensor_msgs/msg/JointState")
+            msg = T["sensor_msgs/msg/JointState"](header=msg.header, name=msg.name,
+                                                 position=msg.position * 0 + position[k % len(position)],
+                                                 velocity=msg.velocity, effort=msg.effort)
+            body = bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+        w.add_message(js, t, body, t)
+    ssid = w.register_schema("std_msgs/msg/String", "ros2msg", b"string data")
+    for topic, texts in (strings or {}).items():
+        cid = w.register_channel(topic, "cdr", ssid, {})
+        for k, text in enumerate(texts):
+            w.add_message(cid, k, string_cdr(text), k)
+    if finish:
+        w.finish()
+    f.close()
+    return out
+
+
+def recursive_schema(out: Path) -> Path:
+    """/tree whose custom type contains a sequence of itself, beside a good ~/screw_torque."""
+    definition = b"Node[] children\nfloat64 x\n" + b"=" * 80 + b"\nMSG: treepkg/Node\nNode[] children\nfloat64 x\n"
+    return beside_screw_torque(out, "/tree", "treepkg/msg/Node", definition, n=5)
+
+
+def two_types(out: Path) -> Path:
+    """/joint_states recorded on two channels: one JointState, one Float64."""
+    f, w = _writer(out)
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    sid = w.register_schema("sensor_msgs/msg/JointState", "ros2msg",
+                            ts.generate_msgdef("sensor_msgs/msg/JointState", ros_version=2)[0].encode())
+    js = w.register_channel("/joint_states", "cdr", sid, {})
+    fl = _float64_channel(w, "/joint_states")
+    for k in range(10):
+        w.add_message(js, k * 10_000_000, joint_state_cdr(k * 10_000_000), k * 10_000_000)
+        w.add_message(fl, k * 10_000_000 + 1, FLOAT64_CDR, k * 10_000_000 + 1)
+    w.finish()
+    f.close()
+    return out

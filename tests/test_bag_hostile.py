@@ -169,7 +169,8 @@ def test_huge_declared_lengths_are_refused_not_allocated(corpus, capsys):
     rc, out, err = _cli(capsys, "info", bags["huge_lengths"], "--json")
     assert rc == 0, err
     note = json.loads(out)["note"]
-    assert "more than the 256 MiB a chunk may hold" in note and "unfinished" in note
+    from prsm_ros.bag.reader import MAX_CHUNK_BYTES
+    assert f"more than the {MAX_CHUNK_BYTES >> 20} MiB a chunk may hold" in note and "unfinished" in note
 
 
 def test_repair_makes_a_killed_bag_readable_by_rerun_and_the_mcap_library(corpus, tmp_path, capsys):

@@ -36,8 +36,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_sim.actuator",),  # drive, motor, sensors, brake, faults around a model
     ("prsm_sim.simulator", "prsm_sim.control"),
     ("prsm_sim.command_gate", "prsm_sim.scenarios"),  # the gate; standard runs
-    ("prsm_sim.session",),  # the runtime session: a simulator with its gate, faults, pause, state
-    ("prsm_sim.envelope",),  # edge cases, run through the session
+    ("prsm_sim.session", "prsm_sim.datasheet"),  # the runtime session; a model's catalogue figures, a plant from a sheet
+    ("prsm_sim.envelope", "prsm_sim.calibration", "prsm_sim.identify"),  # edge cases; friction fitted to a sheet; fits to recordings
     ("prsm_sim",),
     # prsm_ros: all I/O
     ("prsm_ros.interface", "prsm_ros.cdr_read", "prsm_ros.ros_env", "prsm_ros.json_out",
@@ -49,7 +49,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_ros.bag",),  # reading, exporting, reporting, comparing bags
     ("prsm_ros.viz", "prsm_ros.live"),  # Rerun views, live and from bags; the live Foxglove server
     ("prsm_ros.node",),  # the rclpy node
-    ("prsm_ros.fmu",),  # the actuator as an FMU
+    ("prsm_ros.fmu", "prsm_ros.fit"),  # the actuator as an FMU; identifying it from recordings
     ("prsm_ros.cli",),  # the command-line tools
     ("prsm_ros.bench",),  # benchmarks
     ("prsm_ros",),

@@ -96,6 +96,26 @@ def test_durations_sample_counts_and_grids_are_bounded(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_run_longer_than_memory_can_hold_is_refused_up_front(capsys):
+    """Was: 10^6 ideal steps peaked at 1.24 GB and a 10^7-step run (allowed) ended in numpy's
+    MemoryError after 122 s. Oracle: tracemalloc's peak of the same run at two lengths."""
+    from prsm_sim import Simulator, preset
+    from prsm_sim.scenarios import default_spec, run_scenario
+
+    from prsm_ros.cli.sim import PROBE_STEPS, bytes_per_step
+    from prsm_ros.limits import MAX_RUN_BYTES
+
+    p = preset("s30")
+    per_step = bytes_per_step(lambda: Simulator(p, "ideal", 1e-3), run_scenario, default_spec(p, "sine-motion"), 1e-3)
+    assert 200 < per_step < 20_000  # a step's outputs: tens of float columns, with their row objects
+    steps = int(MAX_RUN_BYTES / per_step * 1.5)  # well past the budget, well under MAX_RUN_STEPS
+    assert PROBE_STEPS < steps < MAX_RUN_STEPS
+    rc, err = _sim(capsys, "run", "--preset", "s30", "--model", "ideal", "--duration", str(steps * 1e-3),
+                   "--scenario", "sine-motion")
+    assert rc == 2
+    _one_line(err, "GiB a run may hold")
+
+
 def test_export_resampling_and_time_windows_are_bounded(tmp_path, capsys):
     from prsm_sim import Simulator, preset
     from prsm_sim.scenarios import default_spec, run_scenario

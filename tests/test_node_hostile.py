@@ -159,7 +159,7 @@ def test_a_10_khz_second_writer_cannot_take_the_actuator_from_its_owner(tmp_path
 
 def test_a_10_million_step_request_is_accepted_and_sigterm_still_ends_the_node(tmp_path):
     from std_msgs.msg import String
-    from std_srvs.srv import SetBool, Trigger
+    from std_srvs.srv import Trigger
     from prsm_ros.bag.reader import open_bag
 
     bag = tmp_path / "long.mcap"

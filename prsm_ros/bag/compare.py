@@ -67,40 +67,63 @@ def _check(threshold: float, alpha: float) -> None:
         raise BagError(f"--alpha {alpha!r}: must lie in (0, 1)")
 
 
+def _finite_values(ok_a: list[dict], ok_b: list[dict], name: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The finite values of `name` in each group; None when a value is no float or a group has none."""
+    va = np.array([r.get(name, math.nan) for r in ok_a], dtype=object)
+    vb = np.array([r.get(name, math.nan) for r in ok_b], dtype=object)
+    if not all(isinstance(v, float) for v in (*va, *vb)):
+        return None
+    va = va.astype(float)[np.isfinite(va.astype(float))]
+    vb = vb.astype(float)[np.isfinite(vb.astype(float))]
+    if not va.size or not vb.size:
+        return None
+    return va, vb
+
+
+def _relative_change(ma: float, mb: float) -> float:
+    """(mb − ma) / |ma|; from a zero median A: 0 when unchanged, else ±inf in the direction of the move."""
+    if ma != 0:
+        return (mb - ma) / abs(ma)
+    return 0.0 if mb == ma else math.copysign(math.inf, mb - ma)
+
+
+def _rank_p_value(va: np.ndarray, vb: np.ndarray) -> float:
+    """Mann-Whitney U two-sided p-value; NaN with fewer than two values in a group or all values equal."""
+    from scipy.stats import mannwhitneyu
+    if va.size > 1 and vb.size > 1 and np.ptp(np.concatenate([va, vb])) > 0:
+        return float(mannwhitneyu(va, vb, alternative="two-sided").pvalue)
+    return math.nan
+
+
+def _summary(v: np.ndarray) -> dict:
+    return {"n": int(v.size), "median": float(np.median(v)), "mean": float(v.mean()), "std": float(v.std())}
+
+
+def _metric(name: str, va: np.ndarray, vb: np.ndarray, threshold: float, alpha: float, enough: bool) -> dict:
+    """One metric's statistics in both groups and whether B is a regression on A."""
+    sa, sb = _summary(va), _summary(vb)
+    change = _relative_change(sa["median"], sb["median"])
+    p = _rank_p_value(va, vb)
+    d = direction(name)
+    worse = enough and d != 0 and change * d < -threshold and (not math.isnan(p) and p < alpha)
+    return {"a": sa, "b": sb, "relative_change": change, "p_value": p,
+            "better": {-1: "lower", 1: "higher", 0: None}[d], "regression": bool(worse)}
+
+
 def compare_rows(a: list[dict], b: list[dict], threshold: float = 0.05, alpha: float = 0.05) -> dict:
     """Statistics per metric and regression flags for rows of group A (before) and B (after)."""
-    from scipy.stats import mannwhitneyu
     _check(threshold, alpha)
     ok_a = [r for r in a if r["status"] == "ok"]
     ok_b = [r for r in b if r["status"] == "ok"]
     names = sorted({k for r in ok_a for k in r} & {k for r in ok_b for k in r})
-    metrics = {}
-    regressions = []
     floor = min_p_value(len(ok_a), len(ok_b))
     enough = floor < alpha
-    for n in names:
-        if not is_metric(n):
-            continue
-        va = np.array([r.get(n, math.nan) for r in ok_a], dtype=object)
-        vb = np.array([r.get(n, math.nan) for r in ok_b], dtype=object)
-        if not all(isinstance(v, float) for v in (*va, *vb)):
-            continue
-        va = va.astype(float)[np.isfinite(va.astype(float))]
-        vb = vb.astype(float)[np.isfinite(vb.astype(float))]
-        if not va.size or not vb.size:
-            continue
-        ma, mb = float(np.median(va)), float(np.median(vb))
-        change = (mb - ma) / abs(ma) if ma != 0 else (0.0 if mb == ma else math.copysign(math.inf, mb - ma))
-        p = float(mannwhitneyu(va, vb, alternative="two-sided").pvalue) if va.size > 1 and vb.size > 1 \
-            and np.ptp(np.concatenate([va, vb])) > 0 else math.nan
-        d = direction(n)
-        worse = enough and d != 0 and change * d < -threshold and (not math.isnan(p) and p < alpha)
-        metrics[n] = {"a": {"n": int(va.size), "median": ma, "mean": float(va.mean()), "std": float(va.std())},
-                      "b": {"n": int(vb.size), "median": mb, "mean": float(vb.mean()), "std": float(vb.std())},
-                      "relative_change": change, "p_value": p,
-                      "better": {-1: "lower", 1: "higher", 0: None}[d], "regression": bool(worse)}
-        if worse:
-            regressions.append(n)
+    metrics = {}
+    for n in filter(is_metric, names):
+        values = _finite_values(ok_a, ok_b, n)
+        if values is not None:
+            metrics[n] = _metric(n, *values, threshold, alpha, enough)
+    regressions = [n for n, m in metrics.items() if m["regression"]]
     return {"a_bags": len(a), "b_bags": len(b), "a_failed": len(a) - len(ok_a), "b_failed": len(b) - len(ok_b),
             "threshold": threshold, "alpha": alpha, "min_p_value": floor, "smallest_group": smallest_group(alpha),
             "verdict": "compared" if enough else "too few bags", "metrics": metrics, "regressions": regressions}

@@ -17,11 +17,12 @@ from __future__ import annotations
 import io
 import math
 import os
+import re
 import struct
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from collections.abc import Iterator
 
 from prsm_sim.errors import PrsmError
 
@@ -29,9 +30,11 @@ from prsm_ros.interface import TOPIC_DEFS
 from prsm_ros.limits import file_kind
 
 MAGIC = b"\x89MCAP0\r\n"
-# A chunk's uncompressed size is allocated before it is read: a damaged size must not decide it.
-# rosbag2 writes 768 KiB chunks, the mcap CLI 4 MiB, our recorder 1 MiB.
-MAX_CHUNK_BYTES = 256 << 20
+# What one chunk may decompress to. Its records are all held at once (for the log-time merge), so
+# the cap bounds a reader's memory whatever the file declares: the output itself is bounded, not
+# only the declared size. rosbag2 writes 768 KiB chunks, the mcap CLI 4 MiB, our recorder 1 MiB.
+MAX_CHUNK_BYTES = 64 << 20
+MAX_RECORD_BYTES = MAX_CHUNK_BYTES + (1 << 20)  # a record read whole: a chunk's data and its header fields
 MAX_WINDOW_S = 1e9  # --start/--end: seconds from the first message (int64 nanoseconds hold ±9.2e9 s)
 
 
@@ -153,43 +156,79 @@ class ChunkSkipped(Exception):
     """A chunk that cannot be used (the reason says why); its messages are skipped, the rest is read."""
 
 
-def chunk_records(chunk) -> list:
-    """The schema, channel and message records inside one chunk, after its size and CRC are checked.
+def _zstd(data: bytes, cap: int) -> bytes:
+    import zstandard
+    try:
+        size = zstandard.frame_content_size(data)
+        if size > cap:
+            raise ChunkSkipped(f"its zstd frame holds {size} bytes, more than the {cap >> 20} MiB a chunk may hold here")
+        if size >= 0:  # the output is allocated at the frame's size, checked above
+            return zstandard.ZstdDecompressor().decompress(data)
+        reader = zstandard.ZstdDecompressor().stream_reader(data)
+        parts, held = [], 0
+        while held <= cap:
+            part = reader.read(1 << 20)
+            if not part:
+                break
+            parts.append(part)
+            held += len(part)
+        return b"".join(parts)
+    except zstandard.ZstdError as e:
+        raise ChunkSkipped(f"does not decompress (zstd: {str(e)[:60]})") from None
 
-    Raises ChunkSkipped naming the reason: a declared size over MAX_CHUNK_BYTES (so a damaged length
-    cannot make the reader allocate it), data that does not decompress to the declared size, a CRC
-    mismatch (a CRC of 0 means "not computed", MCAP spec), records that do not parse.
+
+def _lz4(data: bytes, cap: int) -> bytes:
+    import lz4.frame
+    try:
+        return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=cap + 1)
+    except RuntimeError as e:  # the lz4 binding's only error type for a frame it cannot read (LZ4F_* codes)
+        raise ChunkSkipped(f"does not decompress (lz4: {str(e)[:60]})") from None
+
+
+def chunk_data(chunk, cap: int = MAX_CHUNK_BYTES) -> bytes:
+    """A chunk's records as bytes, decompressed to at most `cap` bytes and checked by its CRC.
+
+    ChunkSkipped naming the reason: a declared size over `cap`, an output that would exceed it (the
+    output is bounded as it is produced, so a frame that lies about its size costs nothing), a
+    codec error, a CRC mismatch. With a CRC the data are good whatever size the chunk declares
+    (the mcap library's own readers decompress by the frame); without one (0: "not computed",
+    MCAP spec) they must have the declared size.
     """
-    from mcap.data_stream import ReadDataStream
-    from mcap.opcode import Opcode
-    from mcap.records import Channel, Message, Schema
-
     size = chunk.uncompressed_size
-    if size > MAX_CHUNK_BYTES:
-        raise ChunkSkipped(f"declares {size} bytes uncompressed, more than the {MAX_CHUNK_BYTES >> 20} MiB "
-                           "a chunk may hold here")
+    if size > cap:
+        raise ChunkSkipped(f"declares {size} bytes uncompressed, more than the {cap >> 20} MiB a chunk may hold here")
     try:
         if chunk.compression == "zstd":
-            import zstandard
-            declared = zstandard.frame_content_size(chunk.data)
-            if declared not in (-1, size):  # -1: the frame does not say
-                raise ChunkSkipped(f"its zstd frame holds {declared} bytes, the chunk declares {size}")
-            data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
+            data = _zstd(chunk.data, cap)
         elif chunk.compression == "lz4":
-            import lz4.frame
-            data = lz4.frame.decompress(chunk.data)
+            data = _lz4(chunk.data, cap)
         elif chunk.compression == "":
             data = chunk.data
         else:
             raise ChunkSkipped(f"unknown compression {chunk.compression[:40]!r}")
     except ImportError as e:
         raise ChunkSkipped(f"{chunk.compression} compression needs the {e.name} package") from None
-    except damaged_data_errors() as e:
-        raise ChunkSkipped(f"does not decompress ({type(e).__name__})") from None
-    if len(data) != size:
+    if len(data) > cap:
+        raise ChunkSkipped(f"decompresses to more than the {cap >> 20} MiB a chunk may hold here")
+    if chunk.uncompressed_crc != 0:
+        if zlib.crc32(data) != chunk.uncompressed_crc:
+            raise ChunkSkipped("CRC mismatch")
+    elif len(data) != size:
         raise ChunkSkipped(f"decompresses to {len(data)} bytes, the chunk declares {size}")
-    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise ChunkSkipped("CRC mismatch")
+    return data
+
+
+def chunk_records(chunk) -> list:
+    """The schema, channel and message records inside one chunk (`chunk_data` checks it first).
+
+    Raises ChunkSkipped naming the reason when the chunk fails its checks or its records do not parse.
+    """
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Message, Schema
+
+    data = chunk_data(chunk)
+    size = len(data)
     stream = ReadDataStream(io.BytesIO(data))
     out: list = []
     try:
@@ -207,6 +246,75 @@ def chunk_records(chunk) -> list:
     except damaged_data_errors() as e:
         raise ChunkSkipped(f"its records do not parse ({type(e).__name__})") from None
     return out
+
+
+# Where a record's framing is damaged, a scan reads on from the next offset where two records in a
+# row frame as records do: a known opcode (Header excepted), then a length (under 2^32) that ends
+# inside the file, at another such record or at the closing magic.
+_OPCODES = bytes([2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15])
+_CANDIDATE = re.compile(b"[" + re.escape(_OPCODES) + rb"].{4}\x00{4}", re.S)
+
+
+class _Empty:
+    """An empty mapping for a file of size 0 (mmap cannot map it)."""
+
+    def __enter__(self):
+        return b""
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _mapped(f):
+    import mmap
+    size = os.fstat(f.fileno()).st_size
+    return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else _Empty()
+
+
+def _next_record(mm, start: int, size: int) -> int | None:
+    """The first offset ≥ `start` where a record and the one after it frame plausibly; None if none."""
+    for m in _CANDIDATE.finditer(mm, start):
+        p = m.start()
+        q = p + 9 + int.from_bytes(mm[p + 1:p + 9], "little")
+        if q + 8 == size and mm[q:q + 8] == MAGIC:
+            return p
+        if q + 9 <= size and mm[q] in _OPCODES and int.from_bytes(mm[q + 1:q + 9], "little") <= size - q - 9:
+            return p
+    return None
+
+
+def _chunk_end(mm, pos: int, size: int) -> int:
+    """Where the Chunk record at `pos` ends by its own fields (compression and data lengths), as mcap's
+    stream reader reads it; -1 when they run past the file."""
+    at = pos + 9
+    if at + 32 > size:
+        return -1
+    (clen,) = struct.unpack_from("<I", mm, at + 28)
+    if clen > 64 or at + 40 + clen > size:
+        return -1
+    (rlen,) = struct.unpack_from("<Q", mm, at + 32 + clen)
+    end = at + 40 + clen + rlen
+    return end if end <= size else -1
+
+
+def _reframed_chunk(mm, pos: int, size: int) -> tuple[list, int] | None:
+    """(records, end) of a Chunk read by its own fields when its record length is damaged; None unless
+    it passes every check of `chunk_records` with a CRC (without one, nothing says it is whole)."""
+    from mcap.records import Chunk
+    end = _chunk_end(mm, pos, size)
+    at = pos + 9
+    if end < 0 or end - at > MAX_RECORD_BYTES:
+        return None
+    start_ns, end_ns, usize, crc, clen = struct.unpack_from("<QQQII", mm, at)
+    if crc == 0:
+        return None
+    try:
+        compression = bytes(mm[at + 32:at + 32 + clen]).decode("utf-8")
+        chunk = Chunk(compression=compression, data=bytes(mm[at + 40 + clen:end]), message_end_time=end_ns,
+                      message_start_time=start_ns, uncompressed_crc=crc, uncompressed_size=usize)
+        return chunk_records(chunk), end
+    except (UnicodeDecodeError, ChunkSkipped):
+        return None
 
 
 @dataclass
@@ -227,6 +335,7 @@ class Scan:
     problem: str | None = None
     bad_chunks: list[tuple[int, str]] = field(default_factory=list)
     undeclared: int = 0
+    gaps: list[tuple[int, int]] = field(default_factory=list)  # damaged byte ranges read past (start, end)
 
 
 def scan_records(path, on_message=None) -> Scan:
@@ -244,11 +353,10 @@ def scan_records(path, on_message=None) -> Scan:
     return scan
 
 
-def walk_records(path, scan: Scan) -> Iterator[tuple]:
-    """The generator behind `scan_records`: yields (schema, channel, message), fills `scan`."""
-    from mcap.data_stream import ReadDataStream
-    from mcap.opcode import Opcode
-    from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
+def _taker(scan: Scan):
+    """`take(record)`: keeps a schema or channel in `scan`; a message → (schema, channel, message), None
+    when its channel is unknown. A closure, so that the record types are looked up once per file."""
+    from mcap.records import Channel, Message, Schema
 
     def take(rec):
         if isinstance(rec, Schema):
@@ -261,9 +369,64 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 return scan.schemas.get(ch.schema_id), ch, rec
             scan.undeclared += 1
         return None
+    return take
 
+
+def _resume_after(mm, pos: int, size: int, scan: Scan) -> int | None:
+    """Where reading goes on past an unreadable record at `pos`: the next record (the gap noted in `scan`).
+
+    None when no record follows (`scan.stopped_at` set): the file ends there for us."""
+    nxt = _next_record(mm, pos + 1, size)
+    if nxt is None:
+        scan.stopped_at = pos
+        return None
+    scan.gaps.append((pos, nxt))
+    return nxt
+
+
+def _record_reader(scan: Scan, take):
+    """`read(body, opcode, length, pos)`: one record's `body` (`length` bytes, at byte `pos`) into `scan`
+    through `take` (`_taker`), giving the (schema, channel, message) it holds; None at the footer, the
+    record that ends the file. It raises one of `damaged_data_errors()` for a damaged body; a chunk that
+    fails its checks is listed in `scan.bad_chunks`, the records after it stay readable. A closure, so
+    that the mcap names are looked up once per file, not once per record."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
+
+    def read(body: bytes, opcode: int, length: int, pos: int) -> list | None:
+        stream = ReadDataStream(io.BytesIO(body))
+        found = []
+        if opcode == Opcode.HEADER:
+            scan.header = Header.read(stream)
+        elif opcode == Opcode.SCHEMA:
+            take(Schema.read(stream))
+        elif opcode == Opcode.CHANNEL:
+            take(Channel.read(stream))
+        elif opcode == Opcode.MESSAGE:
+            found.append(take(Message.read(stream, length)))
+        elif opcode == Opcode.METADATA:
+            scan.metadata.append(Metadata.read(stream))
+        elif opcode == Opcode.CHUNK:
+            try:
+                found = [take(rec) for rec in chunk_records(Chunk.read(stream))]
+                scan.chunks += 1
+            except ChunkSkipped as e:  # framed by its length: the records after it are still readable
+                scan.bad_chunks.append((pos, str(e)))
+        elif opcode == Opcode.FOOTER:
+            return None
+        return [item for item in found if item is not None]
+    return read
+
+
+def walk_records(path, scan: Scan) -> Iterator[tuple]:
+    """The generator behind `scan_records`: yields (schema, channel, message), fills `scan`."""
+    from mcap.opcode import Opcode
+
+    take = _taker(scan)
+    read_record = _record_reader(scan, take)
     damaged = damaged_data_errors()
-    with open(path, "rb") as f:
+    with open(path, "rb") as f, _mapped(f) as mm:
         size = os.fstat(f.fileno()).st_size
         _require_magic(f, path)
         pos = 8
@@ -273,38 +436,97 @@ def walk_records(path, scan: Scan) -> Iterator[tuple]:
                 scan.stopped_at = pos
                 break
             opcode, length = struct.unpack("<BQ", head)
-            if length > size - pos - 9:  # cut short, or a damaged length: nothing after it can be framed
-                scan.stopped_at = pos
-                break
-            body = f.read(length)
-            stream = ReadDataStream(io.BytesIO(body))
-            found = []
-            try:
-                if opcode == Opcode.HEADER:
-                    scan.header = Header.read(stream)
-                elif opcode == Opcode.SCHEMA:
-                    take(Schema.read(stream))
-                elif opcode == Opcode.CHANNEL:
-                    take(Channel.read(stream))
-                elif opcode == Opcode.MESSAGE:
-                    found.append(take(Message.read(stream, length)))
-                elif opcode == Opcode.METADATA:
-                    scan.metadata.append(Metadata.read(stream))
-                elif opcode == Opcode.CHUNK:
-                    try:
-                        found = [take(rec) for rec in chunk_records(Chunk.read(stream))]
-                        scan.chunks += 1
-                    except ChunkSkipped as e:  # framed by its length: the records after it are still readable
-                        scan.bad_chunks.append((pos, str(e)))
-                elif opcode == Opcode.FOOTER:
-                    scan.complete = f.read(8) == MAGIC
+            if opcode == Opcode.CHUNK and length != _chunk_end(mm, pos, size) - pos - 9:
+                reframed = _reframed_chunk(mm, pos, size)
+                if reframed is not None:  # a damaged record length, the chunk whole by its own fields and CRC
+                    records, end = reframed
+                    scan.chunks += 1
+                    scan.gaps.append((pos + 1, pos + 9))
+                    yield from (item for item in (take(rec) for rec in records) if item is not None)
+                    pos = end
+                    f.seek(pos)
+                    continue
+            if length > size - pos - 9:  # cut short, or a damaged length: read on from the next record, if any
+                nxt = _resume_after(mm, pos, size, scan)
+                if nxt is None:
                     break
-            except damaged as e:  # a damaged record: keep what came before it
-                scan.stopped_at = pos
-                scan.problem = f"damaged record at byte {pos} ({type(e).__name__})"
+                pos = nxt
+                f.seek(pos)
+                continue
+            if length > MAX_RECORD_BYTES:  # framed by its length: skipped unread, the records after it are read
+                scan.bad_chunks.append((pos, f"a record of {length} bytes, more than the "
+                                             f"{MAX_RECORD_BYTES >> 20} MiB a record may hold here"))
+                f.seek(length, io.SEEK_CUR)
+                pos += 9 + length
+                continue
+            body = f.read(length)
+            try:
+                found = read_record(body, opcode, length, pos)
+            except damaged as e:  # a damaged record: read on from the next record, if any
+                nxt = _resume_after(mm, pos, size, scan)
+                if nxt is None:
+                    scan.problem = f"damaged record at byte {pos} ({type(e).__name__})"
+                    break
+                pos = nxt
+                f.seek(pos)
+                continue
+            if found is None:  # the footer: the file is finished when the closing magic follows
+                scan.complete = f.read(8) == MAGIC
                 break
-            yield from (item for item in found if item is not None)
+            yield from found
             pos += 9 + length
+
+
+def _footer(f, size: int):
+    """(summary_start, summary_crc) from the footer record before the closing magic; None without one."""
+    from mcap.opcode import Opcode
+    if size < 8 + 37:
+        return None
+    f.seek(size - 37)
+    tail = f.read(37)
+    if tail[29:] != MAGIC or tail[0] != Opcode.FOOTER:
+        return None
+    summary_start, _, crc = struct.unpack_from("<QQI", tail, 9)
+    return summary_start, crc
+
+
+def summary_doubt(f, size: int, summary) -> str | None:
+    """Why the summary of a finished file cannot be trusted to find every chunk; None when it can.
+
+    The footer's summary CRC (when written) must match, and every chunk the data section holds
+    must be one a chunk index points at: the top-level records are walked by their lengths
+    (headers only, nothing decompressed) up to the summary or to the first record that runs
+    past it. A summary that misses a chunk would make every reader drop its messages.
+    """
+    from mcap.opcode import Opcode
+    foot = _footer(f, size)
+    if foot is None:
+        return "no footer"
+    summary_start, crc = foot
+    if not 8 < summary_start <= size - 37:
+        return "the footer points outside the file"
+    if crc != 0:
+        f.seek(summary_start)
+        left, got = size - 8 - 4 - summary_start, 0
+        while left > 0:
+            block = f.read(min(left, 1 << 20))
+            if not block:
+                break
+            got = zlib.crc32(block, got)
+            left -= len(block)
+        if got != crc:
+            return "its CRC does not match"
+    indexed = {(ci.chunk_start_offset, ci.chunk_length) for ci in summary.chunk_indexes}
+    pos = 8
+    while pos + 9 <= summary_start:
+        f.seek(pos)
+        opcode, length = struct.unpack("<BQ", f.read(9))
+        if opcode == Opcode.DATA_END or length > summary_start - pos - 9:
+            break
+        if opcode == Opcode.CHUNK and (pos, 9 + length) not in indexed:
+            return f"the chunk at byte {pos} has no chunk index"
+        pos += 9 + length
+    return None
 
 
 def _bad_chunks_note(name: str, bad: list[tuple[int, str]]) -> str:
@@ -340,6 +562,7 @@ class Bag:
         self._bad_chunks: dict[int, str] = {}   # byte offset → reason, found while reading
         self._decoders: dict[int, object] = {}
         self._summary_damaged = False
+        self._summary_doubt: str | None = None  # why a summary that reads is not trusted (the file is scanned)
         self._indexed = False  # finished file with chunk indexes: read through the summary's chunk indexes
         self._size = self.path.stat().st_size
         with open(self.path, "rb") as f:
@@ -367,6 +590,10 @@ class Bag:
                 summary = reader.get_summary()
                 if summary is None or summary.statistics is None or not summary.chunk_indexes:
                     return None  # nothing to seek by: scanning gives the per-topic times too
+                why = summary_doubt(f, self._size, summary)
+                if why is not None:
+                    self._summary_doubt = why
+                    return None
                 metadata = list(reader.iter_metadata())
                 message_index_times = self._channel_time_ranges(f, summary)
         except (*damaged_data_errors(), OSError):  # no footer, damaged footer or summary: scan the records
@@ -438,9 +665,13 @@ class Bag:
             upto = f" up to log time {end * 1e-9:.3f} s" if end is not None else ""
             self.notes.append(f"{self.path.name}: unfinished MCAP file ({why}); recovered {scan.chunks} complete "
                               f"chunk(s), {n} message(s){upto}; data after byte {scan.stopped_at} was lost")
-        elif scan.complete and self._summary_damaged:
-            self.notes.append(f"{self.path.name}: the summary could not be read (damaged footer or summary); "
-                              "read by scanning the records")
+        elif scan.complete and (self._summary_damaged or self._summary_doubt):
+            why = self._summary_doubt or "damaged footer or summary"
+            self.notes.append(f"{self.path.name}: the summary could not be used ({why}); read by scanning the records")
+        if scan.gaps:
+            where = ", ".join(f"{a}–{b}" for a, b in scan.gaps[:3]) + (" …" if len(scan.gaps) > 3 else "")
+            self.notes.append(f"{self.path.name}: read past {len(scan.gaps)} damaged byte range(s) (bytes {where}) "
+                              "to the next record")
         if scan.bad_chunks:
             self._bad_chunks.update(scan.bad_chunks)
             self.notes.append(_bad_chunks_note(self.path.name, scan.bad_chunks))
@@ -459,6 +690,10 @@ class Bag:
             self.topics[ch.topic] = info
         if ch.id not in info.channel_ids:
             info.channel_ids.append(ch.id)
+            other = normalise_type(schema.name) if schema else ""
+            if other != info.type or ch.message_encoding != info.message_encoding:
+                info.problem = info.problem or (f"recorded with two types ({info.type or 'no schema'} and "
+                                                f"{other or 'no schema'})"[:200])
         return info
 
     def _check_schemas(self) -> None:
@@ -644,6 +879,27 @@ class Bag:
             if keep(channel, message):
                 yield schema, channel, message
 
+    def _chunk_at(self, f, ci) -> list:
+        """The records of the chunk a chunk index points at; ChunkSkipped saying why it cannot be used."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Chunk
+
+        if ci.chunk_length < 9 or ci.chunk_start_offset + ci.chunk_length > self._size:
+            raise ChunkSkipped("its index points past the end of the file")
+        f.seek(ci.chunk_start_offset)
+        opcode, length = struct.unpack("<BQ", f.read(9))
+        if opcode != Opcode.CHUNK or length != ci.chunk_length - 9:
+            raise ChunkSkipped("its index does not point at a chunk")
+        if length > MAX_RECORD_BYTES:
+            raise ChunkSkipped(f"a record of {length} bytes, more than the {MAX_RECORD_BYTES >> 20} MiB a record "
+                               "may hold here")
+        try:
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
+        except damaged_data_errors() as e:
+            raise ChunkSkipped(f"the chunk record does not parse ({type(e).__name__})") from None
+        return chunk_records(chunk)
+
     def _indexed_raw(self, wanted, start_ns, end_ns, keep):
         """Messages of a finished file in log-time order, chunk by chunk through the chunk indexes.
 
@@ -653,9 +909,7 @@ class Bag:
         """
         import heapq
 
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Chunk, Message
+        from mcap.records import Message
 
         ids = None if wanted is None else {cid for t in wanted for cid in self.topics[t].channel_ids}
         chunks = [ci for ci in self._chunk_indexes
@@ -671,17 +925,7 @@ class Bag:
                     ci = chunks[i]
                     i += 1
                     try:
-                        if ci.chunk_length < 9 or ci.chunk_start_offset + ci.chunk_length > self._size:
-                            raise ChunkSkipped("its index points past the end of the file")
-                        f.seek(ci.chunk_start_offset)
-                        opcode, length = struct.unpack("<BQ", f.read(9))
-                        if opcode != Opcode.CHUNK or length != ci.chunk_length - 9:
-                            raise ChunkSkipped("its index does not point at a chunk")
-                        try:
-                            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
-                        except damaged_data_errors() as e:
-                            raise ChunkSkipped(f"the chunk record does not parse ({type(e).__name__})") from None
-                        records = chunk_records(chunk)
+                        records = self._chunk_at(f, ci)
                     except ChunkSkipped as e:
                         self._bad_chunks[ci.chunk_start_offset] = str(e)
                         continue
@@ -731,6 +975,36 @@ _BY_TYPE_ALONE = ("joint_states", "wrench")
 _ALSO_TYPES = {"reference": ("std_msgs/msg/Float64",)}
 
 
+def _given_topic(bag: Bag, role: str, topic: str, type_name: str) -> str:
+    """`topic`, named for `role` on the command line, checked: present, of the role's type, decodable."""
+    if topic not in bag.topics:
+        raise BagError(f"{bag.path.name}: no topic {topic!r} (given for {role}); "
+                       f"topics: {', '.join(sorted(bag.topics)) or 'none'}")
+    if bag.topics[topic].type not in (type_name, *_ALSO_TYPES.get(role, ())):
+        raise BagError(f"{bag.path.name}: topic {topic!r} is {bag.topics[topic].type}; {role} needs {type_name}")
+    bag.require_decodable([topic])
+    return topic
+
+
+def _found_topic(bag: Bag, role: str, type_name: str, suffix: str, default: str) -> str | None:
+    """The topic of `bag` that plays `role`, by type and name suffix (None: none; BagError: several)."""
+    typed = [t for ty in (type_name, *_ALSO_TYPES.get(role, ())) for t in bag.topics_of_type(ty)
+             if not bag.topics[t].problem]
+    named = [t for t in typed if t == suffix or t.endswith(suffix)]
+    if role in _BY_TYPE_ALONE and not named:
+        others = [t for t in typed if not any(t.endswith(s) for r, (ty, s, _) in ROLES.items()
+                                               if r != role and ty == type_name)]
+        named = others if len(others) == 1 else []
+    if len(named) > 1:
+        if default in named:
+            named = [default]
+        else:
+            flag = role.replace("_", "-")
+            raise BagError(f"{bag.path.name}: several topics could be {role}: {', '.join(named)}; "
+                           f"choose one with --{flag}-topic")
+    return named[0] if named else None
+
+
 def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> dict[str, str | None]:
     """role → topic in `bag` (None when absent). `overrides` names topics explicitly (checked).
 
@@ -742,28 +1016,7 @@ def resolve_topics(bag: Bag, overrides: dict[str, str | None] | None = None) -> 
     out: dict[str, str | None] = {}
     for role, (type_name, suffix, default) in ROLES.items():
         if role in overrides:
-            t = overrides[role]
-            if t not in bag.topics:
-                raise BagError(f"{bag.path.name}: no topic {t!r} (given for {role}); "
-                               f"topics: {', '.join(sorted(bag.topics)) or 'none'}")
-            if bag.topics[t].type not in (type_name, *_ALSO_TYPES.get(role, ())):
-                raise BagError(f"{bag.path.name}: topic {t!r} is {bag.topics[t].type}; {role} needs {type_name}")
-            bag.require_decodable([t])
-            out[role] = t
-            continue
-        typed = [t for ty in (type_name, *_ALSO_TYPES.get(role, ())) for t in bag.topics_of_type(ty)
-                 if not bag.topics[t].problem]
-        named = [t for t in typed if t == suffix or t.endswith(suffix)]
-        if role in _BY_TYPE_ALONE and not named:
-            others = [t for t in typed if not any(t.endswith(s) for r, (ty, s, _) in ROLES.items()
-                                                   if r != role and ty == type_name)]
-            named = others if len(others) == 1 else []
-        if len(named) > 1:
-            if default in named:
-                named = [default]
-            else:
-                flag = role.replace("_", "-")
-                raise BagError(f"{bag.path.name}: several topics could be {role}: {', '.join(named)}; "
-                               f"choose one with --{flag}-topic")
-        out[role] = named[0] if named else None
+            out[role] = _given_topic(bag, role, overrides[role], type_name)
+        else:
+            out[role] = _found_topic(bag, role, type_name, suffix, default)
     return out

@@ -36,7 +36,6 @@ default a folder beside the bag (`default_output_dir`).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,8 +48,9 @@ from prsm_ros.bag.figures import (
     motion_figure, power_figure)
 from prsm_sim.life import life_from_samples
 
-from prsm_ros.bag.reader import Bag, BagError, resolve_topics
+from prsm_ros.bag.reader import MAX_WINDOW_S, Bag, BagError, resolve_topics
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT, TOPIC_DEFS, parse_labels, unpack_internal
+from prsm_ros.limits import load_json
 
 # C_a of a catalogue planetary roller screw of about 30 mm diameter and 5 mm lead, for bags that do
 # not record a rating: vendor catalogues list roughly 50–90 kN for that size.
@@ -72,6 +72,32 @@ class Series:
 
     def get(self, name: str) -> np.ndarray | None:
         return self.values.get(name)
+
+
+# Recorded values beyond this magnitude are read as missing: no physical quantity of a run comes
+# near it, and at ±1e308 differences, sums of squares and plot ranges overflow.
+MAX_ABS_VALUE = 1e100
+
+
+def _bounded(bag: Bag, topic: str, data: np.ndarray) -> np.ndarray:
+    """`data` with values beyond ±MAX_ABS_VALUE made NaN (missing), noted on the bag."""
+    data = np.asarray(data, dtype=float)
+    bad = np.isfinite(data) & (np.abs(data) > MAX_ABS_VALUE)
+    if bad.any():
+        bag.notes.append(f"{bag.path.name}: {int(bad.sum())} value(s) on {topic} beyond ±{MAX_ABS_VALUE:g} "
+                         "read as missing")
+        data = np.where(bad, np.nan, data)
+    return data
+
+
+def _in_order(bag: Bag, topic: str, t: np.ndarray) -> None:
+    """BagError naming the bag when the log times of `topic` decrease (a file read in its own order)."""
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise BagError(f"{bag.path.name}: the log times of {topic} decrease at message {k} "
+                       f"({t[k - 1]:.9g} s, then {t[k]:.9g} s); the report needs them in order "
+                       "(prsm-bag repair writes them sorted)")
 
 
 def default_output_dir(bag_path) -> Path:
@@ -103,7 +129,8 @@ def _joint_series(bag: Bag, topic: str, screw: str, nut: str, progress: bool) ->
         stamps.append(_stamp_ns(js))
         rows.append((at(js.position, i), at(js.velocity, i), at(js.effort, i),
                      at(js.position, j), at(js.velocity, j), at(js.effort, j)))
-    data = np.array(rows, dtype=float).reshape(-1, 6)
+    data = _bounded(bag, topic, np.array(rows, dtype=float).reshape(-1, 6))
+    _in_order(bag, topic, np.array(t))
     keys = ("screw_angle_rad", "screw_speed_rad_s", "screw_torque_nm", "nut_position_m", "nut_velocity_m_s", "nut_force_n")
     return Series(np.array(t), {k: data[:, n] for n, k in enumerate(keys)}, np.array(stamps, dtype=np.int64))
 
@@ -120,7 +147,9 @@ def _reference_series(bag: Bag, topic: str, nut: str, progress: bool) -> Series:
             v.append(float(m.msg.position[k]) if len(m.msg.position) > k else math.nan)
         else:
             v.append(float(m.msg.data))
-    return Series(np.array(t), {"value": np.array(v)}, np.array(stamps, dtype=np.int64) if stamps else None)
+    _in_order(bag, topic, np.array(t))
+    return Series(np.array(t), {"value": _bounded(bag, topic, np.array(v, dtype=float))},
+                  np.array(stamps, dtype=np.int64) if stamps else None)
 
 
 def _internal_series(bag: Bag, roles: dict, progress: bool) -> tuple[Series, dict] | None:
@@ -144,7 +173,8 @@ def _internal_series(bag: Bag, roles: dict, progress: bool) -> tuple[Series, dic
         rows.append(m.msg.data)
     if not rows:
         return None
-    unpacked = unpack_internal(np.array(rows, dtype=float), labels)
+    _in_order(bag, roles["internal_loads"], np.array(t))
+    unpacked = unpack_internal(_bounded(bag, roles["internal_loads"], np.array(rows, dtype=float)), labels)
     return Series(np.array(t), unpacked), labels
 
 
@@ -290,11 +320,11 @@ def recorded_rating_n(bag: Bag) -> float | None:
     text = bag.run_metadata.get("parameters_yaml")
     if not text:
         return None
-    import yaml
+    from prsm_ros.limits import load_yaml
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text, source="parameters_yaml")
         c = float(doc["ratings"]["dynamic_load_rating_n"])
-    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, OverflowError):
         return None
     return c if math.isfinite(c) and c > 0 else None
 
@@ -512,12 +542,14 @@ def _events(bag: Bag) -> list[dict]:
     for topic in (t for t in bag.topics_of_type("std_msgs/msg/String") if t.endswith("/events")):
         for m in bag.messages([topic]):
             try:
-                doc = json.loads(m.msg.data)
-            except (ValueError, AttributeError):
-                doc = {"message": str(getattr(m.msg, "data", m.msg)), "code": "unparsed"}
+                doc = load_json(m.msg.data, source=topic)
+            except ValueError:
+                doc = {"message": str(getattr(m.msg, "data", m.msg))[:200], "code": "unparsed"}
             if not isinstance(doc, dict):
-                doc = {"message": str(doc)}
-            doc.setdefault("time_s", m.log_time_ns * 1e-9)
+                doc = {"message": str(doc)[:200]}
+            t = doc.get("time_s")
+            if not (isinstance(t, (int, float)) and not isinstance(t, bool) and abs(t) <= MAX_WINDOW_S):
+                doc["time_s"] = m.log_time_ns * 1e-9  # its own time when it carries none that fits a bag
             out.append({"topic": topic, **doc})
     return out
 

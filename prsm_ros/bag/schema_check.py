@@ -13,7 +13,7 @@ Only the schema text is parsed (field lines, here); nothing named by it is impor
 from __future__ import annotations
 
 import re
-from functools import lru_cache
+from functools import cache
 
 from prsm_sim.errors import InputError
 
@@ -27,6 +27,11 @@ _MSG_LINE = re.compile(r"^\s*MSG:\s*(\S+)")
 _FIELD = re.compile(r"(?P<type>[A-Za-z][A-Za-z0-9_]*(?:/[A-Za-z][A-Za-z0-9_]*)?)(?:<=\d+)?"
                     r"(?P<array>\[(?:<=)?\d*\])?\s+(?P<name>[A-Za-z][A-Za-z0-9_]*)(?P<rest>\s*=.*|\s+.*|)")
 MAX_SCHEMA_BYTES = 1 << 20  # a definition with its dependencies is a few KB
+# Types nested in types: the decoder recurses once per level (JointState nests 3 deep), and a type
+# that contains itself (through a sequence) lets the data choose the depth.
+MAX_SCHEMA_NESTING = 32
+_BUILTIN = frozenset({"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
+                      "uint32", "int64", "uint64", "string", "wstring", "time", "duration"})
 
 
 def _split(name: str) -> tuple[str, str]:
@@ -71,7 +76,7 @@ def signature(name: str, text: str) -> tuple:
     return tuple(fields)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _reference_text(name: str) -> str | None:
     try:
         from prsm_ros.mcap.codec import TypestoreCodec
@@ -85,7 +90,7 @@ def _reference_text(name: str) -> str | None:
         return None
 
 
-@lru_cache(maxsize=None)
+@cache
 def reference_signatures() -> dict[str, tuple]:
     """Signatures of the interface's types and the types they embed, from the standard definitions."""
     out: dict[str, tuple] = {}
@@ -99,6 +104,46 @@ def reference_signatures() -> dict[str, tuple]:
             except ValueError:
                 continue
     return out
+
+
+def _references(section: str, body: str) -> set[str]:
+    """The message types the fields of one section embed, as pkg/msg/Type (package-relative names resolved)."""
+    pkg = section.split("/")[0]
+    out = set()
+    for line in body.splitlines():
+        m = _FIELD.fullmatch(line.split("#", 1)[0].strip())
+        if m is None or m.group("rest").startswith("=") or m.group("type") in _BUILTIN:
+            continue
+        t = m.group("type")
+        out.add(_normal(t) if "/" in t else "std_msgs/msg/Header" if t == "Header" else f"{pkg}/msg/{t}")
+    return out
+
+
+def nesting_problem(name: str, text: str) -> str | None:
+    """Why the types of a schema cannot be decoded with a bounded depth (a type containing itself, or
+    nesting deeper than MAX_SCHEMA_NESTING); None when they can. Walked without recursion."""
+    refs = {sub: _references(sub, body) for sub, body in sections(name, text).items()}
+    root = _normal(name)
+    path: list[tuple[str, list[str]]] = [(root, sorted(refs.get(root, ())))]
+    on_path = {root}
+    done: set[str] = set()
+    while path:
+        node, todo = path[-1]
+        if not todo:
+            path.pop()
+            on_path.discard(node)
+            done.add(node)
+            continue
+        nxt = todo.pop()
+        if nxt in on_path:
+            return f"its type {nxt} contains itself"
+        if nxt in done:
+            continue
+        if len(path) >= MAX_SCHEMA_NESTING:
+            return f"its types nest more than {MAX_SCHEMA_NESTING} deep"
+        path.append((nxt, sorted(refs.get(nxt, ()))))
+        on_path.add(nxt)
+    return None
 
 
 def schema_problem(message_encoding: str, schema) -> str | None:
@@ -117,6 +162,9 @@ def schema_problem(message_encoding: str, schema) -> str | None:
         return "its schema is not UTF-8 text"
     if schema.name.count("/") not in (1, 2):
         return f"schema name {schema.name[:80]!r} is not pkg/msg/Type"
+    nesting = nesting_problem(schema.name, text)
+    if nesting is not None:
+        return nesting
     reference = reference_signatures()
     for sub, body in sections(schema.name, text).items():
         expected = reference.get(sub)

@@ -1,7 +1,7 @@
 """`prsm-bench`: every performance figure of the system beside its target, on this machine.
 
 Each area measures itself in its own module (`core`, `node`, `recorder`, `viz` (shown as
-"rerun"), `soak`, `realtime`, `sweep`, `elastic`, `fmu`), each with `measure(quick) -> list[figure]`; this command
+"rerun"), `soak`, `realtime`, `sweep`, `elastic`, `fmu`, `fit`), each with `measure(quick) -> list[figure]`; this command
 runs them in turn and prints one table (or `--json`). Ratios are measured side by side in one run, repeated, and
 reported as median with spread. `--quick` is a smoke run of under a minute: its figures are
 indicative only, and nothing here asserts a timing.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from prsm_ros.bench import common, core, elastic, fmu, node, realtime, recorder, soak, sweep, viz
+from prsm_ros.bench import common, core, elastic, fit, fmu, node, realtime, recorder, soak, sweep, viz
 
 AREAS: dict[str, common.Measure] = {
     "core": core.measure,
@@ -23,6 +23,7 @@ AREAS: dict[str, common.Measure] = {
     "sweep": sweep.measure,
     "elastic": elastic.measure,
     "fmu": fmu.measure,
+    "fit": fit.measure,
 }
 
 

@@ -78,7 +78,8 @@ def command_counts(bag) -> dict | None:
     return {k: (int(last[k]) if last[k].isdigit() else last[k]) for k in COMMAND_COUNTERS if k in last}
 
 
-def _cmd_info(args) -> int:
+def _info_checked(args) -> dict:
+    """`info_dict` of the bag, its messages decoded when asked (or the bag is small): `checked` says which."""
     bag = open_bag(args.bag)
     check = args.check if args.check is not None else bag.message_count <= INFO_CHECK_MAX_MESSAGES
     if check:
@@ -91,9 +92,11 @@ def _cmd_info(args) -> int:
     if args.parameters:
         d["parameters_yaml"] = bag.run_metadata.get("parameters_yaml")
         d["node_parameters_yaml"] = bag.run_metadata.get("node_parameters_yaml")
-    if args.json:
-        _print_json(d)
-        return 0
+    return d
+
+
+def _print_info_head(d: dict) -> None:
+    """The file, its time span, run metadata and command counters, one line each."""
     print(f"file:      {d['path']} ({d['size_bytes'] / 1e6:.2f} MB){'' if d['complete'] else '  UNFINISHED'}")
     if d["note"]:
         print(f"note:      {d['note']}")
@@ -109,6 +112,10 @@ def _cmd_info(args) -> int:
     if d["commands"]:
         print("commands:  " + ", ".join(f"{k.removeprefix('commands_')} {v}" for k, v in d["commands"].items())
               + "  (the node's last /diagnostics; superseded: replaced in a reader's queue, not in the bag)")
+
+
+def _print_info_topics(d: dict) -> None:
+    """The table of topics: type, count, rate and malformed messages (when counted)."""
     width = max((len(t["topic"]) for t in d["topics"]), default=5)
     twidth = max((len(t["type"]) for t in d["topics"]), default=4)
     print(f"\n{'topic':<{width}}  {'type':<{twidth}}  {'count':>8}  {'rate':>10}  {'malformed':>9}")
@@ -118,6 +125,15 @@ def _cmd_info(args) -> int:
         print(f"{t['topic']:<{width}}  {t['type']:<{twidth}}  {t['count']:>8}  {rate:>10}  {bad:>9}")
     if not d["checked"]:
         print(f"malformed messages not counted ({d['messages']} messages; --check decodes every one)")
+
+
+def _cmd_info(args) -> int:
+    d = _info_checked(args)
+    if args.json:
+        _print_json(d)
+        return 0
+    _print_info_head(d)
+    _print_info_topics(d)
     if args.parameters:
         print("\nparameters:\n" + (d["parameters_yaml"] or "(none recorded)"))
         if d["node_parameters_yaml"]:
@@ -277,14 +293,8 @@ def _joint_options(p, report_opts, *more: str) -> None:
             p._add_action(a)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
-    ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
-                                 "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
-    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = ap.add_subparsers(dest="command", required=True,
-                            metavar="{info,export,report,compare,play,layout,serve,to-rrd,repair}")
-
+def _add_info(sub) -> None:
+    """`prsm-bag info`: what a bag holds."""
     p = sub.add_parser("info", help="topics, counts, rates, duration, run metadata")
     p.add_argument("bag")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
@@ -294,6 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{INFO_CHECK_MAX_MESSAGES} messages; a message takes ~0.2 ms)")
     p.set_defaults(func=_cmd_info)
 
+
+def _add_export(sub) -> None:
+    """`prsm-bag export`: topics to CSV or Parquet."""
     p = sub.add_parser("export", help="topics to CSV (one column per field, time in seconds)")
     p.add_argument("bag")
     p.add_argument("-t", "--topic", action="append", help="topic to export (repeat for several)")
@@ -306,6 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="file format (parquet needs pyarrow)")
     p.set_defaults(func=_cmd_export)
 
+
+def _add_report(sub) -> argparse.ArgumentParser:
+    """`prsm-bag report`: metrics and plots; its parser, whose joint and topic options others share."""
+    from prsm_ros.bag.report import DEFAULT_DYNAMIC_LOAD_RATING_N
     p = sub.add_parser("report", help="metrics and PNG plots into a folder (many bags: one Parquet table)")
     p.add_argument("bag", help="a bag, or a directory / glob of many bags")
     p.add_argument("-o", "--output", help="folder for the plots and report.json (default: BAG_STEM_report/ beside "
@@ -322,8 +339,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="metrics only")
     p.add_argument("--address", metavar="HOST:PORT", help="many bags: report on this Ray cluster")
     p.set_defaults(func=_cmd_report)
-    report_opts = p
+    return p
 
+
+def _add_compare(sub, report_opts) -> None:
+    """`prsm-bag compare`: two groups of bags, with `report`'s joint, topic, rating and cluster options."""
     p = sub.add_parser("compare", help="what changed between two groups of bags, with regression flags")
     p.add_argument("a", metavar="A_DIR", help="the baseline group (a directory or glob of bags)")
     p.add_argument("b", metavar="B_DIR", help="the group compared with it")
@@ -334,6 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     _joint_options(p, report_opts, "dynamic_load_rating_n", "address")
     p.set_defaults(func=_cmd_compare)
 
+
+def _add_play(sub) -> None:
+    """`prsm-bag play`: republish onto ROS topics."""
     p = sub.add_parser("play", help="republish onto ROS topics at a rate factor, with /clock")
     p.add_argument("bag")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1 = real time)")
@@ -346,23 +369,48 @@ def build_parser() -> argparse.ArgumentParser:
                    help="then wait (up to 30 s) until every played topic has a subscriber")
     p.set_defaults(func=_cmd_play)
 
+
+def _add_layout(sub, report_opts) -> None:
+    """`prsm-bag layout`: a Foxglove layout."""
     p = sub.add_parser("layout", help="a Foxglove layout (JSON) for this bag's topics")
     p.add_argument("bag")
     p.add_argument("-o", "--output", metavar="FILE.json", help="write the layout here (default: stdout)")
     _joint_options(p, report_opts)
     p.set_defaults(func=_cmd_layout)
-    add_serve_parser(sub)
 
+
+def _add_to_rrd(sub, report_opts) -> None:
+    """`prsm-bag to-rrd`: a Rerun recording."""
     p = sub.add_parser("to-rrd", help="convert to a Rerun .rrd recording")
     p.add_argument("bag")
     p.add_argument("-o", "--output", required=True, help="the .rrd file to write")
     _joint_options(p, report_opts)
     p.set_defaults(func=_cmd_to_rrd)
 
+
+def _add_repair(sub) -> None:
+    """`prsm-bag repair`: a finished copy of an unfinished or damaged bag."""
     p = sub.add_parser("repair", help="rewrite an unfinished or damaged bag as a finished one (summary, footer)")
     p.add_argument("bag")
     p.add_argument("output", help="the .mcap file to write (not the bag itself)")
     p.set_defaults(func=_cmd_repair)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="prsm-bag", description="Inspect, export, report on, replay and convert "
+                                 "ROS 2 MCAP recordings of the PRSM simulator (or any ROS 2 MCAP with joint states).")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True,
+                            metavar="{info,export,report,compare,play,layout,serve,to-rrd,repair}")
+    _add_info(sub)
+    _add_export(sub)
+    report_opts = _add_report(sub)
+    _add_compare(sub, report_opts)
+    _add_play(sub)
+    _add_layout(sub, report_opts)
+    add_serve_parser(sub)
+    _add_to_rrd(sub, report_opts)
+    _add_repair(sub)
     return ap
 
 

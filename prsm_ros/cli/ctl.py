@@ -583,10 +583,15 @@ def run(args) -> int:
             emit(r, f"command_interface = {args.interface}")
         else:
             {"state": cmd_state, "events": cmd_events, "param": cmd_param, "command": cmd_command,
-             "fault": cmd_fault}[v](ctl, args, emit)
+             "fault": cmd_fault, "play": _play}[v](ctl, args, emit)
     finally:
         ctl.close()
     return 0
+
+
+def _play(ctl: Ctl, args, emit) -> None:
+    from prsm_ros.cli.ctl_play import cmd_play
+    cmd_play(ctl, args, emit, CtlError)
 
 
 def _emitter(as_json: bool) -> Callable[[Any, str], None]:
@@ -654,6 +659,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("release", parents=[common], help="give up ownership of the actuator (~/release_control)")
     e = sub.add_parser("events", parents=[common], help="the node's events (latched history)")
     e.add_argument("--follow", action="store_true", help="keep printing new events until Ctrl-C")
+    from prsm_ros.cli.ctl_play import register as register_play  # play FILE.csv: a verb of its own module
+    register_play(sub, common)
     return ap
 
 

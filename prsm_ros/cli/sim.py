@@ -23,7 +23,6 @@ import sys
 from typing import Any
 
 import numpy as np
-import yaml
 
 from prsm_sim.errors import PrsmError
 from prsm_sim import MODELS, OUTPUT_FIELDS, PRESETS, Params, Session, SessionConfig, Simulator
@@ -35,9 +34,27 @@ from prsm_sim.scenarios import SCENARIOS, default_spec, run_scenario, run_sessio
 from prsm_ros.cli import sim_datasheet
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
-from prsm_ros.limits import run_steps
+from prsm_ros.limits import run_memory, run_steps
 
 PROGRESS_MIN_STEPS = 20_000
+PROBE_STEPS = 400  # a run longer than this first measures what a step of it holds (`bytes_per_step`)
+
+
+def bytes_per_step(build, runner, spec, dt_s: float) -> float:
+    """Memory a step of this run adds to its trajectory (bytes), measured as the growth in traced peak
+    memory from a run of PROBE_STEPS/2 to one of PROBE_STEPS steps (the fixed part cancels)."""
+    import tracemalloc
+
+    peaks = []
+    for k in (PROBE_STEPS // 2, PROBE_STEPS):
+        sim = build()
+        tracemalloc.start()
+        try:
+            runner(sim, spec, k * dt_s)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    return max(peaks[1] - peaks[0], 0) / (PROBE_STEPS - PROBE_STEPS // 2)
 
 
 class CliError(PrsmError):
@@ -50,10 +67,8 @@ def _overrides(items: list[str]) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise CliError(f"--set {item!r}: expected group.name=value, e.g. friction.mu_screw_roller=0.1")
-        try:
-            out[key] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise CliError(f"--set {item!r}: cannot read the value {value!r}") from None
+        from prsm_ros.limits import load_yaml
+        out[key] = load_yaml(value, source=f"--set {key[:80]}", error=CliError)
     return out
 
 
@@ -61,11 +76,19 @@ def _params(args) -> Params:
     return resolve_params(args.preset, args.params, _overrides(args.set))
 
 
+def _refuse_params(args, why: str) -> None:
+    """CliError naming the parameter options given to a command that takes no parameter set (never ignored)."""
+    given = [f"--{n}" for n in ("preset", "params", "set") if getattr(args, n)]
+    if given:
+        raise CliError(f"{'/'.join(given)}: {why}")
+
+
 def _emit(args, data: dict, text: str) -> None:
     print(dumps(data) if args.json else text)
 
 
 def cmd_presets(args) -> None:
+    _refuse_params(args, "prsm-sim presets lists every preset; `prsm-sim params --preset P` shows one")
     rows = {}
     for name in PRESETS:
         p = resolve_params(name, None)
@@ -140,8 +163,26 @@ def cmd_steady_state(args) -> None:
               "speed_ratio_screw_over_carrier": 1.0 / s["tail_mean_speed_ratio"],
               "torque_nm": s["final"]["screw_torque_nm"], "load_force_n": spec.load_n,
               "efficiency": s["tail_efficiency"], "slip_speed_m_s": s["tail_mean_slip_speed_m_s"]}
-    text = "\n".join(f"{k}: {v}" for k, v in ss.items())
+    ss = _defined_only(ss)
+    text = "\n".join(f"{k}: {'undefined (a ratio over zero or reversed power)' if v is None else v}"
+                     for k, v in ss.items())
     _emit(args, ss, text)
+
+
+# ratios of powers or speeds: undefined where their denominator is zero (at zero load, at rest), so None (JSON null)
+_RATIOS = ("efficiency", "speed_ratio_screw_over_carrier", "carrier_over_screw")
+
+
+def _defined_only(ss: dict) -> dict:
+    """`ss` with an undefined ratio as None; any other non-finite figure a CliError naming it (never NaN, exit 0)."""
+    out = {}
+    for k, v in ss.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            if k not in _RATIOS:
+                raise CliError(f"steady state: {k} = {v!r}: not finite for these parameters and inputs")
+            v = None
+        out[k] = v
+    return out
 
 
 def cmd_run(args) -> None:
@@ -153,9 +194,14 @@ def cmd_run(args) -> None:
             raise CliError(f"{name} = {v!r}: must be a finite number > 0")
     n = run_steps(args.duration, args.dt, error=CliError)
     actuator = _actuator(args)
-    # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults in the session
-    sim = Simulator(p, args.model, args.dt) if actuator is None else \
-        Session.from_config(SessionConfig(params=p, model=args.model, dt_s=args.dt, actuator=actuator))
+
+    def build():  # with an actuator, stepped as the node steps it: gate, drive, sensors, brake and faults
+        return Simulator(p, args.model, args.dt) if actuator is None else \
+            Session.from_config(SessionConfig(params=p, model=args.model, dt_s=args.dt, actuator=actuator))
+    runner = run_scenario if actuator is None else run_session_scenario
+    if n > PROBE_STEPS:
+        run_memory(n, bytes_per_step(build, runner, spec, args.dt), error=CliError)
+    sim = build()
     bar = None
     if n >= PROGRESS_MIN_STEPS and not args.no_progress:
         from tqdm import tqdm
@@ -168,7 +214,7 @@ def cmd_run(args) -> None:
         done[0] = k
 
     try:
-        traj = (run_scenario if actuator is None else run_session_scenario)(sim, spec, args.duration, progress)
+        traj = runner(sim, spec, args.duration, progress)
     except KeyboardInterrupt:
         _interrupted(f"at step {done[0]} of {n}: nothing written (a run's outputs are written when it ends; "
                      "a shorter --duration ends sooner)")
@@ -341,6 +387,10 @@ def cmd_envelope(args) -> None:
     from pathlib import Path
 
     from prsm_ros.sweep.envelope import run_envelope
+    # each case carries its own screw (`preset` and `overrides` in the case, drawn from its seed): a screw
+    # given here would not be the one tested, so it is refused rather than ignored
+    _refuse_params(args, "prsm-sim envelope draws each case's parameters from its seed; to run your screw, write "
+                         "its preset and overrides into a case file (`preset:`, `overrides:`) and run it with --case FILE")
     if args.seed is not None or args.case is not None:
         _envelope_one(args)
         return
@@ -375,17 +425,14 @@ def cmd_envelope(args) -> None:
 
 def _envelope_one(args) -> None:
     """`prsm-sim envelope --seed N | --case FILE [--node]`: one case, run here (and on the node)."""
-    from pathlib import Path
-
     from prsm_ros.sweep.envelope import run_one
     from prsm_sim.envelope import case_from_seed
     if args.seed is not None:
         case = case_from_seed(args.seed)
     else:
-        try:
-            doc = yaml.safe_load(Path(args.case).read_text(encoding="utf-8"))
-        except (OSError, yaml.YAMLError) as e:
-            raise CliError(f"--case {args.case}: cannot read it ({getattr(e, 'strerror', None) or e})") from None
+        from prsm_ros.limits import load_yaml, read_text_file
+        doc = load_yaml(read_text_file(args.case, what="case file", error=CliError), source=f"--case {args.case}",
+                        error=CliError)
         case = doc.get("case", doc) if isinstance(doc, dict) else None
         if not isinstance(case, dict):
             raise CliError(f"--case {args.case}: expected a mapping (an envelope case, or a failure file)")

@@ -16,11 +16,12 @@ import tempfile
 from typing import Any
 
 from prsm_sim import MODELS, Params
+from prsm_sim.models.registry import model_class
 from prsm_sim.calibration import Calibration, calibrate
 from prsm_sim.datasheet import Datasheet, ModelSheet, model_datasheet
 
 from prsm_ros.json_out import dumps
-from prsm_ros.param_files import _read_text, _yaml_mapping, params_to_yaml, resolve_params
+from prsm_ros.param_files import read_param_text, yaml_mapping, params_to_yaml, resolve_params
 
 SHEET_FIGURES = (("efficiency_forward", "η forward", 1.0, ""), ("efficiency_backward", "η backward", 1.0, ""),
                  ("no_load_torque_nm", "no-load torque", 1.0, "N·m"),
@@ -48,7 +49,7 @@ def cmd_datasheet(args, params_of) -> None:
 def load_datasheet(path: str) -> Datasheet:
     """A datasheet YAML file (the keys of `prsm_sim.datasheet.Datasheet`), errors naming the file."""
     from prsm_sim import ParamError
-    data = _yaml_mapping(_read_text(path, "datasheet"), path, "datasheet keys")
+    data = yaml_mapping(read_param_text(path, "datasheet"), path, "datasheet keys")
     try:
         return Datasheet.from_dict(data)
     except ParamError as e:
@@ -113,7 +114,7 @@ def register(sub, common: argparse.ArgumentParser, cmd_params, params_of) -> Non
                                                                 "build and calibrate a parameter set for it")
     pa.add_argument("--base", metavar="PARAMS.yaml", help="with --datasheet: friction, material and factors from this "
                                                             "parameter file (default the s30 preset)")
-    pa.add_argument("--model", choices=[m for m in MODELS if m != "ideal"], default="fu2018",
+    pa.add_argument("--model", choices=[m for m in MODELS if not model_class(m).takes_efficiencies], default="fu2018",
                     help="with --datasheet: the model the friction is calibrated for")
     pa.add_argument("-o", "--output", metavar="OUT.yaml", help="with --datasheet: write the parameter file here")
     pa.set_defaults(func=lambda a: cmd_params_datasheet(a) if a.datasheet else _plain_params(a, cmd_params))

@@ -21,7 +21,8 @@ from __future__ import annotations
 import os
 import struct
 from functools import cached_property
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 

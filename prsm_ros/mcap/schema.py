@@ -25,7 +25,7 @@ import json
 import os
 import re
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 from prsm_sim.errors import PrsmError
@@ -100,7 +100,7 @@ def _definition_file(package: str, type_: str, suffix: str) -> Path:
     raise SchemaError(f"no {type_}{suffix} for message type {package}/msg/{type_} (looked in {looked})")
 
 
-@lru_cache(maxsize=None)
+@cache
 def msg_text(package: str, type_: str) -> str:
     """The .msg text of `package/Type` exactly as installed."""
     return _definition_file(package, type_, ".msg").read_text(encoding="utf-8")
@@ -125,7 +125,7 @@ def dependencies(text: str, package: str) -> list[str]:
     return sorted(deps)
 
 
-@lru_cache(maxsize=None)
+@cache
 def full_definition(name: str) -> str:
     """The `ros2msg` schema text of a type: its .msg text then each dependency once, depth first.
 
@@ -148,7 +148,7 @@ def full_definition(name: str) -> str:
     return expand(name, 0)
 
 
-@lru_cache(maxsize=None)
+@cache
 def type_hash(name: str) -> str:
     """The RIHS01 type hash of `pkg/msg/Type` from its generated type description, "" when absent."""
     package, type_ = _split_type(name)
@@ -196,19 +196,33 @@ def offered_qos_profiles_yaml(*profiles) -> str:
     return yaml.safe_dump([qos_dict(q) for q in profiles], sort_keys=False, default_flow_style=False).rstrip("\n")
 
 
+MAX_QOS_DEPTH = 10_000  # a recorded keep-last depth beyond this (or not a whole number) is read as the default 10
+
+
+def _whole(v) -> int | None:
+    """A recorded whole number (int, or text of one); None for anything else (1e400, 'x', 2.5, a list)."""
+    if isinstance(v, bool):
+        return None
+    if isinstance(v, int):
+        return v
+    if isinstance(v, str) and v.strip().lstrip("+-").isdigit() and len(v) < 30:
+        return int(v)
+    return None
+
+
 def qos_from_yaml(text: str):
     """The first offered profile of an `offered_qos_profiles` value as an rclpy QoSProfile.
 
     Accepts the integer form and the enum-name form of rosbag2 metadata version 9; an empty or
     unreadable value gives rclpy's default (reliable, volatile, keep last 10).
     """
-    import yaml
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+    from prsm_ros.limits import load_yaml
     try:
-        items = yaml.safe_load(text) if text else None
-    except yaml.YAMLError:
+        items = load_yaml(text, source="offered_qos_profiles") if text else None
+    except ValueError:
         items = None
     if not items or not isinstance(items, list) or not isinstance(items[0], dict):
         return QoSProfile(depth=10)
@@ -227,13 +241,15 @@ def qos_from_yaml(text: str):
     history = enum(HistoryPolicy, p.get("history"), HistoryPolicy.KEEP_LAST)
     if history not in (HistoryPolicy.KEEP_LAST, HistoryPolicy.KEEP_ALL):
         history = HistoryPolicy.KEEP_LAST
-    depth = int(p.get("depth") or 0) or 10
+    depth = _whole(p.get("depth"))
+    depth = depth if depth is not None and 1 <= depth <= MAX_QOS_DEPTH else 10
     kw = {}
     for key in ("deadline", "lifespan"):
         d = p.get(key)
         if isinstance(d, dict) and {"sec": d.get("sec"), "nsec": d.get("nsec")} != _DURATION_INFINITE:
-            ns = int(d.get("sec", 0)) * 1_000_000_000 + int(d.get("nsec", 0))
-            if 0 < ns < 2**62:
+            sec, nsec = _whole(d.get("sec", 0)), _whole(d.get("nsec", 0))
+            ns = None if sec is None or nsec is None else sec * 1_000_000_000 + nsec
+            if ns is not None and 0 < ns < 2**62:
                 kw[key] = Duration(nanoseconds=ns)
     return QoSProfile(
         history=history, depth=depth,

@@ -619,17 +619,10 @@ def _param_arg_name(value: str, node_name: str, fqn: str) -> str | None:
 
 def _params_file_names(path: str, fqn: str, own: dict, wild: dict, unmatched: dict) -> None:
     """The names a `--params-file` gives the node `fqn`, into `own` or `wild` by how its section matches."""
-    import yaml
-
-    from prsm_ros.limits import read_text_file  # regular, bounded, UTF-8; rcl's parser takes minutes on 9 MB
+    # regular, bounded, UTF-8 (rcl's parser takes minutes on 9 MB), its depth, aliases and sections bounded
+    from prsm_ros.limits import NODE_PARAMS_MAX_SECTIONS, load_yaml, read_text_file
     text = read_text_file(path, what="parameters file", error=ConfigError)
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ConfigError(f"--params-file {path}: not valid YAML{where} "
-                          f"({getattr(e, 'problem', None) or type(e).__name__})") from None
+    doc = load_yaml(text, source=f"--params-file {path}", error=ConfigError, max_top_keys=NODE_PARAMS_MAX_SECTIONS)
     if not isinstance(doc, dict):
         raise ConfigError(f"--params-file {path}: expected a mapping of node names to {{ros__parameters: {{...}}}}")
     matched = False

@@ -63,12 +63,13 @@ class StatusReporter:
                        e.describe(), fault_event_details(e))
 
     def edge_events(self, events) -> None:
-        """The nut reaching or leaving a thread end: logged and on ~/events (the bag keeps it)."""
+        """The nut reaching or leaving a thread end, its load past the static rating or back: logged and
+        on ~/events (the bag keeps it)."""
         for e in events:
             line = f"t = {e.time_s:.6f} s: {e.describe()}"
-            self.log.warning(line) if e.what == "reached" else self.log.info(line)
-            self.event(e.time_s, "plant", "warn" if e.what == "reached" else "info", f"thread_end_{e.what}",
-                       e.describe(), {"force_n": e.force_n})
+            warn = e.what in ("reached", "exceeded")
+            self.log.warning(line) if warn else self.log.info(line)
+            self.event(e.time_s, "plant", "warn" if warn else "info", e.event_name, e.describe(), {"force_n": e.force_n})
 
     def energy_fault(self, out) -> None:
         """The model's energy books stopped closing (the core's energy guard): one event, an error log;

@@ -210,7 +210,7 @@ def actuator_xacro() -> str:
     from prsm_sim import preset
     defaults = description_values(preset(XACRO_PRESET))
     params = " ".join(["prefix", "parent"] + [f"{k}:='{d}'" if " " in d else f"{k}:={d}" for k, d in defaults.items()])
-    v = {k: "${%s}" % k for k in MACRO_PARAMS}
+    v = {k: "${" + k + "}" for k in MACRO_PARAMS}
     names = {k: "${prefix}" + k for k in ("screw_joint", "nut_joint", "screw_link", "nut_link")}
     names.update(base_link="${parent}", system="${prefix}" + MACRO)
     doc = [f"       {k}: {what}" + (f" ({unit})" if unit else "") for k, (unit, what) in MACRO_PARAMS.items()]
@@ -227,7 +227,7 @@ def actuator_xacro() -> str:
              "     option) is the same body for the node's own configuration. -->",
              '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
              f'  <xacro:macro name="{MACRO}" params="{params}">',
-             *_body(v, lambda k: "${-%s}" % k, names, "    "), "  </xacro:macro>", "</robot>"]
+             *_body(v, lambda k: "${-" + k + "}", names, "    "), "  </xacro:macro>", "</robot>"]
     return "\n".join(lines) + "\n"
 
 

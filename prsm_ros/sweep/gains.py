@@ -40,14 +40,9 @@ def parse_gains(data: Any, where: str = "gains") -> dict[str, float]:
 
 def load_gains(path: str | Path) -> dict[str, float]:
     """Read a gains file (YAML); InputError naming the file and what is wrong."""
-    import yaml
-    from prsm_ros.limits import read_text_file
+    from prsm_ros.limits import load_yaml, read_text_file
     p = Path(path)
-    text = read_text_file(p, what="gains file", error=InputError)
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise InputError(f"{p}: not YAML ({str(e).splitlines()[0]})") from None
+    data = load_yaml(read_text_file(p, what="gains file", error=InputError), source=str(p), error=InputError)
     return parse_gains(data, str(p))
 
 

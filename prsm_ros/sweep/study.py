@@ -52,7 +52,7 @@ from prsm_sim.control import DEFAULT_AMPLITUDE_M, DEFAULT_FREQUENCY_HZ, Position
 from prsm_sim.errors import PrsmError
 from prsm_sim.scenarios import SCENARIOS
 
-from prsm_ros.limits import MAX_STUDY_RUNS, read_text_file, run_steps
+from prsm_ros.limits import MAX_STUDY_RUNS, load_yaml, read_text_file, run_steps
 
 POSITION = "position"  # the demo's nut-position loop (prsm_sim.control), run offline
 ALL_SCENARIOS = (*SCENARIOS, POSITION)
@@ -182,13 +182,7 @@ def normalise(data: Any, source: str = "<study>", base_dir: Path | None = None) 
         if base_dir is not None and not path.is_absolute():
             path = base_dir / path
         text = read_text_file(path, what="parameter file", error=StudyError)
-        try:
-            pdata = yaml.safe_load(text)
-        except yaml.YAMLError as e:  # its str() quotes the file: give the place only
-            mark = getattr(e, "problem_mark", None)
-            where = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""
-            raise StudyError(f"params = {str(data['params'])!r}:{where} not valid YAML "
-                             f"({getattr(e, 'problem', None) or type(e).__name__})") from None
+        pdata = load_yaml(text, source=f"params = {str(data['params'])!r}", error=StudyError)
         out["params"] = pdata
     else:
         out["preset"] = str(data.get("preset", "jones2016"))
@@ -313,14 +307,7 @@ def execution_options(data: dict) -> dict:
 def load(path: str | Path) -> tuple[dict, dict, dict]:
     """Read a study file → (raw mapping, normalised study, execution options)."""
     p = Path(path)
-    try:
-        data = yaml.safe_load(read_text_file(p, what="study file", error=StudyError))
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}, column {mark.column + 1}:" if mark is not None else ""
-        raise StudyError(f"{p}:{where} not valid YAML ({getattr(e, 'problem', None) or type(e).__name__})") from None
-    except UnicodeDecodeError:
-        raise StudyError(f"{p}: not a text (UTF-8) file") from None
+    data = load_yaml(read_text_file(p, what="study file", error=StudyError), source=str(p), error=StudyError)
     try:
         norm = normalise(data, str(p), p.parent)
         return data, norm, execution_options(data)

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from prsm_sim import InputError, InternalLayout, ParamError, Params, preset
 
@@ -53,9 +52,10 @@ def _params_from(meta: dict[str, str], explicit: Params | None) -> tuple[Params,
         return explicit, "given by the caller"
     text = meta.get("parameters_yaml")
     if text:
+        from prsm_ros.limits import load_yaml
         try:
-            return Params.from_dict(yaml.safe_load(text)), "bag run metadata"
-        except (ParamError, yaml.YAMLError) as e:
+            return Params.from_dict(load_yaml(text, source="parameters_yaml", error=ParamError)), "bag run metadata"
+        except ParamError as e:
             raise InputError(f"bag run metadata {RUN_METADATA}.parameters_yaml is not a valid parameter set: "
                              f"{e}") from None
     if meta.get("preset"):

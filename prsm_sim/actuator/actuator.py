@@ -28,7 +28,7 @@ import numpy as np
 
 from prsm_sim.actuator import faults as fl
 from prsm_sim.actuator.brake import brake_level, stiction_torque
-from prsm_sim.actuator.drive import drive_update, shape_reference
+from prsm_sim.actuator.drive import drive_update, loop_schedule, shape_reference
 from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
 from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
@@ -189,12 +189,7 @@ class Actuator(Model):
         else:
             self.screw_params = params
         self.motor_inertia = 0.0 if m is None else m.rotor_inertia_kgm2 * m.gear_ratio**2  # screw side
-        rate = a.drive.loop_rate_hz
-        self.n_sub, self.hold_steps = 1, 1
-        if rate is not None and rate * self.dt_s >= 1.0:
-            self.n_sub = int(round(rate * self.dt_s))
-        elif rate is not None:
-            self.hold_steps = int(round(1.0 / (rate * self.dt_s)))
+        self.n_sub, self.hold_steps = loop_schedule(a.drive.loop_rate_hz, self.dt_s)
         self.h_sub = self.dt_s / self.n_sub
         # end stops and thread ends, the innermost on each side (stops.py)
         self.limits = limits_of(a.stops, params.geometry.travel_m) if a.stops.fitted or params.geometry.thread_ends \

@@ -7,6 +7,7 @@ screw-side torque reference and the new memory. Loops run in screw coordinates.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 from prsm_sim.errors import InputError
@@ -18,6 +19,25 @@ class DriveOut(NamedTuple):
     integral_nm: float  # speed-loop integrator (its torque contribution)
     limited: bool
     speed_reference_rad_s: float
+
+
+def loop_schedule(loop_rate_hz: float | None, dt_s: float) -> tuple[int, int]:
+    """(loop updates per step, steps per loop update) for the drive's loop rate at the step `dt_s`.
+
+    The loops run on the step's grid: a whole number of updates per step (sub-steps) or one update
+    every whole number of steps. A rate that is no whole ratio of the step rate 1/dt_s runs at the
+    nearest such rate; `warnings.warn` then says which, once, where the actuator is built.
+    """
+    if loop_rate_hz is None:
+        return 1, 1
+    ratio = loop_rate_hz * dt_s
+    n_sub, hold = (max(1, round(ratio)), 1) if ratio >= 1.0 else (1, max(1, round(1.0 / ratio)))
+    runs_hz = n_sub / (hold * dt_s)
+    if not math.isclose(runs_hz, loop_rate_hz, rel_tol=1e-9):
+        warnings.warn(f"drive.loop_rate_hz = {loop_rate_hz!r} is no whole ratio of the step rate {1.0 / dt_s:g} Hz "
+                      f"(dt_s = {dt_s!r}): the drive's loops run at {runs_hz:g} Hz, "
+                      + (("once a step" if n_sub == 1 else f"{n_sub} updates a step") if hold == 1 else f"one update every {hold} steps"), stacklevel=4)
+    return n_sub, hold
 
 
 def shape_reference(r_m: float, v_m_s: float, target_m: float, target_rate_m_s: float, v_max_m_s: float,

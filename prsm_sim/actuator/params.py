@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from prsm_sim.errors import ParamError
+from prsm_sim.params import END_STOP_STIFFNESS_N_M
 from prsm_sim.params import check_field as _check
 from prsm_sim.params import check_non_negative as _non_negative
 from prsm_sim.params import check_positive as _positive
@@ -182,7 +183,7 @@ class StopParams:
 
     min_position_m: float | None = None
     max_position_m: float | None = None
-    stiffness_n_m: float = 1e8
+    stiffness_n_m: float = END_STOP_STIFFNESS_N_M
     damping_n_s_m: float = 2e5
 
     def __post_init__(self) -> None:

@@ -33,7 +33,8 @@ The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple, TypeVar
+from typing import NamedTuple, TypeVar
+from collections.abc import Callable
 
 from prsm_sim.actuator.params import StopParams
 
@@ -49,6 +50,10 @@ class ThreadEndEvent(NamedTuple):
     time_s: float
     what: str  # "reached" or "left"
     force_n: float  # the end's force on the nut then (N, along +x_nut; 0 when it left)
+
+    @property
+    def event_name(self) -> str:
+        return f"thread_end_{self.what}"
 
     def describe(self) -> str:
         if self.what == "reached":

@@ -54,13 +54,13 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
 from prsm_sim.models import kernels
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
-                                    slip_speed)
+                                    Fu2018Part, slip_speed)
 from prsm_sim.models.kernels import ROOT_STEP_TOL  # noqa: F401 (public here, where the chain law is described)
 from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
@@ -121,7 +121,7 @@ class PowerLaw:
 power_law_root = _LAW._power_root  # s = F^(1/3) with δ = a F^(2/3) + b F (`kernels._power_root`)
 _stiffness_at_root = _LAW._stiffness_at_root
 _complementary_at_root = _LAW._complementary_at_root
-_sliding_efficiencies = _LAW._sliding_eff
+_sliding_efficiencies = _LAW._sliding_eff  # (η_f, η_b) from c_zS, sin β and μ (`kernels._sliding_eff`)
 
 
 def fit_side(joint: ls.Joint, rating_n: float) -> PowerLaw:
@@ -146,11 +146,6 @@ def _czs_sin_beta(geo) -> tuple[float, float]:
     return math.cos(math.atan(math.tan(beta) * math.cos(lam))) * math.cos(lam), math.sin(beta)
 
 
-def _sliding_efficiencies(czs: float, sb: float, mu: float) -> tuple[float, float]:
-    """`sliding_efficiencies` from c_zS and sin β (scalar arithmetic only: the stepping loop calls it)."""
-    return 1.0 / (1.0 + mu / (sb * (czs - mu * sb))), 1.0 - mu / (sb * (czs + mu * sb))
-
-
 class AxialLaw:
     """Thread force, tangent stiffness and elastic energy of the chain at a deflection δ and nut position x."""
 
@@ -162,14 +157,14 @@ class AxialLaw:
         self.double_nut = el.preload_kind == "double_nut"
         self.n_side = n_side = g.n_teeth // 2 if self.double_nut else g.n_teeth  # even: Params checks it
         self.joint = ls.joint_from_params(params, n_side)
-        self.side = fit_side(self.joint, params.ratings.static_load_rating_n)
+        self.side = fit_side(self.joint, params.resolved_ratings.static_load_rating_n)
         self.ea = params.material.youngs_modulus_pa * ls.screw_section_m2(params)
-        self.x_bearing = el.bearing_position_m
+        self.x_bearing = params.resolved_elastic.bearing_position_m
         k_h = el.housing_stiffness_n_per_m
         self.c_housing = 0.0 if math.isinf(k_h) else 1.0 / k_h
         self.d0 = self.side.approach(self.preload) if self.preload > 0 else 0.0
         self.v0 = (self.preload * self.d0 - self.side.complementary(self.preload)) if self.preload > 0 else 0.0
-        self.shares = _share_table(self.joint, params.ratings.static_load_rating_n)
+        self.shares = _share_table(self.joint, params.resolved_ratings.static_load_rating_n)
         # the law's constants as the step's kernels read them (the rest of `ElasticConstants` is the model's)
         self.constants = ElasticConstants(*(math.nan,) * len(ElasticConstants._fields))._replace(
             clearance=self.clearance, preload=self.preload, law_a=self.side.a, law_b=self.side.b, ea=self.ea,
@@ -283,7 +278,7 @@ class ElasticModel(Model):
         self.mu = ms * self.m / (ms + self.m)
         self.zeta = params.elastic.contact_damping_ratio
         k_max = max(ls.AxialChain(params).at(f).stiffness_n_per_m
-                    for f in (0.0, 0.5 * params.ratings.static_load_rating_n))
+                    for f in (0.0, 0.5 * params.resolved_ratings.static_load_rating_n))
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
         self.core = Fu2018(core_params, self.dt_s / self.substeps, kernel=kernel)
@@ -341,7 +336,7 @@ class ElasticModel(Model):
         x = float(nut_position_m)
         if load_n == 0.0:
             return replace(s, part=ElasticPart(nut_axial_m=x))
-        core = self.core.initial_state(nut_position_m, load_n).part
+        core = cast(Fu2018Part, self.core.initial_state(nut_position_m, load_n).part)  # the core's part_type
         f = load_n  # the nut's balance: thread force + the shaft-length term (−∂V/∂x_N) = load
         for _ in range(3):
             f = load_n - self.law.nut_side_force(f, x)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -260,7 +260,7 @@ class Fu2018(Model):
         self.a = geo.carrier_radius_m
         fr = params.friction
         self.k_drag = 2 * 2 * math.pi * fr.lubricant_density_kg_m3 * fr.lubricant_viscosity_m2_s \
-            * fr.drag_width_m * fr.drag_radius_m**3 / fr.drag_gap_m
+            * fr.drag_width_m * fr.drag_radius(geo)**3 / fr.drag_gap_m
         self.eps_v = fr.coulomb_regularisation_m_s
         self.screw_roller_law = ScrewRollerLaw.from_name(fr.screw_roller_law)
         self._zeta_share = self.zeta / geo.n_teeth
@@ -290,7 +290,7 @@ class Fu2018(Model):
 
     def _step_constants(self) -> Fu2018Constants:
         """The step's constants (`kernels.Fu2018Constants`) from the parameters."""
-        geo, fr, m, a, p = self.geo, self.params.friction, self.params.mass, self.a, self.p
+        geo, fr, m, a, p = self.geo, self.params.friction, self.params.resolved_mass, self.a, self.p
         nr = geo.n_rollers
         k_mig = geo.pitch_m * (geo.starts - geo.gear_ratio) / (2 * math.pi)
         # pitch radius of the roller's gear: its mesh with the fixed ring rolls, a ω_C + (1 − g) ω_C r_g = 0, so
@@ -333,8 +333,9 @@ class Fu2018(Model):
         st, _ = self.stick_forces(self.geo.lead_per_rad_m * load_n, load_n, 1 if load_n >= 0.0 else -1, 0.0)
         if st is None:
             return s
-        return replace(s, part=s.part._replace(flank_sign=int(st.sign), pin_force_n=st.pin_force_sum_n,
-                                                gear_force_n=st.f_gt))
+        part = cast(Fu2018Part, s.part)  # `Model.initial_state` made it of this model's part_type
+        return replace(s, part=part._replace(flank_sign=int(st.sign), pin_force_n=st.pin_force_sum_n,
+                                             gear_force_n=st.f_gt))
 
     def _side(self, sign: int) -> _Side:
         ev = self.params.friction.contact_evaluation

@@ -13,7 +13,10 @@ a self-locking backward loss is not faded, it is a stiction that holds the screw
 Integration: the loss is applied as a set-valued friction in an implicit step (velocity
 clipped at zero when the loss impulse exceeds the momentum), so stuck, forward and
 backward modes need no event detection at a fixed step; positions advance by the
-trapezoidal rule, which makes the step's work balance exactly with ΔT.
+trapezoidal rule, which makes the step's work balance exactly with ΔT, except on a step
+that reverses the screw at a step too long to resolve an end's contact: there by backward
+Euler (L-stable, so the unresolved ringing dies instead of flipping ω_S every step), its
+numerical dissipation booked.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import numpy as np
 from prsm_sim.errors import InputError
 from prsm_sim.models.drag import ideal_no_load_torque_nm
 from prsm_sim.models.elastic import sliding_efficiencies
-from prsm_sim.params import Params
+from prsm_sim.params import END_STOP_STIFFNESS_N_M, Params
 from prsm_sim.physics.inertia import reflected_inertia
 from prsm_sim.physics.kinematics import ideal_carrier_ratio, ideal_speed_ratio
 from prsm_sim.stepping.model import Model
@@ -35,6 +38,7 @@ __all__ = ["Ideal", "reflected_inertia"]  # reflected_inertia stays importable h
 
 class Ideal(Model):
     name = "ideal"
+    takes_efficiencies = True
 
     @classmethod
     def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
@@ -69,6 +73,15 @@ class Ideal(Model):
         self.k_backward = 1.0 - il.efficiency_backward
         self.self_locking = il.efficiency_backward <= 0.0
         self.slip_per_nut_speed = 1.0 / math.sin(self.geo.flank_angle_rad)  # docs/model.md §3 sliding
+        # The trapezoidal rule is not L-stable: a contact the step does not resolve (h ω > 2, ω = √(k/m) of the
+        # nut's reflected mass on the stop) rings in its spurious mode, ω_S flipping sign every step with the
+        # nut at rest (eigenvalue → −1 as h ω → ∞; the stop absorbs only ~16/(h ω)² of it per step), and a
+        # rigid screw has no damping of its own to end it. At such steps a step that reverses the screw is
+        # taken by backward Euler (L-stable: the ringing dies within a step, as a contact damped at ζ ≈ 0.5
+        # does within a few ms); at steps that resolve the ends' default contact it stays trapezoidal
+        # (second order, no numerical loss on a resolved bounce).
+        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M * self.geo.lead_per_rad_m**2 / self.J)
+        self.reverses_l_stable = self.dt_s * omega_end > 2.0
         # the drag's equivalent no-load torque (`models.drag`): a Coulomb torque that holds at rest like the loss
         self.no_load_torque_nm = ideal_no_load_torque_nm(
             params, sliding_efficiencies(self.geo, params.friction.mu_screw_roller)[0])
@@ -103,6 +116,7 @@ class Ideal(Model):
         t0 = self.no_load_torque_nm
         power_threshold_w = self.params.ideal.power_threshold_w
         tanh, copysign = math.tanh, math.copysign
+        l_stable = self.reverses_l_stable
 
         def solve(w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
             tau_l = load_n * p
@@ -119,10 +133,17 @@ class Ideal(Model):
                     mu += t0
                 w_slide = w_free - d * h * mu / j_hb
                 w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
-            dtheta = 0.5 * h * (w0 + w1)
-            # loss + bearing torque actually applied over the step, times the angle it acted through
+            # loss + bearing torque actually applied over the step
             friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
-            return w1, dtheta, friction_nm * dtheta
+            if w0 * w1 >= 0.0 or not l_stable:
+                dtheta = 0.5 * h * (w0 + w1)
+                return w1, dtheta, friction_nm * dtheta
+            # reversed within a step too long for an end's contact: backward Euler (see `reverses_l_stable`);
+            # its numerical dissipation ½ J (ω₁ − ω₀)² (the trapezoid's work balance less its own) is booked,
+            # so the ledger still closes exactly
+            dtheta = h * w1
+            dw = w1 - w0
+            return w1, dtheta, friction_nm * dtheta + 0.5 * J * dw * dw
         return solve
 
 

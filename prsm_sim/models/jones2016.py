@@ -15,10 +15,11 @@ stepped exactly by zero-order hold (`linear_step`), and run in batch by recursiv
 from __future__ import annotations
 
 import math
+from typing import TypedDict
 
 import numpy as np
 
-from prsm_sim.errors import InputError
+from prsm_sim.errors import InputError, ParamError
 from prsm_sim.models.linear_step import discretise
 from prsm_sim.params import Params
 from prsm_sim.physics.contact import ContactPoint, contact_for
@@ -47,6 +48,16 @@ class Jones2016(Model):
     has_carrier = True
     has_internal_forces = True
     steady_state_inputs = ("screw_speed_rad_s", "torque_nm")
+
+    @classmethod
+    def check_params(cls, params: Params) -> None:
+        c = params.friction.viscous_n_s_m
+        if not c > 0.0:
+            # c is this model's only coupling of the carrier to the screw (C = c N_R N_T GᵀG): at c = 0 the
+            # carrier row of M q̈ = −C q̇ + B u is unforced and the steady state (C q̇ = B u) has no solution
+            raise ParamError(f"friction.viscous_n_s_m = {c!r}: model jones2016 needs c > 0 N·s/m (its only "
+                             "friction ties the carrier to the screw; a small c such as 1e-12 approaches the "
+                             "frictionless limit)")
 
     @classmethod
     def closed_form_steady_state(cls, params: Params, *, screw_speed_rad_s: float | None = None,
@@ -160,8 +171,28 @@ class Jones2016(Model):
             stored_j=self.stored_energy_j(w[0], w[1]))
 
 
+class SteadyState(TypedDict):
+    """`steady_state`'s result, a dict by these keys (speeds rad/s, torque N·m, force N, velocities m/s, the
+    entries of C (seed eq. 39) N·m·s, and the friction group's `contact_evaluation` it was found with)."""
+
+    screw_speed_rad_s: float
+    carrier_speed_rad_s: float
+    speed_ratio_screw_over_carrier: float
+    carrier_over_screw: float
+    torque_nm: float
+    load_force_n: float
+    nut_velocity_m_s: float
+    slip_speed_m_s: float
+    efficiency: float
+    steady_a_nm_s: float
+    steady_b_nm_s: float
+    steady_c_nm_s: float
+    steady_d_nm_s: float
+    contact_evaluation: str
+
+
 def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torque_nm: float | None = None,
-                 load_n: float | None = None) -> dict[str, float]:
+                 load_n: float | None = None) -> SteadyState:
     """Closed-form steady state of `jones2016` (Jones 2016 eqs. 37–41 structure).
 
     C q̇ = B (τ, F): the carrier row gives the speed ratio (independent of c, F, τ, docs/model.md
@@ -170,6 +201,7 @@ def steady_state(params: Params, *, screw_speed_rad_s: float | None = None, torq
     """
     if screw_speed_rad_s is not None and torque_nm is not None:
         raise InputError(f"screw_speed_rad_s = {screw_speed_rad_s!r}, torque_nm = {torque_nm!r}: give one of them, not both")
+    Jones2016.check_params(params)
     geo, fr = params.geometry, params.friction
     f = params.loads.nut_load_n if load_n is None else load_n
     contact = contact_for(geo, "screw", fr.contact_evaluation)

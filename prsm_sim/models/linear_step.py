@@ -3,7 +3,7 @@
 Used by `jones2016`, whose equations are linear with constant coefficients: the step map
 is exact for inputs held over the step, so the stiff carrier mode (τ ≈ 10⁻⁵ s) costs
 nothing at a 1 ms step. The friction work over a step, ∫ q̇ᵀ C q̇ dt, is exact too
-(closed form on the modes, see `_friction_work_form`).
+(one matrix exponential, see `_friction_work_form`).
 """
 
 from __future__ import annotations
@@ -55,21 +55,25 @@ def discretise(M: np.ndarray, C: np.ndarray, B: np.ndarray, dt_s: float) -> Line
 def _friction_work_form(A: np.ndarray, Bi: np.ndarray, C: np.ndarray, h: float) -> np.ndarray:
     """W with ∫₀ʰ q̇ᵀ C q̇ dt = zᵀ W z, z = (q̇₀, u), for q̇' = A q̇ + Bi u.
 
-    Van Loan's block exponential overflows here (it needs e^{+h/τ} of the stiff carrier
-    mode), so the integral is taken in closed form on the modes of A (real, negative: A is
-    similar to −M^{-1/2} C M^{-1/2}): q̇(t) = q̇∞ + V e^{Λt} V⁻¹ (q̇₀ − q̇∞), q̇∞ = −A⁻¹ Bi u.
+    With F = [[A, Bi], [0, 0]] the augmented speed–input state obeys z' = F z, so the integrand is
+    zᵀ e^{Fᵀt} C̃ e^{Ft} z, C̃ = diag(C, 0), and vec W = ∫₀ʰ e^{Lt} dt vec C̃ with the Kronecker sum
+    L = Fᵀ ⊗ I + I ⊗ Fᵀ (vec(X Y Z) = (Zᵀ ⊗ X) vec Y). That integral is the last column of
+    exp([[L h, vec C̃ h], [0, 0]]) (Van Loan 1978, "Computing integrals involving the matrix
+    exponential", Thm 1). L's eigenvalues are sums of A's (≤ 0) and zeros, so the exponential neither
+    overflows on the stiff carrier mode (τ ≈ 10⁻⁵ s, where the block form with −Aᵀ needs e^{+h/τ})
+    nor needs A⁻¹: it stays exact as the friction c → 0, where the steady speed −A⁻¹ Bi u diverges
+    and a form written about it cancels to nothing.
     """
-    from scipy.linalg import solve
+    from scipy.linalg import expm
     n, m = Bi.shape
-    lam, V = np.linalg.eig(A)
-    lam, V = lam.real, V.real
-    S = -solve(A, Bi)
-    R = np.hstack([np.zeros((n, n)), S])  # q̇∞ = R z
-    T = solve(V, np.hstack([np.eye(n), -S]))  # modal transient amplitudes δ = T z
-    D = np.diag(np.expm1(lam * h) / lam)
-    ls = lam[:, None] + lam[None, :]
-    K = np.expm1(ls * h) / ls
-    VCV = V.T @ C @ V
-    cross = R.T @ C @ V @ D @ T
-    W = h * R.T @ C @ R + cross + cross.T + T.T @ (VCV * K) @ T
+    k = n + m
+    F = np.zeros((k, k))
+    F[:n, :n], F[:n, n:] = A, Bi
+    Ct = np.zeros((k, k))
+    Ct[:n, :n] = C
+    L = np.kron(F.T, np.eye(k)) + np.kron(np.eye(k), F.T)
+    aug = np.zeros((k * k + 1, k * k + 1))
+    aug[:k * k, :k * k] = L * h
+    aug[:k * k, -1] = Ct.ravel(order="F") * h
+    W = expm(aug)[:k * k, -1].reshape((k, k), order="F")
     return 0.5 * (W + W.T)

@@ -6,6 +6,8 @@ model) and the tools look models up here.
 
 from __future__ import annotations
 
+from typing import Protocol, cast
+
 from prsm_sim.errors import ParamError
 from prsm_sim.models.elastic import ElasticModel
 from prsm_sim.models.fu2018 import Fu2018
@@ -14,6 +16,13 @@ from prsm_sim.models.jones2016 import Jones2016
 from prsm_sim.models.kernels import check_kernel
 from prsm_sim.params import Params
 from prsm_sim.stepping.model import Model
+
+
+class _KernelModelClass(Protocol):
+    """A model class with `Model.compiled_kernel` set: its constructor also takes the kernel (`models.kernels`)."""
+
+    def __call__(self, params: Params, dt_s: float, kernel: str = ...) -> Model: ...
+
 
 MODELS: dict[str, type[Model]] = {"ideal": Ideal, "jones2016": Jones2016, "fu2018": Fu2018, "elastic": ElasticModel}
 
@@ -62,4 +71,6 @@ def build_model(params: Params, model: str, dt_s: float, kernel: str = "compiled
     cls = model_class(model)
     check_kernel(kernel)
     cls.check_params(params)
-    return cls(params, dt_s, kernel=kernel) if cls.compiled_kernel else cls(params, dt_s)
+    if cls.compiled_kernel:
+        return cast(_KernelModelClass, cls)(params, dt_s, kernel=kernel)
+    return cls(params, dt_s)

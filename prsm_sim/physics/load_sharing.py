@@ -353,7 +353,7 @@ class AxialChain:
         self._side = None
         if self.preload_n > 0:
             # both flank sets share the joint's geometry (mirror images) [assumed]
-            self._side = Side.tabulate(self.joint, max(10 * self.preload_n, params.ratings.static_load_rating_n))
+            self._side = Side.tabulate(self.joint, max(10 * self.preload_n, params.resolved_ratings.static_load_rating_n))
 
     def at(self, load_n: float) -> AxialPoint:
         """The chain under an axial load ≥ 0 (the load direction is symmetric for mirror-image flanks)."""

@@ -117,6 +117,7 @@ class Model:
     has_internal_forces = False  # the step reports internal loads (per roller/contact; `layout` labels them)
     has_friction_laws = False  # contact forces act through the selectable friction laws (`friction.*_law`)
     has_axial_chain = False  # the nut has its own axial DOF on a compliant screw–nut chain (preload, modes)
+    takes_efficiencies = False  # its efficiencies are parameters, not the outcome of its friction (no calibration)
 
     steady_state_inputs: tuple[str, ...] = ("screw_speed_rad_s",)  # what may fix a steady state (speed; a torque)
 
