@@ -23,7 +23,9 @@ DEFAULT_SPEED_RAD_S = 100.0  # the efficiencies' screw speed
 NO_LOAD_SPEED_RAD_S = 1.0  # the no-load torque's screw speed
 DEFAULT_LOAD_FRACTION = 0.1  # of the dynamic rating, for the efficiencies and the stiffness
 RUN_S = 0.6  # simulated time of each steady state: the speed loop's 0.1 s ramp, then settling
-NO_LOAD_RUN_S = 1.0
+NO_LOAD_RUN_S = 1.0  # the no-load probe's first run; doubled until its tail is steady, up to the ceiling
+NO_LOAD_MAX_RUN_S = 8.0
+STEADY_SPEED_TOLERANCE = 0.01  # the tail's screw speed within this share of the reference: a steady state
 TAIL_FRACTION = 0.2
 # Share of the nut's length that is threaded and engaged: the rest holds the ring gears, the
 # carrier rings and the wipers at its two ends [assumed; catalogues do not list it].
@@ -56,7 +58,22 @@ def steady_run(params: Params, model: str, dt_s: float, load_n: float, speed_rad
     n = len(traj)
     tail = slice(n - max(1, int(n * TAIL_FRACTION)), n)
     s["tail_torque_nm"] = float(np.mean(traj.columns["screw_torque_nm"][tail]))
+    s["tail_speed_band"] = float(np.max(np.abs(traj.columns["screw_speed_rad_s"][tail] - speed_rad_s)))
     return s
+
+
+def _no_load_steady(params: Params, model: str, dt_s: float) -> tuple[dict, float]:
+    """The no-load probe at `NO_LOAD_SPEED_RAD_S`, run long enough that its tail is a steady state: (summary,
+    run length s). At this speed the loop's integral action builds torque at only k_i ω per second (about
+    0.6 N·m/s on `s30`), so a large no-load torque (a preloaded nut) is not reached within a fixed short run
+    and its tail would still be breaking away; the run is doubled until the tail's screw speed stays within
+    `STEADY_SPEED_TOLERANCE` of the reference, up to `NO_LOAD_MAX_RUN_S` (the last run's tail otherwise)."""
+    run_s = NO_LOAD_RUN_S
+    while True:
+        s = steady_run(params, model, dt_s, 0.0, NO_LOAD_SPEED_RAD_S, run_s)
+        if s["tail_speed_band"] <= STEADY_SPEED_TOLERANCE * NO_LOAD_SPEED_RAD_S or run_s >= NO_LOAD_MAX_RUN_S:
+            return s, run_s
+        run_s = min(2.0 * run_s, NO_LOAD_MAX_RUN_S)
 
 
 def datasheet_load_n(params: Params) -> float:
@@ -72,9 +89,10 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
     Efficiencies: steady state of the speed loop at `speed_rad_s` with the load `load_n` resisting
     the motion (forward, screw drives nut) and aiding it (backward, the load drives the screw),
     each the tail mean of a `RUN_S` run on a screw without thread ends (the nut would run off a
-    coarse-lead screw): η = P_out / P_in of the mechanism. No-load torque: the
-    tail mean of the screw torque at zero load and 1 rad/s. Axial stiffness: the nut's (thread
-    contacts and teeth, no shaft or housing) at `load_n`. Ratings: the parameter set's.
+    coarse-lead screw): η = P_out / P_in of the mechanism. No-load torque: the tail mean of the screw
+    torque at zero load and 1 rad/s, the run lengthened until that tail is steady (`_no_load_steady`).
+    Axial stiffness: the nut's (thread contacts and teeth, no shaft or housing) at `load_n`. Ratings:
+    the parameter set's.
     """
     from prsm_sim.physics.load_sharing import AxialChain  # scipy-heavy; kept off `import prsm_sim`
     f = datasheet_load_n(params) if load_n is None else float(load_n)
@@ -84,10 +102,10 @@ def model_datasheet(params: Params, model: str, *, load_n: float | None = None,
         raise ParamError(f"speed_rad_s = {speed_rad_s!r}: must be a finite number > 0 (rad/s)")
     fwd = steady_run(params, model, dt_s, f, speed_rad_s, RUN_S)
     bwd = steady_run(params, model, dt_s, -f, speed_rad_s, RUN_S)
-    idle = steady_run(params, model, dt_s, 0.0, NO_LOAD_SPEED_RAD_S, NO_LOAD_RUN_S)
+    idle, idle_s = _no_load_steady(params, model, dt_s)
     stiffness = AxialChain(params).at(f).nut_stiffness_n_per_m
     conditions = {"model": model, "load_n": f, "speed_rad_s": speed_rad_s, "no_load_speed_rad_s": NO_LOAD_SPEED_RAD_S,
-                  "dt_s": dt_s, "run_s": RUN_S, "no_load_run_s": NO_LOAD_RUN_S, "tail_fraction": TAIL_FRACTION,
+                  "dt_s": dt_s, "run_s": RUN_S, "no_load_run_s": idle_s, "tail_fraction": TAIL_FRACTION,
                   "stiffness": "nut: thread contacts and teeth at the load (no shaft, no housing)"}
     return ModelSheet(efficiency_forward=fwd["tail_efficiency"], efficiency_backward=bwd["tail_efficiency"],
                       no_load_torque_nm=idle["tail_torque_nm"],

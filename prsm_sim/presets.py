@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from prsm_sim.params import ElasticParams, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params
+from prsm_sim.params import DragParams, ElasticParams, Friction, Geometry, Loads, MassProperties, Material, ParamError, Params
 
 
 def _jones2016() -> Params:
@@ -52,6 +52,9 @@ def _s30() -> Params:
     criterion on flank-limited contacts, C_a by ISO 281's thrust roller formula with the f_c that
     reproduces a catalogue 30 × 5 size; the SRS-C line lists C_0a = 280 kN, C_a = 123 kN for its
     30 × 5 nut (docs/validation.md), which has a longer nut than this preset's 30 engaged teeth.
+    Drag: a real screw's load-independent losses on, with their sourced defaults (docs/model.md §4.5:
+    about 0.22 N·m at zero load); the friction stays the illustrative set of docs/model.md §4.2, through
+    which the drag defaults were read. `drag.enabled: false` gives the papers' screw.
     """
     return Params(
         name="s30",
@@ -62,6 +65,7 @@ def _s30() -> Params:
         loads=Loads(nut_load_n=5000.0, screw_speed_rad_s=100.0),
         material=Material(youngs_modulus_pa=206e9, poisson_ratio=0.3),
         elastic=ElasticParams(mounting="same_end", bearing_position_m=-0.15, root_diameter_m=0.027),
+        drag=DragParams(enabled=True),
     )
 
 

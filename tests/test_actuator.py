@@ -18,7 +18,8 @@ from prsm_sim.models.ideal import reflected_inertia
 from prsm_sim.physics.inertia import mass_matrix
 
 DT = 1e-3
-LOSSLESS = {"ideal.efficiency_forward": 1.0, "ideal.efficiency_backward": 1.0}
+# a lossless screw: no efficiency loss and none of `s30`'s load-independent drag (docs/model.md §4.5)
+LOSSLESS = {"ideal.efficiency_forward": 1.0, "ideal.efficiency_backward": 1.0, "drag.enabled": False}
 
 
 def s30(**overrides):
@@ -137,7 +138,7 @@ def test_position_mode_holds_against_5kN_within_encoder_resolution(linear):
 
 def test_encoder_quantisation_visible_in_measured_absent_from_true():
     """Oracle: the encoder grid L/counts (motor encoder, gear 1): measured on it, true off it, |diff| < one count."""
-    p = s30()
+    p = s30(**{"drag.enabled": False})  # a creep below one count per step: `s30`'s no-load torque would hold it
     counts = 1000
     act = Actuator(p, DT, "ideal", ActuatorParams(sensors=SensorParams(encoder_counts_per_rev=counts)))
     st, outs = run(act, act.initial_state(0.0), 1e-3, 0.0, 200)  # creeps: < one count per step

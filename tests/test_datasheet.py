@@ -22,7 +22,9 @@ SHEET = {"nominal_diameter_m": 0.030, "lead_m": 0.005, "starts": 5, "nut_length_
 
 
 def test_ideal_model_reports_the_efficiencies_it_is_given():
-    p = preset("s30").with_overrides({"ideal.efficiency_forward": 0.83, "ideal.efficiency_backward": 0.71})
+    # the lossy gear alone: `s30`'s equivalent no-load torque (docs/model.md §4.5) off
+    p = preset("s30").with_overrides({"ideal.efficiency_forward": 0.83, "ideal.efficiency_backward": 0.71,
+                                      "drag.enabled": False})
     s = model_datasheet(p, "ideal")
     assert s.efficiency_forward == pytest.approx(0.83, abs=2e-3)
     assert s.efficiency_backward == pytest.approx(0.71, abs=2e-3)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, build_model, preset
+from prsm_sim.models.elastic import sliding_efficiencies
 from prsm_sim.stepping.ledger import ENERGY_GUARD_REL
 
 # -- fu2018 at rest with no screw torque ---------------------------------------------------------------
@@ -69,6 +70,18 @@ def _block(sim, out, name):
                  __import__("prsm_sim.actuator", fromlist=["ACTUATOR_QUANTITIES"]).ACTUATOR_QUANTITIES].index(name)])
 
 
+def _drag_hold_n(p):
+    """Axial force the screw's load-independent drag can hold at rest, N: its no-load torque T₀ = T_s + 2 P_i
+    (L/2π)(1/η_f − 1) (seals and idle flanks, docs/model.md §4.5, η_f the sliding-only efficiency of §4.2) over
+    L/2π. Zero for the papers' screw."""
+    if not p.drag.enabled:
+        return 0.0
+    g, d = p.geometry, p.drag
+    eta_f = sliding_efficiencies(g, p.friction.mu_screw_roller)[0]
+    seals = d.n_seals * d.seal_friction_n_per_m * 2 * math.pi * g.screw_radius_m ** 2
+    return (seals + 2 * d.internal_preload_n * g.lead_per_rad_m * (1 / eta_f - 1)) / g.lead_per_rad_m
+
+
 def _ram(model, dt, load_n=-2000.0, seconds=0.6, kernel="compiled"):
     """A constant load drives the nut from rest at x = 0 into the stop 1 mm away, no screw torque."""
     sim = Simulator(preset("s30"), model, dt, actuator=ActuatorParams(motor=MotorParams(), stops=STOP), kernel=kernel)
@@ -102,7 +115,9 @@ def test_stop_law_at_rest_and_on_impact(model, dt):
         # carries the load the screw does not: with no screw torque, at most the whole load
         assert abs(ws[-1]) < 1e-4
         assert math.isclose(force[-1], -k * depth[-1], rel_tol=1e-6)
-        assert 0.0 < -force[-1] <= f_push * (1 + 1e-5)  # elastic: the axial mode rings down slowly (ζ = 0.02)
+        # elastic: the axial mode rings down slowly (ζ = 0.02); the screw's static drag may hold the stop's spring
+        # a little deeper than the load alone
+        assert 0.0 < -force[-1] <= f_push * (1 + 1e-5) + _drag_hold_n(preset("s30"))
         tail = ws[-int(0.1 / dt):]
         assert np.ptp(tail) < 0.5
 
@@ -112,8 +127,10 @@ def test_stop_law_at_rest_and_on_impact(model, dt):
 def test_the_nut_never_leaves_the_threads(model):
     """No torque and a 500 N load for 3 s once carried the nut metres along a 0.3 m screw. The ends lie at
     ±(screw_length − nut_length)/2 (docs/model.md, thread ends) and hold the nut like a stop: at rest
-    there the end's force is the load (no torque, a back-drivable screw) and its penetration F/k."""
+    there the end's force is the load, give or take what the screw's static drag holds (`s30`'s seals and idle
+    flanks, docs/model.md §4.5: T₀/(L/2π) of axial force), and its penetration F/k."""
     p = preset("s30")
+    held = _drag_hold_n(p)
     half = 0.5 * (p.geometry.screw_length_m - p.geometry.n_teeth * p.geometry.pitch_m)
     assert p.geometry.travel_m == pytest.approx(2 * half)
     k = 1e8  # the stop law's default stiffness (StopParams)
@@ -125,8 +142,9 @@ def test_the_nut_never_leaves_the_threads(model):
         # the impact bound ½kδ² = F (d + δ) from rest d = 5 mm away (docs/model.md, end stop)
         assert x.min() >= -half - (500.0 + math.sqrt(500.0**2 + 2 * k * 500.0 * 0.005)) / k
         if stepped:
-            assert sim.thread_end_force_n == pytest.approx(500.0, rel=1e-3)
-            assert x[-1] == pytest.approx(-half - 500.0 / k, abs=1e-3 * 500.0 / k + 1e-12)
+            f_end = sim.thread_end_force_n
+            assert abs(f_end - 500.0) <= held * (1 + 1e-3)
+            assert x[-1] == pytest.approx(-half - f_end / k, abs=1e-3 * 500.0 / k + 1e-12)
     # the ends can be removed (an unlimited screw): then the nut runs on
     free = Simulator(p.with_overrides({"geometry.thread_ends": False}), model, 1e-3, nut_position_m=-half + 0.005)
     assert free.run(np.zeros(1500), 500.0).columns["nut_position_m"].min() < -half - 1e-3 or model == "jones2016"
@@ -247,7 +265,10 @@ def test_load_cell_filter_acts_on_its_noise(dt):
 
 def _position_step(ff, step_m, model="ideal"):
     from prsm_sim.actuator import ACTUATOR_QUANTITIES, DriveParams
-    sim = Simulator(preset("s30"), model, 1e-3, actuator=ActuatorParams(
+    # the papers' screw (drag off): the shaped reference's budget is set for the mechanism's inertia and load, and
+    # `s30`'s no-load torque (docs/model.md §4.5), which neither loop feeds forward, turns a 0.1 mm step into a
+    # stick–slip approach that overshoots by 7.5 %
+    sim = Simulator(preset("s30").with_overrides({"drag.enabled": False}), model, 1e-3, actuator=ActuatorParams(
         motor=MotorParams(), drive=DriveParams(mode="position", position_feedforward=ff)))
     names = [n for n, _ in ACTUATOR_QUANTITIES]
     for _ in range(50):  # held at 0 first: the command then jumps
@@ -292,7 +313,7 @@ def test_session_starts_in_equilibrium_and_reports_thread_ends():
     ev = s.take_edge_events()
     # reached (it may bounce off once or twice on the way to rest), and at rest on the end at the last
     assert ev[0].what == "reached" and ev[-1].what == "reached" and len(ev) % 2 == 1
-    assert s.simulator.thread_end_force_n == pytest.approx(500.0, rel=1e-3)
+    assert abs(s.simulator.thread_end_force_n - 500.0) <= _drag_hold_n(p) * (1 + 1e-3)  # the load ± the static drag
     for _ in range(300):
         s.step(tau)  # drive it off the end again (+x, against the 500 N)
     assert [e.what for e in s.take_edge_events()] == ["left"]

@@ -7,8 +7,10 @@ from prsm_sim import Simulator, preset
 
 
 def _params(**ideal):
-    # closed forms of an unlimited screw: these runs go past the threaded length, so without thread ends
-    return preset("s30").with_overrides({"geometry.thread_ends": False, **{f"ideal.{k}": v for k, v in ideal.items()}})
+    # closed forms of an unlimited screw: these runs go past the threaded length, so without thread ends; and of
+    # the lossy gear alone, without `s30`'s equivalent no-load torque (drag off, docs/model.md §4.5)
+    return preset("s30").with_overrides({"geometry.thread_ends": False, "drag.enabled": False,
+                                         **{f"ideal.{k}": v for k, v in ideal.items()}})
 
 
 def test_forward_efficiency_is_returned_when_the_screw_drives():

@@ -13,16 +13,22 @@ from prsm_sim.stepping.model import Model
 from prsm_sim.stepping.records import Outputs, State
 
 
+PROBE_TORQUE_NM = 10.0  # the inertia probe's torque step, N·m: well above a screw's no-load torque
+
+
 def probe_inertia(model: Model, h_s: float) -> float:
     """Screw-side inertia seen by a torque over one sub-step, J = h / (∂ω1/∂τ), probed from rest.
 
     Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
-    implicit stop, coupling and dry-friction torques; the step itself is the model's.
+    implicit stop, coupling and dry-friction torques; the step itself is the model's. The two probe
+    torques both lie above any no-load torque (a real screw's seals and idle flanks, docs/model.md §4.5,
+    hold a screw at rest up to a few tenths of a N·m and take a constant torque once it turns), so their
+    difference sees the inertia alone.
     """
     s0 = model.initial_state(0.0)
-    w1 = model.step(s0, 1.0, 0.0)[0].screw_speed_rad_s
-    w0 = model.step(s0, 0.0, 0.0)[0].screw_speed_rad_s
-    return h_s / (w1 - w0)
+    w2 = model.step(s0, 2.0 * PROBE_TORQUE_NM, 0.0)[0].screw_speed_rad_s
+    w1 = model.step(s0, PROBE_TORQUE_NM, 0.0)[0].screw_speed_rad_s
+    return h_s * PROBE_TORQUE_NM / (w2 - w1)
 
 
 def linear_response(model: Model, screw: State, tau_nm: float, load_n: float, h_s: float,
