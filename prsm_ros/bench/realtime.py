@@ -47,6 +47,7 @@ from prsm_ros.node.parameters import DEFAULT_MODEL
 from prsm_ros.ros_env import isolated_env, start_module
 
 DT = 1e-3
+TORQUE_AMPLITUDE_NM = 0.4  # the step-cost and batch workloads: a turning screw (s30 needs 0.22 N·m unloaded)
 PRESET = "s30"  # the node's default preset
 
 
@@ -280,8 +281,9 @@ def step_cost_figures(quick: bool) -> list[dict]:
     rounds = 3 if quick else 7
     params = preset(PRESET)
     # reversals about the start with no load: the nut stays on its threads (a load that back-drives the screw
-    # carries it onto a thread end, and the figure would be the end's contact)
-    torque = (0.05 * np.cos(np.arange(n) * 0.01)).tolist()
+    # carries it onto a thread end, and the figure would be the end's contact); 0.4 N·m is above s30's
+    # no-load torque (0.22 N·m, docs/model.md §4.5), so the screw turns rather than sticking
+    torque = (TORQUE_AMPLITUDE_NM * np.cos(np.arange(n) * 0.01)).tolist()
     load = 0.0
     paths = {}
     for name in MODELS:
@@ -343,7 +345,8 @@ def batch_figures(quick: bool) -> list[dict]:
     sim_s = 1.0 if quick else 5.0
     n = int(sim_s / DT)
     params = preset(PRESET)
-    torque = 0.05 * np.cos(2 * math.pi * 1.0 * DT * np.arange(n))  # reversals about the start, on the threads
+    # reversals about the start, on the threads, above the no-load torque
+    torque = TORQUE_AMPLITUDE_NM * np.cos(2 * math.pi * 1.0 * DT * np.arange(n))
     targets = {"fu2018": 1000.0, "elastic": 300.0}
     figs = []
     for name in MODELS:
