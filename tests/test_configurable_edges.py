@@ -76,9 +76,10 @@ def test_steady_state_never_prints_nan(args):
 def test_ideal_pressed_onto_an_end_settles_at_a_large_step(dt, where):
     """A rigid screw pushed onto a 1e8 N/m contact (ω = √(k/m) ≈ 518 rad/s, so h ω = 10–52: unresolved, and
     physically damped at ζ ≈ 0.5 within ~10 ms) must come to rest there, the contact carrying the push: the
-    nut's static equilibrium (stop force = load). It flipped the screw speed ±4…±18 rad/s every step."""
+    nut's static equilibrium (stop force = load). It flipped the screw speed ±4…±18 rad/s every step.
+    The drag is off: its seals hold a screw at rest anywhere within ±T₀/(L/2π) of that equilibrium."""
     from prsm_sim.actuator import ActuatorParams, DriveParams, MotorParams, StopParams
-    p = preset("s30")
+    p = preset("s30").with_overrides({"drag.enabled": False})
     half = 0.5 * p.geometry.travel_m
     if where == "thread end":
         sim = Simulator(p, "ideal", dt, nut_position_m=-half + 0.001)
