@@ -55,7 +55,8 @@ SLIDING_ONLY = """\
   friction.mu_nut_roller_rolling: 0.0
   friction.mu_pin: 0.0
   friction.lubricant_viscosity_m2_s: 0.0
-"""
+  drag.enabled: false
+"""  # the papers' sliding-only screw: s30's load-independent losses (drag) off too
 SUBPROCESS_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0", "PYTHONUNBUFFERED": "1"}
 
 
