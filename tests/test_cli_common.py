@@ -109,9 +109,10 @@ def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(t
     from prsm_ros.cli import demo
     bag = tmp_path / "run.mcap"
     stopped = tmp_path / "node-stopped"
+    # the handler first, then the bag that tells the test the node is up (else SIGINT can come between)
     node_code = ("import signal, sys, time, pathlib\n"
-                 f"pathlib.Path({str(bag)!r}).write_bytes(b'bag')\n"
                  f"signal.signal(signal.SIGINT, lambda *a: (pathlib.Path({str(stopped)!r}).touch(), sys.exit(0)))\n"
+                 f"pathlib.Path({str(bag)!r}).write_bytes(b'bag')\n"
                  "time.sleep(120)\n")
 
     def start_module(module, args, env, **kw):
