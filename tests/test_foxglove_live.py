@@ -31,6 +31,8 @@ from ros_procs import CEILING_FACTOR, NodeProcess, ros_test_env
 
 websockets = pytest.importorskip("websockets")
 
+pytestmark = pytest.mark.slow  # node and bag-server processes over loopback (about 30 s)
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = ros_test_env("test_foxglove_live")
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
