@@ -87,18 +87,18 @@ class RecorderSink:
         return f"{self.recorder.error} ({self.recorder.messages_dropped} messages not recorded)"
 
 
-class RerunOutputSink:
-    """The live Rerun view (`prsm_ros.viz.sink.RerunSink`) as a sink of step outputs."""
+class LiveViewSink:
+    """A live view (Rerun, Foxglove) as a sink: it drops and counts rather than slowing the simulation,
+    reports its own figures under `prefix`, and takes nothing it is not given a method for."""
 
-    takes_messages, takes_outputs = False, True
+    takes_messages, takes_outputs = False, False
 
-    def __init__(self, rerun) -> None:
-        self.rerun = rerun
-        self.submit = rerun.submit
+    def __init__(self, view, prefix: str) -> None:
+        self.view, self.prefix = view, prefix
 
     @property
     def error(self) -> str | None:
-        return self.rerun.error
+        return self.view.error
 
     def write(self, topic: str, data: Any, stamp_ns: int) -> None:
         return None
@@ -106,17 +106,31 @@ class RerunOutputSink:
     def write_many(self, items: list[tuple[str, Any, int]]) -> None:
         return None
 
+    def submit(self, out: Any) -> None:
+        return None
+
     def backlogged(self) -> bool:
-        return False  # a live view drops and counts rather than slowing the simulation
+        return False
 
     def report(self) -> dict[str, Any]:
-        return {f"rerun_{k}": v for k, v in self.rerun.stats().items() if v is not None}
+        return {f"{self.prefix}_{k}": v for k, v in self.view.stats().items() if v is not None}
 
     def close(self, timeout_s: float) -> bool:
-        return self.rerun.close(timeout_s=timeout_s)
+        return self.view.close(timeout_s=timeout_s)
 
     def describe_failure(self) -> str:
-        return str(self.rerun.error)
+        return str(self.view.error)
+
+
+class RerunOutputSink(LiveViewSink):
+    """The live Rerun view (`prsm_ros.viz.sink.RerunSink`) as a sink of step outputs."""
+
+    takes_outputs = True
+
+    def __init__(self, rerun) -> None:
+        super().__init__(rerun, "rerun")
+        self.rerun = rerun
+        self.submit = rerun.submit
 
 
 class Sinks:
@@ -206,38 +220,17 @@ def open_rerun(cfg: NodeConfig, node_name: str, channels: dict, layout: Internal
         raise ConfigError(str(e)) from None
 
 
-class FoxgloveSink:
+class FoxgloveSink(LiveViewSink):
     """The live Foxglove server (`prsm_ros.live.foxglove_server.FoxgloveLive`) as a sink of messages:
     the viewers get what the bag gets, as it happens."""
 
-    takes_messages, takes_outputs = True, False
+    takes_messages = True
 
     def __init__(self, live) -> None:
+        super().__init__(live, "foxglove")
         self.live = live
         self.write = live.write
-
-    @property
-    def error(self) -> str | None:
-        return self.live.error
-
-    def write_many(self, items: list[tuple[str, Any, int]]) -> None:
-        for item in items:
-            self.live.write(*item)
-
-    def submit(self, out: Any) -> None:
-        return None
-
-    def backlogged(self) -> bool:
-        return False  # a live view drops and counts rather than slowing the simulation
-
-    def report(self) -> dict[str, Any]:
-        return {f"foxglove_{k}": v for k, v in self.live.stats().items() if v is not None}
-
-    def close(self, timeout_s: float) -> bool:
-        return self.live.close()
-
-    def describe_failure(self) -> str:
-        return str(self.live.error)
+        self.write_many = live.write_many
 
 
 def open_foxglove(cfg: NodeConfig, node_name: str, channels: dict, layout: InternalLayout):
