@@ -8,11 +8,15 @@ it themselves (e.g. RERUN=off for node processes, a per-module ROS_DOMAIN_ID in 
 - Rerun on by default (a shell's RERUN=off would silently turn every sink off).
 - ROS 2 on this machine only, over the one RMW the `ros` extra installs, on a domain of this
   pytest process; nothing from the shell that changes discovery, security, logging or QoS.
+- SIGINT handled (not ignored) in this process, so the children the tests start can be stopped with
+  Ctrl-C: a shell starting pytest in the background (`pytest &`, nohup) sets SIGINT to ignored,
+  and an ignored signal is inherited across exec, so every Ctrl-C test would wait out its run.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 
 # The RMW the `ros` extra installs; a shell's RMW_IMPLEMENTATION=rmw_cyclonedds_cpp would fail to load.
 RMW = "rmw_fastrtps_cpp"
@@ -44,6 +48,8 @@ CLEARED = (
 
 
 def pytest_configure(config) -> None:
+    # A Python handler (unlike SIG_IGN) is reset to the default at exec, where Python installs its own.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     for name in CLEARED:
         os.environ.pop(name, None)
     os.environ.update(HERMETIC_ENV)

@@ -110,6 +110,7 @@ class RosClient:
         self.received: dict[str, list] = {}
         self._pubs: dict[str, Any] = {}
         self._subs: dict[str, Any] = {}
+        self._clients: dict[tuple[str, Any], Any] = {}
 
     # -- topics --------------------------------------------------------------------------
     def subscribe(self, topic: str, msg_class, qos=None) -> list:
@@ -147,7 +148,7 @@ class RosClient:
             self.executor.spin_once(timeout_sec=0.01)
 
     def wait_for_node(self, proc: NodeProcess | None = None, timeout: float = 20.0) -> None:
-        """Until the node is on the graph and every publisher and subscription we made is matched.
+        """Until the node is on the graph and every publisher, subscription and client we made is matched.
 
         Matching both ways matters in lockstep: a state published before our reader matched the
         node's writer is lost (volatile QoS), and the loop would wait for it forever.
@@ -158,7 +159,8 @@ class RosClient:
             if self.node.count_subscribers(f"{self.node_path}/screw_torque") == 0:
                 return False
             return all(p.get_subscription_count() > 0 for p in self._pubs.values()) and \
-                all(s.get_publisher_count() > 0 for s in self._subs.values())
+                all(s.get_publisher_count() > 0 for s in self._subs.values()) and \
+                all(c.service_is_ready() for c in self._clients.values())
         self.spin_until(ready, timeout, "the node to appear on the graph")
         others = [n for n in self.node.get_node_names() if n not in (self.node_path.split("/")[-1], self.node.get_name())]
         n_torque = self.node.count_subscribers(f"{self.node_path}/screw_torque")
@@ -166,15 +168,34 @@ class RosClient:
                                f"ROS_DOMAIN_ID {self.domain} (nodes: {others})")
 
     # -- services and parameters -----------------------------------------------------------
-    def call(self, service: str, srv_class, request=None, timeout: float = 10.0):
-        client = self.node.create_client(srv_class, service)
+    def client(self, service: str, srv_class):
+        """One client per service for the life of this RosClient.
+
+        Creating and destroying a client per call makes DDS discover a new pair of endpoints each
+        time; one client per service is discovered once (and a test may make it before
+        `wait_for_node`, which then waits for it too).
+        """
+        key = (service, srv_class)
+        if key not in self._clients:
+            self._clients[key] = self.node.create_client(srv_class, service)
+        return self._clients[key]
+
+    def call(self, service: str, srv_class, request=None, timeout: float = 10.0, proc: NodeProcess | None = None):
+        """Call `service` and return its response; a timeout names what the graph held then."""
+        client = self.client(service, srv_class)
+
+        def ready() -> bool:
+            if proc is not None and proc.proc.poll() is not None:
+                raise AssertionError(f"node exited with {proc.proc.returncode}:\n{proc.stderr}")
+            return client.service_is_ready()
         try:
-            self.spin_until(client.service_is_ready, timeout, f"service {service}")
-            future = client.call_async(request if request is not None else srv_class.Request())
-            self.spin_until(future.done, timeout, f"the response of {service}")
-            return future.result()
-        finally:
-            self.node.destroy_client(client)
+            self.spin_until(ready, timeout, f"service {service}")
+        except AssertionError as e:
+            listed = service in dict(self.node.get_service_names_and_types())
+            raise AssertionError(f"{e} (on the graph: {listed}; nodes: {self.node.get_node_names()})") from None
+        future = client.call_async(request if request is not None else srv_class.Request())
+        self.spin_until(future.done, timeout, f"the response of {service}")
+        return future.result()
 
     def set_parameters(self, values: dict[str, Any], timeout: float = 10.0):
         """Set the node's parameters atomically (SetParametersAtomically); returns its SetParametersResult."""

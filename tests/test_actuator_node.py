@@ -27,6 +27,7 @@ def plugin_command(velocity: float, position: float):
     return JointState(name=["screw_joint", "nut_joint"], position=[position], velocity=[velocity], effort=[])
 
 
+@pytest.mark.slow
 def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
@@ -48,6 +49,7 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
         cli.publisher("/prsm_actuator/inject_fault", String)
         cli.publisher("/prsm_actuator/brake_command", Bool)
         events = cli.subscribe("/prsm_actuator/events", String)
+        cli.client("/prsm_actuator/brake", SetBool)
         cli.wait_for_node(proc)
         n = 0
 
@@ -66,7 +68,7 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
         assert res.successful, res.reason
         for x in positions:
             send("/prsm_actuator/position_command", Float64(data=x))
-        brake = cli.call("/prsm_actuator/brake", SetBool, SetBool.Request(data=True))
+        brake = cli.call("/prsm_actuator/brake", SetBool, SetBool.Request(data=True), proc=proc)
         assert not brake.success and "owned by" in brake.message  # the owner brakes on ~/brake_command
         cli.publish("/prsm_actuator/brake_command", Bool(data=True))
         cli.spin_until(lambda: any("no brake fitted" in m.data for m in events), 10.0, "the brake refusal event")
@@ -117,6 +119,7 @@ def test_velocity_then_position_mode_measured_and_true_states_equal_the_core(tmp
             "/prsm_actuator/inject_fault", "/prsm_actuator/events"} <= set(bag.topics)
 
 
+@pytest.mark.slow
 def test_bare_node_refuses_a_velocity_interface_at_runtime(tmp_path):
     """Without `actuator` the node runs the bare model (today's outputs); switching needs one at start-up."""
     params = {"model": "ideal", "preset": "s30", "time_mode": "lockstep", "record": False}
@@ -148,6 +151,7 @@ def test_prsm_demo_tracks_in_velocity_and_position_modes(tmp_path):
         assert 0 < rms_mm < 0.1, res.stdout
 
 
+@pytest.mark.slow
 def test_reset_while_paused_with_an_actuator_publishes_the_rest_state(tmp_path):
     """`~/reset` while paused publishes the reset state at once; with an actuator that state's sensors
     are read from the actuator's state (the node used to fail here). Oracle: an offline

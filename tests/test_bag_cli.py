@@ -134,6 +134,7 @@ def test_export_writes_the_recorded_values_per_field(tracking, tmp_path, capsys)
     assert float(rows[k]["/prsm_actuator/nut_position_reference:nut_joint.position"]) == ref[250]
 
 
+@pytest.mark.slow
 def test_report_metrics_agree_with_the_trajectory(tracking, tmp_path, capsys):
     path, traj, ref = tracking
     rc, out, _ = _cli(capsys, "report", path, "-o", tmp_path / "rep", "--json", "--dynamic-load-rating-n", "50000")
@@ -289,6 +290,7 @@ _SUBSCRIBER = """
 """
 
 
+@pytest.mark.slow
 def test_play_republishes_the_bag_over_dds_with_clock(tracking):
     path, traj, _ = tracking
     n = int(np.sum(traj["time_s"] <= 0.2 + 1e-9))

@@ -36,6 +36,7 @@ def _case(ops, verbs) -> dict:
                              memory_bytes=fuzz.DEFAULT_MEMORY_MIB << 20, timeout_s=fuzz.DEFAULT_TIMEOUT_S)
 
 
+@pytest.mark.slow
 @settings(max_examples=4, derandomize=True, deadline=None, suppress_health_check=list(HealthCheck))
 @given(OPS)
 def test_mutated_bags_through_info_check_and_repair(ops):
@@ -49,6 +50,7 @@ def test_mutated_bags_through_every_verb(ops):
     assert _case(ops, fuzz.VERBS) == {}, ops
 
 
+@pytest.mark.slow
 def test_the_fuzzer_sees_a_traceback_a_hang_and_a_short_repair(tmp_path, monkeypatch):
     """The oracle itself: a verb that raises, one that never ends, and a repair that keeps fewer
     messages than the stream reader are each reported (by stand-ins for main and the counter)."""

@@ -135,6 +135,7 @@ def actuated(tmp_path_factory):
                                  preset_name="s30", progress=False), traj
 
 
+@pytest.mark.slow
 def test_each_figure_in_its_category_and_no_empty_panels(actuated, tmp_path):
     path, traj = actuated
     r = report(open_bag(path), tmp_path / "rep", progress=False)
@@ -153,6 +154,7 @@ def test_each_figure_in_its_category_and_no_empty_panels(actuated, tmp_path):
     assert "actuator.png" not in names
 
 
+@pytest.mark.slow
 def test_plots_mark_faults_and_leave_out_empty_panels(actuated, braking, tmp_path):
     from prsm_ros.bag.figures import force_panels
     from prsm_ros.bag.report import ACTUATOR_BLOCKS, _internal_series, _marks
@@ -171,6 +173,7 @@ def test_plots_mark_faults_and_leave_out_empty_panels(actuated, braking, tmp_pat
     assert "actuator.png" not in {Path(p).name for p in r["plots"]} and r["actuator"] is None
 
 
+@pytest.mark.slow
 def test_output_folder_defaults_to_one_beside_the_bag(braking, tmp_path, capsys):
     path = tmp_path / "run.mcap"
     path.write_bytes(Path(braking[0]).read_bytes())
@@ -301,6 +304,7 @@ def test_measured_against_ground_truth_paired_by_stamp(tmp_path):
     assert r["topics"]["ground_truth"] == "/prsm_actuator/ground_truth/joint_states"
 
 
+@pytest.mark.slow
 def test_legends_stay_beside_their_own_panel(monkeypatch, tmp_path):
     """The fu2018 roller panel has 13 force curves: its legend must not reach into the next panel."""
     import matplotlib

@@ -38,6 +38,7 @@ def test_every_command_has_version(command):
     assert r.stdout.strip() == f"{command} {__version__}", (r.stdout, r.stderr)
 
 
+@pytest.mark.slow
 def test_ctrl_c_in_prsm_sim_run_says_what_was_kept_and_exits_130(tmp_path):
     """A long run interrupted while it steps: one line saying nothing was written, exit 130."""
     csv = tmp_path / "run.csv"

@@ -76,6 +76,7 @@ def test_a_keep_last_1_reader_on_dds(monkeypatch):
         rclpy.try_shutdown(context=ctx)
 
 
+@pytest.mark.slow
 def test_node_counts_what_its_reader_replaced_and_the_bag_says_so(tmp_path, capsys):
     """A controller bursts N torques into a realtime node: every command is either in the bag
     (received) or counted as superseded, on /diagnostics and in `prsm-bag info`."""

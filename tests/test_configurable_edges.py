@@ -59,6 +59,7 @@ def test_jones2016_refuses_zero_friction_in_one_line():
     assert r.returncode == 2 and "friction.viscous_n_s_m" in r.stderr and "nan" not in r.stdout.lower()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args", [("--load", "0"), ("--set", "friction.viscous_n_s_m=1e-12", "--load", "0"),
                                   ("--torque", "0", "--load", "0")])
 def test_steady_state_never_prints_nan(args):

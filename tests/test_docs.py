@@ -43,7 +43,7 @@ def python_blocks(markdown: str) -> list[str]:
 PAGES = sorted([ROOT / "README.md", *ROOT.glob("docs/*.md")], key=lambda p: (p.name != "README.md", p.name))
 # The library's pages run in the README's test command (about half a minute); the pages that start
 # nodes, demos, Ray or benchmarks run in the slow tier `.ci/run` runs after it (several minutes).
-FAST_PAGES = {"guide.md", "models.md"}
+FAST_PAGES = {"guide.md"}  # the rest run in the slow tier
 SHELLS = ("bash", "sh", "shell")
 DATA = ("yaml", "yml", "json", "xml", "text", "toml")
 SKIP_MARK = "# not run by the docs test:"
@@ -283,6 +283,7 @@ def test_readme_is_for_users():
         assert f"`{name}" in table, f"{name} missing from the README's command table"
 
 
+@pytest.mark.slow
 def test_docs_command_builds_reference_and_guide(tmp_path, capsys):
     pytest.importorskip("pdoc")
     from prsm_ros.cli import docs

@@ -118,6 +118,7 @@ def test_the_flow_counts_the_port_energy_enters_by():
     assert out.energy_flow_j > 1.0 and out.energy_fault == 0.0  # judged, and the books close
 
 
+@pytest.mark.slow
 def test_no_shipped_preset_scenario_and_model_trips_the_guard():
     # Conservation law over every shipped combination at `prsm-sim run`'s default duration (1 s): the books
     # close within the guard's limit, and where the efficiency is defined it lies in [0, 1].

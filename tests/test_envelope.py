@@ -147,6 +147,7 @@ def test_cases_found_by_the_envelope_command(name):
     _check(FOUND[name])
 
 
+@pytest.mark.slow
 @settings(derandomize=True, deadline=None, max_examples=100, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_envelope(data):

@@ -78,6 +78,7 @@ def _write_csv(path, rec: Recording, speed=True):
             f.write(",".join(repr(float(v)) for v in row) + "\n")
 
 
+@pytest.mark.slow
 def test_quantised_noisy_csv_intervals_cover_the_hidden_plant(hidden, tmp_path, capsys):
     """4096 counts/rev on the screw, 1 µm of noise on the nut, no speed column: every 95 % interval covers."""
     files = []
@@ -173,6 +174,7 @@ def test_excite_writes_a_bounded_signal(tmp_path, capsys):
     assert cli.main(["excite", "-o", str(tmp_path / "ms.csv"), "--duration", "1"]) == 0
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_nothing_and_exits_130(hidden, tmp_path):
     import signal
     import subprocess

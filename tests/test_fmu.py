@@ -332,6 +332,7 @@ def test_fmi2_fu2018_bare_equals_the_library(fmus):
     check_fmu(fmus, 2, "fu2018", "bare")
 
 
+@pytest.mark.slow
 def test_fmi3_elastic_velocity_actuator_equals_the_library(fmus):
     check_fmu(fmus, 3, "elastic", "velocity")
 
@@ -344,6 +345,7 @@ def test_fmu_matrix_equals_the_library(fmus, fmi, model, case):
     check_fmu(fmus, fmi, model, case)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmi", [2, 3])
 def test_fmu_state_get_set_serialise_continue_bit_for_bit(fmus, fmi):
     path, cfg = fmus(fmi, "fu2018", "bare")
@@ -400,6 +402,7 @@ def test_an_fmu_of_another_prsm_version_is_refused_at_instantiation(fmus, tmp_pa
     assert any("built by prsm 0.0.1" in m and f"has prsm {__version__}" in m for m in messages), messages
 
 
+@pytest.mark.slow
 def test_cli_builds_an_fmu_that_validates(tmp_path):
     out = tmp_path / "cli.fmu"
     r = subprocess.run([sys.executable, "-m", "prsm_ros.fmu.cli", "build", "--fmi", "3", "--preset", "s30",
@@ -486,6 +489,7 @@ drv.close()
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmi", [2, 3])
 def test_damaged_states_give_an_error_never_a_crash_and_never_print_the_blob(fmus, fmi):
     """Damaged blobs (cut, not UTF-8, not JSON, nested 1e5 deep, another format, a wrong key) set

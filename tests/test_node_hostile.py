@@ -157,6 +157,7 @@ def test_a_10_khz_second_writer_cannot_take_the_actuator_from_its_owner(tmp_path
     assert len(refusal_events) == 1
 
 
+@pytest.mark.slow
 def test_a_10_million_step_request_is_accepted_and_sigterm_still_ends_the_node(tmp_path):
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
@@ -183,6 +184,7 @@ def test_a_10_million_step_request_is_accepted_and_sigterm_still_ends_the_node(t
     assert 0 < b.topics["/joint_states"].count < 10_000_000
 
 
+@pytest.mark.slow
 def test_a_lockstep_command_of_a_million_steps_leaves_the_node_responsive(tmp_path):
     """lockstep_steps at its maximum: the command's steps run in slices; services answer, SIGTERM ends the node."""
     from sensor_msgs.msg import JointState
@@ -204,6 +206,7 @@ def test_a_lockstep_command_of_a_million_steps_leaves_the_node_responsive(tmp_pa
         assert proc.stop(signal.SIGTERM) == 0, proc.stderr
 
 
+@pytest.mark.slow
 def test_a_fault_or_brake_from_a_participant_that_does_not_own_the_actuator_is_refused(tmp_path):
     from std_msgs.msg import Bool, Float64, String
     from std_srvs.srv import SetBool

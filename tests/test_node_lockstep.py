@@ -60,7 +60,8 @@ def offline(model: str, torques: list[float]):
     return [sim.step(tau, LOAD_N) for tau in torques for _ in range(STEPS_PER_COMMAND)]
 
 
-@pytest.mark.parametrize("model", MODEL_NAMES)
+# one model in the default tier (the node path is the same for all), the others in the slow tier
+@pytest.mark.parametrize("model", [pytest.param(m, marks=[] if m == "ideal" else [pytest.mark.slow]) for m in MODEL_NAMES])
 def test_lockstep_states_equal_offline_core(tmp_path, model):
     got = run_lockstep(tmp_path, model, TORQUES)
     want = offline(model, TORQUES)
@@ -81,12 +82,14 @@ def test_lockstep_states_equal_offline_core(tmp_path, model):
     assert want[-1].nut_position_m != 0.0 and math.isfinite(want[-1].nut_position_m)
 
 
+@pytest.mark.slow
 def test_clock_advances_once_per_step(tmp_path):
     got = run_lockstep(tmp_path, "jones2016", TORQUES[:8])
     ns = [c.clock.sec * 10**9 + c.clock.nanosec for c in got["clock"]]
     assert ns == [1_000_000 * (k + 1) for k in range(8 * STEPS_PER_COMMAND)]
 
 
+@pytest.mark.slow
 def test_lockstep_is_deterministic_across_runs(tmp_path):
     """Two node processes, the same command sequence → identical joint_states sequences (bit for bit)."""
     torques = [0.3 * math.sin(0.7 * k) + 0.1 * k for k in range(30)]

@@ -65,6 +65,7 @@ def bag_events(path) -> list[dict]:
     return [json.loads(m.msg.data) for m in open_bag(path).messages([f"{NODE}/events"])]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("actuator", ["", ACTUATOR], ids=["bare", "actuator"])
 def test_requests_in_many_orders_never_kill_the_node_and_a_thread_end_is_an_event(tmp_path, actuator):
     from std_msgs.msg import Bool, Float64, String
@@ -128,6 +129,7 @@ def test_requests_in_many_orders_never_kill_the_node_and_a_thread_end_is_an_even
     assert reached and reached[-1]["source"] == "plant" and abs(reached[-1]["details"]["force_n"]) > 0
 
 
+@pytest.mark.slow
 def test_model_failure_stops_stepping_reports_error_and_event_and_reset_recovers(tmp_path):
     from std_msgs.msg import Float64
     from std_srvs.srv import SetBool, Trigger

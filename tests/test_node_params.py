@@ -45,6 +45,7 @@ def bad_starts(tmp_path_factory):
         p.__exit__()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", range(len(BAD_STARTS)), ids=[next(iter(p)) for p, _ in BAD_STARTS])
 def test_invalid_parameter_stops_startup_with_one_clear_line(bad_starts, k):
     proc, expected = bad_starts[k], BAD_STARTS[k][1]
@@ -76,6 +77,7 @@ def assert_same(msgs, outs):
           (o.screw_torque_nm, o.nut_force_n)) for o in outs]
 
 
+@pytest.mark.slow
 def test_params_file_and_runtime_changes(tmp_path):
     """Start from a ros__parameters file; a valid runtime change takes effect at once, invalid ones change nothing."""
     from sensor_msgs.msg import JointState
@@ -153,6 +155,7 @@ def _start(tmp_path, *ros_args: str):
                           env=ENV, cwd=tmp_path, capture_output=True, text=True, timeout=60 * CEILING_FACTOR)
 
 
+@pytest.mark.slow
 def test_params_files_broken_missing_wildcard_and_for_another_node(tmp_path):
     """One line and exit 2 for a file that cannot be read; warnings (not errors) for names in a `/**`
     section and for a file with no section for this node; rclpy's own parameters accepted."""

@@ -85,6 +85,7 @@ def test_nan_is_rejected_over_limit_saturated_bad_joint_state_rejected(tmp_path)
     assert "Traceback" not in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("behaviour, after", [("zero", 0.0), ("hold", 1.25)])
 def test_watchdog_acts_after_cmd_timeout_of_simulation_time(tmp_path, behaviour, after):
     """One command, then 20 steps: with cmd_timeout 10.5 ms, steps starting after t = 10.5 ms time out."""
@@ -103,6 +104,7 @@ def test_watchdog_acts_after_cmd_timeout_of_simulation_time(tmp_path, behaviour,
         assert proc.stop() == 0
 
 
+@pytest.mark.slow
 def test_non_finite_state_faults_reports_error_and_reset_recovers(tmp_path):
     """fu2018 with a vanishing moved mass and no screw/roller inertia yields NaN on its first step."""
     from std_msgs.msg import Float64

@@ -21,6 +21,7 @@ NOTEBOOK = Path(__file__).resolve().parent.parent / "examples" / "getting_starte
 BUDGET_S = 30.0  # a user's first run on a quiet machine, kernel start-up included
 
 
+@pytest.mark.slow
 def test_getting_started_notebook_runs(tmp_path):
     nb = nbformat.read(NOTEBOOK, as_version=4)
     assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code")  # shipped clean

@@ -270,6 +270,7 @@ def _many_chunks(path, channels: int, chunks: int, pack: bool):
     return retained / chunks
 
 
+@pytest.mark.slow
 def test_chunk_indexes_are_kept_packed_and_the_file_is_unchanged(tmp_path):
     """Recorder memory per chunk (what grows with realtime recording): the mcap Writer's own
     ChunkIndex objects are the oracle for the bytes, its unpacked memory for the saving."""
@@ -460,6 +461,7 @@ def _assert_exact_prefix(values: list[float], scale: float = 1.0) -> int:
     return len(values)
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_a_file_readable_up_to_its_last_complete_chunk(tmp_path):
     from mcap.exceptions import McapError
     from mcap.reader import NonSeekingReader
@@ -522,6 +524,7 @@ def _unshare_tmpfs_available() -> bool:
     return res.stdout.strip() == "ok"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not _unshare_tmpfs_available(), reason="no user namespaces to mount a tiny tmpfs")
 def test_disk_filling_up_mid_run_stops_recording_and_keeps_what_was_flushed(tmp_path):
     """A 512 KiB tmpfs (unprivileged, in a user+mount namespace) fills up during the run."""

@@ -65,6 +65,7 @@ _CONTROLLER = """
 """
 
 
+@pytest.mark.slow
 def test_node_run_records_an_mcap_that_checks_clean_and_reports(tmp_path, capsys):
     bag = tmp_path / "node_run.mcap"
     node = subprocess.Popen([str(BIN / "prsm-node"), "--ros-args", "-p", f"record_path:={bag}",

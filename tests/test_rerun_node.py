@@ -24,6 +24,7 @@ ENV = {**ros_test_env("test_rerun_node"), "RERUN": "on"}  # the helper turns Rer
 NS = f"/rerun_test_{os.getpid()}"
 
 
+@pytest.mark.slow
 def test_node_run_in_save_mode_records_every_step(tmp_path):
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState

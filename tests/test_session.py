@@ -114,6 +114,7 @@ print("\n".join(rows))
 '''
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["fu2018", "elastic"])
 def test_state_saved_as_json_in_one_process_continues_bit_for_bit_in_another(model, tmp_path):
     """Oracle: the run itself — the saving process continues too; the restoring one must print the same bytes."""

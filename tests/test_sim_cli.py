@@ -32,6 +32,7 @@ def test_presets_params_contact():
     assert c["contacts"]["screw_exact"]["offset_deg"] == pytest.approx(-1.86, abs=0.01)
 
 
+@pytest.mark.slow
 def test_run_writes_csv_with_labelled_internal_loads(tmp_path):
     out = tmp_path / "run.csv"
     d = json.loads(run("run", "--preset", "s30", "--model", "fu2018", "--scenario", "heavy", "--duration", "0.3",
@@ -59,6 +60,7 @@ def test_errors_are_one_line_and_exit_2(args, expect):
     assert len(lines) == 1 and expect in lines[0], r.stderr
 
 
+@pytest.mark.slow
 def test_an_actuator_run_is_a_session_step_loop_bit_for_bit(tmp_path):
     """`prsm-sim run --actuator`: oracle, a hand-written `Session.step` loop (the node's path) with the same
     actuator file, command and load; the JSON summary (full precision: the last step's outputs, tail means
@@ -89,6 +91,7 @@ def test_an_actuator_run_is_a_session_step_loop_bit_for_bit(tmp_path):
     assert json.loads(run(*args).stdout)["final"] != d["final"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("text, extra, expect", [
     ("motor: {}\ndrive: {mode: velocity}\n", [], "drive.mode = 'velocity': the scenarios command the screw torque"),
     ("motor: {}\n", ["--mcap", "x.mcap"], "--mcap with --actuator"),

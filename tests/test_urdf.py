@@ -42,6 +42,7 @@ def urdf_of(*ros_args: str) -> str:
     return r.stdout
 
 
+@pytest.mark.slow
 def test_urdf_against_the_node_messages_and_a_nested_stop(tmp_path, capsys):
     from std_msgs.msg import Float64
     from prsm_ros.cli import ctl
@@ -133,6 +134,7 @@ def doc_params_file() -> str:
     return re.search(r"^```yaml\n(prsm_actuator:.*?)^```", ROS_DOC.read_text(encoding="utf-8"), re.S | re.M).group(1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("line", doc_command_lines() + ["prsm-node --urdf --ros-args --params-file actuator.yaml"],
                          ids=["nested -p", "quoted string form", "nested params file"])
 def test_documented_actuator_command_lines_in_a_shell(tmp_path, line):
@@ -154,6 +156,7 @@ def test_the_old_readme_form_is_refused_in_one_line(tmp_path):
     assert "rcl cannot read a YAML mapping" in r.stderr and "actuator.motor.fitted:=true" in r.stderr
 
 
+@pytest.mark.slow
 def test_joint_and_frame_names_from_parameters(tmp_path):
     """Renamed joints reach the node's joint_states, the wrench frame and the URDF alike."""
     from sensor_msgs.msg import JointState
@@ -168,6 +171,7 @@ def test_joint_and_frame_names_from_parameters(tmp_path):
     assert wrench[0].header.frame_id == u.joint_map["left_nut"].child == "left_nut_link"
 
 
+@pytest.mark.slow
 def test_a_nested_fault_from_a_shell_command_line_jams_the_running_node(tmp_path):
     """`-p faults.<name>.<field>:=…` typed in a shell reaches the running node: the jam starts at
     t = 0 on ~/events with the values given (the string list's form adds a second fault)."""
