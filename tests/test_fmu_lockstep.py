@@ -20,7 +20,8 @@ from test_node_lockstep import LOAD_N, STEPS_PER_COMMAND, TORQUES, lockstep_para
 DT = 1e-3
 
 
-@pytest.mark.parametrize("fmi", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("fmi", [2, 3])
 def test_node_in_lockstep_and_the_fmu_give_the_same_states(tmp_path, fmi):
     node_params = lockstep_params("fu2018", tmp_path)
     config = make_config(preset(node_params["preset"]), "fu2018", DT, None, interface="effort", load_n=LOAD_N,

@@ -93,7 +93,8 @@ def findings() -> dict[tuple[str, str, str], str]:
     out: dict[tuple[str, str, str], str] = {}
     for path, text in SOURCES.items():
         tree = ast.parse(text)
-        for name, node in _defs(tree):
+        defs = list(_defs(tree))
+        for name, node in defs:
             n = node.end_lineno - node.lineno + 1
             if isinstance(node, ast.ClassDef):
                 if n > MAX_CLASS_LINES:
@@ -104,7 +105,7 @@ def findings() -> dict[tuple[str, str, str], str]:
             if cc > MAX_COMPLEXITY:
                 out[("complexity", path, name)] = f"complexity {cc} (limit {MAX_COMPLEXITY})"
         if path != REGISTRY:
-            spans = [(node.lineno, node.end_lineno, name) for name, node in _defs(tree)]
+            spans = [(node.lineno, node.end_lineno, name) for name, node in defs]
             for line in _model_name_comparisons(tree):
                 # keyed by the innermost enclosing definition, so that edits elsewhere in the file keep the key
                 inside = [(a, name) for a, b, name in spans if a <= line <= b]

@@ -16,6 +16,7 @@ Oracle: the import statements themselves (Python's `ast`), read without importin
 from __future__ import annotations
 
 import ast
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -71,6 +72,12 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+@functools.cache
+def _tree(mod: str) -> ast.Module:
+    """The parsed source of a project module, parsed once for every check here."""
+    return ast.parse(MODULES[mod].read_text(encoding="utf-8"))
+
+
 def _is_package(mod: str) -> bool:
     return MODULES[mod].name == "__init__.py"
 
@@ -88,8 +95,16 @@ def _type_checking_only(tree: ast.AST) -> set[int]:
 def _imports(mod: str, source: str | None = None) -> list[tuple[str, str | None, int]]:
     """(module imported, name imported from it or None, line) for every import statement in `mod`
     that runs: at the top, in a function, under a condition; not those under `if TYPE_CHECKING`."""
-    out = []
-    tree = ast.parse(MODULES[mod].read_text(encoding="utf-8") if source is None else source)
+    return list(_module_imports(mod) if source is None else _imports_in(mod, ast.parse(source)))
+
+
+@functools.cache
+def _module_imports(mod: str) -> tuple[tuple[str, str | None, int], ...]:
+    return _imports_in(mod, _tree(mod))
+
+
+def _imports_in(mod: str, tree: ast.Module) -> tuple[tuple[str, str | None, int], ...]:
+    out: list[tuple[str, str | None, int]] = []
     annotation_only = _type_checking_only(tree)
     for node in ast.walk(tree):
         if id(node) in annotation_only:
@@ -103,7 +118,7 @@ def _imports(mod: str, source: str | None = None) -> list[tuple[str, str | None,
                 pkg = pkg[:len(pkg) - (node.level - 1)]
                 base = ".".join(pkg + ([base] if base else []))
             out += [(base, a.name, node.lineno) for a in node.names]
-    return out
+    return tuple(out)
 
 
 def _own_target(name: str, attr: str | None) -> str | None:
@@ -290,7 +305,7 @@ def _started_modules(mod: str, source: str | None = None) -> list[tuple[str, int
     """(project module, line) that `mod` starts as a process by its name: `start_module("pkg.mod", …)`
     or `"-m", "pkg.mod"` in an argument list."""
     out = []
-    tree = ast.parse(MODULES[mod].read_text(encoding="utf-8") if source is None else source)
+    tree = _tree(mod) if source is None else ast.parse(source)
     for node in ast.walk(tree):
         if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "start_module":
             args = node.args[:1]

@@ -20,6 +20,9 @@ from prsm_ros.bag.reader import open_bag
 from prsm_ros.bag.report import report, summary_text
 from prsm_ros.mcap.offline import write_trajectory_mcap
 
+# the figures of a report share one module-scoped run of several seconds: the whole file is in the slow tier
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("mcap")
 DT = 1e-3
 
@@ -69,7 +72,6 @@ def fu(tmp_path_factory):
     yield from _reported_run(tmp_path_factory, "fu2018", 80, 6.0, 5_000.0)
 
 
-@pytest.mark.slow
 def test_load_distribution_of_an_elastic_run_is_not_uniform_and_balances_the_force(elastic):
     path, p, out, r, figures = elastic
     assert (out / "load_distribution.png").is_file() and str(out / "load_distribution.png") in r["plots"]
@@ -92,7 +94,6 @@ def test_load_distribution_of_an_elastic_run_is_not_uniform_and_balances_the_for
     assert "elastic.mcap" in fig._suptitle.get_text() and "× the uniform share" in fig._suptitle.get_text()
 
 
-@pytest.mark.slow
 def test_every_figure_is_titled_gridded_and_flat_quantities_read_flat(fu):
     path, _, _, r, figures = fu
     names = {Path(f).name for f in r["plots"]}
@@ -146,7 +147,6 @@ def test_text_lists_only_peaks_that_moved_and_life_in_km_and_hours(fu):
     assert "km of nut travel" in line and " h " in line and "recorded duty cycle" in line and "e+" not in line
 
 
-@pytest.mark.slow
 def test_long_run_adds_a_zoom_on_its_busiest_window(tmp_path):
     from test_bag_report import write_joint_state_bag
     # 14 s at 100 Hz: still, then a 1 s burst of motion at 9 s
