@@ -876,7 +876,7 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
     dx = 0.5 * hs * (v_n + v1)
     d_delta = p * dth_s - dx
     _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E)
-    err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
+    err = f_el * d_delta - nsf * dx - (v_el1 - v_el0)
     return (err, f_str, stuck, ff, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1, v1, dx, d_delta, f_el1,
             k1, v_el1, lost1, delta1, c1, f_mid, nsf)
 
@@ -909,13 +909,24 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
         best = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra,
                         torque_nm, load_n, E, K, S)
         b_c, b_rate, last = c, rate, best
+        f_a = g_a = 0.0  # the previous attempt's held force and its miss g = secant − held (none yet: g_a = 0)
         for _attempt_no in range(int(E[EL.impact_iter])):
             err, f_str, dth_s, d_delta, v_el1, dx, nsf = last[0], last[1], last[6], last[15], last[18], last[14], \
                 last[23]
             if (abs(d_delta) < 1e-15 or abs(err) <= E[EL.impact_tol] * abs(torque_nm * dth_s)
                     + E[EL.impact_floor] * (abs(v_el1) + abs(v_el0))):
                 break
-            f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
+            # the discrete gradient: the force whose work f Δδ − nsf Δx is ΔV exactly (nsf = −∂V/∂x_N does the
+            # work nsf Δx on the nut), for this attempt's path
+            f_sec = (v_el1 - v_el0 + nsf * dx) / d_delta
+            g_b = f_sec - f_el  # f_el: the force `last` held
+            f_b = f_el
+            f_el = f_sec
+            if g_a != 0.0 and g_b != g_a:
+                # secant on g(f) = secant(f) − f through the last two attempts (the map's slope −(ωh)²/4 is
+                # nearly constant over a sub-step: one such step leaves a miss of second order)
+                f_el = f_b - g_b * (f_b - f_a) / (g_b - g_a)
+            f_a, g_a = f_b, g_b
             rate = d_delta / hs
             # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen (at a
             # contact entry the predicted midpoint may still lie in the gap, K = 0)
@@ -925,7 +936,7 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
                             extra, torque_nm, load_n, E, K, S)
             if abs(last[0]) < abs(best[0]):
                 best, b_c, b_rate = last, c, rate
-        f_str = last[1]  # the Stribeck torque as the last attempt left it
+        f_str = best[1]  # the Stribeck torque of the attempt kept (at rest it follows the held force)
         (_, _, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign, pin_abs, gear, mem, v1, dx, d_delta, f_el1, k1, v_el1,
          lost1, delta1, c1, f_mid, _) = best
         diss += d_core + b_c * b_rate * d_delta + f_str * dth_s
