@@ -330,3 +330,20 @@ def test_elastic_wide_clearance_in_a_nut_feedback_loop_keeps_its_books(clearance
         if s.energy_flow_j > 1.0:
             worst = max(worst, abs(s.energy_residual_j) / s.energy_flow_j)
     assert worst <= 1e-4, worst
+
+
+@pytest.mark.parametrize("x_n", [-0.12, 0.0, 0.1])
+def test_the_shaft_length_force_is_minus_the_slope_of_the_chain_energy(x_n):
+    """At fixed deflection δ the chain's energy V(δ, x_N) falls as the shaft lengthens: the force on the nut is
+    nsf = −∂V/∂x_N = (F²/2) d(ℓ/EA)/dx_N (envelope theorem on V = F δ − ∫δ dF), checked by a central difference;
+    its work on the nut is +nsf Δx, which the sub-step's energy balance books with that sign."""
+    from prsm_sim.models import kernels
+    from prsm_sim.models.elastic import ElasticModel
+    m = ElasticModel(preset("s30"), 1e-3, kernel="reference")
+    ref = kernels.load("reference")
+    delta, h = 2e-4, 1e-5
+    f = m.law.evaluate(delta, x_n)[0]
+    slope = (m.law.evaluate(delta, x_n + h)[2] - m.law.evaluate(delta, x_n - h)[2]) / (2 * h)
+    nsf = ref._nut_side_force(f, x_n, m._law_e)
+    assert nsf == pytest.approx(m.law.nut_side_force(f, x_n), rel=1e-12)
+    assert -slope == pytest.approx(nsf, rel=1e-6)

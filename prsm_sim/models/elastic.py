@@ -24,10 +24,13 @@ Integration: each step of dt_s is split into `substeps` sub-steps sized so that 
 the stiffest axial mode (several hundred Hz at a 1 ms step: 8 sub-steps for `s30`); each sub-step is a kick–drift–kick
 (velocity Verlet) for the nut with one `fu2018` ROS2 step (L-stable, its own stiff carrier mode)
 for the rotating core under the thread force, taken at the sub-step's midpoint. Impacts: where the
-held elastic force's work f Δδ misses the change of V (a contact closing or opening inside the
-sub-step, the first sub-steps of a Hertz contact) by more than IMPACT_TOL of the sub-step's input
-work (+ IMPACT_FLOOR of V), the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ, a
-discrete gradient whose work is ΔV exactly (at most IMPACT_ITERATIONS times, the best attempt kept).
+held elastic force's work f Δδ less the shaft-length force's nsf Δx misses the change of V (a contact
+closing or opening inside the sub-step, an impact, the first sub-steps of a Hertz contact) by more
+than IMPACT_TOL of the sub-step's input work (+ IMPACT_FLOOR of V), the sub-step is redone with the
+discrete gradient (V₁ − V₀ + nsf Δx)/Δδ, whose work is ΔV exactly (Gonzalez 1996), then by secant
+steps (at most IMPACT_ITERATIONS times, the best attempt kept). Where the path jumps with the force
+(a flank impact reversing the screw into static friction), the attempt kept creates no energy and
+its miss is booked as the contact's loss (Armero & Petőcz 1998; docs/model.md §4.3, Impacts).
 The damping force and the Stribeck torque, held over the sub-step, are booked as dissipated with
 exactly the work they did, so the ledger closes to the integration error of the core.
 
