@@ -163,6 +163,8 @@ class ElasticConstants(NamedTuple):
     impact_tol: float
     impact_floor: float
     impact_iter: float
+    c_side: float  # compliance of the flank set(s) at the static rating (the stiffest the nut gets), m/N
+    wh_refine: float  # ω h above which a step's sub-steps are halved (`_refinement`)
 
 
 FU = Fu2018Constants(*range(len(Fu2018Constants._fields)))  # the kernels' indices into a constants array
@@ -859,7 +861,7 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
     ΔV, the Stribeck torque applied, stuck, the core's end forces, ω_S, ω_C, Δθ_S, Δθ_C, the core's dissipation,
     flank sign, pin force, gear force, solver memory, v_N, Δx_N, Δδ, the chain's F, K, V, lost motion, δ and
     damping at the end, the thread force held)."""
-    hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
+    hs, m, p = K[FU.h], E[EL.m], E[EL.p]  # the sub-step: the core's step
     f_mid = f_el + c * rate
     stuck = E[EL.breakaway] != 0.0 and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
     if stuck:  # static friction holds the screw: no creep below breakaway
@@ -920,7 +922,7 @@ def _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, s
             # second order
             f_el = f_b - g_b * (f_b - f_a) / (g_b - g_a)
         f_a, g_a = f_b, g_b
-        rate = last[15] / E[EL.hs]
+        rate = last[15] / K[FU.h]
         # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen (at a contact
         # entry the predicted midpoint may still lie in the gap, K = 0)
         kk = max(k_mid, last[17])
@@ -936,8 +938,23 @@ def _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, s
     return pos, p_c, p_rate, pos[0]
 
 
+@_inlined
+def _refinement(x_n, E, levels):
+    """j ≥ 0, the least (below `levels`) for which sub-steps of hs/2^j keep ω h ≤ `wh_refine` for the chain as
+    stiff as it gets at the nut's position x_N: its flank set(s) at the static rating (`c_side`) in series with
+    the shaft between the bearing and the nut and the housing. The stiffness grows as the nut nears the fixed
+    bearing (the shaft shortens) far more than with the load (Hertz: K ∝ F^(1/3), bounded by the linear terms)."""
+    c_ext = max(abs(x_n - E[EL.x_bearing]), 1e-6) / E[EL.ea] + E[EL.c_housing]
+    wh = E[EL.hs] / math.sqrt((E[EL.c_side] + c_ext) * E[EL.mu])
+    j = 0
+    while wh > E[EL.wh_refine] and j < levels - 1:
+        wh *= 0.5
+        j += 1
+    return j
+
+
 @_compiled
-def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, K, S):
+def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, KL, S):
     """One output step of `substeps` sub-steps (`elastic` module doc): (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin
     force, gear force, memory, acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread
     force, stored energy at the end (`ElasticModel.total_stored_energy_j`)).
@@ -950,12 +967,17 @@ def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc,
     (V₁ − V₀ + nsf Δx)/Δδ of the last attempt's path (Gonzalez 1996: its work is ΔV exactly), then by secant
     steps; where the path jumps with the force, the attempt kept creates no energy and its miss is booked as the
     contact's loss. The held damping force and Stribeck torque take out exactly the work they did.
+
+    KL: the core's constants per refinement level (row j: sub-steps of hs/2^j); the step takes `substeps`·2^j
+    sub-steps with j from the chain's stiffness at the nut's position (`_refinement`).
     """
-    hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
+    j = _refinement(x_n, E, len(KL))
+    K = KL[j]
+    hs, m, p = K[FU.h], E[EL.m], E[EL.p]
     diss = w_out = 0.0
     f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
     f1 = _NAN29
-    for _ in range(int(E[EL.substeps])):
+    for _ in range(int(E[EL.substeps]) << j):
         a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) / m
         x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
         _, f_el, k_mid, _, _, _, c = _el_force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
@@ -1003,7 +1025,7 @@ def _sticks(torque_nm, f_mid, sign, pin_abs, gear, E, K, S):
 
 
 @_compiled
-def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a, load_a, E, K, S, cols,
+def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a, load_a, E, KL, S, cols,
                 comp):
     """The batch loop over `elastic_advance` (`ElasticModel._run_impl`). Fills cols (n × 17: θ_S, ω_S, θ_C, ω_C, x_N, v_N,
     thread force, slip, Δθ_S, the load's work, dissipated, stored energy, then the chain's F, K, V, lost, δ) and
@@ -1013,7 +1035,7 @@ def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, ext
         th0 = th_s
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
          f_th, e1) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a[i],
-                                     load_a[i], E, K, S)
+                                     load_a[i], E, KL, S)
         cols[i, 0], cols[i, 1], cols[i, 2], cols[i, 3], cols[i, 4], cols[i, 5] = th_s, ws, th_c, wc, x_n, v_n
         cols[i, 6], cols[i, 7] = f_th, math.sqrt(f1[8] ** 2 + f1[9] ** 2 + f1[10] ** 2)
         cols[i, 8], cols[i, 9], cols[i, 10], cols[i, 11] = th_s - th0, w_out, diss, e1
