@@ -21,13 +21,18 @@ terms). Because ℓ changes with x_N, the nut also feels −∂V/∂x_N = (F²/2
 the system conservative.
 
 Integration: each step of dt_s is split into `substeps` sub-steps sized so that ω h ≤ 0.5 for
-the stiffest axial mode (several hundred Hz at a 1 ms step: 8 sub-steps for `s30`); each sub-step is a kick–drift–kick
+the stiffest axial mode with the nut at the centre (several hundred Hz at a 1 ms step: 8 sub-steps for `s30`), times
+2^j where the chain can reach ω h > OMEGA_H_REFINE at the nut's position (the nut near the fixed bearing: a short
+shaft; `kernels._refinement`); each sub-step is a kick–drift–kick
 (velocity Verlet) for the nut with one `fu2018` ROS2 step (L-stable, its own stiff carrier mode)
 for the rotating core under the thread force, taken at the sub-step's midpoint. Impacts: where the
-held elastic force's work f Δδ misses the change of V (a contact closing or opening inside the
-sub-step, the first sub-steps of a Hertz contact) by more than IMPACT_TOL of the sub-step's input
-work (+ IMPACT_FLOOR of V), the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ, a
-discrete gradient whose work is ΔV exactly (at most IMPACT_ITERATIONS times, the best attempt kept).
+held elastic force's work f Δδ less the shaft-length force's nsf Δx misses the change of V (a contact
+closing or opening inside the sub-step, an impact, the first sub-steps of a Hertz contact) by more
+than IMPACT_TOL of the sub-step's input work (+ IMPACT_FLOOR of V), the sub-step is redone with the
+discrete gradient (V₁ − V₀ + nsf Δx)/Δδ, whose work is ΔV exactly (Gonzalez 1996), then by secant
+steps (at most IMPACT_ITERATIONS times, the best attempt kept). Where the path jumps with the force
+(a flank impact reversing the screw into static friction), the attempt kept creates no energy and
+its miss is booked as the contact's loss (Armero & Petőcz 1998; docs/model.md §4.3, Impacts).
 The damping force and the Stribeck torque, held over the sub-step, are booked as dissipated with
 exactly the work they did, so the ledger closes to the integration error of the core.
 
@@ -80,16 +85,24 @@ ELASTIC_QUANTITIES = (
 )
 PER_THREAD_QUANTITIES = (("thread_load_n", "N"), ("load_share", "1"))
 OMEGA_H_MAX = 0.5  # sub-step so that ω h ≤ this for the stiffest axial mode (Verlet phase error (ωh)²/24 ≈ 1 %)
+# A step whose chain can reach ω h above OMEGA_H_REFINE at the nut's position (the nut near the fixed bearing: a short
+# shaft, up to 4 times the stiffness at the centre) takes 2, 4 … 2^(REFINE_LEVELS − 1) times the sub-steps
+# (`kernels._refinement`): the Verlet phase error stays below (0.75)²/24 ≈ 2.3 % (it reached 4 % on s30's thread
+# end next to the bearing), and the steps of the central travel, where the count was sized, cost nothing more.
+OMEGA_H_REFINE = 0.75
+REFINE_LEVELS = 4
 FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is fitted
 # A sub-step whose held elastic force missed the change of V by more than IMPACT_TOL of the sub-step's input work
-# |τ Δθ_S| plus IMPACT_FLOOR of the elastic energy at its ends is redone with the secant force, at most
-# IMPACT_ITERATIONS times (each cuts the miss by about (ωh)²/2 ≈ 1/8). The ledger's cumulative miss is then of
-# order IMPACT_TOL of the flow; smooth contact passes on the first attempt (backlash crossings and the first
-# sub-steps of a Hertz contact pay: about 25 % more core steps on ±20 rad/s reversals into 50 µm of play).
-# The floor is small: with the screw held (static friction, no input work) a loaded chain rings on the nut, and a
-# miss of 1e-3 V per sub-step went unbooked (a 20 kN load applied to an unloaded chain tripped the energy guard).
+# |τ Δθ_S| plus IMPACT_FLOOR of the elastic energy at its ends is redone, at most IMPACT_ITERATIONS times: first
+# with the secant force of the attempt (cuts the miss by about (ωh)²/4), then by the secant through the last two
+# attempts (about 1e-2 of the miss left each time). The ledger's cumulative miss is then of order IMPACT_TOL of
+# the flow; smooth contact passes on the first attempt (backlash crossings and the first sub-steps of a Hertz
+# contact pay: about 25 % more core steps on ±20 rad/s reversals into 50 µm of play).
+# The floor is small: a chain that rings (a load step near the rating, an impact, the screw held with no input
+# work) stores far more than flows through it per sub-step, and misses of 1e-4 V per sub-step added up to 3e-4 of
+# the flow after a 200 kN load step; at 1e-5 about 2 % of default sub-steps are redone (1e-4: 0.7 %).
 IMPACT_TOL = 1e-4
-IMPACT_FLOOR = 1e-4
+IMPACT_FLOOR = 1e-5
 IMPACT_ITERATIONS = 4
 _LAW = kernels.load("reference")
 
@@ -316,16 +329,34 @@ class ElasticModel(Model):
             czs=self.czs, sin_beta=self.sin_beta, mu_c=self.mu_c, eta_rf=self.eta_running[0],
             eta_rb=self.eta_running[1], d_mu=self.d_mu, p_sb_vs=self.p_over_sin_beta_per_vs, m00=m_core[0][0],
             m01=m_core[0][1], m11=m_core[1][1], impact_tol=IMPACT_TOL, impact_floor=IMPACT_FLOOR,
-            impact_iter=float(IMPACT_ITERATIONS))
+            impact_iter=float(IMPACT_ITERATIONS), c_side=self._side_compliance(), wh_refine=OMEGA_H_REFINE)
         # the step's constants (`kernels.ElasticConstants`): a float array for numba, a tuple of Python floats for
         # the interpreter (`_law_e` always the tuple: the stored energy is computed outside the step too)
         self._law_e = tuple(self.constants)
         self._kernel_e: tuple | np.ndarray = self._law_e
+        self._kernel_core = self._core_levels(kernel)
         if kernel == "compiled":
             self._kernel_e = np.array(self._law_e, dtype=float)
             # compiled or loaded from the disk cache now, not in a realtime loop's first step
             self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
-                                     *self.core.kernel_constants)
+                                     *self._kernel_core)
+
+    def _core_levels(self, kernel: str) -> tuple:
+        """(the core's constants per refinement level j: row j steps hs/2^j, its flank geometry), as the step's
+        kernel takes them (`kernels.elastic_advance`'s KL, S: arrays compiled, tuples of floats otherwise)."""
+        c0 = self.core.constants
+        levels = tuple(tuple(c0._replace(h=c0.h / 2**j, h_min=c0.h_min / 2**j, h_zone=c0.h_zone / 2**j))
+                       for j in range(REFINE_LEVELS))
+        if kernel == "compiled":
+            return np.array(levels, dtype=float), self.core.kernel_constants[1]
+        return levels, self.core.kernel_constants[1]
+
+    def _side_compliance(self) -> float:
+        """Compliance of the nut's flank set(s) at the static rating, m/N: the stiffest the chain's nut side gets
+        (a preloaded pair: both sets, each at most as stiff as one at the rating, in parallel)."""
+        side = self.law.side
+        c = side.compliance(self.params.resolved_ratings.static_load_rating_n)
+        return 0.5 * c if self.law.preload > 0 else c
 
     def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> State:
         """At rest with the nut at `nut_position_m`; under a nut load F the chain is deflected to carry it
@@ -378,7 +409,7 @@ class ElasticModel(Model):
         cols, comp = np.empty((n, 17)), np.empty((n, len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)))
         args = self._kernel_args(state)
         th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc = self._kn.elastic_run(
-            *args, torque_nm, load_n, self._kernel_e, *self.core.kernel_constants, cols, comp)
+            *args, torque_nm, load_n, self._kernel_e, *self._kernel_core, cols, comp)
         extra = args[-1]
         final = State(screw_angle_rad=th_s, screw_speed_rad_s=ws, carrier_angle_rad=th_c, carrier_speed_rad_s=wc,
                       part=ElasticPart(int(sign), pin_abs, gear, memory_from_kernel(mem), x_n, v_n, acc, extra))
@@ -425,7 +456,7 @@ class ElasticModel(Model):
          f_th, e_end) = self._kn.elastic_advance(
             float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
             float(gear), kernel_memory(mem), float(acc), float(extra), float(torque_nm), float(load_n),
-            self._kernel_e, *self.core.kernel_constants)
+            self._kernel_e, *self._kernel_core)
         return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, memory_from_kernel(mem), acc, diss,
                 w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta, e_end)
 

@@ -163,6 +163,8 @@ class ElasticConstants(NamedTuple):
     impact_tol: float
     impact_floor: float
     impact_iter: float
+    c_side: float  # compliance of the flank set(s) at the static rating (the stiffest the nut gets), m/N
+    wh_refine: float  # ω h above which a step's sub-steps are halved (`_refinement`)
 
 
 FU = Fu2018Constants(*range(len(Fu2018Constants._fields)))  # the kernels' indices into a constants array
@@ -859,7 +861,7 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
     ΔV, the Stribeck torque applied, stuck, the core's end forces, ω_S, ω_C, Δθ_S, Δθ_C, the core's dissipation,
     flank sign, pin force, gear force, solver memory, v_N, Δx_N, Δδ, the chain's F, K, V, lost motion, δ and
     damping at the end, the thread force held)."""
-    hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
+    hs, m, p = K[FU.h], E[EL.m], E[EL.p]  # the sub-step: the core's step
     f_mid = f_el + c * rate
     stuck = E[EL.breakaway] != 0.0 and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
     if stuck:  # static friction holds the screw: no creep below breakaway
@@ -876,59 +878,118 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
     dx = 0.5 * hs * (v_n + v1)
     d_delta = p * dth_s - dx
     _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E)
-    err = f_el * d_delta + nsf * dx - (v_el1 - v_el0)
+    err = f_el * d_delta - nsf * dx - (v_el1 - v_el0)
     return (err, f_str, stuck, ff, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1, v1, dx, d_delta, f_el1,
             k1, v_el1, lost1, delta1, c1, f_mid, nsf)
 
 
+@_inlined
+def _settled(att, v_el0, torque_nm, E):
+    """The attempt's held elastic force did the work ΔV: its miss is within IMPACT_TOL of the input work plus
+    IMPACT_FLOOR of V (or the chain did not move)."""
+    return abs(att[15]) < 1e-15 or abs(att[0]) <= (E[EL.impact_tol] * abs(torque_nm * att[6])
+                                                   + E[EL.impact_floor] * (abs(att[18]) + abs(v_el0)))
+
+
+@_inlined
+def _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, sign, pin_abs, gear, mem, extra,
+            torque_nm, load_n, E, K, S):
+    """A sub-step whose held elastic force does the work ΔV (`elastic_advance`): the attempt kept, its damping
+    coefficient and rate, and the contact loss booked with it (J, ≥ 0).
+
+    Attempts: the midpoint force; the discrete gradient (V₁ − V₀ + nsf Δx)/Δδ of that attempt's path; then the
+    secant through the last two attempts on g(f) = gradient(f) − f. Where the path jumps with the force (the core
+    stops and sticks for one force and runs on for a slightly smaller one: a flank impact reversing the screw),
+    g has no root and no attempt settles: the attempt kept is then the one with the smallest miss of the held
+    force's work over ΔV that is ≥ 0, and that miss is booked as the contact's loss, so the books close exactly
+    and the step never creates energy (an energy-consistent contact step with non-negative numerical dissipation
+    at the impact: Armero & Petőcz 1998). Only where every attempt would create energy is the smallest miss kept
+    unbooked."""
+    best = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra,
+                    torque_nm, load_n, E, K, S)
+    last, b_c, b_rate = best, c, rate
+    pos, p_c, p_rate, have_pos = best, c, rate, best[0] >= 0.0  # the best attempt that creates no energy
+    f_a = g_a = 0.0  # the previous attempt's held force and its g (none yet: g_a = 0)
+    for _attempt_no in range(int(E[EL.impact_iter])):
+        if _settled(last, v_el0, torque_nm, E):
+            return best, b_c, b_rate, 0.0
+        # the discrete gradient for this attempt's path: nsf = −∂V/∂x_N does the work nsf Δx on the nut
+        f_sec = (last[18] - v_el0 + last[23] * last[14]) / last[15]
+        g_b, f_b = f_sec - f_el, f_el  # f_el: the force `last` held
+        f_el = f_sec
+        if g_a != 0.0 and g_b != g_a:
+            # the map's slope, about −(ωh)²/4, is nearly constant over a sub-step: a secant step leaves a miss of
+            # second order
+            f_el = f_b - g_b * (f_b - f_a) / (g_b - g_a)
+        f_a, g_a = f_b, g_b
+        rate = last[15] / K[FU.h]
+        # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen (at a contact
+        # entry the predicted midpoint may still lie in the gap, K = 0)
+        kk = max(k_mid, last[17])
+        c = 2.0 * E[EL.zeta] * math.sqrt(kk * E[EL.mu]) if kk > 0 else 0.0
+        last = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, last[1], sign, pin_abs, gear, mem, extra,
+                        torque_nm, load_n, E, K, S)
+        if abs(last[0]) < abs(best[0]):
+            best, b_c, b_rate = last, c, rate
+        if last[0] >= 0.0 and (not have_pos or last[0] < pos[0]):
+            pos, p_c, p_rate, have_pos = last, c, rate, True
+    if _settled(best, v_el0, torque_nm, E) or not have_pos:
+        return best, b_c, b_rate, 0.0
+    return pos, p_c, p_rate, pos[0]
+
+
+@_inlined
+def _refinement(x_n, E, levels):
+    """j ≥ 0, the least (below `levels`) for which sub-steps of hs/2^j keep ω h ≤ `wh_refine` for the chain as
+    stiff as it gets at the nut's position x_N: its flank set(s) at the static rating (`c_side`) in series with
+    the shaft between the bearing and the nut and the housing. The stiffness grows as the nut nears the fixed
+    bearing (the shaft shortens) far more than with the load (Hertz: K ∝ F^(1/3), bounded by the linear terms)."""
+    c_ext = max(abs(x_n - E[EL.x_bearing]), 1e-6) / E[EL.ea] + E[EL.c_housing]
+    wh = E[EL.hs] / math.sqrt((E[EL.c_side] + c_ext) * E[EL.mu])
+    j = 0
+    while wh > E[EL.wh_refine] and j < levels - 1:
+        wh *= 0.5
+        j += 1
+    return j
+
+
 @_compiled
-def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, K, S):
+def elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n, E, KL, S):
     """One output step of `substeps` sub-steps (`elastic` module doc): (θ_S, ω_S, θ_C, ω_C, x_N, v_N, sign, pin
     force, gear force, memory, acceleration, dissipated J, load work J, end forces (29), F, K, V, lost, δ, thread
     force, stored energy at the end (`ElasticModel.total_stored_energy_j`)).
 
     Screw side and nut see the same thread force, taken at the sub-step's midpoint (predicted with the
     accelerations at its start): equal and opposite impulses, second order in the axial mode. Energy
-    consistency of the held elastic force: its work f Δδ (+ the nut-side term) must equal the change of V.
-    Where the contact closes or opens inside the sub-step (a backlash crossing, an impact) the midpoint force
-    does not see it; there the sub-step is redone with the secant force (V₁ − V₀ − nsf Δx)/Δδ of the last
-    attempt (a discrete gradient: its work is ΔV exactly), a contraction since (ωh)²/2 < 1; the attempt with
-    the smallest miss is kept. The held damping force and Stribeck torque take out exactly the work they did.
+    consistency of the held elastic force: its work f Δδ less the nut-side term's nsf Δx must equal the change
+    of V. Where the contact closes or opens inside the sub-step (a backlash crossing, an impact) the midpoint
+    force does not see it; there the sub-step is redone (`_settle`) with the discrete gradient
+    (V₁ − V₀ + nsf Δx)/Δδ of the last attempt's path (Gonzalez 1996: its work is ΔV exactly), then by secant
+    steps; where the path jumps with the force, the attempt kept creates no energy and its miss is booked as the
+    contact's loss. The held damping force and Stribeck torque take out exactly the work they did.
+
+    KL: the core's constants per refinement level (row j: sub-steps of hs/2^j); the step takes `substeps`·2^j
+    sub-steps with j from the chain's stiffness at the nut's position (`_refinement`).
     """
-    hs, m, p = E[EL.hs], E[EL.m], E[EL.p]
+    j = _refinement(x_n, E, len(KL))
+    K = KL[j]
+    hs, m, p = K[FU.h], E[EL.m], E[EL.p]
     diss = w_out = 0.0
     f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
     f1 = _NAN29
-    for _ in range(int(E[EL.substeps])):
+    for _ in range(int(E[EL.substeps]) << j):
         a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) / m
         x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
         _, f_el, k_mid, _, _, _, c = _el_force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
                                                x_mid, v_n + 0.5 * hs * a_n, extra, E)
         rate = p * (ws + 0.5 * hs * acc) - (v_n + 0.5 * hs * a_n)
         f_str = _stribeck_torque(ws, f_el + c * rate, E)
-        best = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra,
-                        torque_nm, load_n, E, K, S)
-        b_c, b_rate, last = c, rate, best
-        for _attempt_no in range(int(E[EL.impact_iter])):
-            err, f_str, dth_s, d_delta, v_el1, dx, nsf = last[0], last[1], last[6], last[15], last[18], last[14], \
-                last[23]
-            if (abs(d_delta) < 1e-15 or abs(err) <= E[EL.impact_tol] * abs(torque_nm * dth_s)
-                    + E[EL.impact_floor] * (abs(v_el1) + abs(v_el0))):
-                break
-            f_el = (v_el1 - v_el0 - nsf * dx) / d_delta
-            rate = d_delta / hs
-            # damping on the sub-step's mean rate, with the stiffer of the two tangent stiffnesses seen (at a
-            # contact entry the predicted midpoint may still lie in the gap, K = 0)
-            kk = max(k_mid, last[17])
-            c = 2.0 * E[EL.zeta] * math.sqrt(kk * E[EL.mu]) if kk > 0 else 0.0
-            last = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem,
-                            extra, torque_nm, load_n, E, K, S)
-            if abs(last[0]) < abs(best[0]):
-                best, b_c, b_rate = last, c, rate
-        f_str = last[1]  # the Stribeck torque as the last attempt left it
+        best, b_c, b_rate, loss = _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, sign,
+                                          pin_abs, gear, mem, extra, torque_nm, load_n, E, K, S)
+        f_str = best[1]  # the Stribeck torque of the attempt kept (at rest it follows the held force)
         (_, _, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign, pin_abs, gear, mem, v1, dx, d_delta, f_el1, k1, v_el1,
          lost1, delta1, c1, f_mid, _) = best
-        diss += d_core + b_c * b_rate * d_delta + f_str * dth_s
+        diss += d_core + b_c * b_rate * d_delta + f_str * dth_s + loss
         acc = (ws1 - ws) / hs
         th_s += dth_s
         th_c += dth_c
@@ -964,7 +1025,7 @@ def _sticks(torque_nm, f_mid, sign, pin_abs, gear, E, K, S):
 
 
 @_compiled
-def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a, load_a, E, K, S, cols,
+def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a, load_a, E, KL, S, cols,
                 comp):
     """The batch loop over `elastic_advance` (`ElasticModel._run_impl`). Fills cols (n × 17: θ_S, ω_S, θ_C, ω_C, x_N, v_N,
     thread force, slip, Δθ_S, the load's work, dissipated, stored energy, then the chain's F, K, V, lost, δ) and
@@ -974,7 +1035,7 @@ def elastic_run(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, ext
         th0 = th_s
         (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
          f_th, e1) = elastic_advance(th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, tau_a[i],
-                                     load_a[i], E, K, S)
+                                     load_a[i], E, KL, S)
         cols[i, 0], cols[i, 1], cols[i, 2], cols[i, 3], cols[i, 4], cols[i, 5] = th_s, ws, th_c, wc, x_n, v_n
         cols[i, 6], cols[i, 7] = f_th, math.sqrt(f1[8] ** 2 + f1[9] ** 2 + f1[10] ** 2)
         cols[i, 8], cols[i, 9], cols[i, 10], cols[i, 11] = th_s - th0, w_out, diss, e1
