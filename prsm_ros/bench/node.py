@@ -42,10 +42,11 @@ def bench_model() -> tuple[str, str]:
     return "jones2016", "fu2018 not available: measured with jones2016"
 
 
-def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str = "s30") -> dict:
-    """Run PrsmNode in this process in realtime mode for `seconds`; return pacing and CPU figures."""
+def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str = "s30",
+                 executor: str = "events") -> dict:
+    """Run PrsmNode in this process in realtime mode for `seconds` with the `executor` it names; return
+    pacing and CPU figures."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from prsm_ros.node.ros_node import PrsmNode
@@ -60,15 +61,15 @@ def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str
                    signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
         overrides = [Parameter("model", value=model), Parameter("preset", value=preset),
                      Parameter("time_mode", value="realtime"), Parameter("record", value=record),
-                     Parameter("record_path", value=str(Path(tmp) / "bench.mcap"))]
+                     Parameter("record_path", value=str(Path(tmp) / "bench.mcap")),
+                     Parameter("executor", value=executor)]
         node = PrsmNode(context=ctx, parameter_overrides=overrides)
-        executor = SingleThreadedExecutor(context=ctx)
-        executor.add_node(node)
+        spinner = node.make_executor()
         try:
             cpu0, wall0 = time.process_time(), time.perf_counter()
             end = wall0 + seconds
             while time.perf_counter() < end:
-                executor.spin_once(timeout_sec=0.1)
+                spinner.spin_once(timeout_sec=0.1)
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             stats = node.pacer.stats
             late = np.array(stats.lateness_s)
@@ -78,7 +79,7 @@ def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str
             scheduling = dict(node.scheduling)
         finally:
             node.close()
-            executor.shutdown()
+            spinner.shutdown()
             node.destroy_node()
             rclpy.try_shutdown(context=ctx)
             os.sched_setscheduler(0, policy, sched_param)

@@ -69,6 +69,7 @@ from prsm_ros.node.command_echo import CommandEcho
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.command_sequence import SupersededCounter
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters
+from prsm_ros.node.executors import TakesInfo, make_executor
 from prsm_ros.node.locking import NodeLock
 from prsm_ros.node.intake import COMMAND_TOPICS, CommandIntake, float64_of, reference_stamp_ns
 from prsm_ros.node.outlets import READER_COUNT_EVERY, Outlets, WarnThrottle
@@ -214,13 +215,13 @@ class PrsmNode(Node):
             # every input is decided per writer: a reader queue deep enough that a fast writer cannot push
             # the owner's messages out between two takes (ownership.COMMAND_QUEUE_DEPTH)
             sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k),
-                                               functools.partial(self._on_command_message, k),
+                                               TakesInfo(functools.partial(self._on_command_message, k)),
                                                with_depth(TOPICS[k].qos, COMMAND_QUEUE_DEPTH),
                                                qos_overriding_options=self._qos_opts(), raw=True, callback_group=group)
                    for k in COMMAND_TOPICS}
             for k in OWNED_INPUTS:  # taken by the executor, which spins once the node is built
                 sub[k] = self.create_subscription(
-                    TOPICS[k].msg_class, self._topic(k), functools.partial(self._on_owned_input, k),
+                    TOPICS[k].msg_class, self._topic(k), TakesInfo(functools.partial(self._on_owned_input, k)),
                     with_depth(TOPICS[k].qos, COMMAND_QUEUE_DEPTH), qos_overriding_options=self._qos_opts())
         except (InvalidQosOverridesError, ParameterException) as e:
             raise ConfigError(f"QoS override: {e}") from None
@@ -243,6 +244,25 @@ class PrsmNode(Node):
         if prio > 1:
             self.scheduling["other_threads"] = request_realtime_priority(prio - 1)
         sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
+
+    # -- what an executor sees -------------------------------------------------------------------
+    # The command subscriptions the step thread polls (and their QoS event handlers) are hidden from
+    # every executor: the events executor ignores callback groups and would take their messages, and
+    # the Python executor need not put them in its wait set on every wake-up.
+    @property
+    def subscriptions(self):
+        return (s for s in super().subscriptions if not isinstance(s.callback_group, PolledGroup))
+
+    @property
+    def waitables(self):
+        return (w for w in super().waitables if not isinstance(getattr(w, "callback_group", None), PolledGroup))
+
+    def make_executor(self):
+        """The executor the `executor` parameter names (`executors`), on this node's context, the node added."""
+        executor, kind = make_executor(self.config.executor, self.context)
+        self.scheduling["executor"] = kind
+        executor.add_node(self)
+        return executor
 
     def _topic(self, key: str) -> str:
         return self.config.topics.get(key, TOPICS[key].name)
