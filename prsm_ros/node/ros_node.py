@@ -23,14 +23,15 @@ sequence always gives the same states. `/clock` is published on every step; join
 wrench at `joint_states_rate` (and after every lockstep batch), internal loads at
 `internal_loads_rate`. Nothing is published before the first step.
 
-What nobody reads costs little (node CPU at 1 kHz): in realtime and fast mode a per-step
-topic whose publisher had no matched reader at the last count (every `READER_COUNT_EVERY` steps) asks
-for its reader count before each message instead of publishing it (2-3 µs against about 8 µs for a
-publish to nobody, paced at 1 kHz on the 2-core VM) and, while it has none, goes only to the bag.
-These topics are volatile, so DDS would have delivered such a sample to nobody; a reader gets every
-message from the moment the node's publisher has matched it, as without this rule (a command's echo
-included). A publisher made transient-local by a QoS override is always published; lockstep always
-publishes (a controller waits for each state).
+What nobody reads costs little (node CPU at 1 kHz, lockstep round trips): in every time mode a
+per-step topic whose publisher had no matched reader at the last count (every `READER_COUNT_EVERY`
+steps) asks for its reader count before each message instead of publishing it (1-3 µs against
+8-16 µs for a publish to nobody on the 2-core VM, which holds the interpreter lock) and, while it
+has none, goes only to the bag. These topics are volatile, so DDS would have delivered such a
+sample to nobody; a reader gets every message from the moment the node's publisher has matched it,
+as without this rule (a command's echo included, and in lockstep the state a controller waits for:
+before the node's writer has matched its reader, a published sample would reach nobody either
+way). A publisher made transient-local by a QoS override is always published.
 
 Services (std_srvs): `~/pause` (SetBool: true pauses, false resumes), `~/step` (Trigger: advances
 `step_count` steps, only while paused — std_srvs has no integer request, so the count is a
