@@ -10,7 +10,9 @@ message to the same handler the executor would have called. The newest command i
 at the next step, as it would be after an executor callback.
 
 The subscriptions belong to a `PolledGroup`, a callback group the executor never waits on (its
-`can_execute` is false), so the executor neither wakes for them nor takes their messages. Their
+`can_execute` is false), so the executor neither wakes for them nor takes their messages. rclpy's
+events executor ignores callback groups, so the node also leaves the group's entities out of what
+it shows any executor (`PrsmNode.subscriptions` and `waitables`). Their
 QoS event handlers (rclpy's default warnings about a publisher with incompatible QoS or type)
 stay in that group, so those two warnings are not logged for the command topics: handed to the
 executor, they kept it spinning without pause under 1 kHz commands (measured: the main thread

@@ -60,8 +60,8 @@ class Outlets:
         self.publish_failures = 0
         self.batch: list | None = None  # a step's messages for the sinks, handed over at once (`end_step`)
         self.unread: frozenset[str] = frozenset()  # per-step topics with no matched reader at the last count
-        lockstep = node.config.time_mode == "lockstep"  # lockstep always publishes (a controller waits)
-        self.skippable = () if lockstep else tuple(
+        # every time mode (lockstep too): a publish to nobody holds the GIL for 8-16 µs, a reader count 1 µs
+        self.skippable = tuple(
             k for k in PER_STEP_TOPICS if k in pub and pub[k].qos_profile.durability == DurabilityPolicy.VOLATILE)
         self.set_decimation(node.config)
 

@@ -44,6 +44,7 @@ from prsm_ros.param_files import (ACTUATOR_GROUPS, ACTUATOR_PREFIX, FAULT_FIELDS
 from prsm_sim.command_gate import TIMEOUT_BEHAVIOURS
 
 TIME_MODES = ("realtime", "fast", "lockstep")
+EXECUTORS = ("events", "single")  # prsm_ros.node.executors makes them
 RERUN_MODES = ("off", "save", "spawn", "connect")
 PHYSICS_PREFIX = "physics."
 ACTUATOR_SKIPPED = {("drive", "mode")}
@@ -116,6 +117,9 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
               lo=0, hi=99, read_only=True),
     NodeParam("pacing_spin", 0.0, "s", "realtime: poll the clock for this long before each deadline instead "
               "of trusting the sleep's wake-up latency (CPU for jitter; 0: sleep only)", lo=0.0, hi=1e-2, read_only=True),
+    NodeParam("executor", "events", "", "what runs the callbacks (services, parameters, timers, lockstep "
+              "commands): events, rclpy's C++ EventsExecutor (single where rclpy lacks it); single, rclpy's "
+              "SingleThreadedExecutor in Python", choices=EXECUTORS, read_only=True),
     NodeParam("lockstep_steps", 1, "steps", "steps advanced per received command in lockstep mode", lo=1, hi=1_000_000),
     NodeParam("step_count", 1, "steps", "steps advanced by one ~/step call (std_srvs/Trigger) while paused",
               lo=1, hi=10_000_000),

@@ -107,7 +107,7 @@ def _run(sources: ParamSources) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    node = None
+    node = executor = None
     try:
         try:
             node = PrsmNode(param_sources=sources)
@@ -117,8 +117,7 @@ def _run(sources: ParamSources) -> int:
             if os.environ.get("PRSM_DEBUG"):
                 raise
             _exit_now(1, f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)")
-        executor = rclpy.executors.SingleThreadedExecutor()
-        executor.add_node(node)
+        executor = node.make_executor()
         if node.config.time_mode == "realtime" and node.config.realtime_priority > 1:
             # our own process: the middleware's threads too (not done when PrsmNode is embedded elsewhere)
             node.scheduling["middleware_threads"] = raise_process_threads(node.config.realtime_priority - 1)
@@ -130,6 +129,8 @@ def _run(sources: ParamSources) -> int:
     finally:
         if node is not None:
             node.close()
+            if executor is not None:  # its callbacks off the node's entities before they are destroyed
+                executor.shutdown()
             node.destroy_node()
         rclpy.try_shutdown()
     return 0

@@ -23,14 +23,15 @@ sequence always gives the same states. `/clock` is published on every step; join
 wrench at `joint_states_rate` (and after every lockstep batch), internal loads at
 `internal_loads_rate`. Nothing is published before the first step.
 
-What nobody reads costs little (node CPU at 1 kHz): in realtime and fast mode a per-step
-topic whose publisher had no matched reader at the last count (every `READER_COUNT_EVERY` steps) asks
-for its reader count before each message instead of publishing it (2-3 µs against about 8 µs for a
-publish to nobody, paced at 1 kHz on the 2-core VM) and, while it has none, goes only to the bag.
-These topics are volatile, so DDS would have delivered such a sample to nobody; a reader gets every
-message from the moment the node's publisher has matched it, as without this rule (a command's echo
-included). A publisher made transient-local by a QoS override is always published; lockstep always
-publishes (a controller waits for each state).
+What nobody reads costs little (node CPU at 1 kHz, lockstep round trips): in every time mode a
+per-step topic whose publisher had no matched reader at the last count (every `READER_COUNT_EVERY`
+steps) asks for its reader count before each message instead of publishing it (1-3 µs against
+8-16 µs for a publish to nobody on the 2-core VM, which holds the interpreter lock) and, while it
+has none, goes only to the bag. These topics are volatile, so DDS would have delivered such a
+sample to nobody; a reader gets every message from the moment the node's publisher has matched it,
+as without this rule (a command's echo included, and in lockstep the state a controller waits for:
+before the node's writer has matched its reader, a published sample would reach nobody either
+way). A publisher made transient-local by a QoS override is always published.
 
 Services (std_srvs): `~/pause` (SetBool: true pauses, false resumes), `~/step` (Trigger: advances
 `step_count` steps, only while paused — std_srvs has no integer request, so the count is a
@@ -69,6 +70,7 @@ from prsm_ros.node.command_echo import CommandEcho
 from prsm_ros.node.command_poll import CommandPoller, PolledGroup
 from prsm_ros.node.command_sequence import SupersededCounter
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters
+from prsm_ros.node.executors import TakesInfo, make_executor
 from prsm_ros.node.locking import NodeLock
 from prsm_ros.node.intake import COMMAND_TOPICS, CommandIntake, float64_of, reference_stamp_ns
 from prsm_ros.node.outlets import READER_COUNT_EVERY, Outlets, WarnThrottle
@@ -214,13 +216,13 @@ class PrsmNode(Node):
             # every input is decided per writer: a reader queue deep enough that a fast writer cannot push
             # the owner's messages out between two takes (ownership.COMMAND_QUEUE_DEPTH)
             sub = {k: self.create_subscription(TOPICS[k].msg_class, self._topic(k),
-                                               functools.partial(self._on_command_message, k),
+                                               TakesInfo(functools.partial(self._on_command_message, k)),
                                                with_depth(TOPICS[k].qos, COMMAND_QUEUE_DEPTH),
                                                qos_overriding_options=self._qos_opts(), raw=True, callback_group=group)
                    for k in COMMAND_TOPICS}
             for k in OWNED_INPUTS:  # taken by the executor, which spins once the node is built
                 sub[k] = self.create_subscription(
-                    TOPICS[k].msg_class, self._topic(k), functools.partial(self._on_owned_input, k),
+                    TOPICS[k].msg_class, self._topic(k), TakesInfo(functools.partial(self._on_owned_input, k)),
                     with_depth(TOPICS[k].qos, COMMAND_QUEUE_DEPTH), qos_overriding_options=self._qos_opts())
         except (InvalidQosOverridesError, ParameterException) as e:
             raise ConfigError(f"QoS override: {e}") from None
@@ -243,6 +245,25 @@ class PrsmNode(Node):
         if prio > 1:
             self.scheduling["other_threads"] = request_realtime_priority(prio - 1)
         sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
+
+    # -- what an executor sees -------------------------------------------------------------------
+    # The command subscriptions the step thread polls (and their QoS event handlers) are hidden from
+    # every executor: the events executor ignores callback groups and would take their messages, and
+    # the Python executor need not put them in its wait set on every wake-up.
+    @property
+    def subscriptions(self):
+        return (s for s in super().subscriptions if not isinstance(s.callback_group, PolledGroup))
+
+    @property
+    def waitables(self):
+        return (w for w in super().waitables if not isinstance(getattr(w, "callback_group", None), PolledGroup))
+
+    def make_executor(self):
+        """The executor the `executor` parameter names (`executors`), on this node's context, the node added."""
+        executor, kind = make_executor(self.config.executor, self.context)
+        self.scheduling["executor"] = kind
+        executor.add_node(self)
+        return executor
 
     def _topic(self, key: str) -> str:
         return self.config.topics.get(key, TOPICS[key].name)
