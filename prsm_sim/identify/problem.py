@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from prsm_sim.actuator import ActuatorParams
-from prsm_sim.errors import ParamError
+from prsm_sim.errors import InputError, ParamError
 from prsm_sim.identify.free import DELAY_KEY, FreeParameter
 from prsm_sim.identify.recording import Recording
 from prsm_sim.identify.shooting import HORIZON_S, Horizons, measured, simulate
@@ -93,6 +93,15 @@ class FitProblem:
             ("screw_speed_rad_s",) if all(r.screw_speed_rad_s is not None for r in recs) else ())
         free = tuple(p for p in free if p.name != DELAY_KEY)
         return cls(recs, base, model, free, signals=signals, scale={s: resolution(recs, s) for s in signals}, **kw)
+
+    def head(self, duration_s: float) -> FitProblem:
+        """The same problem on the first `duration_s` of each recording (the signals' scales kept: they are
+        the sensors'), or itself where every recording is that short or a head would not move the screw."""
+        try:
+            recs = tuple(r.head(duration_s) for r in self.recordings)
+        except InputError:
+            return self
+        return self if all(a is b for a, b in zip(recs, self.recordings, strict=True)) else replace(self, recordings=recs)
 
     def unit_of(self, params: Params) -> np.ndarray:
         """`params`' free values as a point of the unit box."""
