@@ -35,13 +35,17 @@ def quantum(x: np.ndarray) -> float:
 
 def noise(x: np.ndarray, dt_s: float) -> float:
     """The sensor noise of `x` (one standard deviation): its scatter about a local cubic over ~10 ms
-    (Savitzky–Golay), which follows the motion and leaves the noise."""
+    (Savitzky–Golay), which follows the motion and leaves the noise, taken as the median absolute
+    deviation × 1.4826 (σ of a normal distribution): the noise is in every sample, while the motion
+    the cubic cannot follow (a stick, a reversal, an elastic chain's ringing after one) is in few,
+    and a standard deviation would count it as noise and weigh the signal down."""
     from scipy.signal import savgol_filter  # type: ignore[import-untyped]
     w = max(7, int(round(0.01 / dt_s)) | 1)
     if len(x) <= w:
         return 0.0
     e = x - savgol_filter(x, w, 3)
-    return float(np.std(e) / math.sqrt(1.0 - 4.0 / w))  # the fit takes ~4 of the window's w degrees of freedom
+    mad = float(np.median(np.abs(e - np.median(e))))
+    return 1.4826 * mad / math.sqrt(1.0 - 4.0 / w)  # the fit takes ~4 of the window's w degrees of freedom
 
 
 def resolution(recs: tuple[Recording, ...], signal: str) -> float:

@@ -4,11 +4,12 @@ Steps (docs/fit.md "How the fit works"):
 
 1. Every free parameter is searched in the unit box between its bounds (log-scaled where it spans
    decades) by `scipy.optimize.least_squares` (trust-region reflective, bounds), from the base
-   values and from `starts − 1` Latin-hypercube points of the box; the lowest cost wins, so a local
-   minimum of one start is not taken for the answer. The starts are independent tasks handed to
-   `map_fn` (serial by default; `prsm-fit` runs them on Ray).
+   values and from `starts − 1` Latin-hypercube points of the box, each of those first moved by
+   `scan_log`; the lowest cost wins, so a local minimum of one start is not taken for the answer.
+   The starts are independent tasks handed to `map_fn` (serial by default; `prsm-fit` runs them on
+   Ray) and run on each recording's first `SCREEN_S`; the best is polished on the whole recordings.
 2. The command-path delay is a whole number of steps: each delay up to `MAX_DELAY_STEPS` is tried at
-   the fitted parameters; another delay than zero is refitted.
+   the starts' best on the same first seconds; the polish runs at the delay found.
 3. Intervals: with J the Jacobian of the residuals scaled by the sensors' resolutions σ_s, the
    covariance is C = (JᵀJ)⁻¹ [Σ_h J_hᵀ r_h r_hᵀ J_h] (JᵀJ)⁻¹ + (JᵀJ)⁻¹: the first term is the sandwich
    clustered by horizon (the errors within a horizon are correlated: a wrong start speed shifts the
@@ -60,21 +61,25 @@ class StartResult:
     cost: float
     nfev: int
     data_s: float = 0.0
+    residuals: np.ndarray | None = None  # at `u`, with the Jacobian there, where asked for (`keep`)
+    jacobian: np.ndarray | None = None
 
     def to_dict(self, free) -> dict:
         return {"cost": self.cost, "evaluations": self.nfev, "data_s": self.data_s,
                 "values": {p.name: p.from_unit(x) for p, x in zip(free, self.u, strict=True)}}
 
 
-def solve_start(problem: FitProblem, u0, scan: bool = False) -> StartResult:
+def solve_start(problem: FitProblem, u0, scan: bool = False, keep: bool = False) -> StartResult:
     """One bounded least-squares run from `u0` (a task of its own: `map_fn` runs several), after
-    `scan_log` where `scan`."""
+    `scan_log` where `scan`; with `keep`, the residuals and their Jacobian at the end point (the
+    solver's own forward differences at it, as `jacobian` takes them), which the report reuses."""
     from scipy.optimize import least_squares  # type: ignore[import-untyped]  # here: `import prsm_sim` stays quick
     u = scan_log(problem, u0) if scan else np.asarray(u0, float)
     res = least_squares(problem.residuals, u, bounds=(0.0, 1.0), method="trf",
                         diff_step=DIFF_STEP, x_scale="jac", max_nfev=MAX_NFEV)
     return StartResult(u0=tuple(map(float, u0)), u=tuple(map(float, res.x)), cost=float(res.cost), nfev=int(res.nfev),
-                       data_s=sum(r.duration_s for r in problem.recordings))
+                       data_s=sum(r.duration_s for r in problem.recordings),
+                       residuals=res.fun if keep else None, jacobian=res.jac if keep else None)
 
 
 def start_task(problem: FitProblem, job: tuple) -> StartResult:
@@ -89,8 +94,8 @@ def scan_log(problem: FitProblem, u0) -> np.ndarray:
     A chain stiffness far above the chain's own contact and shaft stiffness changes nothing (the
     series chain is as stiff as its softest member): its cost is a plateau there and a narrow well
     around the true value, and least squares started on the plateau sees no slope (it stops at a
-    local minimum, trading the stiffness against the mass). A grid a factor of two apart cannot step
-    over the well.
+    local minimum). The grid's best point lies in the valley the chain's mode frequency draws
+    through (mass, stiffness), where least squares has a slope to follow.
     """
     u = np.array(u0, float)
     best = float(np.sum(problem.residuals(u) ** 2))
@@ -286,7 +291,7 @@ def fit(recordings, base: Params, model: str, free: list[FreeParameter], *, actu
         problem = replace(problem, delay_steps=delay)
     polish = None
     if problem.free and (screen is not problem or problem.delay_steps):
-        polish = solve_start(problem, u)
+        polish = solve_start(problem, u, keep=True)
         u = np.array(polish.u)
     say("polish", 1, 1)
     return _report(problem, u, results, fit_delay, band, say, given, polish)
@@ -296,8 +301,11 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
             given: Params, polish: StartResult | None) -> FitResult:
     """Identifiability, the refit of what is identifiable, intervals, the report (module doc, steps 3–4)."""
     names = [p.name for p in problem.free]
-    r0 = problem.residuals(u)
-    J = jacobian(problem, u, r0) if names else np.zeros((r0.size, 0))
+    if polish is not None and polish.residuals is not None and polish.jacobian is not None and names:
+        r0, J = polish.residuals, polish.jacobian  # the polish ended at `u`: its last Jacobian is the one there
+    else:
+        r0 = problem.residuals(u)
+        J = jacobian(problem, u, r0) if names else np.zeros((r0.size, 0))
     C = covariance(J, r0, problem.cluster_ids()) if names else np.zeros((0, 0))
     flat = np.flatnonzero(reach_of(J) < 1.0).tolist() if names else []
     why = unidentifiable(J, C, names, {names[i]: secant_reach(problem, u, r0, int(i)) for i in flat})
