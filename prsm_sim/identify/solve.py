@@ -301,11 +301,7 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
             given: Params, polish: StartResult | None) -> FitResult:
     """Identifiability, the refit of what is identifiable, intervals, the report (module doc, steps 3–4)."""
     names = [p.name for p in problem.free]
-    if polish is not None and polish.residuals is not None and polish.jacobian is not None and names:
-        r0, J = polish.residuals, polish.jacobian  # the polish ended at `u`: its last Jacobian is the one there
-    else:
-        r0 = problem.residuals(u)
-        J = jacobian(problem, u, r0) if names else np.zeros((r0.size, 0))
+    r0, J = _at_end(problem, u, polish)
     C = covariance(J, r0, problem.cluster_ids()) if names else np.zeros((0, 0))
     flat = np.flatnonzero(reach_of(J) < 1.0).tolist() if names else []
     why = unidentifiable(J, C, names, {names[i]: secant_reach(problem, u, r0, int(i)) for i in flat})
@@ -337,6 +333,14 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
     return FitResult(params=params, delay_steps=problem.delay_steps, parameters=parameters, correlation=correlation,
                      residual_rms=problem.signal_rms(params), base_residual_rms=problem.signal_rms(given, None, 0),
                      starts=tuple(results), polish=polish, problem=problem, base=given)
+
+
+def _at_end(problem: FitProblem, u: np.ndarray, polish: StartResult | None) -> tuple[np.ndarray, np.ndarray]:
+    """The residuals at `u` and their Jacobian: the polish's own where it ended there, else computed."""
+    if polish is not None and polish.residuals is not None and polish.jacobian is not None and problem.free:
+        return polish.residuals, polish.jacobian
+    r0 = problem.residuals(u)
+    return r0, jacobian(problem, u, r0) if problem.free else np.zeros((r0.size, 0))
 
 
 def _entry(p: FreeParameter, u: float, var: float, base: Params, why: str | None, value: float) -> dict:
