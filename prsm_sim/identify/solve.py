@@ -21,7 +21,8 @@ Steps (docs/fit.md "How the fit works"):
    chain), when its 95 % interval is wider than its bounds, when it weighs in a near-null direction
    of J (singular value below `NULL_RATIO` of the largest, columns normalised), or when it
    correlates at ≥ `MAX_CORRELATION` with another. Those are held at the base value, the rest
-   fitted again, and the report says which and why.
+   fitted again, and the report says which and why; where holding them raises the misfit beyond
+   the 95 % band of χ² (`_shadowed`), the rest would carry their error and are held too.
 """
 
 from __future__ import annotations
@@ -312,6 +313,9 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
         sub = replace(problem, base=fixed, free=tuple(problem.free[i] for i in keep))
         u_sub = np.array(solve_start(sub, u[keep]).u) if keep else np.zeros(0)
         r_sub = sub.residuals(u_sub)
+        why |= _shadowed(r0, r_sub, [names[i] for i in keep], list(why))
+        if len(why) == len(names):  # the rest would carry the held ones' error: every value is the base's
+            keep, fixed = [], problem.params_at(u).with_overrides({n: base_value(problem.base, n) for n in why})
         J_sub = jacobian(sub, u_sub, r_sub) if keep else np.zeros((r_sub.size, 0))
         C_sub = covariance(J_sub, r_sub, sub.cluster_ids()) if keep else np.zeros((0, 0))
         params = sub.params_at(u_sub) if keep else fixed
@@ -333,6 +337,23 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
     return FitResult(params=params, delay_steps=problem.delay_steps, parameters=parameters, correlation=correlation,
                      residual_rms=problem.signal_rms(params), base_residual_rms=problem.signal_rms(given, None, 0),
                      starts=tuple(results), polish=polish, problem=problem, base=given)
+
+
+def _shadowed(r_full: np.ndarray, r_held: np.ndarray, rest: list[str], held: list[str]) -> dict[str, str]:
+    """The rest → why, where holding `held` at the base raises the misfit beyond the 95 % band of χ² with
+    one degree of freedom per held parameter (the cost in resolutions², scaled by the full fit's residual
+    variance): the data then contradict the base's values, and whatever the rest were fitted to carries
+    that error into them."""
+    from scipy.stats import chi2  # type: ignore[import-untyped]
+    full = float(np.sum(r_full ** 2))
+    s2 = max(1.0, full / max(1, r_full.size - len(rest) - len(held)))
+    rise = (float(np.sum(r_held ** 2)) - full) / s2
+    bound = float(chi2.ppf(0.95, len(held)))
+    if rise <= bound or not rest:
+        return {}
+    text = (f"fitted only with {', '.join(held)} held at the base, which raises the misfit by {rise:.3g} "
+            f"(95 % bound {bound:.3g}): its value would carry their error")
+    return {n: text for n in rest}
 
 
 def _at_end(problem: FitProblem, u: np.ndarray, polish: StartResult | None) -> tuple[np.ndarray, np.ndarray]:
