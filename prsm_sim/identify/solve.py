@@ -283,6 +283,7 @@ def fit(recordings, base: Params, model: str, free: list[FreeParameter], *, actu
     given = base
     problem = FitProblem.build(recordings, prepared_base(base, [p.name for p in free]), model, free, **kw)
     screen = problem.head(SCREEN_S)
+    shortened = screen is not problem
     u, results = _best(screen, start_points(problem, starts, seed), map_fn, say) if problem.free else (
         np.zeros(0), [])
     fit_delay = any(p.name == DELAY_KEY for p in free)
@@ -291,7 +292,7 @@ def fit(recordings, base: Params, model: str, free: list[FreeParameter], *, actu
         delay, band = _delay_scan(screen, screen.params_at(u), say)
         problem = replace(problem, delay_steps=delay)
     polish = None
-    if problem.free and (screen is not problem or problem.delay_steps):
+    if problem.free and (shortened or problem.delay_steps):
         polish = solve_start(problem, u, keep=True)
         u = np.array(polish.u)
     say("polish", 1, 1)
