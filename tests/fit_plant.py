@@ -36,3 +36,15 @@ def record(params, model: str, *, load_n: float, duration_s: float = 2.0, dt_s: 
     x = x + rng.normal(0.0, nut_noise_m, n) if nut_noise_m else x
     return Recording(name=name, time_s=t, screw_torque_nm=u, screw_position_rad=theta, nut_position_m=x,
                      load_n=np.full(n, float(load_n)), screw_speed_rad_s=w if speed else None)
+
+
+def write_csv(path, rec: Recording, speed: bool = True) -> None:
+    """`rec` as a bench's table (prsm-fit's CSV columns; the load is given on the command line as FILE@LOAD_N)."""
+    cols = {"time_s": rec.time_s, "screw_torque_nm": rec.screw_torque_nm, "screw_position_rad": rec.screw_position_rad,
+            "nut_position_m": rec.nut_position_m}
+    if speed and rec.screw_speed_rad_s is not None:
+        cols["screw_speed_rad_s"] = rec.screw_speed_rad_s
+    with open(path, "w") as f:
+        f.write(",".join(cols) + "\n")
+        for row in zip(*cols.values()):
+            f.write(",".join(repr(float(v)) for v in row) + "\n")

@@ -21,7 +21,7 @@ from prsm_sim.identify import Recording, fit_recordings, validate
 from prsm_ros.fit import cli
 from prsm_ros.param_files import load_params_file
 
-from fit_plant import record
+from fit_plant import record, write_csv
 
 HIDDEN = {"mass.moved_mass_kg": 80.0, "ideal.efficiency_forward": 0.9, "ideal.efficiency_backward": 0.75}
 FREE = ["mass.moved_mass_kg", "ideal.efficiency_forward", "ideal.efficiency_backward"]
@@ -67,17 +67,6 @@ def test_what_the_excitation_cannot_reach_is_not_identifiable(hidden):
     assert m["identifiable"] and _covers(m, HIDDEN["mass.moved_mass_kg"])
 
 
-def _write_csv(path, rec: Recording, speed=True):
-    cols = {"time_s": rec.time_s, "screw_torque_nm": rec.screw_torque_nm, "screw_position_rad": rec.screw_position_rad,
-            "nut_position_m": rec.nut_position_m}
-    if speed and rec.screw_speed_rad_s is not None:
-        cols["screw_speed_rad_s"] = rec.screw_speed_rad_s
-    with open(path, "w") as f:
-        f.write(",".join(cols) + "\n")
-        for row in zip(*cols.values()):
-            f.write(",".join(repr(float(v)) for v in row) + "\n")
-
-
 @pytest.mark.slow
 def test_quantised_noisy_csv_intervals_cover_the_hidden_plant(hidden, tmp_path, capsys):
     """4096 counts/rev on the screw, 1 µm of noise on the nut, no speed column: every 95 % interval covers."""
@@ -85,17 +74,18 @@ def test_quantised_noisy_csv_intervals_cover_the_hidden_plant(hidden, tmp_path, 
     for i, f in enumerate((500.0, 5000.0)):
         rec = record(hidden, "ideal", load_n=f, duration_s=1.5, seed=10 + i, counts_per_rev=4096, nut_noise_m=1e-6,
                      speed=False)
-        _write_csv(tmp_path / f"run{i}.csv", rec, speed=False)
+        write_csv(tmp_path / f"run{i}.csv", rec, speed=False)
         files.append(f"{tmp_path / f'run{i}.csv'}@{f:g}")
     held = record(hidden, "ideal", load_n=2000.0, duration_s=0.5, seed=20, counts_per_rev=4096, nut_noise_m=1e-6)
-    _write_csv(tmp_path / "held.csv", held)
+    write_csv(tmp_path / "held.csv", held)
     out = tmp_path / "out"
     rc = cli.main(files + ["--validate", f"{tmp_path / 'held.csv'}@2000", "--model", "ideal", "--serial",
                            "--starts", "1", "--free", *FREE, "-o", str(out)])
     assert rc == 0, capsys.readouterr().err
     doc = json.loads((out / "fit.json").read_text())
     for name, value in HIDDEN.items():
-        assert doc["parameters"][name]["identifiable"] and _covers(doc["parameters"][name], value), doc["parameters"][name]
+        p = doc["parameters"][name]
+        assert p["identifiable"] and _covers(p, value), p
     v = doc["validation"]["held.csv"]
     assert v["rms_nut_position_m"] <= 0.5 * v["base"]["rms_nut_position_m"]
     assert set(doc["residual_rms"]) >= {"nut_position_m", "screw_speed_rad_s"}
@@ -181,9 +171,10 @@ def test_ctrl_c_leaves_nothing_and_exits_130(hidden, tmp_path):
     import sys
     import time
     rec = record(hidden, "ideal", load_n=500.0, duration_s=1.0)
-    _write_csv(tmp_path / "run.csv", rec)
+    write_csv(tmp_path / "run.csv", rec)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "prsm_ros.fit.cli", f"{tmp_path / 'run.csv'}@500", "--model", "ideal",
+    proc = subprocess.Popen([sys.executable, "-m", "prsm_ros.fit.cli", f"{tmp_path / 'run.csv'}@500",
+                             "--model", "ideal",
                              "--serial", "--starts", "4", "-o", str(out)], stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not any(p.name.startswith(".prsm-fit-") for p in tmp_path.iterdir()):  # the fit has started

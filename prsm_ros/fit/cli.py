@@ -72,7 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--workers", type=int, help="CPUs of the embedded Ray (default: all)")
     t = BagTopics()
     ap.add_argument("--joint-states-topic", default=t.joint_states, help=f"JointState topic (default {t.joint_states})")
-    ap.add_argument("--command-topic", default=t.command, help=f"torque command, Float64 or JointState (default {t.command})")
+    ap.add_argument("--command-topic", default=t.command,
+                    help=f"torque command, Float64 or JointState (default {t.command})")
     ap.add_argument("--load-topic", help="nut load, std_msgs/Float64 in N (else FILE@LOAD_N)")
     ap.add_argument("--screw-joint", default=t.screw_joint, help=f"default {t.screw_joint}")
     ap.add_argument("--nut-joint", default=t.nut_joint, help=f"default {t.nut_joint}")
@@ -112,7 +113,8 @@ def run(args, tmp: Path) -> dict:
     from prsm_ros.fit.plots import plot_recording
     from prsm_ros.param_files import params_to_yaml
     base, actuator, recs, held, free = _inputs(args)
-    total = args.starts + (MAX_DELAY_STEPS + 1 if any(p.name == DELAY_KEY for p in free) else 0) + 2 + len(recs) + len(held)
+    delay_scan = MAX_DELAY_STEPS + 1 if any(p.name == DELAY_KEY for p in free) else 0
+    total = args.starts + delay_scan + 3 + len(recs) + len(held)  # starts, delays, polish, intervals, plots
     bar = tqdm(total=total, desc="fitting", unit="task", file=sys.stderr, disable=None)
 
     def progress(stage: str, done: int, of: int) -> None:

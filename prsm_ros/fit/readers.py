@@ -53,7 +53,8 @@ def parse_source(text: str) -> tuple[Path, float | None]:
         return Path(text), None
     value = float(load) if _NUMBER.fullmatch(load.strip()) else math.nan
     if not math.isfinite(value):
-        raise InputError(f"{text}: the part after @ must be a constant load, a finite number of N (e.g. bench1.mcap@3000)")
+        raise InputError(f"{text}: the part after @ must be a constant load, a finite number of N "
+                         "(e.g. bench1.mcap@3000)")
     return Path(path), value
 
 
@@ -90,7 +91,8 @@ def _columns_parquet(path: Path) -> dict[str, np.ndarray]:
     try:
         table = pq.read_table(path)
     except Exception as e:  # pyarrow's many error types for a damaged file: one line naming it
-        raise InputError(f"{path}: not a readable Parquet file ({type(e).__name__}: {str(e).splitlines()[0]})") from None
+        first = str(e).splitlines()[0] if str(e) else ""
+        raise InputError(f"{path}: not a readable Parquet file ({type(e).__name__}: {first})") from None
     out = {}
     for name in table.column_names:
         try:

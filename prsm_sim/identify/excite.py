@@ -31,7 +31,8 @@ def excitation(kind: str, duration_s: float, dt_s: float, amplitude: float, *, f
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise InputError(f"{name} = {v!r}: must be a finite number > 0")
     if not f_low_hz < f_high_hz <= 0.5 / dt_s:
-        raise InputError(f"band [{f_low_hz:g}, {f_high_hz:g}] Hz: needs f_low < f_high <= the Nyquist {0.5 / dt_s:g} Hz")
+        raise InputError(f"band [{f_low_hz:g}, {f_high_hz:g}] Hz: needs f_low < f_high <= "
+                         f"the Nyquist {0.5 / dt_s:g} Hz")
     t = np.arange(int(round(duration_s / dt_s)) + 1) * dt_s
     if kind == "multisine":
         f = np.geomspace(f_low_hz, f_high_hz, 12)

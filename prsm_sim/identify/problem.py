@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from prsm_sim.actuator import ActuatorParams
-from prsm_sim.errors import ParamError
+from prsm_sim.errors import InputError, ParamError
 from prsm_sim.identify.free import DELAY_KEY, FreeParameter
 from prsm_sim.identify.recording import Recording
 from prsm_sim.identify.shooting import HORIZON_S, Horizons, measured, simulate
@@ -35,13 +35,17 @@ def quantum(x: np.ndarray) -> float:
 
 def noise(x: np.ndarray, dt_s: float) -> float:
     """The sensor noise of `x` (one standard deviation): its scatter about a local cubic over ~10 ms
-    (Savitzky–Golay), which follows the motion and leaves the noise."""
+    (Savitzky–Golay), which follows the motion and leaves the noise, taken as the median absolute
+    deviation × 1.4826 (σ of a normal distribution): the noise is in every sample, while the motion
+    the cubic cannot follow (a stick, a reversal, an elastic chain's ringing after one) is in few,
+    and a standard deviation would count it as noise and weigh the signal down."""
     from scipy.signal import savgol_filter  # type: ignore[import-untyped]
     w = max(7, int(round(0.01 / dt_s)) | 1)
     if len(x) <= w:
         return 0.0
     e = x - savgol_filter(x, w, 3)
-    return float(np.std(e) / math.sqrt(1.0 - 4.0 / w))  # the fit takes ~4 of the window's w degrees of freedom
+    mad = float(np.median(np.abs(e - np.median(e))))
+    return 1.4826 * mad / math.sqrt(1.0 - 4.0 / w)  # the fit takes ~4 of the window's w degrees of freedom
 
 
 def resolution(recs: tuple[Recording, ...], signal: str) -> float:
@@ -93,6 +97,15 @@ class FitProblem:
             ("screw_speed_rad_s",) if all(r.screw_speed_rad_s is not None for r in recs) else ())
         free = tuple(p for p in free if p.name != DELAY_KEY)
         return cls(recs, base, model, free, signals=signals, scale={s: resolution(recs, s) for s in signals}, **kw)
+
+    def head(self, duration_s: float) -> FitProblem:
+        """The same problem on the first `duration_s` of each recording (the signals' scales kept: they are
+        the sensors'), or itself where every recording is that short or a head would not move the screw."""
+        try:
+            recs = tuple(r.head(duration_s) for r in self.recordings)
+        except InputError:
+            return self
+        return self if all(a is b for a, b in zip(recs, self.recordings, strict=True)) else replace(self, recordings=recs)
 
     def unit_of(self, params: Params) -> np.ndarray:
         """`params`' free values as a point of the unit box."""

@@ -118,6 +118,17 @@ class Recording:
         window = min(window, (self.samples - 1) | 1 if (self.samples - 1) % 2 else self.samples - 2)
         return savgol_filter(self.screw_position_rad, window, 2, deriv=1, delta=self.dt_s)
 
+    def head(self, duration_s: float) -> Recording:
+        """The first `duration_s` of the recording (itself when it is no longer); InputError where that part
+        does not move the screw."""
+        n = max(MIN_SAMPLES, int(round(duration_s / self.dt_s)) + 1)
+        if n >= self.samples:
+            return self
+        cut = lambda a: None if a is None else a[:n]
+        return Recording(name=self.name, time_s=self.time_s[:n], screw_torque_nm=self.screw_torque_nm[:n],
+                         screw_position_rad=self.screw_position_rad[:n], nut_position_m=self.nut_position_m[:n],
+                         load_n=self.load_n[:n], screw_speed_rad_s=cut(self.screw_speed_rad_s))
+
     def loads(self) -> list[float]:
         """The distinct constant loads or the load's range, N, for reports."""
         lo, hi = float(self.load_n.min()), float(self.load_n.max())

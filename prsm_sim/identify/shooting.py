@@ -111,20 +111,24 @@ def simulate(config: SessionConfig, rec: Recording, horizons: Horizons, delay_st
     if delay_steps:
         u = np.concatenate([np.full(delay_steps, u[0]), u[:-delay_steps]])
     n, h = len(horizons.starts), horizons.steps
-    out = {s: np.full((n, h), np.nan) for s in SIGNALS}
-    for j, k in enumerate(horizons.starts):
+    out = np.full((3, n, h), np.nan)  # SIGNALS' order, as the model's own: increments added below
+    commands, loads, step = u.tolist(), rec.load_n.tolist(), session.step  # Python floats: no conversion per step
+    for j, k in enumerate(horizons.starts.tolist()):
         carry = j > 0 and session.stepped and session.fault is None and horizons.starts[j - 1] + h == k
-        theta0 = (_carry if carry else _restart)(session, rec, int(k), float(speed[k]))
+        theta0 = (_carry if carry else _restart)(session, rec, k, float(speed[k]))
         x0 = session.last.nut_position_m
+        rows: list[tuple[float, float, float]] = []
         try:
-            for i in range(h):
-                o = session.step(float(u[k + i]), float(rec.load_n[k + i]))
-                out["nut_position_m"][j, i] = rec.nut_position_m[k] + o.nut_position_m - x0
-                out["screw_position_rad"][j, i] = rec.screw_position_rad[k] + o.screw_angle_rad - theta0
-                out["screw_speed_rad_s"][j, i] = o.screw_speed_rad_s
+            for i in range(k, k + h):
+                o = step(commands[i], loads[i])
+                rows.append((o.nut_position_m, o.screw_angle_rad, o.screw_speed_rad_s))
         except ModelError:  # parameters the model cannot run end the horizon: what it could not predict stays NaN
             session.reset()
-    return {s: v.ravel() for s, v in out.items()}
+        if rows:
+            out[:, j, :len(rows)] = np.array(rows).T
+        out[0, j] += rec.nut_position_m[k] - x0
+        out[1, j] += rec.screw_position_rad[k] - theta0
+    return {s: out[i].ravel() for i, s in enumerate(SIGNALS)}
 
 
 def measured(rec: Recording, horizons: Horizons) -> dict[str, np.ndarray]:
