@@ -175,7 +175,8 @@ def test_ctrl_c_leaves_nothing_and_exits_130(hidden, tmp_path):
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "prsm_ros.fit.cli", f"{tmp_path / 'run.csv'}@500",
                              "--model", "ideal",
-                             "--serial", "--starts", "4", "-o", str(out)], stderr=subprocess.PIPE, text=True)
+                             # starts enough for minutes of fitting: the Ctrl-C lands while it fits, never after
+                             "--serial", "--starts", "400", "-o", str(out)], stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not any(p.name.startswith(".prsm-fit-") for p in tmp_path.iterdir()):  # the fit has started
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.stderr else ""
