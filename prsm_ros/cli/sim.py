@@ -203,9 +203,6 @@ def cmd_run(args) -> None:
         run_memory(n, bytes_per_step(build, runner, spec, args.dt), error=CliError)
     sim = build()
     bar = None
-    if n >= PROGRESS_MIN_STEPS and not args.no_progress:
-        from tqdm import tqdm
-        bar = tqdm(total=n, unit="step", file=sys.stderr, desc=f"{args.model} {args.scenario}")
     done = [0]
 
     def progress(k: int) -> None:
@@ -214,6 +211,9 @@ def cmd_run(args) -> None:
         done[0] = k
 
     try:
+        if n >= PROGRESS_MIN_STEPS and not args.no_progress:
+            from tqdm import tqdm
+            bar = tqdm(total=n, unit="step", file=sys.stderr, desc=f"{args.model} {args.scenario}")
         traj = runner(sim, spec, args.duration, progress)
     except KeyboardInterrupt:
         _interrupted(f"at step {done[0]} of {n}: nothing written (a run's outputs are written when it ends; "
@@ -534,6 +534,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except BrokenPipeError:
         return 0
+    except KeyboardInterrupt:  # a Ctrl-C outside a command's own handler (parsing, a probe, writing)
+        print(f"prsm-sim: interrupted during {args.command}: outputs not written or incomplete", file=sys.stderr)
+        return 130
     return 0
 
 
