@@ -17,6 +17,7 @@ Figures are printed, never asserted (`prsm-bench` aggregates them).
 
 from __future__ import annotations
 
+import functools
 import statistics
 import tempfile
 import time
@@ -49,6 +50,13 @@ def _channels(rec):
     return topics, cmd.resolved()
 
 
+@functools.lru_cache(maxsize=2)
+def _prepared(model: str, steps: int) -> list[tuple[int, list[bytes]]]:
+    """`_step_bytes` of a `steps`-step run, built once per measurement (`measure` clears it)."""
+    _, traj = _run_outputs(model, steps)
+    return _step_bytes(traj, model)
+
+
 def _step_bytes(traj, model: str) -> list[tuple[int, list[bytes]]]:
     """Each step's messages as the node records them: (stamp ns, [torque command, then STEP_TOPICS' CDR bytes])."""
     from rclpy.serialization import serialize_message
@@ -71,8 +79,7 @@ def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, floa
     """(median messages/s, spread, MB/s of file, messages per run)."""
     from prsm_ros.mcap.recorder import McapRecorder
 
-    _, traj = _run_outputs(model, steps)
-    prepared = _step_bytes(traj, model)
+    prepared = _prepared(model, steps)
     rates, sizes = [], []
     n_msgs = 0
     with tempfile.TemporaryDirectory() as d:
@@ -105,8 +112,7 @@ def native_floor(model: str, steps: int) -> float:
 
     from prsm_ros.mcap.recorder import McapRecorder
 
-    _, traj = _run_outputs(model, steps)
-    prepared = _step_bytes(traj, model)
+    prepared = _prepared(model, steps)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "floor.mcap"
         with McapRecorder(path, queue_size=10 * len(prepared) + 10) as rec:
@@ -149,8 +155,7 @@ def foxglove_peer(model: str, steps: int) -> float | None:
 
     from prsm_ros.mcap import schema as mcap_schema
     from prsm_ros.messages import STEP_TOPICS, TOPICS
-    _, traj = _run_outputs(model, steps)
-    prepared = _step_bytes(traj, model)
+    prepared = _prepared(model, steps)
     topics = [(TOPICS["screw_torque"].resolved(), Float64, TOPICS["screw_torque"].qos)]
     topics += [(TOPICS[k].resolved(), TOPICS[k].msg_class, TOPICS[k].qos) for k in STEP_TOPICS]
     with tempfile.TemporaryDirectory() as d:
@@ -179,8 +184,7 @@ def loop_cost(model: str, seconds: float, record: bool) -> dict:
     from prsm_ros.mcap.recorder import McapRecorder
 
     steps = int(seconds * 1000)
-    _, traj = _run_outputs(model, steps)
-    prepared = _step_bytes(traj, model)
+    prepared = _prepared(model, steps)
     with tempfile.TemporaryDirectory() as d:
         rec = McapRecorder(Path(d) / "loop.mcap") if record else None
         topics, cmd_topic = _channels(rec) if rec is not None else ([], "")
@@ -209,6 +213,7 @@ def measure(quick: bool = False) -> list[dict]:
     rec = loop_cost(model, seconds, record=True)
     cost = (rec["cpu_per_wall"] - base["cpu_per_wall"]) * 100
     per_s = rec["written"] / seconds
+    _prepared.cache_clear()
     fox_note = "not installed" if fox is None else f"{fox:,.0f} msg/s"
     return [
         figure(f"MCAP recorder throughput ({model} topics, 5 per step)", rate, "msg/s", f"≥ {THROUGHPUT_TARGET:.0f}",

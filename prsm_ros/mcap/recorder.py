@@ -52,7 +52,7 @@ YIELD_S = 5e-5
 # each drain is then a burst of ~3 ms of writes that competes with the step loop and the controller: the
 # bench's command-to-state latency p99 went from 1.9-3.2 ms to 4.4-6.6 ms, so latency wins.
 MAX_WAKE_S = 0.01
-FLUSH_INTERVAL_S = 0.05  # see McapRecorder: the GIL held by a chunk's index, and the loss on SIGKILL
+FLUSH_INTERVAL_S = 0.05  # see McapRecorder: a chunk's finishing burst, and the loss on SIGKILL
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
 # Deterministic files: how far (log time) a message may arrive behind the newest one and still be put
 # in order; a lockstep controller's reference comes one step behind the state it answers.
@@ -302,13 +302,17 @@ class McapRecorder:
     `queue_size`: messages held for the writer thread; when full, `write` drops and counts.
     `deterministic`: the same messages give the same bytes (`McapFile.write`: padding zeroed,
     messages in log-time order), chunks closed by size only, so a lockstep run can be a golden
-    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between forced chunk flushes. It bounds the loss on SIGKILL, and
-    each chunk's finishing work: its message index is built in Python (about 1 µs per message,
-    more on a busy machine) holding the GIL, so the node's step thread waits for it. At the
-    node's ~6,000 messages/s a 0.25 s chunk holds it for 1.5 ms or more, a 0.05 s chunk about
-    0.3 ms, for one chunk record and index entry more per 50 ms (interleaved runs on a
-    busy machine, command-to-state latency p99: 1.46–1.79 ms with 0.25 s, 1.15–1.89 ms with
-    0.05 s, 0.88 ms unrecorded; batch throughput a few per cent lower, within the run-to-run spread).
+    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between
+    forced chunk flushes. It bounds the loss on SIGKILL, and the size of each chunk's finishing
+    work: zstd and the CRC (native, the interpreter lock released) and the chunk's message index
+    (kept in arrays, written in one piece per channel) are proportional to the chunk, and a longer
+    chunk is a longer burst beside the node's step thread (interleaved runs on a busy machine with
+    the index built in Python, the larger burst: command-to-state latency p99 1.46–1.79 ms with
+    0.25 s, 1.15–1.89 ms with 0.05 s, 0.88 ms unrecorded).
+
+    `write_many` hands a step's messages over as one queue entry; the writer thread writes each
+    entry as one batch (`McapFile.write_many`), so the Python per message is a record header, an
+    index entry and a count.
     """
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
