@@ -546,34 +546,48 @@ def test_disk_filling_up_mid_run_stops_recording_and_keeps_what_was_flushed(tmp_
     assert 1000 < n < 60000
 
 
-def _fast_or_plain(path, fast: bool, chunk_size: int) -> None:
+def _fast_or_plain(path, how: str, chunk_size: int) -> None:
     """Messages of varied sizes, times out of order and channels, through mcap's Writer.add_message
-    (the oracle) or `FastMessages.add`; flushed now and then, chunks also closed by size."""
+    (the oracle), `FastMessages.add` one by one or `FastMessages.add_many` in batches of 1 to 12
+    (a batch may close a chunk in its middle); flushed now and then, chunks also closed by size."""
     from mcap.writer import CompressionType, IndexType, Writer
 
     from prsm_ros.mcap.fast_messages import FastMessages
-    rng = np.random.default_rng(7)
+    rng, batch_sizes = np.random.default_rng(7), np.random.default_rng(8)  # the same messages every way
     with open(path, "wb") as f:
         w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
         fm = FastMessages.attach(w, chunk_size)
         assert fm is not None
-        add = fm.add if fast else w.add_message
+        add = {"plain": w.add_message, "fast": fm.add}.get(how)
         w.start(profile="ros2", library="test")
         sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
         ids = [w.register_channel(f"/t{k}", "cdr", sid, {}) for k in range(5)]
+        batch: list = []
         for k in range(3000):
             cid = ids[int(rng.integers(len(ids)))]
             t = 1_000_000 * k + int(rng.integers(-3_000_000, 3_000_000))  # some arrive behind the newest
-            add(cid, t, rng.bytes(int(rng.integers(0, 400))), t + 1, k)
+            message = (cid, t, rng.bytes(int(rng.integers(0, 400))), t + 1, k)
+            if add is not None:
+                add(*message)
+            else:
+                batch.append(message)
+                if len(batch) >= int(batch_sizes.integers(1, 13)):
+                    fm.add_many(batch)
+                    batch = []
             if k % 700 == 699:
+                fm.add_many(batch)
+                batch = []
                 w.flush()
+        fm.add_many(batch)
         w.finish()
 
 
 @pytest.mark.parametrize("chunk_size", [1 << 20, 4096])
 def test_fast_message_path_writes_the_same_bytes(tmp_path, chunk_size):
     """The recorder's per-message path (`FastMessages`) against mcap's own `Writer.add_message`:
-    the same file, byte for byte, whether chunks close by flush or by size."""
-    _fast_or_plain(tmp_path / "plain.mcap", False, chunk_size)
-    _fast_or_plain(tmp_path / "fast.mcap", True, chunk_size)
-    assert (tmp_path / "plain.mcap").read_bytes() == (tmp_path / "fast.mcap").read_bytes()
+    the same file, byte for byte, whether chunks close by flush or by size, one message or a batch at a time."""
+    for how in ("plain", "fast", "batched"):
+        _fast_or_plain(tmp_path / f"{how}.mcap", how, chunk_size)
+    plain = (tmp_path / "plain.mcap").read_bytes()
+    assert (tmp_path / "fast.mcap").read_bytes() == plain
+    assert (tmp_path / "batched.mcap").read_bytes() == plain

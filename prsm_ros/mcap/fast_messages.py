@@ -5,9 +5,10 @@ by field (six struct calls and a seek back for its length), and keeps each chunk
 as a list of tuples that it writes, when the chunk closes, with two struct calls per entry while
 holding the interpreter lock the node's step thread needs. Profiled in the node at 1 kHz
 (jones2016, recording on) the recorder thread was the second largest cost of the process, most of
-it in that Python. `FastMessages.add` does the same work on the writer's own state: the record in
-one `struct.pack`, the index entries in an `array` written in one piece; the file is the same
-bytes (`tests/test_recorder.py` compares both paths byte for byte), including where chunks close.
+it in that Python. `FastMessages.add_many` does the same work on the writer's own state for a batch (the node's
+step): a record header in one `struct.pack`, the index entries in an `array` written in one piece,
+the batch's records in one write and its time spans widened once; the file is the same bytes
+(`tests/test_recorder.py` compares both paths byte for byte), including where chunks close.
 
 It reaches into the writer's private state (mcap 1.x); `FastMessages.attach` returns None when
 that state is not laid out as expected (another mcap version), and the caller keeps
@@ -88,21 +89,54 @@ class FastMessages:
 
     def add(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int) -> None:
         """As `Writer.add_message(channel_id, log_time, data, publish_time, sequence)`."""
+        self.add_many([(channel_id, log_time, data, publish_time, sequence)])
+
+    def add_many(self, messages: list[tuple[int, int, bytes, int, int]]) -> None:
+        """As `Writer.add_message(*m)` for each `m` = (channel_id, log_time, data, publish_time, sequence), in order.
+
+        Per message only the record header, its index entry and the channel's count are Python; the
+        records go into the chunk in one write, and the time spans are widened once per chunk
+        segment. A chunk still closes right after the message that takes it past `chunk_size`.
+        """
+        i, n = 0, len(messages)
+        while i < n:
+            i = self._fill(messages, i)
+
+    def _fill(self, messages, start: int) -> int:
+        """Add messages from `start` until the chunk is full or none are left; returns the next index."""
         st, cb = self._stats, self._builder
-        _extend_span(st, st.message_count == 0, log_time)  # the file's statistics
-        st.channel_message_counts[channel_id] += 1
-        st.message_count += 1
-        _extend_span(cb, cb.num_messages == 0, log_time)  # the chunk's
         buf = cb.record_writer._buffer
-        offset = buf.tell()
-        index = cb.message_indices.get(channel_id)
-        if index is None:
-            index = cb.message_indices[channel_id] = PackedMessageIndex(channel_id)
-        index.entries.append(log_time)
-        index.entries.append(offset)
-        cb.num_messages += 1
-        buf.write(_MESSAGE_HEAD.pack(MESSAGE_OPCODE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
-                                     publish_time))
-        buf.write(data)
-        if buf.tell() > self._chunk_size:
+        indices, counts, pack = cb.message_indices, st.channel_message_counts, _MESSAGE_HEAD.pack
+        limit = self._chunk_size
+        pos = buf.tell()
+        parts: list[bytes] = []
+        end = len(messages)
+        for k in range(start, end):
+            channel_id, log_time, data, publish_time, sequence = messages[k]
+            index = indices.get(channel_id)
+            if index is None:
+                index = indices[channel_id] = PackedMessageIndex(channel_id)
+            entries = index.entries
+            entries.append(log_time)
+            entries.append(pos)
+            counts[channel_id] += 1
+            parts.append(pack(MESSAGE_OPCODE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
+                              publish_time))
+            parts.append(data)
+            pos += _MESSAGE_HEAD.size + len(data)
+            if pos > limit:
+                end = k + 1
+                break
+        buf.write(b"".join(parts))
+        added = end - start
+        times = [m[1] for m in messages[start:end]]
+        lo, hi = min(times), max(times)
+        _extend_span(st, st.message_count == 0, lo)  # the file's statistics
+        _extend_span(st, False, hi)
+        st.message_count += added
+        _extend_span(cb, cb.num_messages == 0, lo)  # the chunk's
+        _extend_span(cb, False, hi)
+        cb.num_messages += added
+        if pos > limit:
             self._finalize()
+        return end

@@ -71,11 +71,12 @@ def write_trajectory_mcap(path, traj, params, model_name: str, *, preset_name: s
             out = traj.row(k)
             stamp = time_ns(out.time_s)
             command_stamp = time_ns(max(out.time_s - dt_s, 0.0))
-            f.write(ids["screw_torque"], mapper.float64(torque[k]), command_stamp)
+            batch = [(ids["screw_torque"], mapper.float64(torque[k]), command_stamp)]
             if reference_m is not None:  # it answers the state at the step's start
-                f.write(ids["nut_position_reference"], mapper.reference(command_stamp, reference_m[k]), command_stamp)
-            for cid, (_, msg) in zip(step_ids, mapper.messages(out)):
-                f.write(cid, msg, stamp)
+                batch.append((ids["nut_position_reference"], mapper.reference(command_stamp, reference_m[k]),
+                              command_stamp))
+            batch += [(cid, msg, stamp) for cid, (_, msg) in zip(step_ids, mapper.messages(out), strict=False)]
+            f.write_many(batch)
         f.finish()
     except BaseException:
         f.abort()

@@ -52,7 +52,7 @@ YIELD_S = 5e-5
 # each drain is then a burst of ~3 ms of writes that competes with the step loop and the controller: the
 # bench's command-to-state latency p99 went from 1.9-3.2 ms to 4.4-6.6 ms, so latency wins.
 MAX_WAKE_S = 0.01
-FLUSH_INTERVAL_S = 0.05  # see McapRecorder: the GIL held by a chunk's index, and the loss on SIGKILL
+FLUSH_INTERVAL_S = 0.05  # see McapRecorder: a chunk's finishing burst, and the loss on SIGKILL
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
 # Deterministic files: how far (log time) a message may arrive behind the newest one and still be put
 # in order; a lockstep controller's reference comes one step behind the state it answers.
@@ -153,6 +153,7 @@ class McapFile:
         self.deterministic = bool(deterministic)
         self._normalise = CdrNormaliser(self._codec.ros_distro) if deterministic else None
         self._type_of: dict[int, str] = {}
+        self._checked_good: dict[type, bytes] = {}
         self._pending: list[tuple[int, int, int, bytes]] = []
         self._latest_ns = 0
         self.path = Path(path)
@@ -169,7 +170,7 @@ class McapFile:
                                   index_types=IndexType.ALL)
             self.chunk_indexes = pack_chunk_indexes(self._writer)
             fast = FastMessages.attach(self._writer, chunk_size)  # the same bytes, less Python per message
-            self._add = fast.add if fast is not None else self._writer.add_message
+            self._add_many = fast.add_many if fast is not None else self._add_each
             self._writer.start(profile=mcap_schema.PROFILE, library=f"prsm {package_version()}; {LIBRARY_IDENTIFIER}")
             for name, data in records.items():
                 self._writer.add_metadata(name, data)
@@ -178,12 +179,22 @@ class McapFile:
             self.abort()
             raise
 
+    def _add_each(self, messages: list[tuple[int, int, bytes, int, int]]) -> None:
+        add = self._writer.add_message
+        for m in messages:
+            add(*m)
+
     def check(self, msg_class, data: bytes) -> bool:
-        """Whether `data` deserializes as `msg_class` (the codec's own deserializer)."""
+        """Whether `data` deserializes as `msg_class` (the codec's own deserializer).
+
+        The last bytes that did are kept per class: a command held for many steps is checked once."""
+        if self._checked_good.get(msg_class) == data:
+            return True
         try:
             self._codec.deserialize(data, msg_class)
         except Exception:  # each middleware raises its own types for bytes it cannot read
             return False
+        self._checked_good[msg_class] = data
         return True
 
     def add_channel(self, topic: str, msg_class, qos) -> int:
@@ -226,23 +237,34 @@ class McapFile:
         so a message that arrives late (a reference stamped with the state it answers) lands where
         its stamp puts it, whatever the threads' timing.
         """
-        seq = self._sequence[channel_id] + 1
-        self._sequence[channel_id] = seq
-        data = msg if type(msg) is bytes else self._serialize(msg)
-        self.messages_written += 1  # counted once handed over: a stalled disk blocks inside add_message
+        self.write_many([(channel_id, msg, stamp_ns)])
+
+    def write_many(self, items: list[tuple[int, object, int]]) -> None:
+        """`write(channel_id, msg, stamp_ns)` for each item, in order, handed to the writer as one batch."""
+        sequence, serialize = self._sequence, self._serialize
+        batch = []
+        for channel_id, msg, stamp_ns in items:
+            seq = sequence[channel_id] = sequence[channel_id] + 1
+            batch.append((channel_id, stamp_ns, msg if type(msg) is bytes else serialize(msg), stamp_ns, seq))
+        self.messages_written += len(batch)  # counted once handed over: a stalled disk blocks inside the writer
         if not self.deterministic:
-            self._add(channel_id, stamp_ns, data, stamp_ns, seq)
+            self._add_many(batch)
             return
-        heapq.heappush(self._pending, (stamp_ns, channel_id, seq, self._normalise(self._type_of[channel_id], data)))
-        self._latest_ns = max(self._latest_ns, stamp_ns)
+        pending, normalise, type_of = self._pending, self._normalise, self._type_of
+        for cid, t, data, _, seq in batch:
+            heapq.heappush(pending, (t, cid, seq, normalise(type_of[cid], data)))
+            self._latest_ns = max(self._latest_ns, t)
         self._release(self._latest_ns - REORDER_WINDOW_NS)
 
     def _release(self, up_to_ns: int | None) -> None:
         """Write the held messages with log time <= up_to_ns (all when None), in order."""
         pending = self._pending
+        ready = []
         while pending and (up_to_ns is None or pending[0][0] <= up_to_ns):
             t, cid, seq, data = heapq.heappop(pending)
-            self._add(cid, t, data, t, seq)
+            ready.append((cid, t, data, t, seq))
+        if ready:
+            self._add_many(ready)
 
     def flush(self) -> None:
         """Close the chunk in progress (with its message index) and push it to the OS.
@@ -280,13 +302,17 @@ class McapRecorder:
     `queue_size`: messages held for the writer thread; when full, `write` drops and counts.
     `deterministic`: the same messages give the same bytes (`McapFile.write`: padding zeroed,
     messages in log-time order), chunks closed by size only, so a lockstep run can be a golden
-    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between forced chunk flushes. It bounds the loss on SIGKILL, and
-    each chunk's finishing work: its message index is built in Python (about 1 µs per message,
-    more on a busy machine) holding the GIL, so the node's step thread waits for it. At the
-    node's ~6,000 messages/s a 0.25 s chunk holds it for 1.5 ms or more, a 0.05 s chunk about
-    0.3 ms, for one chunk record and index entry more per 50 ms (interleaved runs on a
-    busy machine, command-to-state latency p99: 1.46–1.79 ms with 0.25 s, 1.15–1.89 ms with
-    0.05 s, 0.88 ms unrecorded; batch throughput a few per cent lower, within the run-to-run spread).
+    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between
+    forced chunk flushes. It bounds the loss on SIGKILL, and the size of each chunk's finishing
+    work: zstd and the CRC (native, the interpreter lock released) and the chunk's message index
+    (kept in arrays, written in one piece per channel) are proportional to the chunk, and a longer
+    chunk is a longer burst beside the node's step thread (interleaved runs on a busy machine with
+    the index built in Python, the larger burst: command-to-state latency p99 1.46–1.79 ms with
+    0.25 s, 1.15–1.89 ms with 0.05 s, 0.88 ms unrecorded).
+
+    `write_many` hands a step's messages over as one queue entry; the writer thread writes each
+    entry as one batch (`McapFile.write_many`), so the Python per message is a record header, an
+    index entry and a count.
     """
 
     def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
@@ -304,7 +330,10 @@ class McapRecorder:
         self._lock = threading.Lock()
         self._dropped_full = 0
         self._lost = 0
+        # entries in order: a channel declaration (a tuple) or a list of (topic, message, stamp)
+        # handed over together; `_queued` counts the messages in it (under `_lock`)
         self._queue: deque = deque()
+        self._queued = 0
         self._queue_size = queue_size
         self._classes: dict[str, type] = {}
         self._malformed = 0  # untrusted bytes that did not deserialize (writer thread only)
@@ -343,7 +372,7 @@ class McapRecorder:
 
     @property
     def queue_length(self) -> int:
-        return len(self._queue)
+        return self._queued
 
     def add_channel(self, topic: str, msg_class, qos, *, untrusted: bool = False) -> None:
         """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing).
@@ -358,12 +387,12 @@ class McapRecorder:
                              f"cannot add it again as {mcap_schema.type_name(msg_class)}")
         mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the thread
         self._classes[topic] = msg_class
-        self._queue.append((topic, (msg_class, qos, untrusted), None))
+        self._queue.append((topic, msg_class, qos, untrusted))
 
     def backlog(self) -> int:
         """Messages queued for the writer thread: a producer with no deadline (the node's `fast`
         mode) waits while this is high instead of losing messages to a full queue."""
-        return len(self._queue)
+        return self._queued
 
     @property
     def queue_size(self) -> int:
@@ -379,10 +408,11 @@ class McapRecorder:
         with self._lock:
             if not self._writing:
                 self._lost += 1
-            elif len(self._queue) >= self._queue_size:
+            elif self._queued >= self._queue_size:
                 self._dropped_full += 1
             else:
-                self._queue.append((topic, msg, stamp_ns))
+                self._queued += 1
+                self._queue.append([(topic, msg, stamp_ns)])
 
     def write_many(self, items: list[tuple[str, object, int]]) -> None:
         """Enqueue several `(topic, message, stamp_ns)` at once, as `write` would one by one (one lock
@@ -397,11 +427,13 @@ class McapRecorder:
             if not self._writing:
                 self._lost += len(items)
                 return
-            room = self._queue_size - len(self._queue)
+            room = max(self._queue_size - self._queued, 0)
             if room < len(items):
-                self._dropped_full += len(items) - max(room, 0)
-                items = items[:max(room, 0)]
-            self._queue.extend(items)
+                self._dropped_full += len(items) - room
+            batch = items[:room]  # a copy: the caller may reuse its list
+            if batch:
+                self._queued += len(batch)
+                self._queue.append(batch)
 
     def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
         """Write what is queued, then the summary and footer; True when the file was finished cleanly.
@@ -434,9 +466,11 @@ class McapRecorder:
                 item = self._queue.popleft()
             except IndexError:
                 break
-            n += item[2] is not None  # channel declarations are not messages
+            if type(item) is list:  # channel declarations are not messages
+                n += len(item)
         with self._lock:
             self._lost += n
+            self._queued -= n
         return n
 
     def __enter__(self) -> McapRecorder:
@@ -461,7 +495,7 @@ class McapRecorder:
         ids: dict[str, int] = {}
         checked: dict[str, type] = {}  # untrusted topics → the class their bytes must deserialize as
         last_flush = time.monotonic()
-        queue = self._queue
+        queue, lock = self._queue, self._lock
         clock = time.perf_counter
         # short drains (see MAX_WAKE_S); close() wakes the thread at once
         wake_s = min(self._flush_interval_s, MAX_WAKE_S)
@@ -471,20 +505,22 @@ class McapRecorder:
             try:
                 slice_end = clock() + WORK_SLICE_S
                 while queue and f is not None:
-                    topic, msg, stamp = queue.popleft()
-                    if stamp is None:  # a channel declaration, kept in order with the messages
-                        cls, qos, untrusted = msg
+                    entry = queue.popleft()
+                    if type(entry) is tuple:  # a channel declaration, kept in order with the messages
+                        topic, cls, qos, untrusted = entry
                         ids[topic] = f.add_channel(topic, cls, qos)
                         if untrusted:
                             checked[topic] = cls
                         continue
-                    cls = checked.get(topic)
-                    if cls is not None and type(msg) is bytes and not f.check(cls, msg):
-                        self._malformed += 1
-                        continue
-                    f.write(ids[topic], msg, stamp)
-                    if not stopping and clock() > slice_end:  # closing: the producer has stopped, nobody waits
-                        time.sleep(YIELD_S)  # let the step loop take the GIL (see WORK_SLICE_S)
+                    with lock:
+                        self._queued -= len(entry)
+                    if checked:
+                        entry = self._well_formed(f, entry, checked)
+                    f.write_many([(ids[topic], msg, stamp) for topic, msg, stamp in entry])
+                    if not stopping and clock() > slice_end:
+                        stopping = self._stop.is_set()  # closing: the producer has stopped, nobody waits
+                        if not stopping:
+                            time.sleep(YIELD_S)  # let the step loop take the GIL (see WORK_SLICE_S)
                         slice_end = clock() + WORK_SLICE_S
                 if f is not None:
                     now = time.monotonic()
@@ -501,3 +537,10 @@ class McapRecorder:
                 self._discard_queued()
             if stopping:
                 return
+
+    def _well_formed(self, f: McapFile, entry: list, checked: dict[str, type]) -> list:
+        """`entry` without the bytes on untrusted topics that do not deserialize (counted in `_malformed`)."""
+        kept = [item for item in entry
+                if (cls := checked.get(item[0])) is None or type(item[1]) is not bytes or f.check(cls, item[1])]
+        self._malformed += len(entry) - len(kept)
+        return kept
