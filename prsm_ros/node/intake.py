@@ -20,6 +20,7 @@ from prsm_ros.cdr_read import float64_data, joint_state_stamp_effort0
 from prsm_ros.messages import TOPICS, event_message
 from prsm_ros.node.command_echo import stamp_of
 from prsm_ros.node.joint_commands import offer_joint_command
+from prsm_ros.node.outlets import FIRST_COMMAND_READER_WAIT_S
 from prsm_ros.node.owned_inputs import OWNED_INPUTS
 from prsm_ros.node.ownership import participant_name, participant_of
 from prsm_ros.node.refusals import short
@@ -58,6 +59,7 @@ class CommandIntake:
         self.joints = {"position": cfg.joint_names[1], "velocity": cfg.joint_names[0], "effort": cfg.joint_names[0]}
         # wait_for_controller: paused until the first command accepted from a controller (`hand_over`)
         self.await_controller = cfg.wait_for_controller
+        self.readers_awaited = False  # lockstep: the first command waits for its state's readers (Outlets.await_readers)
 
     def on_command(self, key: str, raw: bytes, info: dict) -> None:
         """One command message as CDR bytes.
@@ -144,6 +146,11 @@ class CommandIntake:
         node = self.node
         if node.config.time_mode != "lockstep" or self.session.paused or node.stopping:
             return
+        if not self.readers_awaited:  # once: the first state must reach the controller that asked for it
+            self.readers_awaited = True
+            if not self.outlets.await_readers(FIRST_COMMAND_READER_WAIT_S):
+                self.log.info(f"lockstep: no reader matched on {self.names['joint_states']} within "
+                              f"{FIRST_COMMAND_READER_WAIT_S:g} s of the first command; stepping anyway")
         n = node.config.lockstep_steps
         if n <= INLINE_STEPS and not node.jobs.busy:
             node.advance(n, publish_last_state=True)

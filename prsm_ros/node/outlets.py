@@ -23,6 +23,9 @@ from prsm_ros.node.sinks import Sinks
 READER_COUNT_EVERY = 50  # steps between two counts of the per-step topics' matched readers (module doc)
 WARN_THROTTLE_S = 2.0  # wall seconds between repeated warnings of one kind
 PER_STEP_TOPICS = ("joint_states", "ground_truth", "wrench", "internal_loads", "command_echo", "clock")
+# wall seconds a lockstep node waits, at its first command, for its per-step writers to match the readers
+# there are (`Outlets.await_readers`); a bound, not a delay: a controller already matched costs nothing
+FIRST_COMMAND_READER_WAIT_S = 5.0
 
 
 def unmatched(pub) -> bool:
@@ -110,6 +113,31 @@ class Outlets:
         batch, self.batch = self.batch, None
         if batch:
             self.sinks.write_many(batch)
+
+    def await_readers(self, timeout_s: float) -> bool:
+        """Wait (at most `timeout_s` wall seconds) until `joint_states` has a matched reader and every
+        per-step topic has matched the readers the graph shows. True when they have.
+
+        Discovery matches a writer and a reader on each side on its own: a controller sees our
+        writers matched and sends its first command while our side may not yet have matched its
+        readers. A lockstep state sent then goes to nobody (volatile) and the controller waits for
+        it for ever, so the first command waits for the match instead.
+        """
+        end = time.monotonic() + timeout_s
+        while True:
+            behind = [k for k in self.skippable if self._matched(k) < self._on_graph(k)]
+            if not behind and self._matched("joint_states") > 0:
+                return True
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.001)  # discovery runs on the middleware's threads; this one only polls
+
+    def _matched(self, key: str) -> int:
+        pub = self.pub.get(key)
+        return 0 if pub is None or unmatched(pub) else pub.get_subscription_count()
+
+    def _on_graph(self, key: str) -> int:
+        return self.node.count_subscribers(self.topic_names[key]) if key in self.pub else 0
 
     def count_readers(self) -> None:
         """Note which per-step topics have no matched reader now (`publish` skips them on DDS)."""
