@@ -44,7 +44,7 @@ def test_mutated_bags_through_info_check_and_repair(ops):
 
 
 @pytest.mark.slow
-@settings(max_examples=150, derandomize=True, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=40, derandomize=True, deadline=None, suppress_health_check=list(HealthCheck))
 @given(OPS)
 def test_mutated_bags_through_every_verb(ops):
     assert _case(ops, fuzz.VERBS) == {}, ops
