@@ -453,7 +453,7 @@ def _envelope_one(args) -> None:
         print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
     else:
         print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
-              f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
+              f"{case['load']['kind']} dt {case['dt_s']:.4g} s, {r['steps']} steps: "
               + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
         if node is not None:
             print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
