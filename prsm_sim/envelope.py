@@ -139,7 +139,7 @@ def _draw_start(rng, case: dict) -> None:
     start = float(np.round(rng.uniform(-0.01, 0.01), 5))
     stops = None
     # an impact's run-up: up to a fifth of the travel (a back-driven nut, a coasting one)
-    run_up = float(np.round(_log_uniform(rng, 2e-4, 0.2 * half), 6)) if impact else None
+    run_up = float(np.round(_log_uniform(rng, 2e-4, 0.2 * half), 6)) if impact else 0.0
     if near == "stop" and case["interface"] != "torque":
         gap = run_up if impact else float(np.round(rng.uniform(2e-4, 5e-3), 5))
         sgn = _pick(rng, (1.0, -1.0))
@@ -605,7 +605,7 @@ class _Run:
             # and the decaying ring when the torque limit then halts it are the controller's physics
             last = hist_w[-max(2, int(round(0.1 / dt))):]
             w = [q for q in last if abs(q) >= 0.25 * P2P_LIMIT_RAD_S]
-            reversals = sum(1 for a, b in zip(w, w[1:]) if a * b < 0.0)
+            reversals = sum(1 for a, b in zip(w, w[1:], strict=False) if a * b < 0.0)
             if ptp >= P2P_LIMIT_RAD_S and reversals >= 2:
                 self.res.violations.append(f"screw speed rings {ptp:.3f} rad/s peak to peak against a stop "
                                            "under a constant command")
