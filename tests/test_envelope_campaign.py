@@ -112,3 +112,13 @@ def test_a_tiny_campaign_on_ray_interrupted_and_resumed(tmp_path):
     assert summary["requested"]["done"] == 8 and summary["ran_now"] == 8 - len(kept)
     lines = results.read_text().splitlines()
     assert sorted(json.loads(x)["seed"] for x in lines) == list(range(2, 10))
+
+
+@pytest.mark.parametrize("args,expect", [
+    (["--seed", "3", "--runs", "5"], "--runs: --seed/--case run one case here"),
+    (["--seed", "3", "--merge", "x"], "--merge: --seed/--case run one case here"),
+    (["--merge", "x", "--first-seed", "7"], "--first-seed: --merge runs nothing"),
+])
+def test_options_a_mode_does_not_take_are_refused(args, expect, tmp_path, capsys):
+    assert sim.main(["envelope", *args, "-o", str(tmp_path)]) == 2
+    assert expect in capsys.readouterr().err

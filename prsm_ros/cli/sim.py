@@ -391,15 +391,25 @@ def cmd_envelope(args) -> None:
     # given here would not be the one tested, so it is refused rather than ignored
     _refuse_params(args, "prsm-sim envelope draws each case's parameters from its seed; to run your screw, write "
                          "its preset and overrides into a case file (`preset:`, `overrides:`) and run it with --case FILE")
+    campaign = [f"--{n.replace('_', '-')}" for n in ("runs", "first_seed", "address", "workers")
+                if getattr(args, n) is not None]
     if args.seed is not None or args.case is not None:
+        if campaign or args.merge:
+            raise CliError(f"{'/'.join(campaign or ['--merge'])}: --seed/--case run one case here; a campaign is "
+                           "--runs N [--first-seed S] [--address A] [--workers W]")
         _envelope_one(args)
         return
     if args.node:
         raise CliError("--node: replays one case; give --seed N or --case FILE")
     if args.merge:
+        if campaign:
+            raise CliError(f"{'/'.join(campaign)}: --merge runs nothing, it reports the results already in its "
+                           "directories")
         summary = merge_results([Path(d) for d in args.merge], Path(args.output))
         _envelope_report(args, summary)
         return
+    args.runs = 1000 if args.runs is None else args.runs
+    args.first_seed = 0 if args.first_seed is None else args.first_seed
     if not (isinstance(args.runs, int) and args.runs >= 1):
         raise CliError(f"--runs {args.runs!r}: must be a whole number >= 1")
     bar = None
@@ -513,9 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
     mo.set_defaults(func=cmd_modes)
     env = sub.add_parser("envelope", parents=[common], help="closed loops at the plant's edges, checked against "
                                                             "its invariants (on Ray)")
-    env.add_argument("--runs", type=int, default=1000, help="cases to run (consecutive seeds; those already in "
-                                                            "-o's results.jsonl are skipped: a rerun resumes)")
-    env.add_argument("--first-seed", type=int, default=0, help="seed of the first case")
+    env.add_argument("--runs", type=int, help="cases to run, default 1000 (consecutive seeds; those already in "
+                                              "-o's results.jsonl are skipped: a rerun resumes)")
+    env.add_argument("--first-seed", type=int, help="seed of the first case (default 0)")
     env.add_argument("-o", "--output", default="envelope-out", help="directory for failures/ and summary.json")
     env.add_argument("--address", help="a Ray head, HOST:PORT (default: an embedded Ray on this machine)")
     env.add_argument("--workers", type=int, help="CPUs of the embedded Ray (default: all)")
