@@ -193,10 +193,13 @@ def _draw_chain(rng, case: dict) -> None:
     if rng.random() < 0.5:
         ov["elastic.axial_clearance_m"] = float(np.round(_log_uniform(rng, 1e-6, MAX_CLEARANCE_M), 7))
         return
-    c0 = case_params(case).ratings.static_load_rating_n
+    p = case_params(case)
+    c0 = p.ratings.static_load_rating_n
     preload = float(np.round(_log_uniform(rng, 200.0, 0.1 * c0), 1))
     ov["elastic.preload_n"] = preload
-    ov["elastic.preload_kind"] = _pick(rng, ("oversize_rollers", "double_nut"))
+    kind = _pick(rng, ("oversize_rollers", "double_nut"))
+    # two halves of N_T/2 rows: a double nut needs an even n_teeth (a datasheet screw may have an odd one)
+    ov["elastic.preload_kind"] = kind if kind != "double_nut" or p.geometry.n_teeth % 2 == 0 else "oversize_rollers"
     if rng.random() < 0.5 and case["load"]["kind"] != "zero":
         ld = case["load"]
         ld["value_n"] = float(np.round(math.copysign(preload * rng.uniform(0.5, 6.0), ld["value_n"]), 1))

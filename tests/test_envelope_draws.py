@@ -51,3 +51,13 @@ def test_a_case_is_plain_data_that_builds(cases):
         assert json.loads(json.dumps(c)) == c
         session, _, p = build(c)
         assert session.simulator.dt_s == c["dt_s"] and p.geometry.starts == c.get("datasheet", {}).get("starts", 5)
+
+
+def test_a_double_nut_is_drawn_only_on_an_even_tooth_count(cases):
+    """Two halves of N_T/2 rows: a drawn datasheet screw with an odd N_T takes oversize rollers instead
+    (seed 627 drew a double nut on N_T = 51, refused by the parameter check before a step)."""
+    preloaded = [c for c in cases if "elastic.preload_kind" in c["overrides"] and "datasheet" in c]
+    assert preloaded
+    for c in preloaded:
+        assert c["overrides"]["elastic.preload_kind"] != "double_nut" or c["overrides"].get("geometry.n_teeth", 0) % 2 == 0
+    assert case_from_seed(627)["overrides"]["elastic.preload_kind"] == "oversize_rollers"
