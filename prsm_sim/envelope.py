@@ -46,12 +46,20 @@ from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
 
 MODELS = tuple(REGISTERED_MODELS)  # drawn in the registry's order
 INTERFACES = ("torque", "effort", "velocity", "position")
-CONTROLLERS = ("hold", "sine", "bangbang")
-LOADS = ("zero", "constant", "steps", "square", "into_stop")
+CONTROLLERS = ("hold", "sine", "bangbang", "impact")
+LOADS = ("zero", "constant", "steps", "square", "into_stop", "step")
 REST_SLACK_M = 2e-6  # rest penetration beyond the static deflection allowed (the invariant's 2 µm)
 P2P_LIMIT_RAD_S = 0.5
 SETTLE_S = 0.1  # an impact's decay before a hold is judged
 TORQUE_LIMIT_NM = 10.0  # the default motor's, also the bare loop's clamp
+MOTOR_SPEED_RAD_S = 500.0  # the default motor's speed limit: the fastest a free impact is driven to
+# step rates drawn log-uniform, whole hertz (the node's update_rate): dt_s from 1e-5 s to 0.1 s, the largest
+# step a model accepts (`Model.__init__`)
+RATE_HZ = (10.0, 1e5)
+MAX_STEPS = 2000  # screw-model steps per case (drive sub-steps counted): small steps mean shorter runs
+MAX_CLEARANCE_M = 2.5e-4  # clearances drawn log-uniform up to this (the issue's 200 µm and past it)
+LOAD_MIN_N = 50.0  # loads drawn log-uniform from this to the screw's static rating C₀a
+DATASHEET_SHARE = 0.25  # cases on a datasheet-built screw instead of the s30 preset
 _Q = {n: i for i, (n, _) in enumerate(ACTUATOR_QUANTITIES)}
 
 
@@ -64,25 +72,25 @@ def draw_case(rng, seed: int | None = None) -> dict:
     """One envelope case drawn by `rng`: anything with numpy's Generator methods `choice(n, p=None)`,
     `uniform(lo, hi)`, `random()` and `integers(n)` (a test passes hypothesis' draws through them).
 
-    The draws come in a fixed order (plant and loop, start and stops, load, elastic preload or
-    clearance, then brake, faults, reset and pause), so a seed keeps its case."""
+    The draws come in a fixed order (plant, step and loop, the screw, start and stops, load, elastic
+    preload or clearance, the drive's loop rate, then brake, faults, reset and pause), so a seed keeps
+    its case."""
     model = _pick(rng, MODELS)
-    dt = _pick(rng, (1e-3, 1e-4), p=(0.8, 0.2))
+    rate_hz = float(round(math.exp(rng.uniform(math.log(RATE_HZ[0]), math.log(RATE_HZ[1])))))
+    dt = 1.0 / rate_hz
     interface = _pick(rng, INTERFACES)
     controller = _pick(rng, CONTROLLERS)
-    # long enough for a hold to be judged (0.5 s + settling), short elsewhere: thousands of runs on two cores
-    lo, hi = ((0.62, 0.7) if controller == "hold" else (0.2, 0.5)) if dt == 1e-3 else (0.02, 0.05)
+    # long enough for a hold to be judged (0.5 s + settling), short elsewhere; at most MAX_STEPS steps
+    lo, hi = (0.62, 0.7) if controller in ("hold", "impact") else (0.2, 0.5)
     duration = float(np.round(rng.uniform(lo, hi), 3))
     case = {"seed": seed, "preset": "s30", "model": model, "dt_s": dt, "duration_s": duration,
             "interface": interface, "controller": controller, "overrides": {}}
+    _draw_screw(rng, case)
     _draw_start(rng, case)
     _draw_load(rng, case)
-    if model_class(model).has_axial_chain and rng.random() < 0.5:  # a clearance or a preload on the chain
-        if rng.random() < 0.5:
-            case["overrides"]["elastic.axial_clearance_m"] = float(np.round(rng.uniform(1e-6, 5e-5), 7))
-        else:
-            case["overrides"]["elastic.preload_n"] = float(np.round(rng.uniform(200.0, 3000.0), 1))
-            case["overrides"]["elastic.preload_kind"] = _pick(rng, ("oversize_rollers", "double_nut"))
+    _draw_chain(rng, case)
+    _draw_drive(rng, case)
+    case["duration_s"] = _bounded_duration(case)
     _draw_events(rng, case)
     return case
 
@@ -91,36 +99,79 @@ def _pick(rng, options, p=None):
     return options[int(rng.choice(len(options), p=p))]
 
 
+def _log_uniform(rng, lo: float, hi: float) -> float:
+    return math.exp(rng.uniform(math.log(lo), math.log(hi)))
+
+
+def case_params(case: dict):
+    """The parameter set of a case: its preset with its overrides."""
+    p = preset(case.get("preset", "s30"))
+    return p.with_overrides(case["overrides"]) if case.get("overrides") else p
+
+
+def _draw_screw(rng, case: dict) -> None:
+    """The s30 preset, or (DATASHEET_SHARE of cases) a screw built from a drawn catalogue row
+    (`prsm_sim.datasheet`: another diameter, lead and start count) on it, written into the case as the
+    overrides that make it (what the node takes as `physics.*` parameters)."""
+    if rng.random() >= DATASHEET_SHARE:
+        return
+    from prsm_sim.datasheet import Datasheet, params_from_datasheet
+    starts = int(_pick(rng, (3, 4, 5, 6)))
+    pitch = float(_pick(rng, (5e-4, 1e-3, 1.5e-3, 2e-3, 3e-3)))
+    row = Datasheet(nominal_diameter_m=float(np.round(rng.uniform(0.012, 0.08), 3)), lead_m=round(starts * pitch, 6),
+                    starts=starts)
+    base = preset(case["preset"])
+    built, _ = params_from_datasheet(row, base)
+    mine, theirs = built.to_dict(), base.to_dict()
+    case["datasheet"] = row.to_dict()
+    case["overrides"].update({f"{g}.{k}": v for g, group in mine.items() if isinstance(group, dict)
+                              for k, v in group.items() if theirs[g].get(k) != v})
+
+
 def _draw_start(rng, case: dict) -> None:
     """Where the nut starts and what it is asked: near the middle, near a stop (with the stops), or near a
-    thread end; whether the thread ends are fitted; the target, amplitude and frequency of the loop."""
-    g = preset("s30").geometry
+    thread end; whether the thread ends are fitted; the target, amplitude and frequency of the loop; for an
+    impact, the limit it is driven at and the screw speed it coasts (effort) or is driven (velocity) on at."""
+    g = case_params(case).geometry
     half = 0.5 * (g.screw_length_m - g.nut_length_m)  # the travel on the threads
-    near = _pick(rng, ("middle", "stop", "end"))
+    impact = case["controller"] == "impact"
+    near = _pick(rng, ("stop", "end")) if impact else _pick(rng, ("middle", "stop", "end"))
     start = float(np.round(rng.uniform(-0.01, 0.01), 5))
     stops = None
+    # an impact's run-up: up to a fifth of the travel (a back-driven nut, a coasting one)
+    run_up = float(np.round(_log_uniform(rng, 2e-4, 0.2 * half), 6)) if impact else 0.0
     if near == "stop" and case["interface"] != "torque":
-        gap = float(np.round(rng.uniform(2e-4, 5e-3), 5))
+        gap = run_up if impact else float(np.round(rng.uniform(2e-4, 5e-3), 5))
         sgn = _pick(rng, (1.0, -1.0))
         stops = {"min_position_m": start - 0.05, "max_position_m": start + gap} if sgn > 0 else \
                 {"min_position_m": start - gap, "max_position_m": start + 0.05}
         stops.update(stiffness_n_m=float(_pick(rng, (1e7, 1e8, 1e9))), damping_n_s_m=float(_pick(rng, (0.0, 2e4, 2e5))))
-    elif near == "end":
-        start = float(np.round(_pick(rng, (1.0, -1.0)) * (half - rng.uniform(2e-4, 5e-3)), 6))
+        toward = sgn
+    else:
+        toward = _pick(rng, (1.0, -1.0))
+        start = float(np.round(toward * (half - (run_up if impact else rng.uniform(2e-4, 5e-3))), 6)) \
+            if near == "end" or impact else start
     case["start_m"] = start
     case["stops"] = stops
-    case["thread_ends"] = bool(rng.random() < 0.9)
+    case["thread_ends"] = bool(impact or rng.random() < 0.9)
     if not case["thread_ends"]:
         case["overrides"]["geometry.thread_ends"] = False
     amplitude = float(np.round(rng.uniform(5e-4, 8e-3), 5))
     case.update(target_m=float(np.round(start + rng.uniform(-1, 1) * amplitude, 6)), amplitude_m=amplitude,
                 frequency_hz=float(np.round(rng.uniform(0.5, 8.0), 2)))
+    if impact:
+        limit = (stops["max_position_m"] if toward > 0 else stops["min_position_m"]) if stops else toward * half
+        case["impact"] = {"direction": toward, "speed_rad_s": float(np.round(rng.uniform(0.05, 1.0)
+                                                                             * MOTOR_SPEED_RAD_S, 2))}
+        case["target_m"] = float(np.round(limit + toward * 1e-3, 6))  # the position loop asked past the limit
 
 
 def _draw_load(rng, case: dict) -> None:
-    """The load's kind, value and period, and whether the start is in equilibrium under it."""
+    """The load's kind, value (log-uniform up to the screw's static rating) and period, and whether the
+    start is in equilibrium under it."""
     kind = _pick(rng, LOADS)
-    f = float(np.round(rng.uniform(50.0, 8000.0), 1)) * _pick(rng, (1.0, -1.0))
+    c0 = case_params(case).ratings.static_load_rating_n
+    f = float(np.round(_log_uniform(rng, LOAD_MIN_N, c0), 1)) * _pick(rng, (1.0, -1.0))
     if kind == "into_stop":
         # a load pushing the nut towards the nearer limit (a negative load pushes +x)
         start, stops = case["start_m"], case["stops"]
@@ -132,6 +183,47 @@ def _draw_load(rng, case: dict) -> None:
     case["initial_load"] = bool(kind in ("constant", "into_stop") and rng.random() < 0.5)
 
 
+def _draw_chain(rng, case: dict) -> None:
+    """On an axial chain: a clearance (log-uniform to MAX_CLEARANCE_M) or a preload, the preload's load
+    drawn anew about it half the time (from half to six times the preload: past about 2.8 times a flank
+    unloads)."""
+    if not (model_class(case["model"]).has_axial_chain and rng.random() < 0.5):
+        return
+    ov = case["overrides"]
+    if rng.random() < 0.5:
+        ov["elastic.axial_clearance_m"] = float(np.round(_log_uniform(rng, 1e-6, MAX_CLEARANCE_M), 7))
+        return
+    p = case_params(case)
+    c0 = p.ratings.static_load_rating_n
+    preload = float(np.round(_log_uniform(rng, 200.0, 0.1 * c0), 1))
+    ov["elastic.preload_n"] = preload
+    kind = _pick(rng, ("oversize_rollers", "double_nut"))
+    # two halves of N_T/2 rows: a double nut needs an even n_teeth (a datasheet screw may have an odd one)
+    ov["elastic.preload_kind"] = kind if kind != "double_nut" or p.geometry.n_teeth % 2 == 0 else "oversize_rollers"
+    if rng.random() < 0.5 and case["load"]["kind"] != "zero":
+        ld = case["load"]
+        ld["value_n"] = float(np.round(math.copysign(preload * rng.uniform(0.5, 6.0), ld["value_n"]), 1))
+
+
+def _draw_drive(rng, case: dict) -> None:
+    """The drive's loop rate (an actuator, a third of the cases): a whole ratio of the step rate, up to five
+    updates a step or one every five steps (`drive.loop_schedule` sub-steps or holds by it)."""
+    case["loop_rate_hz"] = None
+    if case["interface"] == "torque" or rng.random() >= 1 / 3:
+        return
+    k = int(_pick(rng, (2, 3, 4, 5)))
+    rate = 1.0 / case["dt_s"]
+    case["loop_rate_hz"] = rate * k if rng.random() < 0.5 else rate / k
+
+
+def _bounded_duration(case: dict) -> float:
+    """The drawn duration, cut to MAX_STEPS screw-model steps (drive sub-steps counted)."""
+    dt, lr = case["dt_s"], case.get("loop_rate_hz")
+    n_sub = max(1, round(lr * dt)) if lr else 1
+    steps = min(int(round(case["duration_s"] / dt)), max(1, MAX_STEPS // n_sub))
+    return float(steps * dt)
+
+
 def _draw_events(rng, case: dict) -> None:
     """Brake engage/release and a fault (with an actuator), a reset and a pause mid-run."""
     duration = case["duration_s"]
@@ -139,14 +231,14 @@ def _draw_events(rng, case: dict) -> None:
     case["faults"] = []
     if case["interface"] != "torque":
         if rng.random() < 0.25:
-            t1 = float(np.round(rng.uniform(0.1, 0.6) * duration, 4))
+            t1 = float(np.round(rng.uniform(0.1, 0.6) * duration, 6))
             case["brake"] = {"holding_torque_nm": float(np.round(rng.uniform(2.0, 20.0), 2)), "engage_s": t1,
-                             "release_s": float(np.round(t1 + rng.uniform(0.05, 0.3) * duration, 4))}
+                             "release_s": float(np.round(t1 + rng.uniform(0.05, 0.3) * duration, 6))}
         if rng.random() < 0.35:
             case["faults"] = [_fault(rng, duration, case["model"], case["overrides"])]
-    case["reset_at_s"] = float(np.round(rng.uniform(0.3, 0.7) * duration, 4)) if rng.random() < 0.15 else None
+    case["reset_at_s"] = float(np.round(rng.uniform(0.3, 0.7) * duration, 6)) if rng.random() < 0.15 else None
     # drawn last, so every other draw of a seed stays what it was before pauses were drawn
-    case["pause_at_s"] = float(np.round(rng.uniform(0.1, 0.9) * duration, 4)) if rng.random() < 0.25 else None
+    case["pause_at_s"] = float(np.round(rng.uniform(0.1, 0.9) * duration, 6)) if rng.random() < 0.25 else None
 
 
 def _fault(rng, duration, model, overrides) -> dict:
@@ -155,8 +247,8 @@ def _fault(rng, duration, model, overrides) -> dict:
     if model_class(model).has_axial_chain and "elastic.preload_n" not in overrides:
         kinds.append("backlash")
     kind = kinds[int(rng.integers(len(kinds)))]
-    start = float(np.round(rng.uniform(0.0, 0.6) * duration, 4))
-    d = {"kind": kind, "start_s": start, "duration_s": float(np.round(rng.uniform(0.02, 0.5) * duration, 4))}
+    start = float(np.round(rng.uniform(0.0, 0.6) * duration, 6))
+    d = {"kind": kind, "start_s": start, "duration_s": float(np.round(rng.uniform(0.02, 0.5) * duration, 6))}
     value = {"friction_surge": rng.uniform(1.2, 3.0), "lubrication_loss": rng.uniform(1.2, 3.0),
              "jam": rng.uniform(0.1, 3.0), "sensor_bias": rng.uniform(-1e-4, 1e-4),
              "sensor_noise": rng.uniform(0.0, 1e-4), "sensor_dropout": rng.uniform(0.0, 0.5),
@@ -200,15 +292,14 @@ def initial_load_n(case: dict) -> float | None:
 def build(case: dict):
     """(Session, the actuator parameters or None, params) for a case; the gate's effort limit is the
     loop's own torque limit, so the gate passes every command the controller gives unchanged."""
-    p = preset(case.get("preset", "s30"))
-    if case.get("overrides"):
-        p = p.with_overrides(case["overrides"])
+    p = case_params(case)
     act = None
     if case["interface"] != "torque":
         stops = StopParams(**case["stops"]) if case.get("stops") else StopParams()
         b = case.get("brake")
         brake = BrakeParams(holding_torque_nm=b["holding_torque_nm"]) if b else BrakeParams()
-        act = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode=case["interface"]), stops=stops, brake=brake,
+        drive = DriveParams(mode=case["interface"], loop_rate_hz=case.get("loop_rate_hz"))
+        act = ActuatorParams(motor=MotorParams(), drive=drive, stops=stops, brake=brake,
                              faults=tuple(Fault(**f) for f in case.get("faults", ())))
     session = Session.from_config(SessionConfig(
         params=p, model=case["model"], dt_s=case["dt_s"], actuator=act, nut_position_m=case["start_m"],
@@ -223,6 +314,8 @@ def _load(case: dict, t: float) -> float:
         return 0.0
     if kind in ("constant", "into_stop"):
         return f
+    if kind == "step":  # a load step at period_s
+        return f if t >= period else 0.0
     if kind == "steps":  # 0 → F → F/2 → F …
         k = int(t / period) % 3
         return (0.0, f, 0.5 * f)[k]
@@ -238,6 +331,7 @@ class _Controller:
         self.pid = PositionController(inertia_kgm2=reflected_inertia(p), lead_per_rad_m=self.p,
                                       max_torque_nm=TORQUE_LIMIT_NM)
         self.flip = 1.0
+        self.coasting = False
 
     def reference(self, t: float) -> tuple[float, float, float]:
         c = self.case
@@ -250,6 +344,8 @@ class _Controller:
     def command(self, t: float, x: float, v: float, load_n: float) -> float:
         c, p = self.case, self.p
         iface = c["interface"]
+        if c["controller"] == "impact":
+            return self._impact(iface, v)
         if c["controller"] == "bangbang":
             # reversals at full effort between start ± amplitude
             if x > c["start_m"] + c["amplitude_m"]:
@@ -268,6 +364,18 @@ class _Controller:
             return max(-300.0, min(300.0, (vr + 20.0 * (xr - x)) / p))
         self.pid.load_n = load_n
         return self.pid.torque(xr - x, vr - v, ar, self.dt)
+
+    def _impact(self, iface: str, v: float) -> float:
+        """Onto the limit: the position loop asked past it, the speed loop at the impact speed, or full
+        effort until the screw turns at the impact speed and then none (a free impact)."""
+        imp = self.case["impact"]
+        d, w_hit = imp["direction"], imp["speed_rad_s"]
+        if iface == "position":
+            return self.case["target_m"]
+        if iface == "velocity":
+            return d * w_hit
+        self.coasting = self.coasting or d * v / self.p >= w_hit
+        return 0.0 if self.coasting else d * TORQUE_LIMIT_NM
 
 
 def run_case(case: dict, record: bool = False) -> Result:
@@ -500,7 +608,7 @@ class _Run:
             # and the decaying ring when the torque limit then halts it are the controller's physics
             last = hist_w[-max(2, int(round(0.1 / dt))):]
             w = [q for q in last if abs(q) >= 0.25 * P2P_LIMIT_RAD_S]
-            reversals = sum(1 for a, b in zip(w, w[1:]) if a * b < 0.0)
+            reversals = sum(1 for a, b in zip(w, w[1:], strict=False) if a * b < 0.0)
             if ptp >= P2P_LIMIT_RAD_S and reversals >= 2:
                 self.res.violations.append(f"screw speed rings {ptp:.3f} rad/s peak to peak against a stop "
                                            "under a constant command")

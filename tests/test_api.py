@@ -52,7 +52,7 @@ def test_notebook_flow_reaches_the_papers_steady_state(jones_run):
 
 def test_repr_keys_time(jones_run):
     sim, traj = jones_run
-    assert repr(traj) == ("Trajectory(1000 steps, 0.001–1 s, 21 scalar columns, internal 1000×60 in blocks "
+    assert repr(traj) == ("Trajectory(1000 steps, 0.001–1 s, 22 scalar columns, internal 1000×60 in blocks "
                           "['per_roller'])")
     assert traj.keys() == [name for name, _ in OUTPUT_FIELDS]
     assert "efficiency" in traj and "nope" not in traj

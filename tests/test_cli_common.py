@@ -75,36 +75,6 @@ def test_ctrl_c_in_prsm_bench_prints_the_areas_measured_and_exits_130(capsys):
     assert '"area": "first"' in out and '"interrupted": true' in out and "third" not in out
 
 
-def test_ctrl_c_in_prsm_sim_envelope_keeps_the_failures_and_names_the_next_seed(tmp_path, monkeypatch, capsys):
-    """Interrupted after some cases: their failures and a summary stay, the message says where to go on."""
-    from prsm_ros.cli import sim
-    from prsm_ros.sweep import envelope
-
-    class FakeRay:
-        def cluster_resources(self):
-            return {"CPU": 1}
-
-    monkeypatch.setattr("prsm_ros.ray_runner.connect", lambda address, workers: (FakeRay(), True, None))
-    monkeypatch.setattr("prsm_ros.ray_runner.disconnect", lambda ray, owned, tmp: None)
-
-    def two_cases_then_ctrl_c(ray, seeds, n_workers, fail_dir, done_rows, progress):
-        done_rows.extend(envelope._run_batch(seeds[:1]))
-        done_rows.append({"seed": seeds[2], "violations": ["a broken invariant at t = 0.1 s"], "steps": 1,
-                          "seconds": 0.0, "model": "ideal", "interface": "effort"})
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(envelope, "_run_batches", two_cases_then_ctrl_c)
-    with pytest.raises(SystemExit) as e:
-        sim.main(["envelope", "--runs", "10", "--first-seed", "100", "-o", str(tmp_path), "--no-progress"])
-    assert e.value.code == 130
-    err = capsys.readouterr().err
-    assert "prsm-sim: interrupted: 2 of 10 runs done, 1 broke an invariant" in err
-    assert "--first-seed 101" in err
-    import json
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["interrupted"] and summary["runs"] == 2 and summary["next_seed"] == 101
-
-
 def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(tmp_path, monkeypatch, capsys):
     """The node is stopped with SIGINT (it closes its bag then); the demo names the bag and exits 130."""
     from prsm_ros.cli import demo

@@ -25,7 +25,8 @@ ENV = ros_test_env("test_envelope_node")
 
 def test_a_case_with_brake_pause_and_reset_replays_on_the_node_to_the_same_states(tmp_path):
     from prsm_ros.node.replay import replay_on_node
-    case = case_from_seed(35)  # actuator in effort mode, brake engage and release, a pause, then a reset
+    case = case_from_seed(1624)  # actuator in effort mode driven onto a thread end, brake engage and release, a
+    # pause, then a reset, at a step of 1/1676 s
     assert case["interface"] == "effort" and case["brake"] and case["pause_at_s"] and case["reset_at_s"]
     r = replay_on_node(case, tmp_path / "node", env=ENV)
     assert r["violations"] == [] and r["mismatch"] is None
@@ -35,7 +36,7 @@ def test_a_case_with_brake_pause_and_reset_replays_on_the_node_to_the_same_state
 def test_the_command_replays_a_failure_file_through_the_node(tmp_path):
     """`prsm-sim envelope --case FILE --node`: one command, the offline verdict and the node's."""
     import yaml
-    case = case_from_seed(4)  # fu2018, position drive, paused mid-run, a constant load
+    case = case_from_seed(2174)  # fu2018, position drive, paused mid-run, a constant load
     (tmp_path / "case.yaml").write_text(yaml.safe_dump({"case": case}), encoding="utf-8")
     p = subprocess.run([sys.executable, "-m", "prsm_ros.cli.sim", "envelope", "--case", str(tmp_path / "case.yaml"),
                         "--node", "--json", "-o", str(tmp_path / "out")], env=ENV, capture_output=True, text=True,

@@ -386,16 +386,30 @@ def _envelope_on_node(case: dict, args) -> dict:
 def cmd_envelope(args) -> None:
     from pathlib import Path
 
-    from prsm_ros.sweep.envelope import run_envelope
+    from prsm_ros.sweep.envelope import merge_results, run_envelope
     # each case carries its own screw (`preset` and `overrides` in the case, drawn from its seed): a screw
     # given here would not be the one tested, so it is refused rather than ignored
     _refuse_params(args, "prsm-sim envelope draws each case's parameters from its seed; to run your screw, write "
                          "its preset and overrides into a case file (`preset:`, `overrides:`) and run it with --case FILE")
+    campaign = [f"--{n.replace('_', '-')}" for n in ("runs", "first_seed", "address", "workers")
+                if getattr(args, n) is not None]
     if args.seed is not None or args.case is not None:
+        if campaign or args.merge:
+            raise CliError(f"{'/'.join(campaign or ['--merge'])}: --seed/--case run one case here; a campaign is "
+                           "--runs N [--first-seed S] [--address A] [--workers W]")
         _envelope_one(args)
         return
     if args.node:
         raise CliError("--node: replays one case; give --seed N or --case FILE")
+    if args.merge:
+        if campaign:
+            raise CliError(f"{'/'.join(campaign)}: --merge runs nothing, it reports the results already in its "
+                           "directories")
+        summary = merge_results([Path(d) for d in args.merge], Path(args.output))
+        _envelope_report(args, summary)
+        return
+    args.runs = 1000 if args.runs is None else args.runs
+    args.first_seed = 0 if args.first_seed is None else args.first_seed
     if not (isinstance(args.runs, int) and args.runs >= 1):
         raise CliError(f"--runs {args.runs!r}: must be a whole number >= 1")
     bar = None
@@ -414,13 +428,20 @@ def cmd_envelope(args) -> None:
         if bar is not None:
             bar.close()
     if summary.get("interrupted"):
-        print(f"prsm-sim: interrupted: {summary['runs']} of {summary['requested']} runs done, {summary['failed']} "
-              f"broke an invariant (cases in {args.output}/failures, counts in {args.output}/summary.json); go on "
-              f"with --first-seed {summary['next_seed']}", file=sys.stderr)
+        req = summary["requested"]
+        print(f"prsm-sim: interrupted: {req['done']} of {req['runs']} runs done, {summary['failed']} of the "
+              f"{summary['runs']} in {args.output} broke an invariant (results in {args.output}/results.jsonl, "
+              f"failures in {args.output}/failures); the same command goes on from seed {summary['next_seed']}",
+              file=sys.stderr)
         raise SystemExit(130)
+    _envelope_report(args, summary)
+
+
+def _envelope_report(args, summary: dict) -> None:
     print(dumps(summary) if args.json else
-          f"{summary['runs']} runs on {summary['workers']} workers in {summary['wall_s']} s: {summary['failed']} "
-          f"broke an invariant" + (f" (cases in {args.output}/failures)" if summary["failed"] else ""))
+          f"{summary['runs']} runs (seeds {', '.join(f'{a}…{b}' for a, b in summary['seed_ranges'])}), "
+          f"{summary['steps']} steps, {summary['cpu_s']} CPU s: {summary['failed']} broke an invariant"
+          + (f" (cases in {args.output}/failures)" if summary["failed"] else ""))
 
 
 def _envelope_one(args) -> None:
@@ -442,7 +463,7 @@ def _envelope_one(args) -> None:
         print(dumps({"case": case, **r, **({"node": node} if node is not None else {})}))
     else:
         print(f"seed {r['seed']}: {case['model']} {case['interface']} {case['controller']} load "
-              f"{case['load']['kind']} dt {case['dt_s']} s, {r['steps']} steps: "
+              f"{case['load']['kind']} dt {case['dt_s']:.4g} s, {r['steps']} steps: "
               + ("ok" if r["ok"] else "BROKE " + "; ".join(r["violations"])))
         if node is not None:
             print(f"prsm-node in lockstep: {node['compared']} of {node['steps']} steps compared: "
@@ -502,11 +523,14 @@ def build_parser() -> argparse.ArgumentParser:
     mo.set_defaults(func=cmd_modes)
     env = sub.add_parser("envelope", parents=[common], help="closed loops at the plant's edges, checked against "
                                                             "its invariants (on Ray)")
-    env.add_argument("--runs", type=int, default=1000, help="cases to run (consecutive seeds)")
-    env.add_argument("--first-seed", type=int, default=0, help="seed of the first case")
+    env.add_argument("--runs", type=int, help="cases to run, default 1000 (consecutive seeds; those already in "
+                                              "-o's results.jsonl are skipped: a rerun resumes)")
+    env.add_argument("--first-seed", type=int, help="seed of the first case (default 0)")
     env.add_argument("-o", "--output", default="envelope-out", help="directory for failures/ and summary.json")
     env.add_argument("--address", help="a Ray head, HOST:PORT (default: an embedded Ray on this machine)")
     env.add_argument("--workers", type=int, help="CPUs of the embedded Ray (default: all)")
+    env.add_argument("--merge", nargs="+", metavar="DIR", help="merge the results of these envelope output "
+                                                                "directories (seed ranges run apart) into -o")
     env.add_argument("--seed", type=int, help="run the one case of this seed here and report it")
     env.add_argument("--case", metavar="FILE.yaml", help="run a case (or a failure file) here and report it")
     env.add_argument("--node", action="store_true", help="with --seed/--case: also replay it into prsm-node in "

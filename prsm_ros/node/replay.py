@@ -46,7 +46,10 @@ def node_parameters(case: dict) -> dict[str, Any]:
     for key, value in (case.get("overrides") or {}).items():
         params[f"physics.{key}"] = value
     if case["interface"] != "torque":
-        act: dict[str, Any] = {"motor": {}, "drive": {"mode": case["interface"]}}
+        drive: dict[str, Any] = {"mode": case["interface"]}
+        if case.get("loop_rate_hz"):
+            drive["loop_rate_hz"] = case["loop_rate_hz"]
+        act: dict[str, Any] = {"motor": {}, "drive": drive}
         if case.get("stops"):
             act["stops"] = dict(case["stops"])
         if case.get("brake"):

@@ -49,6 +49,12 @@ def energy_fault(flow_j, residual_j):
     return ledger_step(flow_j, residual_j, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)[3]
 
 
+def over_static_rating(load_n, static_rating_n):
+    """1.0 where the nut load exceeds the static load rating C₀a (|F| > C₀a), else 0.0 (scalars or arrays):
+    past C₀a the threads deform permanently (ISO 76), which no model here represents."""
+    return (abs(load_n) > static_rating_n) * 1.0
+
+
 def energy_guard_summary(columns) -> dict:
     """The energy guard over a run (a Trajectory or its columns): final residual, flow, their ratio,
     whether and when the guard tripped (`energy_fault` first 1.0), and the limit it judges by."""

@@ -42,7 +42,7 @@ import numpy as np
 from prsm_sim.checks import is_finite_number, is_number
 from prsm_sim.errors import InputError, ParamError
 from prsm_sim.params import Params
-from prsm_sim.stepping.ledger import energy_fault
+from prsm_sim.stepping.ledger import energy_fault, over_static_rating
 from prsm_sim.stepping.packed import PackedConstants, PackedOutputs, make_finisher
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
@@ -186,7 +186,13 @@ class Model:
         """The ledger's per-step form for this model (`stepping.packed.make_finisher`), with the model's
         own slip speed and internal vector as functions of (ω_S, ω_C at the step's end, the step's aux)."""
         return make_finisher(self.dt_s, self.geo.lead_per_rad_m, self.params.mass.moved_mass_kg, self.geo.gear_ratio,
-                             slip_speed, internal)
+                             slip_speed, internal, self.static_rating_n)
+
+    @cached_property
+    def static_rating_n(self) -> float:
+        """The static load rating C₀a the load is flagged against (`Outputs.over_static_rating`), N."""
+        c0 = self.params.ratings.static_load_rating_n
+        return math.inf if c0 is None else float(c0)
 
     # -- the packed state -------------------------------------------------------------------
     def pack_state(self, s: State) -> tuple:
@@ -224,7 +230,8 @@ class Model:
         zero internal loads."""
         x = self.pack_state(state)
         zeros = np.zeros(self.layout.size)
-        k = PackedConstants(self.dt_s, self.geo.gear_ratio, lambda w_s, w_c, aux: 0.0, lambda w_s, w_c, aux: zeros)
+        k = PackedConstants(self.dt_s, self.geo.gear_ratio, lambda w_s, w_c, aux: 0.0, lambda w_s, w_c, aux: zeros,
+                            self.static_rating_n)
         nut_x, nut_v = self.nut_motion(state)
         fault = 1.0 if energy_fault(state.energy_flow_j, state.energy_residual_j) else 0.0
         return PackedOutputs(x + (float(command), float(load_n), 0.0, 0.0, 0.0, float(load_n), nut_x, nut_v, fault, k,
@@ -240,7 +247,10 @@ class Model:
         """Advance len(command) steps; input k is held over step k, output k is at its end.
         InputError for inputs that are not one finite number per step (the load may be one number)."""
         u, f = input_columns(command, load_n, self.command_name)
-        return self._run_impl(state, u, f)
+        traj = self._run_impl(state, u, f)
+        # flagged here, once for every batch form (`trajectory_from_columns` knows no rating)
+        traj.columns["over_static_rating"] = over_static_rating(traj.columns["load_force_n"], self.static_rating_n)
+        return traj
 
     def _run_impl(self, state: State, command: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """The step repeated; a model with a faster batch form overrides this."""

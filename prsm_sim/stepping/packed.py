@@ -12,12 +12,13 @@ outputs are a few flops on these, done when read.
 
 from __future__ import annotations
 
+import math
 from dataclasses import FrozenInstanceError
 from operator import itemgetter
 
 import numpy as np
 
-from prsm_sim.stepping.ledger import efficiency, ledger_step, speed_ratio
+from prsm_sim.stepping.ledger import efficiency, ledger_step, over_static_rating, speed_ratio
 from prsm_sim.stepping.records import OUTPUT_FIELDS, Outputs
 
 PACKED_STATE_SIZE = 12
@@ -39,17 +40,20 @@ class PackedConstants:
         (ω_S, ω_C at the step's end, the record's aux) → slip speed, m/s.
     internal : callable
         (ω_S, ω_C at the step's end, the record's aux) → the internal-load vector.
+    static_rating_n : float, default inf
+        The static load rating C₀a the load is flagged against (`Outputs.over_static_rating`), N.
     """
 
-    __slots__ = ("dt_s", "gear_ratio", "slip_speed", "internal")
+    __slots__ = ("dt_s", "gear_ratio", "slip_speed", "internal", "static_rating_n")
 
-    def __init__(self, dt_s, gear_ratio, slip_speed, internal) -> None:
+    def __init__(self, dt_s, gear_ratio, slip_speed, internal, static_rating_n=math.inf) -> None:
         self.dt_s, self.gear_ratio = dt_s, gear_ratio
         self.slip_speed, self.internal = slip_speed, internal
+        self.static_rating_n = static_rating_n
 
 
 def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear_ratio: float, slip_speed,
-                  internal):
+                  internal, static_rating_n: float = math.inf):
     """The ledger's per-step form for one model: a function
     ``finish(x, θ_S, ω_S, θ_C, ω_C, command, load, dissipated, stored, part=(), aux=None,
     nut_force=None, nut=None) -> PackedOutputs``
@@ -60,11 +64,11 @@ def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear
     a model that knows better passes `nut_force`, and a nut with an axial state of its own
     (`elastic`) passes `nut` = (x_N, v_N, the load's work over the step). The record derives the
     other outputs when read, with `slip_speed` and `internal` (functions of ω_S, ω_C at the step's
-    end and the step's `aux`) for the model's own.
+    end and the step's `aux`) for the model's own, and flags a load past `static_rating_n` (N).
     """
     h, p = dt_s, lead_per_rad_m
     mp = moved_mass_kg * p
-    k = PackedConstants(h, gear_ratio, slip_speed, internal)
+    k = PackedConstants(h, gear_ratio, slip_speed, internal, static_rating_n)
     ledger = ledger_step  # a local name: one look-up less per step
 
     def finish(x, th_s, w_s, th_c, w_c, command, load_n, dissipated_j, stored_j, part=(), aux=None,
@@ -156,6 +160,10 @@ class PackedOutputs(tuple):
     @property
     def efficiency(self) -> float:
         return efficiency(self.power_in_w, self.power_out_w, self.power_dissipated_w)
+
+    @property
+    def over_static_rating(self) -> float:
+        return over_static_rating(self[_LOAD], self[_K].static_rating_n)
 
     @property
     def speed_ratio(self) -> float:

@@ -140,6 +140,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("energy_flow_j", "J"),
     ("energy_residual_j", "J"),
     ("energy_fault", "1"),
+    ("over_static_rating", "1"),
 )
 
 
@@ -193,6 +194,10 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
     energy_fault : float
         1.0 while |energy_residual_j| > 1e-3 · energy_flow_j once the flow exceeds 1 J (the
         model's energy books do not close: do not trust its results), else 0.0.
+    over_static_rating : float
+        1.0 while the load held over the step exceeds the static load rating C₀a
+        (|load_force_n| > `Ratings.static_load_rating_n`: past it the threads deform permanently,
+        ISO 76, which no model here represents), else 0.0.
     internal : numpy.ndarray
         The flat internal-load vector, labelled by the model's `InternalLayout`.
     """
@@ -218,6 +223,7 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
     energy_flow_j: float
     energy_residual_j: float
     energy_fault: float
+    over_static_rating: float
     internal: np.ndarray
 
     def scalars(self) -> dict[str, float]:

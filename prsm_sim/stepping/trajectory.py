@@ -7,12 +7,14 @@ ledger's column form (`stepping.ledger.ledger_columns`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
 
 from prsm_sim.errors import InputError
-from prsm_sim.stepping.ledger import accumulate, efficiency_columns, ledger_columns, speed_ratio_columns
+from prsm_sim.stepping.ledger import (accumulate, efficiency_columns, ledger_columns, over_static_rating,
+                                     speed_ratio_columns)
 from prsm_sim.stepping.records import OUTPUT_FIELDS, InternalBlock, InternalLayout, Outputs, State
 
 
@@ -196,13 +198,15 @@ def trajectory_from_rows(rows: list[Outputs], layout: InternalLayout, final: Sta
 
 def trajectory_from_columns(initial: State, final: State, stored0_j: float, *, dt_s: float, gear_ratio: float,
                             layout: InternalLayout, internal, torque_nm, load_n, th_s, w_s, th_c, w_c, dtheta, nut_x,
-                            nut_v, nut_force, slip, work_out_j, dissipated_j, stored_j) -> Trajectory:
+                            nut_v, nut_force, slip, work_out_j, dissipated_j, stored_j,
+                            static_rating_n: float = math.inf) -> Trajectory:
     """A batch run's `Trajectory` from its per-step arrays (the column twin of `stepping.packed.make_finisher`).
 
     `initial` is the state the run started from (its stored energy `stored0_j`), `final` the model's
     state after the last step: its time and ledger (work accumulators, energy flow and residual) are
     filled here from the columns. The powers, efficiency, speed ratio, time and the guard's verdict
-    are derived here; the works are J over each step.
+    are derived here; the works are J over each step. `over_static_rating` flags the load against
+    `static_rating_n`, N (`Model.run` flags it against the model's own rating for every batch form).
     """
     h, n = dt_s, len(torque_nm)
     w_in, flow, residual, fault = ledger_columns(initial.energy_flow_j, initial.energy_residual_j, stored0_j,
@@ -223,6 +227,7 @@ def trajectory_from_columns(initial: State, final: State, stored0_j: float, *, d
         "power_out_w": p_out, "power_dissipated_w": p_d, "efficiency": efficiency_columns(w_in / h, p_out, p_d),
         "speed_ratio": speed_ratio_columns(w_s, w_c), "stored_energy_j": stored_j, "energy_flow_j": flow,
         "energy_residual_j": residual, "energy_fault": fault.astype(float),
+        "over_static_rating": over_static_rating(np.asarray(load_n, dtype=float), static_rating_n),
     }
     columns = {name: np.ascontiguousarray(columns[name], dtype=float) for name, _ in OUTPUT_FIELDS}
     return Trajectory(columns=columns, internal=internal, layout=layout, final_state=final)
