@@ -39,13 +39,11 @@ class _Draws:
 
 def known_open(case: dict, violations: list[str]) -> str | None:
     """Why a drawn case's violation is a defect already found and pinned (tests/test_envelope_found.py) and
-    not yet fixed at its cause, or None: elastic's contact and impact stepping on its energy books; a step
-    of 5 ms or more on an end (the stop solve and the rigid models at steps that do not resolve the
-    contact: books, rest and ringing); a load near the static rating running the nut off a thread end."""
+    not yet fixed at its cause, or None: a step of 5 ms or more on an end (the stop solve and the models
+    at steps that do not resolve the contact: books, rest and ringing); a load near the static rating
+    running the nut off a thread end."""
     v = violations[0]
     books = v.startswith(("energy guard tripped", "actuator ledger misses", "impact past the work", "at rest"))
-    if case["model"] == "elastic" and books:
-        return "elastic's contact, impact and flank-reversal stepping"
     if case["dt_s"] >= 0.005 and (books or v.startswith("screw speed rings")):
         return "a step of 5 ms or more on an end"
     if "left its threads" in v and abs(case["load"]["value_n"]) > 1e5:
