@@ -201,6 +201,7 @@ def test_repair_makes_a_killed_bag_readable_by_rerun_and_the_mcap_library(corpus
     assert rc == EXIT_ERROR and "overwrite" in err
 
 
+@pytest.mark.slow
 def test_no_module_named_by_a_bag_is_imported_and_play_survives_the_corpus(corpus, tmp_path):
     """Was: play imported `evilmod.msg`, running evilmod.py from the working folder.
 

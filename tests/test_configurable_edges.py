@@ -48,6 +48,7 @@ def test_jones2016_near_frictionless_closes_its_books(dt):
     assert c["power_dissipated_w"].sum() * dt <= 1e-9 * c["energy_flow_j"][-1]
 
 
+@pytest.mark.slow
 def test_jones2016_refuses_zero_friction_in_one_line():
     with pytest.raises(ParamError, match=r"friction\.viscous_n_s_m = 0\.0"):
         Simulator(_viscous(0.0), "jones2016")

@@ -19,6 +19,7 @@ from prsm_sim.presets import preset
 from test_sim_cli import run  # prsm-sim as a real process, exit code checked (one helper for the CLI tests)
 
 
+@pytest.mark.slow
 def test_stiffness_json_one_record_per_load_point():
     d = json.loads(run("stiffness", "--preset", "s30", "--load", "5000", "--load", "20000", "--json").stdout)
     recs = d["records"]
@@ -87,6 +88,7 @@ def _ramp(n, dt, t_ramp):
     return np.clip(np.arange(n) * dt / t_ramp, 0, 1)
 
 
+@pytest.mark.slow
 def test_stiff_elastic_reproduces_fu2018():
     """docs/model.md §5 item 8: with stiff contacts and shaft (E × 30), no clearance, no preload and breakaway =
     running friction, the elastic level reproduces fu2018 within 0.1 % (speeds, efficiency, per-roller resultants).

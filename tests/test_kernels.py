@@ -140,6 +140,7 @@ def _elastic_reversals(n):
     return ramp * (4.3 + 3.0 * np.sin(2 * math.pi * 5.0 * t)), 5000.0 * ramp  # prsm-bench elastic, faster
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("overrides", [
     {},  # Hertz chain, Stribeck decay and breakaway (s30 defaults)
     {"elastic.axial_clearance_m": 50e-6, "elastic.contact_damping_ratio": 0.02},  # backlash, impacts

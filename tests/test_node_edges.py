@@ -78,6 +78,7 @@ def call_every_service(cli) -> None:
         assert isinstance(res.message, str)
 
 
+@pytest.mark.slow
 def test_initial_nut_position_off_the_threads_is_refused_and_reset_still_works(tmp_path):
     """The issue's two commands: `param set initial_nut_position 1.0` then `reset`."""
     from std_srvs.srv import Trigger

@@ -55,6 +55,7 @@ def joint_command(names, effort, position=(), velocity=()):
     return JointState(name=list(names), effort=list(effort), position=list(position), velocity=list(velocity))
 
 
+@pytest.mark.slow
 def test_nan_is_rejected_over_limit_saturated_bad_joint_state_rejected(tmp_path):
     from std_msgs.msg import Float64
     with start(tmp_path) as proc, RosClient(ENV) as cli:

@@ -377,6 +377,7 @@ def test_stalled_disk_cannot_hang_close_and_what_was_lost_is_counted(tmp_path, s
     assert rec.messages_written + rec.messages_dropped == offered + 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("halfway", ["close", "disk_full"])
 def test_drop_counts_are_exact_under_concurrent_writers(tmp_path, stalling_files, halfway):
     """Four threads write while, halfway, the main thread closes the recorder or the disk fills up

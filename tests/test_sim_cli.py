@@ -24,6 +24,7 @@ def test_steady_state_json_reports_the_seed_ratio():
     assert d["speed_ratio_screw_over_carrier"] == pytest.approx(2.669, abs=0.001)
 
 
+@pytest.mark.slow
 def test_presets_params_contact():
     assert "jones2016_literal" in run("presets").stdout
     d = json.loads(run("params", "--preset", "s30", "--json").stdout)
