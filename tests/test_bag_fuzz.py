@@ -9,7 +9,10 @@ handful of cases on the smallest verbs; the `slow` tier many more through every 
 Thousands of cases: `python -m prsm_ros.cli.bag_fuzz --cases 5000`.
 """
 
+import functools
+import multiprocessing
 import tempfile
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -27,13 +30,32 @@ DATA = BAG.read_bytes()
 TOPICS = fuzz.export_topics(open_bag(BAG))
 
 
-def _case(ops, verbs) -> dict:
+def _case_here(ops, verbs) -> dict:
+    fuzz.preload(verbs)  # as the fuzzer does: a child under its memory limit maps no new library
     with tempfile.TemporaryDirectory(prefix="prsm-fuzz-test-") as d:
         work = Path(d)
         bag = work / BAG.name
         bag.write_bytes(fuzz.apply(DATA, ops))
         return fuzz.run_case(bag, work, fuzz.available_verbs(verbs), TOPICS,
                              memory_bytes=fuzz.DEFAULT_MEMORY_MIB << 20, timeout_s=fuzz.DEFAULT_TIMEOUT_S)
+
+
+@functools.cache
+def _worker() -> ProcessPoolExecutor:
+    """One spawned worker for the cases: run_case forks, and this test process may hold threads
+    (rclpy's, Ray's from earlier tests) whose locks a fork would copy without them."""
+    return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+
+
+def _case(ops, verbs) -> dict:
+    return _worker().submit(_case_here, ops, verbs).result(timeout=20 * fuzz.DEFAULT_TIMEOUT_S)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _stop_worker():
+    yield
+    if _worker.cache_info().currsize:
+        _worker().shutdown(wait=True, cancel_futures=True)
 
 
 @pytest.mark.slow
@@ -65,10 +87,11 @@ def test_the_fuzzer_sees_a_traceback_a_hang_and_a_short_repair(tmp_path, monkeyp
             time.sleep(60)
         return 0
 
-    monkeypatch.setattr("prsm_ros.cli.bag.main", fake_main)
+    monkeypatch.setattr("prsm_ros.cli.bag.main", fake_main)  # stand-ins: they take no lock a fork could copy
     monkeypatch.setattr(fuzz, "repaired_count", lambda path: 1)
     (tmp_path / "repair.mcap").write_bytes(b"")
     found = fuzz.run_case(bag, tmp_path, ("layout", "repair", "report"), TOPICS, memory_bytes=2 << 30, timeout_s=5)
     assert found["layout"].startswith("traceback: KeyError")
     assert found["repair"] == "kept 1 message(s), the stream reader reads 2501"
     assert found["report"].startswith("hang")
+

@@ -208,7 +208,13 @@ def _wait(pid: int, results: Path, timeout_s: float):
 
 def run_case(bag: Path, work: Path, verbs, topics, *, plots: bool = False, memory_bytes: int,
              timeout_s: float) -> dict:
-    """Run `verbs` on `bag` in a forked child; verb → failure text (absent for a verb that passed)."""
+    """Run `verbs` on `bag` in a forked child; verb → failure text (absent for a verb that passed).
+
+    Call it from a process that has not started rclpy or Ray (imported is fine): a fork copies the
+    locks their threads hold (a DDS participant's, Ray's) but not the threads, so `play`'s rclpy
+    could wait in the child for ever. The fuzzer's own process starts neither; a test runs its
+    cases in a spawned worker.
+    """
     results = work / "results.jsonl"
     sys.stdout.flush()
     sys.stderr.flush()
@@ -263,7 +269,7 @@ def available_verbs(verbs) -> list[str]:
     return [v for v in verbs if v not in need or importlib.util.find_spec(need[v]) is not None]
 
 
-def _preload(verbs) -> None:
+def preload(verbs) -> None:
     """Import what the verbs use before forking, so each child starts warm."""
     import mcap.reader  # noqa: F401
     import mcap_ros2.decoder  # noqa: F401
@@ -287,7 +293,7 @@ def fuzz(bags: list[Path], cases: int, *, seed: int = 1, verbs=VERBS, memory_mib
     """Run `cases` random cases; returns the figures (cases, runs, failures by verb, examples)."""
     from prsm_ros.bag.reader import open_bag
     verbs = available_verbs(verbs)
-    _preload(verbs)
+    preload(verbs)
     rng = random.Random(seed)
     originals = [(p, p.read_bytes(), export_topics(open_bag(p))) for p in bags]
     failures: list[dict] = []
