@@ -14,21 +14,26 @@ import signal
 import sys
 import threading
 
-import rclpy
-import rclpy.executors
-import rclpy.signals
-from rclpy.node import Node
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+# Before numpy loads: the node's matrices are a few rows, so BLAS threads only cost, and with every
+# core busy OpenBLAS's spin-wait starves the very threads it waits for (eleven nodes started at once
+# spent minutes in one 10 x 10 expm). A value the user set is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import prsm_sim
-from prsm_sim import PrsmError
+import rclpy  # noqa: E402
+import rclpy.executors  # noqa: E402
+import rclpy.signals  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy  # noqa: E402
 
-from prsm_ros.messages import NODE_NAME
-from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage
-from prsm_ros.node.parameters import ConfigError, ParamSources, check_ros_args, param_sources, params_template
-from prsm_ros.node.ros_node import PrsmNode
-from prsm_ros.node.scheduling import raise_process_threads
-from prsm_ros.node.urdf import urdf_for_node
+import prsm_sim  # noqa: E402
+from prsm_sim import PrsmError  # noqa: E402
+
+from prsm_ros.messages import NODE_NAME  # noqa: E402
+from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage  # noqa: E402
+from prsm_ros.node.parameters import ConfigError, ParamSources, check_ros_args, param_sources, params_template  # noqa: E402
+from prsm_ros.node.ros_node import PrsmNode  # noqa: E402
+from prsm_ros.node.scheduling import raise_process_threads  # noqa: E402
+from prsm_ros.node.urdf import urdf_for_node  # noqa: E402
 
 RCLError = _rclpy.RCLError  # rcl's refusal of an argument at init (rclpy exports it nowhere public)
 
