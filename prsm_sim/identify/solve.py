@@ -23,6 +23,12 @@ Steps (docs/fit.md "How the fit works"):
    correlates at ≥ `MAX_CORRELATION` with another. Those are held at the base value, the rest
    fitted again, and the report says which and why; where holding them raises the misfit beyond
    the 95 % band of χ² (`_shadowed`), the rest would carry their error and are held too.
+5. The starts are read too (`disagreeing_starts`): a parameter is not identifiable where another start
+   ended outside its 95 % interval at a point the data cannot tell from the fit's (its misfit within
+   χ²₁'s 95 % band of the fit's: the profile-likelihood interval then reaches that point, so the
+   Jacobian's interval is too narrow), or, where the fit's own misfit is above `LACK_OF_FIT_RMS`
+   sensor resolutions, at any cost: no start then reproduced the recordings, the best is one local
+   minimum among others, and where the search ended depends on where it began.
 """
 
 from __future__ import annotations
@@ -50,6 +56,12 @@ SCAN_FACTOR = 2.0  # the grid of `scan_log`: a factor of two between points
 # the starts run on each recording's first SCREEN_S; the best is polished on the whole recordings (a start's
 # least squares costs its evaluations times the data's length, and a few seconds already place the minimum)
 SCREEN_S = 2.0
+# A fit whose residuals' RMS exceeds this many sensor resolutions does not reproduce its recordings: the
+# resolutions are the recordings' own noise and quanta (`problem.resolution`), which a model that describes
+# the plant at the right parameters misses by about one (χ² per sample ≈ 1); three is far beyond what
+# noise explains at any recording length the fit accepts, and leaves room for a resolution estimated low.
+LACK_OF_FIT_RMS = 3.0
+CHI2_1_95 = 3.841459  # the 95 % quantile of χ² with one degree of freedom
 
 
 @dataclass(frozen=True)
@@ -216,6 +228,41 @@ def _null_directions(J: np.ndarray, names: list[str]) -> dict[str, str]:
     return out
 
 
+def disagreeing_starts(problem: FitProblem, u: np.ndarray, r0: np.ndarray, C: np.ndarray, ends) -> dict[str, str]:
+    """The free parameters whose fitted value another start contradicts (module docstring, step 5) → why.
+
+    `u`, `r0` and `C` are the fit's end point in the unit box, its residuals (sensor resolutions) and
+    its unit-box covariance; `ends` the starts' `StartResult`s. A start's end is tested on `problem` (the
+    whole recordings at the fit's delay), not on the seconds it was run on.
+    """
+    names = [p.name for p in problem.free]
+    best = float(r0 @ r0)
+    s2 = best / max(1, r0.size - len(names))
+    lack = s2 > LACK_OF_FIT_RMS ** 2
+    half = Z95 * np.sqrt(np.clip(np.diag(C), 0.0, None))
+    why: dict[str, str] = {}
+    for end in ends:
+        v = np.asarray(end.u, float)
+        off = [i for i in range(len(names)) if abs(v[i] - u[i]) > half[i] and names[i] not in why]
+        if not off:
+            continue
+        rise = (float(np.sum(problem.residuals(v) ** 2)) - best) / max(1.0, s2)
+        if not lack and rise > CHI2_1_95:
+            continue  # the data tell that end from the fit's
+        for i in off:
+            p = problem.free[i]
+            at, other = p.from_unit(float(u[i])), p.from_unit(float(v[i]))
+            unit = "" if p.unit == "1" else f" {p.unit}"
+            why[names[i]] = (
+                f"another start ended at {other:.4g}{unit}, outside the interval about {at:.4g}{unit}, "
+                + (f"and no start reproduced the recordings (the best misses them by {math.sqrt(s2):.3g} sensor "
+                   "resolutions RMS, noise explains about 1): the answer depends on where the search began "
+                   "(more --starts, or another model)" if lack else
+                   f"with a misfit the data cannot tell from the fit's (Δχ² {rise:.3g} ≤ {CHI2_1_95:.3g}): "
+                   "several answers"))
+    return why
+
+
 @dataclass(frozen=True)
 class FitResult:
     """What `fit` found (`to_dict` is fit.json's `parameters`, `correlation`, `residual_rms`)."""
@@ -307,6 +354,9 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
     C = covariance(J, r0, problem.cluster_ids()) if names else np.zeros((0, 0))
     flat = np.flatnonzero(reach_of(J) < 1.0).tolist() if names else []
     why = unidentifiable(J, C, names, {names[i]: secant_reach(problem, u, r0, int(i)) for i in flat})
+    ends = [s for s in results if polish is not None or not np.array_equal(np.asarray(s.u), u)]
+    for n, text in disagreeing_starts(problem, u, r0, C, ends).items():
+        why.setdefault(n, text)
     say("intervals", 1, 2)
     keep = [i for i, n in enumerate(names) if n not in why]
     if why and names:
