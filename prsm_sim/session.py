@@ -309,7 +309,7 @@ class Session:
         over = sim.over_static_rating == 1.0
         if over != self._over_rating:
             self._over_rating = over
-            self._edge_events.append(RatingEvent(out.time_s, "exceeded" if over else "within", self.load_n,
+            self._edge_events.append(RatingEvent(out.time_s, "exceeded" if over else "within", out.load_force_n,
                                                  sim.params.ratings.static_load_rating_n or math.inf))
         self._last = out
         return out

@@ -333,6 +333,10 @@ class Simulator:
             xn = out.nut_position_m
             if not self._lo <= xn <= self._hi:
                 new, out = self._at_end_state(s0, (new, out), command, load_n)
+            if out.over_static_rating:  # an actuator's own stops add their force to the nut's load
+                self._over_rating(out.load_force_n)
+            elif self._over_step == self.nstep + 1:
+                self._over_step = -1
             if out.energy_residual_j * 0.0 != 0.0:
                 self._non_finite(self.time_s + self.dt_s)
             self._state = new
@@ -372,16 +376,18 @@ class Simulator:
     # locals closure cells, which every step pays for (about 3 % of a linear model's step).
     def _at_end_packed(self, x, free, command, load_n):
         return self._at_end(self.model.unpack_state(x), free, lambda f: self._step_packed(x, command, load_n - f),
-                            lambda r: r.nut_position_m)
+                            lambda r: r.nut_position_m, load_n)
 
     def _at_end_state(self, s0, free, command, load_n):
-        return self._at_end(s0, free, lambda f: self.model.step(s0, command, load_n - f), lambda r: r[1].nut_position_m)
+        return self._at_end(s0, free, lambda f: self.model.step(s0, command, load_n - f), lambda r: r[1].nut_position_m,
+                            load_n)
 
-    def _at_end(self, before: State, free, advance, nut):
+    def _at_end(self, before: State, free, advance, nut, load_n: float):
         """The step against a thread end: the stop law solved on the model's own step (actuator/stops.py);
         the end's force joins the load on the nut (`load_force_n` reports their sum, so the ledger holds
-        its work). Sets `thread_end_force_n`. A step that leaves the nut non-finite (also where no end
-        is fitted: the bounds are then the float range) raises NonFiniteStateError, nothing changed."""
+        its work, and the static rating is judged on it, as the output's `over_static_rating` is). Sets
+        `thread_end_force_n`. A step that leaves the nut non-finite (also where no end is fitted: the
+        bounds are then the float range) raises NonFiniteStateError, nothing changed."""
         if not math.isfinite(nut(free)):
             self._non_finite(self.time_s + self.dt_s)
         m = self.model
@@ -394,6 +400,11 @@ class Simulator:
         if not math.isfinite(nut(res)):
             self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
+        nut_load_n = load_n - f
+        if not -self._static_rating_n <= nut_load_n <= self._static_rating_n:
+            self._over_rating(nut_load_n)
+        elif self._over_step == self.nstep + 1:  # the load alone was past the rating, the end took it back
+            self._over_step = -1
         return res
 
     @property
@@ -409,7 +420,7 @@ class Simulator:
         self._over_step = self.nstep + 1
         if not self._over_warned:
             self._over_warned = True
-            warnings.warn(f"load_n = {load_n:g} N exceeds the static load rating ratings.static_load_rating_n = "
+            warnings.warn(f"the nut load {load_n:g} N exceeds the static load rating ratings.static_load_rating_n = "
                           f"{self._static_rating_n:g} N at t = {self.time_s:.6f} s: past it the threads deform "
                           "permanently (ISO 76), which no model here represents", stacklevel=3)
 

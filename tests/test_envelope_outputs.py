@@ -62,3 +62,20 @@ def test_prsm_sim_run_writes_the_rating_flag_to_its_csv(tmp_path):
         rows = list(csv.reader(out.open()))
         col = rows[0].index("over_static_rating [1]")
         assert {row[col] for row in rows[1:]} == {flag}
+
+
+@pytest.mark.parametrize("actuator", [None, ActuatorParams()], ids=["bare", "actuator"])
+def test_an_end_that_loads_the_nut_past_the_rating_is_flagged_everywhere(actuator):
+    """No load: the nut is driven onto its thread end by 400 N·m, whose thrust 2π τ η / L (ideal, η 0.85,
+    5 mm lead: 427 kN) exceeds C₀a = 281 kN; the end's force is then the nut's load. The output's field,
+    the simulator's flag, the one-time warning and the session's event judge the same load."""
+    s = Session(preset("s30"), "ideal", 1e-3, actuator=actuator, nut_position_m=0.134, max_effort_nm=1e6)
+    c0 = s.simulator.params.ratings.static_load_rating_n
+    with pytest.warns(UserWarning, match="the nut load"):
+        outs = [s.step(400.0, 0.0) for _ in range(5)]
+    flagged = [o for o in outs if o.over_static_rating == 1.0]
+    assert flagged and all(abs(o.load_force_n) > c0 for o in flagged)
+    assert all(abs(o.load_force_n) <= c0 for o in outs if o.over_static_rating == 0.0)
+    assert s.simulator.over_static_rating == outs[-1].over_static_rating
+    ev = [e for e in s.take_edge_events() if type(e).__name__ == "RatingEvent"]
+    assert ev and ev[0].what == "exceeded" and ev[0].force_n == flagged[0].load_force_n, ev
