@@ -19,6 +19,7 @@ for a known one it compares the length fields and reuses what the walk found:
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from operator import itemgetter
 
 # bytes of each primitive in CDR (its alignment too)
@@ -42,16 +43,19 @@ class Layout:
         self.padding: list[tuple[int, int]] = []
         self.decisive: list[tuple[int, int]] = [(0, ENCAPSULATION)]
         self.end = ENCAPSULATION
-        self._probe = self._expected = None
+        self._probe: Callable[[bytes], tuple] | None = None
+        self._expected: tuple = ()
 
     def fits(self, data: bytes) -> bool:
         """Whether `data` has this shape: the same size and the same bytes in every length field."""
         if len(data) != self.size:
             return False
-        if self._probe is None:  # built at the first use, after the walk: one call takes every length field
+        probe = self._probe
+        if probe is None:  # built at the first use, after the walk: one call takes every length field
             fields = [slice(at, at + 4) for at, _ in self.lengths] + [slice(0, 0)] * 2  # always a tuple
-            self._probe, self._expected = itemgetter(*fields), tuple(v for _, v in self.lengths) + (b"", b"")
-        return self._probe(data) == self._expected
+            probe = self._probe = itemgetter(*fields)
+            self._expected = tuple(v for _, v in self.lengths) + (b"", b"")
+        return probe(data) == self._expected
 
     def decisive_bytes(self, data: bytes) -> bytes:
         """The bytes of `data` decoding depends on (module doc), trailing bytes included."""
@@ -187,8 +191,9 @@ def _walk(data: bytes, pos: int, plan: list[tuple], lay: Layout) -> int:
                     raise IndexError(pos)
                 pos = _string(data, pos, lay)
         else:
-            n = op[2] if code == _ITEMS_ARRAY else None
-            if n is None:
+            if code == _ITEMS_ARRAY:
+                n = op[2]
+            else:
                 pos = _align(data, pos, 4, lay)
                 n = _length(data, pos, lay)
                 pos += 4
