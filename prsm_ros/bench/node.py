@@ -11,7 +11,9 @@
 - Lockstep round trips: `prsm-node` (lockstep, 1 step per command, recording) and the demo
   controller (`prsm_ros.cli.demo_controller`) as two processes over DDS; the controller answers each
   state with a command, so states received / wall time is command→state round trips per second;
-  then the same with `-p executor:=single` (rclpy's Python executor in the node) as its peer.
+  then the same with `-p executor:=single` (rclpy's Python executor in the node) as its peer, and
+  with `rclpy_floor --lockstep` in the node's place (a bare rclpy node answering each command with
+  a state) as its floor.
 - Realtime demo loop (10 s; quick: 2 s, 500 N): the same two processes with the node in realtime,
   as `prsm-demo` runs them; the controller's RMS tracking error against the same law closed
   offline with no delay (`prsm_sim.control.run_position_loop`) plus 5 ms of reference travel.
@@ -100,17 +102,20 @@ def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str
 
 
 def demo_loop(model: str, sim_seconds: float, time_mode: str, *, record: bool = True, preset: str = "s30",
-              load_n: float = 0.0, executor: str = "events") -> dict:
+              load_n: float = 0.0, executor: str = "events", floor: bool = False) -> dict:
     """prsm-node and the demo controller as two processes, as `prsm-demo` runs them: the controller's
-    summary (tracking error, states received, wall time), the node started paused until it listens."""
+    summary (tracking error, states received, wall time), the node started paused until it listens.
+    `floor`: `rclpy_floor --lockstep` stands in for the node (the lockstep round trip's floor)."""
     env = isolated_env(respect_user=False, RERUN="off")
     priority = 10 if time_mode == "realtime" else 0
     with tempfile.TemporaryDirectory(prefix="prsm_bench_node_") as tmp:
         params = {"model": model, "preset": preset, "time_mode": time_mode, "record": record,
                   "record_path": str(Path(tmp) / f"{time_mode}.mcap"), "cmd_timeout": 0.0, "load_force": load_n,
                   "start_paused": True, "realtime_priority": priority, "executor": executor}
+        module, args = ("prsm_ros.bench.rclpy_floor", ["--lockstep"]) if floor else ("prsm_ros.cli.node",
+                                                                                  ros_args(params))
         with open(Path(tmp) / "node.log", "wb") as log:
-            node = start_module("prsm_ros.cli.node", ros_args(params), env, stdout=log, stderr=subprocess.STDOUT)
+            node = start_module(module, args, env, stdout=log, stderr=subprocess.STDOUT)
             try:
                 ctl = start_module("prsm_ros.cli.demo_controller",
                                    ["--duration", repr(sim_seconds), "--preset", preset, "--load", repr(load_n),
@@ -123,10 +128,10 @@ def demo_loop(model: str, sim_seconds: float, time_mode: str, *, record: bool = 
 
 
 def lockstep_round_trips(model: str, sim_seconds: float, *, record: bool = True, preset: str = "s30",
-                         executor: str = "events") -> dict:
-    """prsm-node (lockstep, its callbacks on `executor`) and the demo controller as two processes:
-    round trips per wall second."""
-    summary = demo_loop(model, sim_seconds, "lockstep", record=record, preset=preset, executor=executor)
+                         executor: str = "events", floor: bool = False) -> dict:
+    """prsm-node (lockstep, its callbacks on `executor`; `floor`: `rclpy_floor --lockstep` instead) and the
+    demo controller as two processes: round trips per wall second."""
+    summary = demo_loop(model, sim_seconds, "lockstep", record=record, preset=preset, executor=executor, floor=floor)
     return {"round_trips_per_s": summary["states_received"] / summary["wall_time_s"], **summary}
 
 
@@ -155,6 +160,8 @@ def measure(quick: bool = False) -> list[dict]:
     ls = lockstep_round_trips(model, 1.0 if quick else 10.0)
     # the peer: the same loop with rclpy's Python executor in the node, right after (same machine)
     ls_single = lockstep_round_trips(model, 1.0 if quick else 10.0, executor="single")
+    # the floor: a bare rclpy node answering each command with a state, the same controller, right after
+    ls_floor = lockstep_round_trips(model, 1.0 if quick else 10.0, floor=True)
     tr = realtime_tracking(model, 2.0 if quick else 10.0)
     base = f"{model}, s30, recording on, {seconds:g} s" + (f"; {note}" if note else "")
     return [
@@ -171,7 +178,10 @@ def measure(quick: bool = False) -> list[dict]:
                f"{model}, 1 step per command, recording on, rclpy's EventsExecutor in the node; rclpy "
                f"controller process over DDS; {ls['states_received']} round trips in {ls['wall_time_s']:.2f} s; "
                f"{ls['round_trips_per_s'] / ls_single['round_trips_per_s']:.2f}× the node on rclpy's Python "
-               f"SingleThreadedExecutor in the same run ({ls_single['round_trips_per_s']:.0f}/s)"),
+               f"SingleThreadedExecutor in the same run ({ls_single['round_trips_per_s']:.0f}/s); "
+               f"{ls['round_trips_per_s'] / ls_floor['round_trips_per_s']:.2f}× the rclpy floor of the same run "
+               f"(python -m prsm_ros.bench.rclpy_floor --lockstep: {ls_floor['round_trips_per_s']:.0f}/s); "
+               f"load average {os.getloadavg()[0]:.1f}"),
         figure("node realtime demo loop: RMS tracking error", tr["rms_error_m"] * 1e3, "mm",
                f"≤ {tr['bound_m'] * 1e3:.3f}", tr["completed"] and tr["rms_error_m"] <= tr["bound_m"], None,
                f"{model}, s30, 500 N, {tr['sim_time_s']:.1f} s; same law offline with no delay "

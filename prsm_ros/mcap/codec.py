@@ -19,7 +19,6 @@ installed); the schema text differs only in what the .msg files carry beyond the
 from __future__ import annotations
 
 import os
-import struct
 from functools import cached_property
 from typing import Any
 from collections.abc import Mapping
@@ -112,118 +111,25 @@ class TypestoreCodec:
         return self.typestore.deserialize_cdr(data, msg_class.__msgtype__)
 
 
-# bytes of each primitive in CDR (its alignment too)
-_PRIMITIVE_SIZE = {"bool": 1, "byte": 1, "char": 1, "int8": 1, "uint8": 1, "int16": 2, "uint16": 2, "int32": 4,
-                   "uint32": 4, "float32": 4, "int64": 8, "uint64": 8, "float64": 8}
-_ENCAPSULATION = 4  # CDR alignment counts from the end of the encapsulation header
-
-
-# walk plan operations (`CdrNormaliser._plan`)
-_PRIM, _STRING, _PRIM_ARRAY, _PRIM_SEQ, _STRING_SEQ, _ITEMS_ARRAY, _ITEMS_SEQ = range(7)
-
-
 class CdrNormaliser:
     """CDR bytes with every alignment padding byte zero, the values untouched.
 
     rclpy's serializer (and a controller's, for the commands the node records as received) leaves
     the padding between fields, and after the last one, uninitialised, so equal messages can differ
     in their bytes; a bag that must be reproducible byte for byte (lockstep runs) writes them
-    through this. It walks the message by its definition (a rosbags typestore's field list, turned
-    once per type into a flat plan: plain little-endian CDR, primitives aligned to their size,
-    strings and sequence lengths to 4) and zeroes the gaps: no decoding. Bytes it cannot walk
-    (another encapsulation, a type the typestore lacks, a message cut short) are kept as they are.
+    through this. Where the padding lies comes from the message's definition (`cdr_layout`, a
+    rosbags typestore's field list): no decoding, and one walk per shape of message, not per
+    message. Bytes it cannot walk (another encapsulation, a type the typestore lacks, a message
+    cut short) are kept as they are. `layouts` is also what `McapFile.check` asks.
     """
 
     def __init__(self, ros_distro: str | None = None) -> None:
         from rosbags.interfaces import Nodetype
 
-        self._fielddefs = TypestoreCodec(ros_distro).typestore.fielddefs
-        self._nodetype = Nodetype
-        self._plans: dict[str, list[tuple]] = {}
+        from prsm_ros.mcap.cdr_layout import Layouts
+
+        self.layouts = Layouts(TypestoreCodec(ros_distro).typestore.fielddefs, Nodetype)
 
     def __call__(self, type_name: str, data: bytes) -> bytes:
-        if len(data) < _ENCAPSULATION or data[1] != 1:  # CDR_LE only
-            return data
-        try:
-            plan = self._plans.get(type_name)
-            if plan is None:
-                plan = self._plans[type_name] = self._plan(type_name)
-            buf = bytearray(data)
-            end = _walk(buf, _ENCAPSULATION, plan)
-        except (KeyError, IndexError, struct.error):
-            return data
-        if end > len(buf):
-            return data
-        buf[end:] = bytes(len(buf) - end)  # trailing padding
-        return bytes(buf)
-
-    def _plan(self, type_name: str) -> list[tuple]:
-        """The type's fields as flat operations, nested messages inlined."""
-        plan: list[tuple] = []
-        for _, node in self._fielddefs[type_name][1]:
-            plan += self._node(node)
-        return plan
-
-    def _node(self, node) -> list[tuple]:
-        nt = self._nodetype
-        kind, detail = node
-        if kind == nt.BASE:
-            return [(_STRING,)] if detail[0] == "string" else [(_PRIM, _PRIMITIVE_SIZE[detail[0]])]
-        if kind == nt.NAME:
-            return self._plan(detail)
-        element, count = detail
-        ekind, edetail = element
-        if ekind == nt.BASE and edetail[0] in _PRIMITIVE_SIZE:
-            return [(_PRIM_SEQ, _PRIMITIVE_SIZE[edetail[0]])] if kind == nt.SEQUENCE else \
-                [(_PRIM_ARRAY, _PRIMITIVE_SIZE[edetail[0]], count)]
-        if kind == nt.SEQUENCE and ekind == nt.BASE and edetail[0] == "string":
-            return [(_STRING_SEQ,)]
-        items = self._node(element)
-        return [(_ITEMS_SEQ, items)] if kind == nt.SEQUENCE else [(_ITEMS_ARRAY, items, count)]
-
-
-def _zero_to(buf: bytearray, pos: int, size: int) -> int:
-    """Zero the padding from `pos` to the next multiple of `size` (counted after the encapsulation)."""
-    aligned = _ENCAPSULATION + (pos - _ENCAPSULATION + size - 1) // size * size
-    if aligned != pos:
-        if aligned > len(buf):
-            raise IndexError(aligned)
-        buf[pos:aligned] = bytes(aligned - pos)
-    return aligned
-
-
-def _walk(buf: bytearray, pos: int, plan: list[tuple]) -> int:
-    """Zero the padding of one message (or array item) laid out by `plan`; returns where it ends."""
-    unpack = struct.unpack_from
-    for op in plan:
-        code = op[0]
-        if code == _PRIM:
-            pos = _zero_to(buf, pos, op[1]) + op[1]
-        elif code == _STRING:
-            pos = _zero_to(buf, pos, 4)
-            pos += 4 + unpack("<I", buf, pos)[0]
-        elif code == _PRIM_SEQ:
-            pos = _zero_to(buf, pos, 4)
-            n = unpack("<I", buf, pos)[0]
-            pos += 4
-            if n:
-                pos = _zero_to(buf, pos, op[1]) + op[1] * n
-        elif code == _PRIM_ARRAY:
-            if op[2]:
-                pos = _zero_to(buf, pos, op[1]) + op[1] * op[2]
-        elif code == _STRING_SEQ:
-            pos = _zero_to(buf, pos, 4)
-            n = unpack("<I", buf, pos)[0]
-            pos += 4
-            for _ in range(n):
-                pos = _zero_to(buf, pos, 4)
-                pos += 4 + unpack("<I", buf, pos)[0]
-        else:
-            n = op[2] if code == _ITEMS_ARRAY else None
-            if n is None:
-                pos = _zero_to(buf, pos, 4)
-                n = unpack("<I", buf, pos)[0]
-                pos += 4
-            for _ in range(n):
-                pos = _walk(buf, pos, op[1])
-    return pos
+        lay = self.layouts.layout(type_name, data)
+        return data if lay is None else lay.zero_padding(data)

@@ -57,6 +57,7 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and
 # Deterministic files: how far (log time) a message may arrive behind the newest one and still be put
 # in order; a lockstep controller's reference comes one step behind the state it answers.
 REORDER_WINDOW_NS = 100_000_000
+MAX_DECODED_KEYS = 1024  # `McapFile.check`: decisive parts of good bytes remembered
 
 
 class PackedChunkIndexes:
@@ -154,6 +155,7 @@ class McapFile:
         self._normalise = CdrNormaliser(self._codec.ros_distro) if deterministic else None
         self._type_of: dict[int, str] = {}
         self._checked_good: dict[type, bytes] = {}
+        self._decoded: set[tuple[type, bytes]] = set()  # (class, decisive bytes) that decoded (`check`)
         self._pending: list[tuple[int, int, int, bytes]] = []
         self._latest_ns = 0
         self.path = Path(path)
@@ -187,14 +189,27 @@ class McapFile:
     def check(self, msg_class, data: bytes) -> bool:
         """Whether `data` deserializes as `msg_class` (the codec's own deserializer).
 
-        The last bytes that did are kept per class: a command held for many steps is checked once."""
+        The last bytes that did are kept per class: a command held for many steps is checked once.
+        A deterministic file knows the messages' layouts (`cdr_layout`): bytes whose decisive part
+        (lengths, strings, booleans: all decoding can fail on) is that of bytes that decoded are
+        good without decoding them again (a controller's references, numbers only changing)."""
         if self._checked_good.get(msg_class) == data:
             return True
+        lay = key = None
+        if self._normalise is not None:
+            lay = self._normalise.layouts.layout(self._codec.type_name(msg_class), data)
+            key = None if lay is None else (msg_class, lay.decisive_bytes(data))
+            if key in self._decoded:
+                return True
         try:
             self._codec.deserialize(data, msg_class)
         except Exception:  # each middleware raises its own types for bytes it cannot read
             return False
         self._checked_good[msg_class] = data
+        if key is not None:
+            if len(self._decoded) >= MAX_DECODED_KEYS:  # bounded: strings that change every message
+                self._decoded.clear()
+            self._decoded.add(key)
         return True
 
     def add_channel(self, topic: str, msg_class, qos) -> int:

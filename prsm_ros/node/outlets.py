@@ -78,11 +78,9 @@ class Outlets:
         if type(msg) is not bytes:
             msg = serialize_message(msg)
         pub = self.pub[key]
-        if key in self.unread:  # no reader at the last count: ask again, a publish to nobody is dearer
-            if unmatched(pub):  # DDS would deliver it to nobody (volatile): the bag only
-                self.record(key, msg, stamp_ns)
-                return
-            self.unread = self.unread - {key}  # a reader matched since: it gets this message on
+        if self.no_reader(key):  # DDS would deliver it to nobody (volatile): the bag only
+            self.record(key, msg, stamp_ns)
+            return
         try:
             handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
             with handle:
@@ -94,6 +92,20 @@ class Outlets:
             self.warn(f"publish:{key}", f"publishing on {self.topic_names[key]} failed "
                                         f"({self.publish_failures} so far): {e}")
         self.record(key, msg, stamp_ns)
+
+    def no_reader(self, key: str) -> bool:
+        """True when `key` had no matched reader at the last count and still has none (asked again
+        now: a publish to nobody is dearer); a reader matched since gets every message from now on."""
+        if key not in self.unread:
+            return False
+        if unmatched(self.pub[key]):
+            return True
+        self.unread = self.unread - {key}
+        return False
+
+    def wanted(self, key: str) -> bool:
+        """Whether a message on `key` would reach anyone, a sink or a reader; False spares building it."""
+        return (self.sinks.takes_messages and key not in self.unrecorded) or not self.no_reader(key)
 
     def record(self, key: str, data, stamp_ns: int | None = None) -> None:
         """To the sinks: with the step's batch when a step is being published, else at once."""
@@ -162,7 +174,8 @@ class Outlets:
         if "clock" in self.pub:
             self.publish("clock", enc.clock(ns), ns)
         if k % self.il_every == 0:
-            self.publish("internal_loads", enc.internal_loads(out), ns)
+            if self.wanted("internal_loads"):  # its bytes (7 KB for fu2018) only when someone gets them
+                self.publish("internal_loads", enc.internal_loads(out), ns)
         elif self.sinks.takes_messages:  # decimated on DDS, every step in the bag
             self.record("internal_loads", enc.internal_loads(out), ns)
         self.sinks.submit(out)
