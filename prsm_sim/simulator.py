@@ -402,7 +402,7 @@ class Simulator:
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
         nut_load_n = load_n - f
         if not -self._static_rating_n <= nut_load_n <= self._static_rating_n:
-            self._over_rating(nut_load_n)
+            self._over_rating(nut_load_n, stacklevel=5)  # the warning points at the caller of `step`
         elif self._over_step == self.nstep + 1:  # the load alone was past the rating, the end took it back
             self._over_step = -1
         return res
@@ -415,14 +415,15 @@ class Simulator:
         model = self.model
         return model.limits if isinstance(model, Actuator) else self._limits
 
-    def _over_rating(self, load_n: float) -> None:
-        """Flag a step whose nut load exceeds the static rating (`over_static_rating`); said once per simulator."""
+    def _over_rating(self, load_n: float, stacklevel: int = 3) -> None:
+        """Flag a step whose nut load exceeds the static rating (`over_static_rating`); said once per simulator,
+        the warning at `stacklevel` (the caller of `step` or `run`)."""
         self._over_step = self.nstep + 1
         if not self._over_warned:
             self._over_warned = True
             warnings.warn(f"the nut load {load_n:g} N exceeds the static load rating ratings.static_load_rating_n = "
                           f"{self._static_rating_n:g} N at t = {self.time_s:.6f} s: past it the threads deform "
-                          "permanently (ISO 76), which no model here represents", stacklevel=3)
+                          "permanently (ISO 76), which no model here represents", stacklevel=stacklevel)
 
     @property
     def over_static_rating(self) -> float:

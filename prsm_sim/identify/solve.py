@@ -358,19 +358,8 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
     for n, text in disagreeing_starts(problem, u, r0, C, ends).items():
         why.setdefault(n, text)
     say("intervals", 1, 2)
-    keep = [i for i, n in enumerate(names) if n not in why]
     if why and names:
-        fixed = problem.params_at(u).with_overrides({n: base_value(problem.base, n) for n in why})
-        sub = replace(problem, base=fixed, free=tuple(problem.free[i] for i in keep))
-        u_sub = np.array(solve_start(sub, u[keep]).u) if keep else np.zeros(0)
-        r_sub = sub.residuals(u_sub)
-        why |= _shadowed(r0, r_sub, [names[i] for i in keep], list(why))
-        if len(why) == len(names):  # the rest would carry the held ones' error: every value is the base's
-            keep, fixed = [], problem.params_at(u).with_overrides({n: base_value(problem.base, n) for n in why})
-        J_sub = jacobian(sub, u_sub, r_sub) if keep else np.zeros((r_sub.size, 0))
-        C_sub = covariance(J_sub, r_sub, sub.cluster_ids()) if keep else np.zeros((0, 0))
-        params = sub.params_at(u_sub) if keep else fixed
-        point = {problem.free[i].name: (u_sub[j], C_sub[j, j]) for j, i in enumerate(keep)}
+        params, point = _held(problem, u, r0, why)
     else:
         params = problem.params_at(u)
         point = {n: (u[i], C[i, i]) for i, n in enumerate(names)}
@@ -388,6 +377,23 @@ def _report(problem: FitProblem, u: np.ndarray, results, fit_delay: bool, band: 
     return FitResult(params=params, delay_steps=problem.delay_steps, parameters=parameters, correlation=correlation,
                      residual_rms=problem.signal_rms(params), base_residual_rms=problem.signal_rms(given, None, 0),
                      starts=tuple(results), polish=polish, problem=problem, base=given)
+
+
+def _held(problem: FitProblem, u: np.ndarray, r0: np.ndarray, why: dict[str, str]) -> tuple[Params, dict]:
+    """The parameters in `why` held at the base and the rest fitted again from `u` (module doc, step 4):
+    the parameters, and per refitted name its unit-box value and variance. Adds to `why` the rest that
+    would carry the held ones' error (`_shadowed`); then every value is the base's."""
+    names = [p.name for p in problem.free]
+    keep = [i for i, n in enumerate(names) if n not in why]
+    fixed = problem.params_at(u).with_overrides({n: base_value(problem.base, n) for n in why})
+    sub = replace(problem, base=fixed, free=tuple(problem.free[i] for i in keep))
+    u_sub = np.array(solve_start(sub, u[keep]).u) if keep else np.zeros(0)
+    r_sub = sub.residuals(u_sub)
+    why |= _shadowed(r0, r_sub, [names[i] for i in keep], list(why))
+    if len(why) == len(names):
+        return problem.params_at(u).with_overrides({n: base_value(problem.base, n) for n in why}), {}
+    C_sub = covariance(jacobian(sub, u_sub, r_sub), r_sub, sub.cluster_ids())
+    return sub.params_at(u_sub), {problem.free[i].name: (u_sub[j], C_sub[j, j]) for j, i in enumerate(keep)}
 
 
 def _shadowed(r_full: np.ndarray, r_held: np.ndarray, rest: list[str], held: list[str]) -> dict[str, str]:
