@@ -403,22 +403,36 @@ class Fu2018(Model):
         return ws, wc, dth_s, dth_c, diss, f, int(sg), pin_abs, gear, memory_from_kernel(m)
 
     def _make_step(self):
-        """The step: `_step` and the ledger. The record keeps the end forces as its aux, from which the slip
+        """The step: `kernels.step` and the ledger. The record keeps the end forces as its aux, from which the slip
         speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
         the nut force. The aux is the kernel's plain tuple: a `Forces` is built only when read (it would cost a
-        tenth of the step otherwise).
+        tenth of the step otherwise). The packed state holds this model's part as the kernel takes and returns
+        it (`packed_part`), so a step converts nothing: the floats come from the kernel's previous step or from
+        `pack_state`, the inputs from the caller's checks (`Simulator.step`, `Model.step`).
         """
-        stored, expand_one, step = self.stored_energy_j, self.expand_one, self.step_core
+        stored, expand_one, kernel_step = self.stored_energy_j, self.expand_one, self._kn.step
+        k_arr, s_arr = self.kernel_constants
         finish = self.finisher(lambda w_s, w_c, f1: slip_speed(Forces(*f1)),
                                lambda w_s, w_c, f1: expand_one(Forces(*f1).compact))
 
         def step_packed(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem = x[11]
-            ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = step(
-                x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n)
+            ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = kernel_step(
+                x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n, k_arr, s_arr)
             return finish(x, x[1] + dth_s, ws1, x[3] + dth_c, wc1, torque_nm, load_n, diss, stored(ws1, wc1),
                           (sign, pin_abs, gear, mem), f1, f1[_AXIAL])
         return step_packed
+
+    def packed_part(self, part: Fu2018Part) -> tuple:
+        """The part as `kernels.step` takes it: (flank sign, pin force sum, gear force) as floats and the solver
+        memory as 6 floats (`kernels.kernel_memory`)."""
+        return (float(part.flank_sign), float(part.pin_force_n), float(part.gear_force_n), kernel_memory(part.solver))
+
+    def state_part(self, packed: tuple) -> tuple:
+        """`packed_part` undone: the flank sign an int, no solver memory ``()`` (`kernels.memory_from_kernel`); a
+        part in `State`'s form (plain data) passes as it is."""
+        sign, pin_abs, gear, mem = packed
+        return (int(sign), pin_abs, gear, memory_from_kernel(mem) if len(mem) == 6 else mem)
 
     def _run_impl(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """The batch form of the step: one call of `kernels.fu2018_run`, the per-tooth expansion built when
