@@ -65,7 +65,7 @@ import numpy as np
 
 from prsm_sim.models import kernels
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
-                                    Fu2018Part, slip_speed)
+                                    Fu2018Part, slip_speed, specialised)
 from prsm_sim.models.kernels import ROOT_STEP_TOL  # noqa: F401 (public here, where the chain law is described)
 from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
@@ -335,11 +335,13 @@ class ElasticModel(Model):
         self._law_e = tuple(self.constants)
         self._kernel_e: tuple | np.ndarray = self._law_e
         self._kernel_core = self._core_levels(kernel)
+        self._advance = self._kn.elastic_advance
         if kernel == "compiled":
             self._kernel_e = np.array(self._law_e, dtype=float)
             # compiled or loaded from the disk cache now, not in a realtime loop's first step
-            self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
-                                     *self._kernel_core)
+            warm = (*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e, *self._kernel_core)
+            self._kn.elastic_advance(*warm)
+            self._advance = specialised(self._kn.elastic_advance, *warm)  # the per-step path's entry
 
     def _core_levels(self, kernel: str) -> tuple:
         """(the core's constants per refinement level j: row j steps hs/2^j, its flank geometry), as the step's
@@ -431,7 +433,7 @@ class ElasticModel(Model):
         and chain figures are the record's aux, from which the slip speed and the internal vector
         (`_internal`) are derived when read.
         """
-        advance, kernel_e, core, internal = self._kn.elastic_advance, self._kernel_e, self._kernel_core, self._internal
+        advance, kernel_e, core, internal = self._advance, self._kernel_e, self._kernel_core, self._internal
         finish = self.finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
                                lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
 
