@@ -30,7 +30,7 @@ from prsm_sim.models.registry import build_model
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.simulator import RatingEvent, Simulator
-from prsm_sim.stepping.packed import PackedOutputs
+from prsm_sim.stepping.packed import NUT_FORCE_ITEM, PackedOutputs
 from prsm_sim.stepping.records import InternalLayout, Outputs
 from prsm_sim.stepping.model import Model
 
@@ -56,7 +56,7 @@ def state_is_finite(out: Outputs) -> bool:
     # x * 0 is ±0 for a finite float and NaN otherwise, so the sum is 0 exactly when all are finite
     # (a sum of the values themselves could overflow); one test instead of five calls, every step
     if type(out) is PackedOutputs:
-        return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out.nut_force_n * 0.0 == 0.0
+        return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out[NUT_FORCE_ITEM] * 0.0 == 0.0
     return (out.screw_angle_rad * 0.0 + out.screw_speed_rad_s * 0.0 + out.carrier_angle_rad * 0.0
             + out.carrier_speed_rad_s * 0.0 + out.nut_force_n * 0.0 == 0.0) and bool(np.isfinite(out.internal).all())
 
@@ -272,7 +272,8 @@ class Session:
         sim, gate = self.simulator, self.gate
         t0 = sim.time_s  # read off the packed record: no `State` is built on this path
         if command is not None:
-            if not is_finite_number(command):
+            # a finite float passes on the first test (x · 0 is 0 only for finite x): the node's every step
+            if not (type(command) is float and command * 0.0 == 0.0) and not is_finite_number(command):
                 raise InputError(f"command = {command!r}: must be a finite number "
                                  f"({INTERFACE_UNIT[gate.interface]})")
             gate.offer(gate.interface, command, t0)
