@@ -21,6 +21,9 @@ To write a model:
    ``step(x, command, load_n) -> PackedOutputs`` on the packed state x (`pack_state`), usually a
    closure over the model's constants. It computes the physics only and ends in the function
    `finisher` returns (the ledger, the guard, the nut's outputs); `Simulator` calls it directly.
+   A model whose step takes its part in another form (a compiled kernel's floats and memory)
+   overrides `packed_part` and `state_part`, so that the conversion runs when a state is packed or
+   read, not in every step.
 4. Optionally override `_run_impl` with a faster batch form ending in
    `stepping.trajectory.trajectory_from_columns` (the ledger's column form), and add it to the
    registry (`models.registry.MODELS`). tests/test_step_paths.py and tests/test_kernels.py hold the
