@@ -281,12 +281,7 @@ class Session:
             self.load_n = float(load_n)
         command = gate.command(t0)
         act = self.actuator
-        before = None
-        if act is not None:  # an actuator's state is its own (`ActuatorState`), never packed: reading it is free
-            before = sim.state
-            if gate.timed_out and act.actuator.brake.engage_on_watchdog and act.actuator.brake.fitted \
-                    and not before.brake_engaged:
-                sim.state = before = act.command_brake(before, True)
+        before = None if act is None else self._actuator_before(act)
         try:
             out = sim.step(command, self.load_n)
         except NonFiniteStateError as e:  # the simulator kept the last finite state
@@ -314,6 +309,16 @@ class Session:
                                                  sim.params.ratings.static_load_rating_n or math.inf))
         self._last = out
         return out
+
+    def _actuator_before(self, act):
+        """The actuator's state before a step, its brake applied first where the watchdog timed out and the
+        brake engages on it (an actuator's state is its own `ActuatorState`, never packed: reading it is free)."""
+        sim = self.simulator
+        before = sim.state
+        if self.gate.timed_out and act.actuator.brake.engage_on_watchdog and act.actuator.brake.fitted \
+                and not before.brake_engaged:
+            sim.state = before = act.command_brake(before, True)
+        return before
 
     def _non_finite(self, time_s: float, command: float) -> ModelError:
         """Stop stepping until reset: the step at `time_s` produced a non-finite state."""
