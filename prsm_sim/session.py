@@ -30,7 +30,7 @@ from prsm_sim.models.registry import build_model
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.simulator import RatingEvent, Simulator
-from prsm_sim.stepping.packed import PackedOutputs
+from prsm_sim.stepping.packed import NUT_FORCE_ITEM, PackedOutputs
 from prsm_sim.stepping.records import InternalLayout, Outputs
 from prsm_sim.stepping.model import Model
 
@@ -56,7 +56,7 @@ def state_is_finite(out: Outputs) -> bool:
     # x * 0 is ±0 for a finite float and NaN otherwise, so the sum is 0 exactly when all are finite
     # (a sum of the values themselves could overflow); one test instead of five calls, every step
     if type(out) is PackedOutputs:
-        return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out.nut_force_n * 0.0 == 0.0
+        return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out[NUT_FORCE_ITEM] * 0.0 == 0.0
     return (out.screw_angle_rad * 0.0 + out.screw_speed_rad_s * 0.0 + out.carrier_angle_rad * 0.0
             + out.carrier_speed_rad_s * 0.0 + out.nut_force_n * 0.0 == 0.0) and bool(np.isfinite(out.internal).all())
 
@@ -272,7 +272,8 @@ class Session:
         sim, gate = self.simulator, self.gate
         t0 = sim.time_s  # read off the packed record: no `State` is built on this path
         if command is not None:
-            if not is_finite_number(command):
+            # a finite float passes on the first test (x · 0 is 0 only for finite x): the node's every step
+            if not (type(command) is float and command * 0.0 == 0.0) and not is_finite_number(command):
                 raise InputError(f"command = {command!r}: must be a finite number "
                                  f"({INTERFACE_UNIT[gate.interface]})")
             gate.offer(gate.interface, command, t0)
@@ -280,12 +281,7 @@ class Session:
             self.load_n = float(load_n)
         command = gate.command(t0)
         act = self.actuator
-        before = None
-        if act is not None:  # an actuator's state is its own (`ActuatorState`), never packed: reading it is free
-            before = sim.state
-            if gate.timed_out and act.actuator.brake.engage_on_watchdog and act.actuator.brake.fitted \
-                    and not before.brake_engaged:
-                sim.state = before = act.command_brake(before, True)
+        before = None if act is None else self._actuator_before(act)
         try:
             out = sim.step(command, self.load_n)
         except NonFiniteStateError as e:  # the simulator kept the last finite state
@@ -313,6 +309,16 @@ class Session:
                                                  sim.params.ratings.static_load_rating_n or math.inf))
         self._last = out
         return out
+
+    def _actuator_before(self, act):
+        """The actuator's state before a step, its brake applied first where the watchdog timed out and the
+        brake engages on it (an actuator's state is its own `ActuatorState`, never packed: reading it is free)."""
+        sim = self.simulator
+        before = sim.state
+        if self.gate.timed_out and act.actuator.brake.engage_on_watchdog and act.actuator.brake.fitted \
+                and not before.brake_engaged:
+            sim.state = before = act.command_brake(before, True)
+        return before
 
     def _non_finite(self, time_s: float, command: float) -> ModelError:
         """Stop stepping until reset: the step at `time_s` produced a non-finite state."""

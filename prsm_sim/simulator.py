@@ -32,6 +32,7 @@ from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
 
 _RESIDUAL_ITEM = 9  # the packed state's energy residual (`Model.pack_state`)
+_PART_ITEM = PACKED_STATE_SIZE - 1  # ... and the model's part, in the form its step holds it (`Model.packed_part`)
 
 
 # the state-carrying columns of a run (with the nut force): efficiency and speed_ratio may be NaN by design
@@ -241,7 +242,7 @@ class Simulator:
         x = self._packed
         return to_plain({"nstep": self.nstep, "nut_position_m": self._initial_nut_position_m,
                          "initial_load_n": self._initial_load_n, "state": self.state,
-                         "packed": None if x is None else tuple(x[:PACKED_STATE_SIZE])})
+                         "packed": None if x is None else x[:_PART_ITEM] + (self.model.state_part(x[_PART_ITEM]),)})
 
     def set_state(self, data: dict) -> None:
         """Continue from `get_state`'s data, bit for bit (also in another process, same parameters).
@@ -280,8 +281,12 @@ class Simulator:
         self.restore(d["state"], d["nstep"])
         self._initial_nut_position_m = d["nut_position_m"]
         self._initial_load_n = d["initial_load_n"]
-        if d["packed"] is not None:  # the packed record as it was (its stored energy is not recomputed)
-            self._packed = self._state_of = d["packed"]
+        packed = d["packed"]
+        if packed is not None:  # the packed record as it was (its stored energy is not recomputed)
+            m, part = self.model, packed[_PART_ITEM]
+            if m.part_type is not None:  # the part in the form the model's packed step holds it
+                part = m.packed_part(m.part_type._make(m.state_part(part)))
+            self._packed = self._state_of = packed[:_PART_ITEM] + (part,)
 
     def step(self, command: float | None = None, load_n: float = 0.0, *, torque_nm: float | None = None) -> Outputs:
         """Advance one step with the command and the nut load held over it.

@@ -187,3 +187,51 @@ def test_ideal_batch_run_is_the_packed_step_repeated():
     for f, _ in OUTPUT_FIELDS:
         np.testing.assert_array_equal(traj[f], [getattr(o, f) for o in outs])
     assert traj.internal.shape == (400, 0) and traj.final_state == sim.state
+
+
+@pytest.mark.parametrize("kernel,n", [("compiled", 400), ("reference", 150)])
+def test_fu2018_per_step_path_adds_no_rounding_to_its_kernel(kernel, n):
+    """`Simulator.step` on fu2018 is `kernels.step` plus the ledger, bit for bit: the speeds, the angles summed
+    from the kernel's increments, the dissipation, the nut force and the friction state (kept in the packed
+    state in the kernel's own form) equal a bare loop over the kernel, through stick and break-away under
+    5 kN (the closed form to compare with is the kernel itself: the wrapper must add nothing to it)."""
+    from prsm_sim.models import kernels
+
+    sim = Simulator(preset("s30"), "fu2018", 1e-3, kernel=kernel)
+    m = sim.model
+    k_arr, s_arr = m.kernel_constants
+    load = 5000.0
+    hold = m.geo.lead_per_rad_m * load  # the frictionless holding torque: friction alone decides stick
+    ws = wc = th_s = th_c = 0.0
+    sign, pin_abs, gear, mem = 1.0, 0.0, 0.0, kernels.NO_MEMORY
+    for k in range(n):
+        tau = hold + 0.6 * math.sin(0.03 * k)
+        out = sim.step(tau, load)
+        ws, wc, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = m._kn.step(
+            ws, wc, sign, pin_abs, gear, mem, tau, load, k_arr, s_arr)
+        th_s, th_c = th_s + dth_s, th_c + dth_c
+        assert (out.screw_speed_rad_s, out.carrier_speed_rad_s, out.screw_angle_rad, out.carrier_angle_rad,
+                out.nut_force_n) == (ws, wc, th_s, th_c, f1[27])
+        assert out.power_dissipated_w == diss / 1e-3
+    part = sim.state.part
+    assert part == (int(sign), pin_abs, gear, kernels.memory_from_kernel(mem))
+    assert type(part.flank_sign) is int
+
+
+@pytest.mark.parametrize("model", ["fu2018", "elastic"])
+def test_plain_state_round_trip_keeps_the_kernel_form_of_the_part(model):
+    """get_state writes the part as `State` holds it (int flank sign, ``()`` for no solver memory); set_state
+    takes it back into the kernel's form, and the run continues bit for bit."""
+    import json
+
+    a = Simulator(preset("s30"), model, 1e-3)
+    for k in range(200):
+        a.step(0.4 * math.cos(0.02 * k), 100.0)
+    data = json.loads(json.dumps(a.get_state()))
+    b = Simulator(preset("s30"), model, 1e-3)
+    b.set_state(data)
+    assert b.state == a.state
+    for k in range(200):
+        oa, ob = a.step(0.4 * math.sin(0.02 * k), -50.0), b.step(0.4 * math.sin(0.02 * k), -50.0)
+        assert oa.scalar_values() == ob.scalar_values()
+    assert a.state == b.state

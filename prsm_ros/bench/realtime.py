@@ -317,7 +317,7 @@ def step_cost_figures(quick: bool) -> list[dict]:
             times[k].append((time.thread_time() - t0) / n)
     per = {k: _median_spread(v) for k, v in times.items()}
     mj = per.get("mujoco", (math.nan, 0.0))[0]
-    factors = {"ideal": 1.0, "jones2016": 1.0, "fu2018": 2.0, "elastic": 10.0}
+    factors = {"ideal": 1.0, "jones2016": 1.0, "fu2018": 1.5, "elastic": 10.0}
     figs = []
     if "mujoco" in per:
         figs.append(figure("MuJoCo mj_step, rigid screw–nut (Python loop)", mj * 1e6, "µs", "(baseline)", None,

@@ -65,7 +65,7 @@ import numpy as np
 
 from prsm_sim.models import kernels
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
-                                    Fu2018Part, slip_speed)
+                                    Fu2018Part, slip_speed, specialised)
 from prsm_sim.models.kernels import ROOT_STEP_TOL  # noqa: F401 (public here, where the chain law is described)
 from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel
 from prsm_sim.params import Params
@@ -335,11 +335,13 @@ class ElasticModel(Model):
         self._law_e = tuple(self.constants)
         self._kernel_e: tuple | np.ndarray = self._law_e
         self._kernel_core = self._core_levels(kernel)
+        self._advance = self._kn.elastic_advance
         if kernel == "compiled":
             self._kernel_e = np.array(self._law_e, dtype=float)
             # compiled or loaded from the disk cache now, not in a realtime loop's first step
-            self._kn.elastic_advance(*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e,
-                                     *self._kernel_core)
+            warm = (*self._kernel_args(self.initial_state()), 0.0, 0.0, self._kernel_e, *self._kernel_core)
+            self._kn.elastic_advance(*warm)
+            self._advance = specialised(self._kn.elastic_advance, *warm)  # the per-step path's entry
 
     def _core_levels(self, kernel: str) -> tuple:
         """(the core's constants per refinement level j: row j steps hs/2^j, its flank geometry), as the step's
@@ -425,40 +427,39 @@ class ElasticModel(Model):
             stored_j=cols[:, 11])
 
     def _make_step(self):
-        """The step: `_substeps` and the ledger. The stored energy from the chain's energy the sub-steps end
-        with (`_stored_j`: `total_stored_energy_j` would evaluate the chain law again); the step's end forces
+        """The step: `kernels.elastic_advance` (`substeps` sub-steps, module doc) and the ledger. The stored energy
+        from the chain's energy the sub-steps end with (`_stored_j`: `total_stored_energy_j` would evaluate the
+        chain law again); the step's end forces
         and chain figures are the record's aux, from which the slip speed and the internal vector
         (`_internal`) are derived when read.
         """
-        substeps, internal = self._substeps, self._internal
+        advance, kernel_e, core, internal = self._advance, self._kernel_e, self._kernel_core, self._internal
         finish = self.finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
                                lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
 
+        # the packed part is in the kernel's own form (`packed_part`): floats from the last step or `pack_state`,
+        # the inputs floats from the caller's checks, so the step converts nothing
         def step(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem, x_n, v_n, acc, extra = x[11]
-            (ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f_th, f1, f_el, k, v_el, lost,
-             delta, e_end) = substeps(x[2], x[4], x[1], x[3], x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm,
-                               load_n)
+            (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
+             f_th, e_end) = advance(x[1], x[2], x[3], x[4], x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm,
+                                    load_n, kernel_e, *core)
             return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, e_end,
                           (sign, pin_abs, gear, mem, x_n, v_n, acc, extra),
-                          (f1, f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
+                          (Forces(*f1), f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
         return step
 
-    def _substeps(self, ws, wc, th_s, th_c, x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm, load_n):
-        """One output step of `substeps` sub-steps (module doc; `kernels.elastic_advance`), on plain floats.
+    def packed_part(self, part: ElasticPart) -> tuple:
+        """The part as `kernels.elastic_advance` takes it: floats, the solver memory as `kernels.kernel_memory`."""
+        return (float(part.flank_sign), float(part.pin_force_n), float(part.gear_force_n), kernel_memory(part.solver),
+                float(part.nut_axial_m), float(part.nut_speed_m_s), float(part.screw_accel_rad_s2),
+                float(part.extra_clearance_m))
 
-        Returns (ω_S, ω_C, θ_S, θ_C, x_N, v_N, flank sign, pin force, gear force, solver memory, screw
-        acceleration, dissipated J, the load's work J, thread force on the nut N, the core's end forces, and
-        the chain's elastic force, tangent stiffness, energy, lost motion and deflection at the end, and the
-        stored energy at the end J).
-        """
-        (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el0, k, v_el0, lost, delta,
-         f_th, e_end) = self._kn.elastic_advance(
-            float(th_s), float(ws), float(th_c), float(wc), float(x_n), float(v_n), float(sign), float(pin_abs),
-            float(gear), kernel_memory(mem), float(acc), float(extra), float(torque_nm), float(load_n),
-            self._kernel_e, *self._kernel_core)
-        return (ws, wc, th_s, th_c, x_n, v_n, int(sign), pin_abs, gear, memory_from_kernel(mem), acc, diss,
-                w_out, f_th, Forces(*f1), f_el0, k, v_el0, lost, delta, e_end)
+    def state_part(self, packed: tuple) -> tuple:
+        """`packed_part` undone: the flank sign an int, no solver memory ``()``; a part in `State`'s form (plain
+        data) passes as it is."""
+        sign, pin_abs, gear, mem, *nut = packed
+        return (int(sign), pin_abs, gear, memory_from_kernel(mem) if len(mem) == 6 else mem, *nut)
 
     def _internal(self, compact, f_el, k, v_el, lost, delta, v_n, x_n=0.0, extra=0.0) -> np.ndarray:
         """Output block: fu2018's per-roller, per-tooth and carrier quantities, the chain, the per-thread loads.

@@ -283,10 +283,14 @@ class Fu2018(Model):
             k_arr, s_arr = np.array(k_arr, dtype=float), np.array(s_arr, dtype=float)
         # (K, S) as the kernels take them: the contract a model built on this core (`elastic`) passes on
         self.kernel_constants = (k_arr, s_arr)
+        self._step_kernel = self._kn.step
         if kernel == "compiled":
             # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
             # the model is built, rather than in the first step of a realtime loop
             self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
+        # the per-step path's kernel: the specialisation the warm-up step chose, entered without the dispatch
+        self._step_kernel = specialised(self._kn.step, 0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0,
+                                        *self.kernel_constants)
 
     def _step_constants(self) -> Fu2018Constants:
         """The step's constants (`kernels.Fu2018Constants`) from the parameters."""
@@ -403,22 +407,36 @@ class Fu2018(Model):
         return ws, wc, dth_s, dth_c, diss, f, int(sg), pin_abs, gear, memory_from_kernel(m)
 
     def _make_step(self):
-        """The step: `_step` and the ledger. The record keeps the end forces as its aux, from which the slip
+        """The step: `kernels.step` and the ledger. The record keeps the end forces as its aux, from which the slip
         speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
         the nut force. The aux is the kernel's plain tuple: a `Forces` is built only when read (it would cost a
-        tenth of the step otherwise).
+        tenth of the step otherwise). The packed state holds this model's part as the kernel takes and returns
+        it (`packed_part`), so a step converts nothing: the floats come from the kernel's previous step or from
+        `pack_state`, the inputs from the caller's checks (`Simulator.step`, `Model.step`).
         """
-        stored, expand_one, step = self.stored_energy_j, self.expand_one, self.step_core
+        stored, expand_one, kernel_step = self.stored_energy_j, self.expand_one, self._step_kernel
+        k_arr, s_arr = self.kernel_constants
         finish = self.finisher(lambda w_s, w_c, f1: slip_speed(Forces(*f1)),
                                lambda w_s, w_c, f1: expand_one(Forces(*f1).compact))
 
         def step_packed(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem = x[11]
-            ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = step(
-                x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n)
+            ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = kernel_step(
+                x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n, k_arr, s_arr)
             return finish(x, x[1] + dth_s, ws1, x[3] + dth_c, wc1, torque_nm, load_n, diss, stored(ws1, wc1),
                           (sign, pin_abs, gear, mem), f1, f1[_AXIAL])
         return step_packed
+
+    def packed_part(self, part: Fu2018Part) -> tuple:
+        """The part as `kernels.step` takes it: (flank sign, pin force sum, gear force) as floats and the solver
+        memory as 6 floats (`kernels.kernel_memory`)."""
+        return (float(part.flank_sign), float(part.pin_force_n), float(part.gear_force_n), kernel_memory(part.solver))
+
+    def state_part(self, packed: tuple) -> tuple:
+        """`packed_part` undone: the flank sign an int, no solver memory ``()`` (`kernels.memory_from_kernel`); a
+        part in `State`'s form (plain data) passes as it is."""
+        sign, pin_abs, gear, mem = packed
+        return (int(sign), pin_abs, gear, memory_from_kernel(mem) if len(mem) == 6 else mem)
 
     def _run_impl(self, state: State, torque_nm: np.ndarray, load_n: np.ndarray) -> Trajectory:
         """The batch form of the step: one call of `kernels.fu2018_run`, the per-tooth expansion built when
@@ -479,6 +497,25 @@ class Fu2018(Model):
         np.multiply((self.zeta / nt)[None, None, :, None], compact[:, None, None, :2], out=teeth)
         out[:, start + nr * nt * 2:] = compact[:, nq:]
         return out
+
+
+def specialised(fn, *args):
+    """`fn` as the per-step path calls it: for a numba dispatcher the compiled entry point of the specialisation
+    that `args` (an example call's arguments, already compiled) select, else `fn` itself.
+
+    A dispatcher finds the specialisation anew on every call by typing each argument (a third of a microsecond
+    for `kernels.step`'s ten, a tuple among them); the per-step path passes arguments of fixed types (floats
+    checked by its callers, the kernel's own memory and constants), so the entry point found once serves every
+    step, with the same machine code and results. An argument of another type is converted by the entry point
+    as the dispatcher's would be, or refused (TypeError).
+    """
+    overloads = getattr(fn, "overloads", None)
+    if overloads is None:  # the reference kernel: a plain function
+        return fn
+    from numba import typeof  # a compiled kernel is loaded: numba is
+
+    compiled = overloads.get(tuple(typeof(a) for a in args))
+    return fn if compiled is None else compiled.entry_point
 
 
 _AXIAL = Forces._fields.index("axial")  # the nut force's place in a Forces or the kernel's tuple

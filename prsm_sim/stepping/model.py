@@ -21,6 +21,9 @@ To write a model:
    ``step(x, command, load_n) -> PackedOutputs`` on the packed state x (`pack_state`), usually a
    closure over the model's constants. It computes the physics only and ends in the function
    `finisher` returns (the ledger, the guard, the nut's outputs); `Simulator` calls it directly.
+   A model whose step takes its part in another form (a compiled kernel's floats and memory)
+   overrides `packed_part` and `state_part`, so that the conversion runs when a state is packed or
+   read, not in every step.
 4. Optionally override `_run_impl` with a faster batch form ending in
    `stepping.trajectory.trajectory_from_columns` (the ledger's column form), and add it to the
    registry (`models.registry.MODELS`). tests/test_step_paths.py and tests/test_kernels.py hold the
@@ -201,15 +204,26 @@ class Model:
         if self.part_type is not None and not isinstance(part, self.part_type):
             part = self.part_type(*part) if part else self.part_type()
             s = replace(s, part=part)
-        return (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad, s.carrier_speed_rad_s,
-                s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j, s.energy_residual_j,
-                self.total_stored_energy_j(s), part)
+        # floats here, once: a step takes them as they are (an int would make a compiled kernel specialise anew)
+        return (*map(float, (s.time_s, s.screw_angle_rad, s.screw_speed_rad_s, s.carrier_angle_rad,
+                             s.carrier_speed_rad_s, s.work_in_j, s.work_out_j, s.dissipated_j, s.energy_flow_j,
+                             s.energy_residual_j, self.total_stored_energy_j(s))),
+                self.packed_part(part) if self.part_type is not None else part)
 
     def unpack_state(self, x: tuple) -> State:
         part = x[11]
-        if self.part_type is not None and not isinstance(part, self.part_type):
-            part = self.part_type._make(part)
+        if self.part_type is not None:
+            part = self.part_type._make(self.state_part(part))
         return State(x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], part)
+
+    def packed_part(self, part) -> tuple:
+        """The model's part (a `part_type`) as its packed step holds it: converted here, once per state set,
+        rather than in every step (a compiled kernel's memory as the kernel returns it). Default: as it is."""
+        return part
+
+    def state_part(self, packed: tuple) -> tuple:
+        """`packed_part` undone: the fields of `part_type` in order (a tuple or the part itself)."""
+        return packed
 
     # -- energy ------------------------------------------------------------------------------
     def stored_energy_j(self, screw_speed_rad_s, carrier_speed_rad_s):

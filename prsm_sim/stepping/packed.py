@@ -25,6 +25,7 @@ PACKED_STATE_SIZE = 12
 (_TAU, _LOAD, _DISS, _WIN, _WOUT, _NUT_F, _NUT_X, _NUT_V, _FAULT, _K,
  _AUX) = range(PACKED_STATE_SIZE, PACKED_STATE_SIZE + 11)
 NUT_POSITION_ITEM = _NUT_X  # where a record holds the nut position (a caller on the per-step path reads it so)
+NUT_FORCE_ITEM = _NUT_F  # ... and the nut force
 
 
 class PackedConstants:
