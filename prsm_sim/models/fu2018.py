@@ -394,18 +394,6 @@ class Fu2018(Model):
                                          float(gear_sign), *self.kernel_constants)
         return (Forces(*f) if ok else None), r
 
-    def step_core(self, ws, wc, sign, pin_abs, gear, mem, tau, load):
-        """One step of this model's length on plain floats (`kernels.step`): the contract a model built on
-        fu2018 (`elastic`'s core) steps it by.
-
-        Returns (ω_S, ω_C, Δθ_S, Δθ_C, dissipated J, end forces as the kernel's plain tuple in `Forces`
-        field order, flank sign, pin force sum N, gear force N, solver memory as `State.part` holds it).
-        """
-        ws, wc, dth_s, dth_c, diss, f, sg, pin_abs, gear, m = self._kn.step(
-            float(ws), float(wc), float(sign), float(pin_abs), float(gear), kernel_memory(mem), float(tau),
-            float(load), *self.kernel_constants)
-        return ws, wc, dth_s, dth_c, diss, f, int(sg), pin_abs, gear, memory_from_kernel(m)
-
     def _make_step(self):
         """The step: `kernels.step` and the ledger. The record keeps the end forces as its aux, from which the slip
         speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
