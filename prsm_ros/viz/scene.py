@@ -55,6 +55,7 @@ from prsm_sim import InternalLayout, Params
 from prsm_sim.physics.contact import ContactPoint, contact_for, line_of_centres_contact
 from prsm_sim.physics.kinematics import roller_migration_velocity, roller_spin
 
+from prsm_ros.viz.columns import ArrowColumn
 from prsm_ros.viz.series import TIMELINE, sim_time_index
 
 WORLD = "world"
@@ -399,16 +400,6 @@ class Scene:
                              columns=[tensor_column(loads.mean(axis=1), ("tooth",), rr.BarChart.descriptor_values())])
 
 
-class _ArrowBatch:
-    """The minimal component-batch interface `rr.ComponentColumn` needs around a ready Arrow array."""
-
-    def __init__(self, array) -> None:
-        self._array = array
-
-    def as_arrow_array(self):
-        return self._array
-
-
 _TENSOR_TYPE = None
 
 
@@ -448,7 +439,7 @@ def tensor_column(frames: np.ndarray, dim_names: tuple[str, ...], descriptor=Non
     buffer = pa.Array.from_buffers(union_t, n, [None, pa.py_buffer(np.full(n, code, dtype=np.int8)),
                                                 pa.py_buffer(np.arange(n, dtype=np.int32))], children=children)
     data = pa.StructArray.from_arrays([shape_arr, names_arr, buffer], fields=list(struct_t))
-    return rr.ComponentColumn(descriptor if descriptor is not None else rr.Tensor.descriptor_data(), _ArrowBatch(data))
+    return rr.ComponentColumn(descriptor if descriptor is not None else rr.Tensor.descriptor_data(), ArrowColumn(data))
 
 
 def scene_frame_indices(time_s: np.ndarray, rate_hz: float, last_slot: int) -> tuple[np.ndarray, int]:

@@ -25,6 +25,8 @@ import rerun as rr
 
 from prsm_sim import OUTPUT_FIELDS, InternalBlock, InternalLayout
 
+from prsm_ros.viz.columns import scalars_column
+
 TIMELINE = "sim_time"
 SERIES_ROOT = "series"
 INPUTS_ROOT = f"{SERIES_ROOT}/inputs"
@@ -112,8 +114,7 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
         if name == "time_s":
             continue
         scale = shown(name, UNITS.get(name, ""))[2]
-        rec.send_columns(scalar_path(name), indexes=index,
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float) * scale))
+        rec.send_columns(scalar_path(name), indexes=index, columns=[scalars_column(np.asarray(values) * scale)])
     if internal is not None and layout.size:
         internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
         offsets = layout.offsets()
@@ -122,7 +123,7 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
             for k, (q, unit) in enumerate(b.quantities):
                 scale = shown(q, unit)[2]
                 rec.send_columns(block_path(b.name, q, unit), indexes=index,
-                                 columns=rr.Scalars.columns(scalars=np.ascontiguousarray(block[..., k]) * scale))
+                                 columns=[scalars_column(block[..., k] * scale)])
     return n
 
 
@@ -137,4 +138,4 @@ def send_input(rec: rr.RecordingStream, name: str, time_s: np.ndarray, values: n
     scale = 1e3 if unit == "m" else 1.0
     if len(time_s):
         rec.send_columns(input_path(name), indexes=[sim_time_index(time_s)],
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float) * scale))
+                         columns=[scalars_column(np.asarray(values, dtype=float) * scale)])

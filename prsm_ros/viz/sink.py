@@ -145,7 +145,8 @@ class RecordingWriter:
         from prsm_ros.viz import scene as rerun_scene, series as rerun_series
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
-        self.rec = rec
+        from prsm_ros.viz.columns import BatchedStream
+        self.rec = BatchedStream(rec)  # a batch's columns go out in one call per index: the cost is per call
         self.params = params
         self.layout = layout
         self.model_name = model_name
@@ -168,13 +169,14 @@ class RecordingWriter:
         """A batch of consecutive steps: every step to the series, the scene at its rate."""
         n = self._series.send_series(self.rec, columns, internal, self.layout)
         self.rows += n
-        if self.scene is None or n == 0:
-            return
-        from prsm_ros.viz.scene import scene_frame_indices
-        idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
-        if len(idx):
-            cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
-            self.scene_frames += self.scene.send_frames(self.rec, cols, None if internal is None else internal[idx])
+        if self.scene is not None and n:
+            from prsm_ros.viz.scene import scene_frame_indices
+            idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
+            if len(idx):
+                cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
+                self.scene_frames += self.scene.send_frames(self.rec, cols,
+                                                            None if internal is None else internal[idx])
+        self.rec.flush_columns()
 
     def send_input(self, name: str, time_s: np.ndarray, values: np.ndarray, unit: str = "") -> None:
         """A recorded input (e.g. the controller's nut position reference), plotted beside the outputs."""
@@ -182,6 +184,7 @@ class RecordingWriter:
             self._series.log_input_style(self.rec, name, unit)
             self.inputs.append(name)
         self._series.send_input(self.rec, name, time_s, values, unit)
+        self.rec.flush_columns()
 
     def blueprint(self):
         from prsm_ros.viz.blueprint import default_blueprint

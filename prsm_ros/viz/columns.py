@@ -1,0 +1,96 @@
+"""Columns sent to Rerun in few calls: `BatchedStream` gathers `send_columns` calls into one record batch per index.
+
+Rerun's cost of a batch of steps is per call more than per row: each `send_columns` converts its
+arguments in Python and becomes a chunk on the SDK's side, so a batch of the PRSM's ~50 series
+entities and ~25 scene entities costs about as much at 40 rows as at 4,000 (`prsm-bench --only
+rerun`). `BatchedStream` stands in for a `RecordingStream`: `send_columns` only stores the Arrow
+columns, and `flush_columns` sends every entity that shares an index column as one Arrow record
+batch (`RecordingStream.send_record_batch`: one Python call, one chunk per entity made by the
+SDK), each column carrying its entity path and component in Rerun's column metadata. The file or
+viewer holds the same entities, components and rows as one `send_columns` per entity would give.
+
+`scalars_column` builds the `Scalars:scalars` column of a steps × lines table straight from numpy,
+instead of `rr.Scalars.columns`' per-call conversion.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+
+_INDEX_META = b"index"
+_DATA_META = b"data"
+
+
+class ArrowColumn:
+    """The minimal component-batch interface `rr.ComponentColumn` needs around a ready Arrow array."""
+
+    def __init__(self, array: pa.Array) -> None:
+        self._array = array
+
+    def as_arrow_array(self) -> pa.Array:
+        return self._array
+
+
+def scalars_column(values: np.ndarray) -> rr.ComponentColumn:
+    """`Scalars:scalars` of a steps (× lines) array: one row per step, one scalar per line (float64)."""
+    v = np.ascontiguousarray(values, dtype=np.float64)
+    column = rr.ComponentColumn(rr.Scalars.descriptor_scalars(), ArrowColumn(pa.array(v.reshape(-1))))
+    per_row = int(np.prod(v.shape[1:], dtype=np.int64))
+    return column if v.ndim == 1 else column.partition(np.full(v.shape[0], per_row))
+
+
+def _field(name: str, array: pa.Array, meta: dict[bytes, bytes]) -> pa.Field:
+    return pa.field(name, array.type, metadata=meta)
+
+
+class BatchedStream:
+    """A `RecordingStream` whose `send_columns` waits for `flush_columns` (module docstring).
+
+    Calls sharing one index (the same `TimeColumn` objects, as a batch's entities do) are sent
+    together; everything else (`log`, `flush`, `send_blueprint`, …) goes straight to the stream.
+    """
+
+    def __init__(self, rec: Any) -> None:
+        self._rec = rec
+        # index objects' ids → (timeline name → Arrow times, [(entity, descriptor, column)], the index objects:
+        # held so that their ids stay theirs until the flush)
+        self._groups: dict[tuple[int, ...], tuple[dict[str, pa.Array], list[tuple[str, Any, pa.Array]], list]] = {}
+
+    def send_columns(self, entity_path: str, indexes: Iterable[Any], columns: Iterable[Any]) -> None:
+        indexes = list(indexes)
+        key = tuple(id(i) for i in indexes)
+        group = self._groups.get(key)
+        if group is None:
+            group = self._groups[key] = ({i.timeline_name(): i.as_arrow_array() for i in indexes}, [], indexes)
+        n = len(next(iter(group[0].values())))
+        for c in columns:
+            array = c.as_arrow_array()
+            if len(array) != n:
+                raise ValueError(f"{entity_path}: a column of {len(array)} rows beside an index of {n}")
+            group[1].append((entity_path, c.component_descriptor(), array))
+
+    def flush_columns(self) -> None:
+        """Send what `send_columns` gathered: one record batch per index."""
+        groups, self._groups = self._groups, {}
+        for timelines, comps, _ in groups.values():
+            fields = [_field(name, a, {b"rerun:kind": _INDEX_META, b"rerun:index_name": name.encode()})
+                      for name, a in timelines.items()]
+            arrays = list(timelines.values())
+            for path, d, a in comps:
+                meta = {b"rerun:kind": _DATA_META, b"rerun:entity_path": path.encode(),
+                        b"rerun:component": d.component.encode()}
+                if d.archetype:
+                    meta[b"rerun:archetype"] = d.archetype.encode()
+                if d.component_type:
+                    meta[b"rerun:component_type"] = d.component_type.encode()
+                fields.append(_field(f"{path}:{d.component}", a, meta))
+                arrays.append(a)
+            self._rec.send_record_batch(pa.RecordBatch.from_arrays(arrays, schema=pa.schema(fields)))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._rec, name)
