@@ -44,6 +44,24 @@ def scalars_column(values: np.ndarray) -> rr.ComponentColumn:
     return column if v.ndim == 1 else column.partition(np.full(v.shape[0], per_row))
 
 
+def vectors_column(descriptor: Any, values: np.ndarray, per_row: int | None = None) -> rr.ComponentColumn:
+    """A column of float32 vectors (Vec3D, Quaternion, …): `values` is rows × width, or (rows × per_row) ×
+    width with `per_row` vectors a row (the arrows of every roller), as Rerun's own conversion gives."""
+    v = np.ascontiguousarray(values, dtype=np.float32)
+    width = v.shape[-1]
+    kind = pa.list_(pa.field("item", pa.float32(), nullable=False), width)
+    column = rr.ComponentColumn(descriptor, ArrowColumn(pa.FixedSizeListArray.from_arrays(
+        pa.array(v.reshape(-1)), type=kind)))
+    return column if per_row is None else column.partition(np.full(len(v.reshape(-1, width)) // per_row, per_row))
+
+
+def colors_column(descriptor: Any, rgba: np.ndarray, per_row: int) -> rr.ComponentColumn:
+    """A column of colours from RGBA bytes ((rows × per_row) × 4), packed 0xRRGGBBAA as Rerun's `Color` is."""
+    c = np.asarray(rgba, dtype=np.uint32).reshape(-1, 4)
+    packed = (c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | c[:, 3]
+    return rr.ComponentColumn(descriptor, ArrowColumn(pa.array(packed))).partition(np.full(len(c) // per_row, per_row))
+
+
 def _field(name: str, array: pa.Array, meta: dict[bytes, bytes]) -> pa.Field:
     return pa.field(name, array.type, metadata=meta)
 
