@@ -109,29 +109,6 @@ def _save_path(target: str) -> Path:
     return path
 
 
-class _YieldingStream:
-    """A RecordingStream that hands the GIL back after every send (a sleep of YIELD_S).
-
-    The background thread's Python work (building Arrow columns) otherwise holds the GIL until the
-    interpreter's switch interval (5 ms) forces a hand-over, and the 1 kHz loop thread, woken on its
-    deadline, waits that long. Yielding after each send bounds its wait by one send.
-    """
-
-    def __init__(self, rec: Any) -> None:
-        self._rec = rec
-
-    def send_columns(self, *args, **kwargs) -> None:
-        self._rec.send_columns(*args, **kwargs)
-        time.sleep(YIELD_S)
-
-    def log(self, *args, **kwargs) -> None:
-        self._rec.log(*args, **kwargs)
-        time.sleep(YIELD_S)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._rec, name)
-
-
 class RecordingWriter:
     """One Rerun recording of a PRSM run: static scene, batches of steps, default blueprint.
 
@@ -141,12 +118,12 @@ class RecordingWriter:
 
     def __init__(self, rec: Any, params: Params | None, layout: InternalLayout, model_name: str, *,
                  scalar_names: Iterable[str] = tuple(n for n, _ in OUTPUT_FIELDS),
-                 scene_rate_hz: float = 30.0) -> None:
+                 scene_rate_hz: float = 30.0, yield_s: float = 0.0) -> None:
         from prsm_ros.viz import scene as rerun_scene, series as rerun_series
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
         from prsm_ros.viz.columns import BatchedStream
-        self.rec = BatchedStream(rec)  # a batch's columns go out in one call per index: the cost is per call
+        self.rec = BatchedStream(rec, yield_s=yield_s)  # a batch's columns go out in few calls: the cost is per call
         self.params = params
         self.layout = layout
         self.model_name = model_name
@@ -266,7 +243,7 @@ class RerunSink:
     def _start(self, rec: Any, params: Params, layout: InternalLayout, model_name: str, scene_rate_hz: float,
                recording_name: str | None, port: int | None) -> None:
         """Open the sink (file, viewer or connection), send the recording's static part, start the thread."""
-        self.writer = RecordingWriter(_YieldingStream(rec), params, layout, model_name, scene_rate_hz=scene_rate_hz)
+        self.writer = RecordingWriter(rec, params, layout, model_name, scene_rate_hz=scene_rate_hz, yield_s=YIELD_S)
         if self.mode == "save":
             rec.save(self.path)
         elif self.mode == "connect":
