@@ -246,10 +246,10 @@ def test_close_is_bounded_when_the_background_thread_hangs(tmp_path, monkeypatch
     release, blocked = threading.Event(), threading.Event()
     real_send = sink_module.RecordingWriter.send
 
-    def stuck_send(self, columns, internal):
+    def stuck_send(self, columns, internal, **parts):
         blocked.set()
         release.wait(30)
-        real_send(self, columns, internal)
+        real_send(self, columns, internal, **parts)
 
     monkeypatch.setattr(sink_module.RecordingWriter, "send", stuck_send)
     path = tmp_path / "stuck.rrd"

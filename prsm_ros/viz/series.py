@@ -105,6 +105,14 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
 
     Returns the number of rows sent per entity.
     """
+    n = send_scalars(rec, columns)
+    if n:
+        send_blocks(rec, columns["time_s"], internal, layout)
+    return n
+
+
+def send_scalars(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray]) -> int:
+    """The scalar outputs of a batch of steps (`send_series` without the internal loads); returns its rows."""
     t = np.asarray(columns["time_s"], dtype=float)
     n = len(t)
     if n == 0:
@@ -115,16 +123,24 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
             continue
         scale = shown(name, UNITS.get(name, ""))[2]
         rec.send_columns(scalar_path(name), indexes=index, columns=[scalars_column(np.asarray(values) * scale)])
-    if internal is not None and layout.size:
-        internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
-        offsets = layout.offsets()
-        for b in series_blocks(layout):
-            block = internal[:, offsets[b.name]: offsets[b.name] + b.size].reshape((n,) + b.shape)
-            for k, (q, unit) in enumerate(b.quantities):
-                scale = shown(q, unit)[2]
-                rec.send_columns(block_path(b.name, q, unit), indexes=index,
-                                 columns=[scalars_column(block[..., k] * scale)])
     return n
+
+
+def send_blocks(rec: rr.RecordingStream, time_s: np.ndarray, internal: np.ndarray | None,
+                layout: InternalLayout) -> None:
+    """The internal loads' series (`series_blocks`) of a batch of steps ending at `time_s`, s."""
+    n = len(time_s)
+    if internal is None or not layout.size or n == 0:
+        return
+    index = [sim_time_index(np.asarray(time_s, dtype=float))]
+    internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
+    offsets = layout.offsets()
+    for b in series_blocks(layout):
+        block = internal[:, offsets[b.name]: offsets[b.name] + b.size].reshape((n,) + b.shape)
+        for k, (q, unit) in enumerate(b.quantities):
+            scale = shown(q, unit)[2]
+            rec.send_columns(block_path(b.name, q, unit), indexes=index,
+                             columns=[scalars_column(block[..., k] * scale)])
 
 
 def log_input_style(rec: rr.RecordingStream, name: str, unit: str = "") -> None:

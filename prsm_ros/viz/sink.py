@@ -59,6 +59,7 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real sleep: `sleep(0)` lets the
 # releasing thread win the race to re-take the GIL), which bounds the loop's wait near one slice.
 ROWS_PER_SLICE = 16
+LOADS_PERIOD_S = 0.5  # default period of the internal loads' series and the 3-D scene (module docstring)
 YIELD_S = 5e-5
 
 
@@ -142,17 +143,25 @@ class RecordingWriter:
         if self.scene is not None:
             self.scene.log_static(self.rec)
 
-    def send(self, columns: Mapping[str, np.ndarray], internal: np.ndarray | None) -> None:
-        """A batch of consecutive steps: every step to the series, the scene at its rate."""
-        n = self._series.send_series(self.rec, columns, internal, self.layout)
-        self.rows += n
-        if self.scene is not None and n:
-            from prsm_ros.viz.scene import scene_frame_indices
-            idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
-            if len(idx):
-                cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
-                self.scene_frames += self.scene.send_frames(self.rec, cols,
-                                                            None if internal is None else internal[idx])
+    def send(self, columns: Mapping[str, np.ndarray], internal: np.ndarray | None, *, scalars: bool = True,
+             loads: bool = True) -> None:
+        """A batch of consecutive steps: every step to the series, the scene at its rate.
+
+        `scalars`: the scalar outputs' series; `loads`: the internal loads' series and the scene
+        (the live sink sends the two at their own periods; a bag's conversion sends both).
+        """
+        n = len(columns["time_s"])
+        if scalars:
+            self.rows += self._series.send_scalars(self.rec, columns)
+        if loads and n:
+            self._series.send_blocks(self.rec, columns["time_s"], internal, self.layout)
+            if self.scene is not None:
+                from prsm_ros.viz.scene import scene_frame_indices
+                idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
+                if len(idx):
+                    cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
+                    self.scene_frames += self.scene.send_frames(self.rec, cols,
+                                                                None if internal is None else internal[idx])
         self.rec.flush_columns()
 
     def send_input(self, name: str, time_s: np.ndarray, values: np.ndarray, unit: str = "") -> None:
@@ -181,12 +190,17 @@ class RerunSink:
     """
 
     def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
-                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.25, queue_size: int = 100_000,
-                 recording_name: str | None = None) -> None:
+                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.1, loads_period_s: float | None = None,
+                 queue_size: int = 100_000, recording_name: str | None = None) -> None:
         if mode not in MODES:
             raise ParamError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
         if not (isinstance(flush_period_s, (int, float)) and 0 < flush_period_s <= 10):
             raise ParamError(f"flush_period_s = {flush_period_s!r}: must be in (0, 10] s")
+        if loads_period_s is None:
+            loads_period_s = max(LOADS_PERIOD_S, flush_period_s)
+        if not (isinstance(loads_period_s, (int, float)) and flush_period_s <= loads_period_s <= 60):
+            raise ParamError(f"loads_period_s = {loads_period_s!r}: must be in [flush_period_s = {flush_period_s!r}, "
+                             "60] s")
         if not (isinstance(queue_size, int) and queue_size > 0):
             raise ParamError(f"queue_size = {queue_size!r}: must be a whole number > 0")
         self.requested_mode = mode
@@ -195,6 +209,9 @@ class RerunSink:
         self.layout = layout
         self.model_name = model_name
         self.flush_period_s = float(flush_period_s)
+        self.loads_period_s = float(loads_period_s)
+        self._pending: list[tuple[list[Outputs], dict[str, np.ndarray]]] = []  # sent as scalars, loads not yet
+        self._loads_due = 0.0
         self.queue_size = queue_size
         self.path: Path | None = None
         self.url: str | None = None
@@ -306,42 +323,58 @@ class RerunSink:
         for (name, unit), (ts, vs) in by_name.items():
             self.writer.send_input(name, np.array(ts), np.array(vs), unit)
 
-    def _drain(self) -> None:
+    def _drain(self, final: bool = False) -> None:
         if self._inputs and self.error is None:
             try:
                 self._drain_inputs()
             except Exception as e:  # never propagate into the node: report and stop logging
                 self.error = f"rerun logging failed: {type(e).__name__}: {e}"
         n = len(self._queue)
-        if n == 0 or self.error is not None:
+        if self.error is not None:
             return
-        rows = [self._queue.popleft() for _ in range(n)]
         t0 = time.perf_counter()
+        rows = [self._queue.popleft() for _ in range(n)]
         try:
-            columns, internal = self._columns(rows)
-            self.writer.send(columns, internal)
+            if n:
+                columns = self._scalar_columns(rows)
+                self.writer.send(columns, None, loads=False)
+                self._pending.append((rows, columns))
+            if self._pending and (final or t0 >= self._loads_due):
+                self._loads_due = t0 + self.loads_period_s
+                self._send_loads()
         except Exception as e:  # never propagate into the node: report and stop logging
             self.error = f"rerun logging failed: {type(e).__name__}: {e}"
             self._count_lost(n + self._discard_queued())
-        self.batches += 1
+        if n:
+            self.batches += 1
         self.flush_time_s += time.perf_counter() - t0
 
-    def _columns(self, rows: list[Outputs]) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The batch as columns, ROWS_PER_SLICE rows at a time with the GIL handed back between slices."""
+    def _scalar_columns(self, rows: list[Outputs]) -> dict[str, np.ndarray]:
+        """The rows' scalar outputs as columns, ROWS_PER_SLICE rows at a time with the GIL handed back between."""
         parts = []
         for i in range(0, len(rows), ROWS_PER_SLICE):
-            part = trajectory_from_rows(rows[i:i + ROWS_PER_SLICE], self.layout, State())  # the state is unused
-            parts.append((part.columns, part.internal))
+            parts.append(trajectory_from_rows(rows[i:i + ROWS_PER_SLICE], self.layout, State()).columns)
             time.sleep(YIELD_S)
-        if len(parts) == 1:
-            return parts[0]
-        columns = {k: np.concatenate([c[k] for c, _ in parts]) for k in parts[0][0]}
-        return columns, np.concatenate([i for _, i in parts])
+        return parts[0] if len(parts) == 1 else {k: np.concatenate([c[k] for c in parts]) for k in parts[0]}
+
+    def _send_loads(self) -> None:
+        """The internal loads' series and the scene of the steps sent as scalars since the last time."""
+        pending, self._pending = self._pending, []
+        rows = [r for rs, _ in pending for r in rs]
+        columns = {k: np.concatenate([c[k] for _, c in pending]) for k in pending[0][1]}
+        internal = None
+        if self.layout.size:
+            parts = []
+            for i in range(0, len(rows), ROWS_PER_SLICE):
+                parts.append(np.array([r.internal for r in rows[i:i + ROWS_PER_SLICE]], dtype=float))
+                time.sleep(YIELD_S)
+            internal = np.concatenate(parts).reshape(len(rows), self.layout.size)
+        self.writer.send(columns, internal, scalars=False)
 
     def _run(self) -> None:
         while not self._wake.wait(self.flush_period_s):
             self._drain()
-        self._drain()
+        self._drain(final=True)
 
     def _count_lost(self, n: int) -> None:
         with self._lost_lock:
