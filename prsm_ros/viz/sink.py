@@ -59,7 +59,7 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real sleep: `sleep(0)` lets the
 # releasing thread win the race to re-take the GIL), which bounds the loop's wait near one slice.
 ROWS_PER_SLICE = 16
-LOADS_PERIOD_S = 0.5  # default period of the internal loads' series and the 3-D scene (module docstring)
+LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D scene (module docstring)
 YIELD_S = 5e-5
 
 
@@ -190,7 +190,7 @@ class RerunSink:
     """
 
     def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
-                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.1, loads_period_s: float | None = None,
+                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.2, loads_period_s: float | None = None,
                  queue_size: int = 100_000, recording_name: str | None = None) -> None:
         if mode not in MODES:
             raise ParamError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
