@@ -319,7 +319,8 @@ class Scene:
             rr.Transform3D.descriptor_quaternion(), z_rotation_quaternions(theta_c))])
         # both kinematic relations are linear in the carrier speed, so applied to the carrier angle
         # they give the displacement since θ_C = 0: roller spin angle and axial migration in the nut
-        spin = vectors_column(rr.Transform3D.descriptor_quaternion(), z_rotation_quaternions(roller_spin(self.geo, theta_c)))
+        spin = vectors_column(rr.Transform3D.descriptor_quaternion(),
+                              z_rotation_quaternions(roller_spin(self.geo, theta_c)))
         z_mig = roller_migration_velocity(self.geo, theta_c)
         a = self.geo.carrier_radius_m
         for q, phi in enumerate(self.roller_angles_rad):

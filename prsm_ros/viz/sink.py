@@ -4,11 +4,18 @@
     sink.submit(out)        # per step, from the 1 kHz loop: appends to a bounded queue, nothing else
     sink.close()            # drains the queue, finalises the file
 
-A background thread wakes every `flush_period_s` (0.25 s: the viewer lags by at most that), takes
-what the loop queued, sends the scalar series of every step with `send_columns` (one call per
-entity per batch) and draws the 3D scene for the first step of each 1/scene_rate_hz of simulation
-time. The cost is per batch more than per step, so the period sets it:
-`prsm-bench --only rerun` measures it beside a 1 kHz loop. It logs
+A background thread sends what the loop queued at two periods, every step kept:
+
+- every `flush_period_s` (0.2 s): the scalar outputs' series (position, force, speed, torque,
+  powers, …), so the plots lag the loop by at most that;
+- every `loads_period_s` (1 s): the internal loads' series (per roller) and the 3D scene (poses,
+  arrows, tooth points, heat maps) for the first step of each 1/scene_rate_hz of simulation time.
+
+Rerun's cost is per entity and send, hardly per row (about 0.1 ms of the SDK's own work per entity
+and send on the 2-core VM, beside the Python that builds the columns), and a batch holds about 20
+scalar entities and, for fu2018, 50 for the loads and scene; the periods set the cost:
+`prsm-bench --only rerun` measures it beside a 1 kHz loop (docs/performance.md). Each send gathers
+its entities into few Arrow record batches (`columns.BatchedStream`). It logs
 through an explicit `RecordingStream`, never the global one. The loop is never blocked: a full
 queue drops the step and counts it in `dropped`; a Rerun failure sets `error` and the loop runs on.
 
@@ -53,11 +60,12 @@ class RerunError(PrsmError, RuntimeError):
 
 
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, then again for the flush
-# The background thread turns a batch's rows into columns in Python (each row's derived outputs:
-# 25-60 µs a row on the 2-core VM) while holding the GIL, which a 1 kHz loop woken on its deadline
-# then waits for: up to the switch interval (5 ms by default) per hand-over. So it converts
-# ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real sleep: `sleep(0)` lets the
-# releasing thread win the race to re-take the GIL), which bounds the loop's wait near one slice.
+# The background thread turns a batch's rows into columns in Python (each row's derived outputs and,
+# for the loads, its internal vector: 10-40 µs a row on the 2-core VM) while holding the GIL, which
+# a 1 kHz loop woken on its deadline then waits for: up to the switch interval (5 ms by default) per
+# hand-over. So it converts ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real
+# sleep: `sleep(0)` lets the releasing thread win the race to re-take the GIL), which bounds the
+# loop's wait near one slice; `BatchedStream` does the same between entities.
 ROWS_PER_SLICE = 16
 LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D scene (module docstring)
 YIELD_S = 5e-5
