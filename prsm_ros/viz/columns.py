@@ -77,7 +77,7 @@ class BatchedStream:
     1 kHz loop woken on its deadline would otherwise wait for up to the switch interval (5 ms).
     """
 
-    def __init__(self, rec: Any, *, yield_s: float = 0.0, columns_per_send: int = 16) -> None:
+    def __init__(self, rec: Any, *, yield_s: float = 0.0, columns_per_send: int = 4) -> None:
         self._rec = rec
         self.yield_s = yield_s
         self.columns_per_send = columns_per_send
