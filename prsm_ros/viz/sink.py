@@ -132,7 +132,7 @@ class RecordingWriter:
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
         from prsm_ros.viz.columns import BatchedStream
-        self.rec = BatchedStream(rec, yield_s=yield_s)  # a batch's columns go out in few calls: the cost is per call
+        self.rec: Any = BatchedStream(rec, yield_s=yield_s)  # a batch's columns go out in few calls: the cost is per call
         self.params = params
         self.layout = layout
         self.model_name = model_name
@@ -377,7 +377,9 @@ class RerunSink:
                 parts.append(np.array([r.internal for r in rows[i:i + ROWS_PER_SLICE]], dtype=float))
                 time.sleep(YIELD_S)
             internal = np.concatenate(parts).reshape(len(rows), self.layout.size)
-        self.writer.send(columns, internal, scalars=False)
+        writer = self.writer
+        assert writer is not None  # the background thread runs only on a started sink
+        writer.send(columns, internal, scalars=False)
 
     def _run(self) -> None:
         while not self._wake.wait(self.flush_period_s):
