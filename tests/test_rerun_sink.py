@@ -139,7 +139,7 @@ def test_friction_arrows_oppose_slip_at_the_documented_length(jones_run):
         t, vals = rrd_component(path, f"/series/per_roller/screw_slip_{axis}_mm_s", "Scalars:scalars")
         slip[axis] = dict(zip(t.tolist(), (np.asarray(v) * 1e-3 for v in vals), strict=True))  # shown in mm/s
     checked = 0
-    for t, vec in zip(t_arrow.tolist(), vectors):
+    for t, vec in zip(t_arrow.tolist(), vectors, strict=True):
         v_s = np.array([slip[a][t][0] for a in ("radial", "tangential", "axial")])  # roller 0, carrier frame
         assert all(slip[a][t][q] == slip[a][t][0] for a in slip for q in range(nr))  # identical rollers
         f = c * geo.n_teeth * np.linalg.norm(v_s)
@@ -175,7 +175,7 @@ def test_fu2018_normal_arrows_tooth_points_and_heat_maps(tmp_path):
     t_arrow, vectors = rrd_component(path, "/world/nut/carrier/forces/screw_normal_force", "Arrows3D:vectors")
     t_tensor, tensors = rrd_component(path, "/loads/per_tooth/screw_normal_force_n", "Tensor:data")
     np.testing.assert_array_equal(t_arrow, t_tensor)
-    for t, vec, tensor in zip(t_arrow.tolist(), vectors, tensors):
+    for t, vec, tensor in zip(t_arrow.tolist(), vectors, tensors, strict=True):
         out = by_time[t]
         per_roller = sim.layout.view(out.internal, "per_roller")
         sign = 1 if sim.layout.view(out.internal, "carrier")[2] >= 0 else -1
@@ -246,10 +246,10 @@ def test_close_is_bounded_when_the_background_thread_hangs(tmp_path, monkeypatch
     release, blocked = threading.Event(), threading.Event()
     real_send = sink_module.RecordingWriter.send
 
-    def stuck_send(self, columns, internal):
+    def stuck_send(self, columns, internal, **parts):
         blocked.set()
         release.wait(30)
-        real_send(self, columns, internal)
+        real_send(self, columns, internal, **parts)
 
     monkeypatch.setattr(sink_module.RecordingWriter, "send", stuck_send)
     path = tmp_path / "stuck.rrd"

@@ -55,6 +55,7 @@ from prsm_sim import InternalLayout, Params
 from prsm_sim.physics.contact import ContactPoint, contact_for, line_of_centres_contact
 from prsm_sim.physics.kinematics import roller_migration_velocity, roller_spin
 
+from prsm_ros.viz.columns import ArrowColumn, colors_column, vectors_column
 from prsm_ros.viz.series import TIMELINE, sim_time_index
 
 WORLD = "world"
@@ -305,26 +306,27 @@ class Scene:
             return 0
         index = [sim_time_index(t)]
         if "screw_angle_rad" in columns:
-            rec.send_columns(SCREW, indexes=index, columns=rr.Transform3D.columns(
-                quaternion=z_rotation_quaternions(columns["screw_angle_rad"])))
+            rec.send_columns(SCREW, indexes=index, columns=[vectors_column(
+                rr.Transform3D.descriptor_quaternion(), z_rotation_quaternions(columns["screw_angle_rad"]))])
         if "nut_position_m" in columns:
             z = -np.asarray(columns["nut_position_m"], dtype=float)
-            rec.send_columns(NUT, indexes=index, columns=rr.Transform3D.columns(
-                translation=np.stack([np.zeros(n), np.zeros(n), z], axis=-1)))
+            rec.send_columns(NUT, indexes=index, columns=[vectors_column(
+                rr.Transform3D.descriptor_translation(), np.stack([np.zeros(n), np.zeros(n), z], axis=-1))])
         if "carrier_angle_rad" not in columns:
             return n
         theta_c = np.asarray(columns["carrier_angle_rad"], dtype=float)
-        rec.send_columns(CARRIER, indexes=index,
-                         columns=rr.Transform3D.columns(quaternion=z_rotation_quaternions(theta_c)))
+        rec.send_columns(CARRIER, indexes=index, columns=[vectors_column(
+            rr.Transform3D.descriptor_quaternion(), z_rotation_quaternions(theta_c))])
         # both kinematic relations are linear in the carrier speed, so applied to the carrier angle
         # they give the displacement since θ_C = 0: roller spin angle and axial migration in the nut
-        spin = z_rotation_quaternions(roller_spin(self.geo, theta_c))
+        spin = vectors_column(rr.Transform3D.descriptor_quaternion(),
+                              z_rotation_quaternions(roller_spin(self.geo, theta_c)))
         z_mig = roller_migration_velocity(self.geo, theta_c)
         a = self.geo.carrier_radius_m
         for q, phi in enumerate(self.roller_angles_rad):
             pos = np.stack([np.full(n, a * math.cos(phi)), np.full(n, a * math.sin(phi)), z_mig], axis=-1)
             rec.send_columns(roller_path(q), indexes=index,
-                             columns=rr.Transform3D.columns(translation=pos, quaternion=spin))
+                             columns=[vectors_column(rr.Transform3D.descriptor_translation(), pos), spin])
         if internal is None or not self.layout.size:
             return n
         internal = np.asarray(internal, dtype=float).reshape(n, self.layout.size)
@@ -375,9 +377,10 @@ class Scene:
             vectors = _rotate_z(unit * arrow_length_m(mag, self.geo.roller_radius_m)[..., None], phi)
             origin_local = point[:, None, :] + np.stack([np.zeros(n), np.zeros(n), z_mig], axis=-1)[:, None, :]
             origins = _rotate_z(np.broadcast_to(origin_local, (n, nr, 3)), phi)
-            rec.send_columns(f"{FORCES}/{f.name}", indexes=index, columns=rr.Arrows3D.columns(
-                origins=origins.reshape(-1, 3), vectors=vectors.reshape(-1, 3),
-                colors=color_by_magnitude(mag).reshape(-1, 4)).partition(np.full(n, nr)))
+            rec.send_columns(f"{FORCES}/{f.name}", indexes=index, columns=[
+                vectors_column(rr.Arrows3D.descriptor_origins(), origins.reshape(-1, 3), nr),
+                vectors_column(rr.Arrows3D.descriptor_vectors(), vectors.reshape(-1, 3), nr),
+                colors_column(rr.Arrows3D.descriptor_colors(), color_by_magnitude(mag), nr)])
 
     def _send_teeth(self, rec, index, internal, load_sign, z_mig) -> None:
         n, nr, nt = internal.shape[0], self.n_rollers, self.geo.n_teeth
@@ -389,24 +392,14 @@ class Scene:
                 local = np.broadcast_to(point[:, None, None, :], (n, nr, nt, 3)).copy()
                 local[..., 2] += z_mig[:, None, None] + z_k[None, None, :]
                 pos = _rotate_z(local, self.roller_angles_rad[None, :, None])
-                rec.send_columns(f"{TOOTH_LOADS}/{q}", indexes=index, columns=rr.Points3D.columns(
-                    positions=pos.reshape(-1, 3), colors=color_by_magnitude(loads).reshape(-1, 4)
-                ).partition(np.full(n, nr * nt)))
+                rec.send_columns(f"{TOOTH_LOADS}/{q}", indexes=index, columns=[
+                    vectors_column(rr.Points3D.descriptor_positions(), pos.reshape(-1, 3), nr * nt),
+                    colors_column(rr.Points3D.descriptor_colors(), color_by_magnitude(loads), nr * nt)])
             rec.send_columns(f"{LOADS}/{block_name}/{q}", indexes=index,
                              columns=[tensor_column(loads, ("roller", "tooth")),
                                       *rr.Tensor.columns(value_range=heat_map_range(loads))])
             rec.send_columns(along_nut_path(block_name, q), indexes=index,
                              columns=[tensor_column(loads.mean(axis=1), ("tooth",), rr.BarChart.descriptor_values())])
-
-
-class _ArrowBatch:
-    """The minimal component-batch interface `rr.ComponentColumn` needs around a ready Arrow array."""
-
-    def __init__(self, array) -> None:
-        self._array = array
-
-    def as_arrow_array(self):
-        return self._array
 
 
 _TENSOR_TYPE = None
@@ -448,7 +441,7 @@ def tensor_column(frames: np.ndarray, dim_names: tuple[str, ...], descriptor=Non
     buffer = pa.Array.from_buffers(union_t, n, [None, pa.py_buffer(np.full(n, code, dtype=np.int8)),
                                                 pa.py_buffer(np.arange(n, dtype=np.int32))], children=children)
     data = pa.StructArray.from_arrays([shape_arr, names_arr, buffer], fields=list(struct_t))
-    return rr.ComponentColumn(descriptor if descriptor is not None else rr.Tensor.descriptor_data(), _ArrowBatch(data))
+    return rr.ComponentColumn(descriptor if descriptor is not None else rr.Tensor.descriptor_data(), ArrowColumn(data))
 
 
 def scene_frame_indices(time_s: np.ndarray, rate_hz: float, last_slot: int) -> tuple[np.ndarray, int]:

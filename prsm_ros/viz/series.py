@@ -25,6 +25,8 @@ import rerun as rr
 
 from prsm_sim import OUTPUT_FIELDS, InternalBlock, InternalLayout
 
+from prsm_ros.viz.columns import scalars_column
+
 TIMELINE = "sim_time"
 SERIES_ROOT = "series"
 INPUTS_ROOT = f"{SERIES_ROOT}/inputs"
@@ -103,6 +105,14 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
 
     Returns the number of rows sent per entity.
     """
+    n = send_scalars(rec, columns)
+    if n:
+        send_blocks(rec, columns["time_s"], internal, layout)
+    return n
+
+
+def send_scalars(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray]) -> int:
+    """The scalar outputs of a batch of steps (`send_series` without the internal loads); returns its rows."""
     t = np.asarray(columns["time_s"], dtype=float)
     n = len(t)
     if n == 0:
@@ -112,18 +122,25 @@ def send_series(rec: rr.RecordingStream, columns: Mapping[str, np.ndarray], inte
         if name == "time_s":
             continue
         scale = shown(name, UNITS.get(name, ""))[2]
-        rec.send_columns(scalar_path(name), indexes=index,
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float) * scale))
-    if internal is not None and layout.size:
-        internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
-        offsets = layout.offsets()
-        for b in series_blocks(layout):
-            block = internal[:, offsets[b.name]: offsets[b.name] + b.size].reshape((n,) + b.shape)
-            for k, (q, unit) in enumerate(b.quantities):
-                scale = shown(q, unit)[2]
-                rec.send_columns(block_path(b.name, q, unit), indexes=index,
-                                 columns=rr.Scalars.columns(scalars=np.ascontiguousarray(block[..., k]) * scale))
+        rec.send_columns(scalar_path(name), indexes=index, columns=[scalars_column(np.asarray(values) * scale)])
     return n
+
+
+def send_blocks(rec: rr.RecordingStream, time_s: np.ndarray, internal: np.ndarray | None,
+                layout: InternalLayout) -> None:
+    """The internal loads' series (`series_blocks`) of a batch of steps ending at `time_s`, s."""
+    n = len(time_s)
+    if internal is None or not layout.size or n == 0:
+        return
+    index = [sim_time_index(np.asarray(time_s, dtype=float))]
+    internal = np.asarray(internal, dtype=float).reshape(n, layout.size)
+    offsets = layout.offsets()
+    for b in series_blocks(layout):
+        block = internal[:, offsets[b.name]: offsets[b.name] + b.size].reshape((n,) + b.shape)
+        for k, (q, unit) in enumerate(b.quantities):
+            scale = shown(q, unit)[2]
+            rec.send_columns(block_path(b.name, q, unit), indexes=index,
+                             columns=[scalars_column(block[..., k] * scale)])
 
 
 def log_input_style(rec: rr.RecordingStream, name: str, unit: str = "") -> None:
@@ -137,4 +154,4 @@ def send_input(rec: rr.RecordingStream, name: str, time_s: np.ndarray, values: n
     scale = 1e3 if unit == "m" else 1.0
     if len(time_s):
         rec.send_columns(input_path(name), indexes=[sim_time_index(time_s)],
-                         columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float) * scale))
+                         columns=[scalars_column(np.asarray(values, dtype=float) * scale)])

@@ -4,11 +4,18 @@
     sink.submit(out)        # per step, from the 1 kHz loop: appends to a bounded queue, nothing else
     sink.close()            # drains the queue, finalises the file
 
-A background thread wakes every `flush_period_s` (0.25 s: the viewer lags by at most that), takes
-what the loop queued, sends the scalar series of every step with `send_columns` (one call per
-entity per batch) and draws the 3D scene for the first step of each 1/scene_rate_hz of simulation
-time. The cost is per batch more than per step, so the period sets it:
-`prsm-bench --only rerun` measures it beside a 1 kHz loop. It logs
+A background thread sends what the loop queued at two periods, every step kept:
+
+- every `flush_period_s` (0.2 s): the scalar outputs' series (position, force, speed, torque,
+  powers, …), so the plots lag the loop by at most that;
+- every `loads_period_s` (1 s): the internal loads' series (per roller) and the 3D scene (poses,
+  arrows, tooth points, heat maps) for the first step of each 1/scene_rate_hz of simulation time.
+
+Rerun's cost is per entity and send, hardly per row (about 0.1 ms of the SDK's own work per entity
+and send on the 2-core VM, beside the Python that builds the columns), and a batch holds about 20
+scalar entities and, for fu2018, 50 for the loads and scene; the periods set the cost:
+`prsm-bench --only rerun` measures it beside a 1 kHz loop (docs/performance.md). Each send gathers
+its entities into few Arrow record batches (`columns.BatchedStream`). It logs
 through an explicit `RecordingStream`, never the global one. The loop is never blocked: a full
 queue drops the step and counts it in `dropped`; a Rerun failure sets `error` and the loop runs on.
 
@@ -53,12 +60,14 @@ class RerunError(PrsmError, RuntimeError):
 
 
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, then again for the flush
-# The background thread turns a batch's rows into columns in Python (each row's derived outputs:
-# 25-60 µs a row on the 2-core VM) while holding the GIL, which a 1 kHz loop woken on its deadline
-# then waits for: up to the switch interval (5 ms by default) per hand-over. So it converts
-# ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real sleep: `sleep(0)` lets the
-# releasing thread win the race to re-take the GIL), which bounds the loop's wait near one slice.
+# The background thread turns a batch's rows into columns in Python (each row's derived outputs and,
+# for the loads, its internal vector: 10-40 µs a row on the 2-core VM) while holding the GIL, which
+# a 1 kHz loop woken on its deadline then waits for: up to the switch interval (5 ms by default) per
+# hand-over. So it converts ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real
+# sleep: `sleep(0)` lets the releasing thread win the race to re-take the GIL), which bounds the
+# loop's wait near one slice; `BatchedStream` does the same between entities.
 ROWS_PER_SLICE = 16
+LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D scene (module docstring)
 YIELD_S = 5e-5
 
 
@@ -109,29 +118,6 @@ def _save_path(target: str) -> Path:
     return path
 
 
-class _YieldingStream:
-    """A RecordingStream that hands the GIL back after every send (a sleep of YIELD_S).
-
-    The background thread's Python work (building Arrow columns) otherwise holds the GIL until the
-    interpreter's switch interval (5 ms) forces a hand-over, and the 1 kHz loop thread, woken on its
-    deadline, waits that long. Yielding after each send bounds its wait by one send.
-    """
-
-    def __init__(self, rec: Any) -> None:
-        self._rec = rec
-
-    def send_columns(self, *args, **kwargs) -> None:
-        self._rec.send_columns(*args, **kwargs)
-        time.sleep(YIELD_S)
-
-    def log(self, *args, **kwargs) -> None:
-        self._rec.log(*args, **kwargs)
-        time.sleep(YIELD_S)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._rec, name)
-
-
 class RecordingWriter:
     """One Rerun recording of a PRSM run: static scene, batches of steps, default blueprint.
 
@@ -141,11 +127,12 @@ class RecordingWriter:
 
     def __init__(self, rec: Any, params: Params | None, layout: InternalLayout, model_name: str, *,
                  scalar_names: Iterable[str] = tuple(n for n, _ in OUTPUT_FIELDS),
-                 scene_rate_hz: float = 30.0) -> None:
+                 scene_rate_hz: float = 30.0, yield_s: float = 0.0) -> None:
         from prsm_ros.viz import scene as rerun_scene, series as rerun_series
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
-        self.rec = rec
+        from prsm_ros.viz.columns import BatchedStream
+        self.rec: Any = BatchedStream(rec, yield_s=yield_s)  # a batch's columns go out in few calls: the cost is per call
         self.params = params
         self.layout = layout
         self.model_name = model_name
@@ -164,17 +151,26 @@ class RecordingWriter:
         if self.scene is not None:
             self.scene.log_static(self.rec)
 
-    def send(self, columns: Mapping[str, np.ndarray], internal: np.ndarray | None) -> None:
-        """A batch of consecutive steps: every step to the series, the scene at its rate."""
-        n = self._series.send_series(self.rec, columns, internal, self.layout)
-        self.rows += n
-        if self.scene is None or n == 0:
-            return
-        from prsm_ros.viz.scene import scene_frame_indices
-        idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
-        if len(idx):
-            cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
-            self.scene_frames += self.scene.send_frames(self.rec, cols, None if internal is None else internal[idx])
+    def send(self, columns: Mapping[str, np.ndarray], internal: np.ndarray | None, *, scalars: bool = True,
+             loads: bool = True) -> None:
+        """A batch of consecutive steps: every step to the series, the scene at its rate.
+
+        `scalars`: the scalar outputs' series; `loads`: the internal loads' series and the scene
+        (the live sink sends the two at their own periods; a bag's conversion sends both).
+        """
+        n = len(columns["time_s"])
+        if scalars:
+            self.rows += self._series.send_scalars(self.rec, columns)
+        if loads and n:
+            self._series.send_blocks(self.rec, columns["time_s"], internal, self.layout)
+            if self.scene is not None:
+                from prsm_ros.viz.scene import scene_frame_indices
+                idx, self._slot = scene_frame_indices(columns["time_s"], self.scene_rate_hz, self._slot)
+                if len(idx):
+                    cols = {k: np.asarray(v)[idx] for k, v in columns.items()}
+                    self.scene_frames += self.scene.send_frames(self.rec, cols,
+                                                                None if internal is None else internal[idx])
+        self.rec.flush_columns()
 
     def send_input(self, name: str, time_s: np.ndarray, values: np.ndarray, unit: str = "") -> None:
         """A recorded input (e.g. the controller's nut position reference), plotted beside the outputs."""
@@ -182,6 +178,7 @@ class RecordingWriter:
             self._series.log_input_style(self.rec, name, unit)
             self.inputs.append(name)
         self._series.send_input(self.rec, name, time_s, values, unit)
+        self.rec.flush_columns()
 
     def blueprint(self):
         from prsm_ros.viz.blueprint import default_blueprint
@@ -201,12 +198,17 @@ class RerunSink:
     """
 
     def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
-                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.25, queue_size: int = 100_000,
-                 recording_name: str | None = None) -> None:
+                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.2, loads_period_s: float | None = None,
+                 queue_size: int = 100_000, recording_name: str | None = None) -> None:
         if mode not in MODES:
             raise ParamError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
         if not (isinstance(flush_period_s, (int, float)) and 0 < flush_period_s <= 10):
             raise ParamError(f"flush_period_s = {flush_period_s!r}: must be in (0, 10] s")
+        if loads_period_s is None:
+            loads_period_s = max(LOADS_PERIOD_S, flush_period_s)
+        if not (isinstance(loads_period_s, (int, float)) and flush_period_s <= loads_period_s <= 60):
+            raise ParamError(f"loads_period_s = {loads_period_s!r}: must be in [flush_period_s = {flush_period_s!r}, "
+                             "60] s")
         if not (isinstance(queue_size, int) and queue_size > 0):
             raise ParamError(f"queue_size = {queue_size!r}: must be a whole number > 0")
         self.requested_mode = mode
@@ -215,6 +217,9 @@ class RerunSink:
         self.layout = layout
         self.model_name = model_name
         self.flush_period_s = float(flush_period_s)
+        self.loads_period_s = float(loads_period_s)
+        self._pending: list[tuple[list[Outputs], dict[str, np.ndarray]]] = []  # sent as scalars, loads not yet
+        self._loads_due = 0.0
         self.queue_size = queue_size
         self.path: Path | None = None
         self.url: str | None = None
@@ -263,7 +268,7 @@ class RerunSink:
     def _start(self, rec: Any, params: Params, layout: InternalLayout, model_name: str, scene_rate_hz: float,
                recording_name: str | None, port: int | None) -> None:
         """Open the sink (file, viewer or connection), send the recording's static part, start the thread."""
-        self.writer = RecordingWriter(_YieldingStream(rec), params, layout, model_name, scene_rate_hz=scene_rate_hz)
+        self.writer = RecordingWriter(rec, params, layout, model_name, scene_rate_hz=scene_rate_hz, yield_s=YIELD_S)
         if self.mode == "save":
             rec.save(self.path)
         elif self.mode == "connect":
@@ -326,42 +331,60 @@ class RerunSink:
         for (name, unit), (ts, vs) in by_name.items():
             self.writer.send_input(name, np.array(ts), np.array(vs), unit)
 
-    def _drain(self) -> None:
+    def _drain(self, final: bool = False) -> None:
         if self._inputs and self.error is None:
             try:
                 self._drain_inputs()
             except Exception as e:  # never propagate into the node: report and stop logging
                 self.error = f"rerun logging failed: {type(e).__name__}: {e}"
         n = len(self._queue)
-        if n == 0 or self.error is not None:
+        if self.error is not None:
             return
-        rows = [self._queue.popleft() for _ in range(n)]
         t0 = time.perf_counter()
+        rows = [self._queue.popleft() for _ in range(n)]
         try:
-            columns, internal = self._columns(rows)
-            self.writer.send(columns, internal)
+            if n:
+                columns = self._scalar_columns(rows)
+                self.writer.send(columns, None, loads=False)
+                self._pending.append((rows, columns))
+            if self._pending and (final or t0 >= self._loads_due):
+                self._loads_due = t0 + self.loads_period_s
+                self._send_loads()
         except Exception as e:  # never propagate into the node: report and stop logging
             self.error = f"rerun logging failed: {type(e).__name__}: {e}"
             self._count_lost(n + self._discard_queued())
-        self.batches += 1
+        if n:
+            self.batches += 1
         self.flush_time_s += time.perf_counter() - t0
 
-    def _columns(self, rows: list[Outputs]) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The batch as columns, ROWS_PER_SLICE rows at a time with the GIL handed back between slices."""
+    def _scalar_columns(self, rows: list[Outputs]) -> dict[str, np.ndarray]:
+        """The rows' scalar outputs as columns, ROWS_PER_SLICE rows at a time with the GIL handed back between."""
         parts = []
         for i in range(0, len(rows), ROWS_PER_SLICE):
-            part = trajectory_from_rows(rows[i:i + ROWS_PER_SLICE], self.layout, State())  # the state is unused
-            parts.append((part.columns, part.internal))
+            parts.append(trajectory_from_rows(rows[i:i + ROWS_PER_SLICE], self.layout, State()).columns)
             time.sleep(YIELD_S)
-        if len(parts) == 1:
-            return parts[0]
-        columns = {k: np.concatenate([c[k] for c, _ in parts]) for k in parts[0][0]}
-        return columns, np.concatenate([i for _, i in parts])
+        return parts[0] if len(parts) == 1 else {k: np.concatenate([c[k] for c in parts]) for k in parts[0]}
+
+    def _send_loads(self) -> None:
+        """The internal loads' series and the scene of the steps sent as scalars since the last time."""
+        pending, self._pending = self._pending, []
+        rows = [r for rs, _ in pending for r in rs]
+        columns = {k: np.concatenate([c[k] for _, c in pending]) for k in pending[0][1]}
+        internal = None
+        if self.layout.size:
+            parts = []
+            for i in range(0, len(rows), ROWS_PER_SLICE):
+                parts.append(np.array([r.internal for r in rows[i:i + ROWS_PER_SLICE]], dtype=float))
+                time.sleep(YIELD_S)
+            internal = np.concatenate(parts).reshape(len(rows), self.layout.size)
+        writer = self.writer
+        assert writer is not None  # the background thread runs only on a started sink
+        writer.send(columns, internal, scalars=False)
 
     def _run(self) -> None:
         while not self._wake.wait(self.flush_period_s):
             self._drain()
-        self._drain()
+        self._drain(final=True)
 
     def _count_lost(self, n: int) -> None:
         with self._lost_lock:
