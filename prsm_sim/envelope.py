@@ -579,7 +579,7 @@ class _Run:
         hist_w, hist_v, hist_contact = self.hist_w, self.hist_v, self.hist_contact
         if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 \
                 and max(abs(q) for q in hist_v[-last:]) < 1e-6 and hist_contact[-1] > 0.0:
-            f = _load(self.case, self.sim.time_s)
+            f = self.hist_load[-1]  # held over the last step (the load at its end time is the next step's)
             net = abs(f - self.last.nut_force_n)
             k = self.k_stop
             if hist_contact[-1] > net / k + REST_SLACK_M:
