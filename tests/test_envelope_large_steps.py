@@ -3,11 +3,19 @@
 
 from __future__ import annotations
 
-import math
+import json
+from pathlib import Path
 
 import pytest
 
 from prsm_sim import Simulator, preset
+from prsm_sim.envelope import run_case
+
+
+def _fixed_case(seed: int) -> dict:
+    """A case the envelope campaign found and a fix holds (tests/envelope_fixed.json), by its seed."""
+    fixed = json.loads((Path(__file__).parent / "envelope_fixed.json").read_text(encoding="utf-8"))
+    return next(f["case"] for f in fixed if f["seed"] == seed)
 
 
 def _step_residuals(model: str, dt_s: float, torques, load_n: float = 0.0):
@@ -43,12 +51,7 @@ def test_fu2018_at_a_large_step_captures_a_stick_against_a_stiff_stop_with_its_b
     # first law (the energy guard and the actuator's ledger, 1e-3 of the flow): envelope seed 4284, a
     # 22.7 ms step pressing the nut into a 1e9 N/m stop under a brake, where a sub-step of dt/1024 (22 µs)
     # could not resolve the stick capture and left 0.46 % of the flow unbooked
-    import json
-    from pathlib import Path
-
-    from prsm_sim.envelope import run_case
-    fixed = json.loads((Path(__file__).parent / "envelope_fixed.json").read_text(encoding="utf-8"))
-    case = next(f["case"] for f in fixed if f["seed"] == 4284)
+    case = _fixed_case(4284)
     r = run_case(case)
     assert r.ok, r.violations
     assert r.max_penetration_m > 0.0  # it did press into the stop
@@ -59,12 +62,7 @@ def test_a_nut_at_rest_on_an_end_is_judged_by_the_load_held_over_the_last_step(s
     # static law at rest (F_stop = k δ = load − thread force): envelope seeds 265 (43.5 ms step, a thread end)
     # and 2143 (5.3 ms, a 1e9 N/m stop) rest exactly on it, and a load that changes at the run's end time (a
     # step of the drawn load steps) belongs to the step that would follow, not to the rest being judged
-    import json
-    from pathlib import Path
-
-    from prsm_sim.envelope import run_case
-    fixed = json.loads((Path(__file__).parent / "envelope_fixed.json").read_text(encoding="utf-8"))
-    case = next(f["case"] for f in fixed if f["seed"] == seed)
+    case = _fixed_case(seed)
     r = run_case(case)
     assert r.ok, r.violations
     assert r.max_penetration_m > 0.0
