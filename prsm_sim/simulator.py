@@ -391,7 +391,11 @@ class Simulator:
         j = m.kinetic[0]
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
-        f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
+        m.set_contact(True)
+        try:
+            f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
+        finally:
+            m.set_contact(False)
         if not math.isfinite(nut(res)):
             self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)

@@ -93,3 +93,21 @@ def test_a_load_near_the_rating_driving_the_nut_into_a_thread_end_meets_a_hard_e
     assert deepest <= c0 / k * (1 + 1e-9) + 1e-12
     assert deepest >= 0.999 * c0 / k  # it did reach the hard end
     assert flagged  # the end's force past C₀a said where it happened
+
+
+@pytest.mark.parametrize("dt_s", [0.014, 0.03])
+def test_jones2016_pressed_onto_an_end_at_a_step_that_does_not_resolve_it_comes_to_rest_on_the_static_law(dt_s):
+    # limit case of a damped contact at rest: a constant torque τ holds the nut on the end with the end's
+    # force τ/(L/2π) (no speed, so no viscous friction), and the screw stops (envelope seeds 1602, 4574,
+    # 5563: at 14-33 ms the position-consistent stop force reflected the screw's speed every step, ω₁ ≈ −ω₀,
+    # ringing ±70 rad/s under a constant command). The books close exactly (first law) on the way
+    p = preset("s30")
+    travel, lead = p.geometry.travel_m, p.geometry.lead_per_rad_m
+    sim = Simulator(p, "jones2016", dt_s, nut_position_m=0.5 * travel - 0.002)
+    tau = 2.0
+    speeds = [sim.step(tau, 0.0).screw_speed_rad_s for _ in range(40)]
+    assert max(abs(w) for w in speeds[:5]) > 10.0  # an impact
+    assert max(abs(w) for w in speeds[-10:]) < 1e-5  # (the ring before: 3e-4 … 1.6e-3 rad/s here)
+    assert sim.thread_end_force_n == pytest.approx(-tau / lead, rel=1e-6)
+    s = sim.state
+    assert s.work_in_j == pytest.approx(s.work_out_j + s.dissipated_j + sim.model.total_stored_energy_j(s), rel=1e-9)

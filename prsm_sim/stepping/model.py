@@ -211,6 +211,12 @@ class Model:
             part = self.part_type._make(part)
         return State(x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], part)
 
+    # -- contact -----------------------------------------------------------------------------
+    def set_contact(self, on: bool) -> None:
+        """Whether the steps that follow are trials of an end's or stop's contact solve (`actuator.stops.solve`,
+        on for its duration). A model whose step reflects the screw's speed off a contact it does not resolve
+        takes its reversing steps in an L-stable form there (`jones2016`); the others ignore it."""
+
     # -- energy ------------------------------------------------------------------------------
     def stored_energy_j(self, screw_speed_rad_s, carrier_speed_rad_s):
         """Energy the model stores at these speeds, J (scalars or arrays): kinetic here; a model
