@@ -111,3 +111,17 @@ def test_jones2016_pressed_onto_an_end_at_a_step_that_does_not_resolve_it_comes_
     assert sim.thread_end_force_n == pytest.approx(-tau / lead, rel=1e-6)
     s = sim.state
     assert s.work_in_j == pytest.approx(s.work_out_j + s.dissipated_j + sim.model.total_stored_energy_j(s), rel=1e-9)
+
+
+def test_a_ring_on_a_stop_that_decays_as_the_contact_s_damping_does_is_physics():
+    # closed form of a damped contact: the ring of a mass m on a stop of damping c decays at σ = c/(2 m).
+    # Envelope seed 3707 (1.44 ms, a resolved step): a 54 mm, 2 mm-lead screw reflects ~19 t onto the nut,
+    # so a 1e8 N/m, 2e5 N·s/m thread end rings at ~11 Hz with ζ ≈ 0.07 (σ ≈ 5/s) after the impact; the
+    # envelope accepts a ring decaying at half that rate or faster, and on s30 (~350 kg, σ ≈ 290/s) none
+    case = _fixed_case(3707)
+    r = run_case(case)
+    assert r.ok, r.violations
+    p = preset("s30")
+    sim = Simulator(p, "jones2016", 1e-3)
+    sigma_s30 = 2e5 / (2 * sim.model.M[0, 0] / p.geometry.lead_per_rad_m**2)
+    assert sigma_s30 > 250.0  # an s30 ring must be gone within the window (exp(-0.5 σ 0.4 s) < 1e-21)
