@@ -27,7 +27,11 @@ F Δx_N − Δ(½ k δ²) = ½ k Δδ² + c Δδ²/h (in contact over the whole 
 stop only absorbs energy (a 1e8 N/m stop on a ~100 kg reflected mass rings at ~1000 rad/s, beyond an
 explicit step).
 
-The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2.
+The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2, up
+to the penetration C₀a/k at which it carries the static rating (at most half the nut's length); past it
+they are hard (`end_depth_m`, `_solve_hard`). The callers tell the model its steps are the solve's
+trials (`Model.set_contact`), so a model that would reflect the screw's speed off an unresolved contact
+reverses by an L-stable step there.
 """
 
 from __future__ import annotations
