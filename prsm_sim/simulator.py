@@ -132,7 +132,7 @@ class Simulator:
         # thread ends: the actuator holds them itself (with its stops); a bare model here
         travel = params.geometry.travel_m
         self._limits = () if actuator is not None or travel is None else \
-            limits_of(None, travel, params.ratings.static_load_rating_n, params.geometry.nut_length_m)
+            limits_of(None, travel, params.geometry.nut_length_m)
         # without ends the bounds are the float range: `step` still sends an infinite or NaN nut to `_at_end`
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
             (-sys.float_info.max, sys.float_info.max)

@@ -192,8 +192,8 @@ class Actuator(Model):
         self.n_sub, self.hold_steps = loop_schedule(a.drive.loop_rate_hz, self.dt_s)
         self.h_sub = self.dt_s / self.n_sub
         # end stops and thread ends, the innermost on each side (stops.py)
-        self.limits = limits_of(a.stops, params.geometry.travel_m, params.ratings.static_load_rating_n,
-                                params.geometry.nut_length_m) if a.stops.fitted or params.geometry.thread_ends else ()
+        self.limits = limits_of(a.stops, params.geometry.travel_m, params.geometry.nut_length_m) \
+            if a.stops.fitted or params.geometry.thread_ends else ()
         self._models: dict[tuple[float, float], Model] = {}
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m

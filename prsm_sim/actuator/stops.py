@@ -28,10 +28,9 @@ stop only absorbs energy (a 1e8 N/m stop on a ~100 kg reflected mass rings at ~1
 explicit step).
 
 The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2, up
-to the penetration C₀a/k at which it carries the static rating (at most half the nut's length); past it
-they are hard (`end_depth_m`, `_solve_hard`). The callers tell the model its steps are the solve's
-trials (`Model.set_contact`), so a model that would reflect the screw's speed off an unresolved contact
-reverses by an L-stable step there.
+to half the nut's length; past it they are hard (`end_depth_m`, `_solve_hard`). The callers tell the
+model its steps are the solve's trials (`Model.set_contact`), so a model that would reflect the screw's
+speed off an unresolved contact reverses by an L-stable step there.
 """
 
 from __future__ import annotations
@@ -71,44 +70,41 @@ class Limit(NamedTuple):
     stiffness_n_m: float
     damping_n_s_m: float
     thread_end: bool
-    hard_depth_m: float = math.inf  # past this penetration the limit is hard (`solve`): a thread end's crush depth
+    hard_depth_m: float = math.inf  # past this penetration the limit is hard (`solve`): a thread end's last give
 
 
-def limits_of(stops: StopParams | None, travel_m: float | None, static_rating_n: float | None = None,
-              nut_length_m: float | None = None) -> tuple[Limit, ...]:
+def limits_of(stops: StopParams | None, travel_m: float | None, nut_length_m: float | None = None) -> tuple[Limit, ...]:
     """The innermost limit on each side: the user's stops and the thread ends at ±travel_m/2 (None: none).
 
     The thread ends use the stops' contact law (their stiffness and damping; the defaults without stops)
-    up to the penetration at which it carries the static rating C₀a (`static_rating_n`), or half the nut's
-    length (`nut_length_m`) if that is less; past it they are hard (`end_depth_m`)."""
+    up to half the nut's length (`nut_length_m`); past it they are hard (`end_depth_m`). A user's stop inside
+    the travel is hard where the end behind it would be (a soft stop pressed through reaches the end, which
+    the innermost limit alone would not see)."""
     s = stops if stops is not None else StopParams()
     k, c = s.stiffness_n_m, s.damping_n_s_m
-    hard = end_depth_m(k, static_rating_n, nut_length_m)
+    hard = end_depth_m(nut_length_m)
     out = []
     for sign, user in ((1.0, s.max_position_m), (-1.0, s.min_position_m)):
         end = None if travel_m is None else sign * 0.5 * travel_m
         if user is not None and (end is None or sign * user <= sign * end):
-            out.append(Limit(user, sign, k, c, False))
+            out.append(Limit(user, sign, k, c, False, math.inf if end is None else sign * (end - user) + hard))
         elif end is not None:
             out.append(Limit(end, sign, k, c, True, hard))
     return tuple(out)
 
 
-def end_depth_m(stiffness_n_m: float, static_rating_n: float | None, nut_length_m: float | None) -> float:
-    """How far a thread end gives before it is hard (m): C₀a/k, where its contact law carries the static
-    rating, and at most half the nut's length (half the nut still on its threads); inf without either.
+def end_depth_m(nut_length_m: float | None) -> float:
+    """How far a thread end gives before it is hard (m): half the nut's length (inf when unknown).
 
-    A thread end is the shoulder the threaded length ends at. Its penalty law stands for the shoulder's
-    compliance while it carries what the screw is rated for; a nut driven into it harder (a load near the
-    rating back-driving the nut at ~10 m/s stores kilojoules, which a 1e8 N/m law would take over more
-    than half the nut's length, carrying it off its threads) meets a hard limit there, and the force that
-    takes, past C₀a, shows as `over_static_rating` (the load on the nut includes the end's force)."""
-    depth = math.inf
-    if static_rating_n is not None and stiffness_n_m > 0.0:
-        depth = static_rating_n / stiffness_n_m
-    if nut_length_m is not None:
-        depth = min(depth, 0.5 * nut_length_m)
-    return depth
+    A thread end is the shoulder the threaded length ends at, its penalty law the shoulder's compliance.
+    A nut driven into it past half its own length would have half its teeth off the threads: a load near
+    the rating back-driving the nut at ~10 m/s stores kilojoules, which the 1e8 N/m law alone took over
+    more than that, carrying the nut off its threads. There the end is hard. Its force past the static
+    rating C₀a (from a depth C₀a/k on: 2.8 mm on s30) is part of the load on the nut and shows as
+    `over_static_rating`: an impact the screw would not survive undamaged, said where it happens.
+    (Hard from C₀a/k on instead, the end's impulse within a step reversed a 3000 rad/s screw under
+    5.7 MN, 20 times the rating, beyond what the friction step resolves.)"""
+    return math.inf if nut_length_m is None else 0.5 * nut_length_m
 
 
 def penetration(limit: Limit, x_m: float) -> float:
