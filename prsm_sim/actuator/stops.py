@@ -73,7 +73,8 @@ class Limit(NamedTuple):
     hard_depth_m: float = math.inf  # past this penetration the limit is hard (`solve`): a thread end's last give
 
 
-def limits_of(stops: StopParams | None, travel_m: float | None, nut_length_m: float | None = None) -> tuple[Limit, ...]:
+def limits_of(stops: StopParams | None, travel_m: float | None,
+              nut_length_m: float | None = None) -> tuple[Limit, ...]:
     """The innermost limit on each side: the user's stops and the thread ends at ±travel_m/2 (None: none).
 
     The thread ends use the stops' contact law (their stiffness and damping; the defaults without stops)
@@ -143,8 +144,7 @@ def _solve_hard(limit: Limit, f_lo: float, res_lo: R, advance: Callable[[float],
                 nut_position: Callable[[R], float], compliance_m_n: float) -> tuple[float, R]:
     """The force (≥ the law's, `f_lo`, which lets the nut past `hard_depth_m`) that ends the step at that
     depth: from the compliance's estimate, bracketed by doubling, then secant steps kept inside the bracket
-    (bisection where they creep),
-    taking the side that ends at or short of it. The penetration falls strictly with the force, so the
+    (bisection where they creep), taking the side that ends at or short of it. The penetration falls strictly with the force, so the
     root is unique. Energy: moving in, F ≥ k δ₁ at the end, so the stop absorbs F Δδ − Δ(½ k δ²) ≥ 0
     (the work of crushing the shoulder; the step's ledger holds it as the stop's)."""
     sgn, target = limit.sign, limit.hard_depth_m

@@ -143,7 +143,7 @@ class Jones2016(Model):
     def set_contact(self, on: bool) -> None:
         self._contact[0] = bool(on)
 
-    def _backward_euler(self, finish, e_ss: float, e_cc_sc: float, e_cc: float):
+    def _backward_euler(self, finish, e_ss: float, e_sc: float, e_cc: float):
         """The reversing step in a contact at steps too long for it (`reverses_l_stable`): backward Euler,
         (M + hC) q̇₁ = M q̇₀ + h B u, Δq = h q̇₁. Its books close exactly with the dissipation
         h q̇₁ᵀ C q̇₁ + ½ Δq̇ᵀ M Δq̇ (the friction's, and the scheme's own numerical loss, ≥ 0), from
@@ -163,7 +163,7 @@ class Jones2016(Model):
             diss = (n2 * (c00 * n2 + 2.0 * c01 * n3) + c11 * n3 * n3
                     + d2 * (m00 * d2 + 2.0 * m01 * d3) + m11 * d3 * d3)
             return finish(x, x[1] + h * n2, n2, x[3] + h * n3, n3, u0, u1, diss,
-                          e_ss * n2 * n2 + e_cc_sc * n2 * n3 + e_cc * n3 * n3)
+                          e_ss * n2 * n2 + e_sc * n2 * n3 + e_cc * n3 * n3)
         return step
 
     def _internal(self, v_s: np.ndarray) -> np.ndarray:
