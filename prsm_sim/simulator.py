@@ -132,7 +132,8 @@ class Simulator:
         self.dt_s = self.model.dt_s
         # thread ends: the actuator holds them itself (with its stops); a bare model here
         travel = params.geometry.travel_m
-        self._limits = () if actuator is not None or travel is None else limits_of(None, travel)
+        self._limits = () if actuator is not None or travel is None else \
+            limits_of(None, travel, params.geometry.nut_length_m)
         # without ends the bounds are the float range: `step` still sends an infinite or NaN nut to `_at_end`
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
             (-sys.float_info.max, sys.float_info.max)
@@ -401,7 +402,11 @@ class Simulator:
         j = m.kinetic[0]
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
-        f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
+        m.set_contact(True)
+        try:
+            f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
+        finally:
+            m.set_contact(False)
         if not math.isfinite(nut(res)):
             self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)

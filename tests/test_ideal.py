@@ -74,3 +74,29 @@ def test_energy_balance():
     kinetic = 0.5 * sim.model.J * s.screw_speed_rad_s**2
     assert s.work_in_j == pytest.approx(s.work_out_j + s.dissipated_j + kinetic, rel=1e-9)
     assert s.dissipated_j > 0
+
+
+def test_a_screw_stopped_within_a_step_by_a_reversing_torque_books_the_event_located_stop():
+    # closed form of a constant deceleration to rest: a screw at ω₀ under a torque −T against its own
+    # Coulomb loss T₀ (the no-load torque, drag on) decelerates by T + T₀ (the loss opposes the motion it
+    # has, not the way the torque points) and rests from t* = J ω₀/(T + T₀) on, having turned ½ ω₀ t*;
+    # the step's dissipation is then −T Δθ + ½ J ω₀² ≥ 0 (second law). A trapezoid over the whole step
+    # turned ½ ω₀ h against T and booked −¼ J ω₀² here.
+    import dataclasses
+    p = preset("s30").with_overrides({"geometry.thread_ends": False})
+    h = 0.05
+    sim = Simulator(p, "ideal", h)
+    m = sim.model
+    t0, j = m.no_load_torque_nm, m.J
+    assert t0 > 0.0
+    w0 = t0 * h / j  # slow enough that the loss holds the screw once stopped (T − T₀ < J ω₀/h)
+    torque = -(t0 + 0.5 * j * w0 / h)
+    s0 = dataclasses.replace(m.initial_state(0.0), screw_speed_rad_s=w0)
+    s1, out = m.step(s0, torque, 0.0)
+    t_stop = j * w0 / (t0 - torque)  # 0.4 h
+    assert s1.screw_speed_rad_s == 0.0
+    assert s1.screw_angle_rad == pytest.approx(0.5 * w0 * t_stop, rel=1e-12)
+    dissipated = s1.dissipated_j - s0.dissipated_j
+    assert dissipated == pytest.approx(torque * 0.5 * w0 * t_stop + 0.5 * j * w0**2, rel=1e-12)
+    assert dissipated > 0.0
+    assert s1.work_in_j == pytest.approx(s1.work_out_j + s1.dissipated_j - 0.5 * j * w0**2, rel=1e-12)

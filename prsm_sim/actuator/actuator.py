@@ -192,8 +192,8 @@ class Actuator(Model):
         self.n_sub, self.hold_steps = loop_schedule(a.drive.loop_rate_hz, self.dt_s)
         self.h_sub = self.dt_s / self.n_sub
         # end stops and thread ends, the innermost on each side (stops.py)
-        self.limits = limits_of(a.stops, params.geometry.travel_m) if a.stops.fitted or params.geometry.thread_ends \
-            else ()
+        self.limits = limits_of(a.stops, params.geometry.travel_m, params.geometry.nut_length_m) \
+            if a.stops.fitted or params.geometry.thread_ends else ()
         self._models: dict[tuple[float, float], Model] = {}
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m
@@ -448,8 +448,12 @@ class Actuator(Model):
             # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
             lim = engaged(self.limits, self._nut_x(res[0]))
             if lim is not None:
-                f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
-                                         p * p * s_th)
+                model.set_contact(True)
+                try:
+                    f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
+                                             p * p * s_th)
+                finally:
+                    model.set_contact(False)
         w.new, w.out, w.tau_st, w.tau_c, w.tau_in = res
         w.f_stop = f_stop
 

@@ -27,7 +27,10 @@ F Δx_N − Δ(½ k δ²) = ½ k Δδ² + c Δδ²/h (in contact over the whole 
 stop only absorbs energy (a 1e8 N/m stop on a ~100 kg reflected mass rings at ~1000 rad/s, beyond an
 explicit step).
 
-The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2.
+The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2, up
+to half the nut's length; past it they are hard (`end_depth_m`, `_solve_hard`). The callers tell the
+model its steps are the solve's trials (`Model.set_contact`), so a model that would reflect the screw's
+speed off an unresolved contact reverses by an L-stable step there.
 """
 
 from __future__ import annotations
@@ -67,22 +70,42 @@ class Limit(NamedTuple):
     stiffness_n_m: float
     damping_n_s_m: float
     thread_end: bool
+    hard_depth_m: float = math.inf  # past this penetration the limit is hard (`solve`): a thread end's last give
 
 
-def limits_of(stops: StopParams | None, travel_m: float | None) -> tuple[Limit, ...]:
+def limits_of(stops: StopParams | None, travel_m: float | None,
+              nut_length_m: float | None = None) -> tuple[Limit, ...]:
     """The innermost limit on each side: the user's stops and the thread ends at ±travel_m/2 (None: none).
 
-    The thread ends use the stops' contact law (their stiffness and damping; the defaults without stops)."""
+    The thread ends use the stops' contact law (their stiffness and damping; the defaults without stops)
+    up to half the nut's length (`nut_length_m`); past it they are hard (`end_depth_m`). A user's stop inside
+    the travel is hard where the end behind it would be (a soft stop pressed through reaches the end, which
+    the innermost limit alone would not see)."""
     s = stops if stops is not None else StopParams()
     k, c = s.stiffness_n_m, s.damping_n_s_m
+    hard = end_depth_m(nut_length_m)
     out = []
     for sign, user in ((1.0, s.max_position_m), (-1.0, s.min_position_m)):
         end = None if travel_m is None else sign * 0.5 * travel_m
         if user is not None and (end is None or sign * user <= sign * end):
-            out.append(Limit(user, sign, k, c, False))
+            out.append(Limit(user, sign, k, c, False, math.inf if end is None else sign * (end - user) + hard))
         elif end is not None:
-            out.append(Limit(end, sign, k, c, True))
+            out.append(Limit(end, sign, k, c, True, hard))
     return tuple(out)
+
+
+def end_depth_m(nut_length_m: float | None) -> float:
+    """How far a thread end gives before it is hard (m): half the nut's length (inf when unknown).
+
+    A thread end is the shoulder the threaded length ends at, its penalty law the shoulder's compliance.
+    A nut driven into it past half its own length would have half its teeth off the threads: a load near
+    the rating back-driving the nut at ~10 m/s stores kilojoules, which the 1e8 N/m law alone took over
+    more than that, carrying the nut off its threads. There the end is hard. Its force past the static
+    rating C₀a (from a depth C₀a/k on: 2.8 mm on s30) is part of the load on the nut and shows as
+    `over_static_rating`: an impact the screw would not survive undamaged, said where it happens.
+    (Hard from C₀a/k on instead, the end's impulse within a step reversed a 3000 rad/s screw under
+    5.7 MN, 20 times the rating, beyond what the friction step resolves.)"""
+    return math.inf if nut_length_m is None else 0.5 * nut_length_m
 
 
 def penetration(limit: Limit, x_m: float) -> float:
@@ -108,8 +131,48 @@ def solve(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable[[flo
     `free`: the step's result without a stop force; `advance(F)`: the step with the stop force F
     (signed along +x_nut) added to what pushes the nut; `x0_m`: the nut's position at the step's
     start; `nut_position(result)`: its end position; `compliance_m_n`: an estimate of −∂x₁/∂F (the
-    first guess; exact for linear models).
+    first guess; exact for linear models). A limit with a finite `hard_depth_m` that the law's force
+    would let the nut pass is hard there (`_solve_hard`).
     """
+    f, res = _solve_law(limit, h_s, x0_m, free, advance, nut_position, compliance_m_n)
+    if penetration(limit, nut_position(res)) > limit.hard_depth_m:
+        return _solve_hard(limit, abs(f), res, advance, nut_position, compliance_m_n)
+    return f, res
+
+
+def _solve_hard(limit: Limit, f_lo: float, res_lo: R, advance: Callable[[float], R],
+                nut_position: Callable[[R], float], compliance_m_n: float) -> tuple[float, R]:
+    """The force (≥ the law's, `f_lo`, which lets the nut past `hard_depth_m`) that ends the step at that
+    depth: from the compliance's estimate, bracketed by doubling, then secant steps kept inside the bracket
+    (bisection where they creep), taking the side that ends at or short of it. The penetration falls strictly with the force, so the
+    root is unique. Energy: moving in, F ≥ k δ₁ at the end, so the stop absorbs F Δδ − Δ(½ k δ²) ≥ 0
+    (the work of crushing the shoulder; the step's ledger holds it as the stop's)."""
+    sgn, target = limit.sign, limit.hard_depth_m
+    lo, hi = f_lo, math.inf
+    g_lo, g_hi = penetration(limit, nut_position(res_lo)) - target, -math.inf
+    res_hi = res_lo
+    f = f_lo + 1.1 * g_lo / compliance_m_n if compliance_m_n > 0.0 else 2.0 * f_lo + limit.stiffness_n_m * target
+    for _ in range(MAX_ITERATIONS):
+        res = advance(-sgn * f)
+        g = penetration(limit, nut_position(res)) - target
+        if g > 0.0:
+            lo, g_lo = f, g
+        else:
+            hi, g_hi, res_hi = f, g, res
+            if -g <= POSITION_TOL_M or hi - lo <= BRACKET_TOL * hi:
+                break
+        if not math.isfinite(hi):
+            f = 2.0 * f + 1.0
+            continue
+        nxt = lo + (hi - lo) * g_lo / (g_lo - g_hi)
+        f = nxt if lo < nxt < hi and (nxt - lo) > 0.01 * (hi - lo) and (hi - nxt) > 0.01 * (hi - lo) \
+            else 0.5 * (lo + hi)
+    return -sgn * hi, res_hi
+
+
+def _solve_law(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable[[float], R],
+               nut_position: Callable[[R], float], compliance_m_n: float) -> tuple[float, R]:
+    """`solve` by the contact law alone (module doc)."""
     k, c = limit.stiffness_n_m, limit.damping_n_s_m
     sgn = limit.sign
     d0 = max(0.0, penetration(limit, x0_m))

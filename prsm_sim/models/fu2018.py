@@ -84,8 +84,12 @@ GEAR_PRESSURE_ANGLE_RAD = math.radians(20.0)  # standard involute spur/ring gear
 # Adaptive sub-steps (`kernels.step`): where the friction state changes within a step (a speed
 # changes sign, the flank pair switches, or the screw–roller slip is within SLIP_ZONE
 # regularisation speeds of zero, where the regularised Coulomb law is far from saturated and
-# stiff) the step is checked by step doubling and halved, down to dt / 2**MAX_HALVINGS.
+# stiff) the step is checked by step doubling and halved, down to min(dt, HALVING_BASE_S) / 2**MAX_HALVINGS:
+# the smallest sub-step is the same at every output step above 1 ms, so a step of 20-100 ms resolves a stick
+# capture against a stiff stop as finely as a 1 ms step does (at dt/2**10 = 22-90 µs its books stayed open by
+# 0.5 % of the energy through)
 MAX_HALVINGS = 10
+HALVING_BASE_S = 1e-3
 MIN_REGULARISATION_M_S = 1e-5  # smallest ε fu2018 accepts (`Fu2018.check_params`)
 ZONE_HALVINGS = 4  # slow slip alone refines to dt/16
 SLIP_ZONE = 10.0
@@ -94,10 +98,13 @@ SUBSTEP_TOL_FLOOR_M_S = 1e-5  # ... but never tighter than this (≈ 0.01 rad/s 
 # regularisation of 2e-4 m/s the layer is too thin and stiff to resolve, and the L-stable step's quasi-static
 # answer is the one wanted
 # a step whose own energy balance misses by more than this share of the energy it moved goes to error
-# control, and its halves must close their books too. A quarter of the energy guard's own share
-# (ENERGY_GUARD_REL): at the guard's share, steps the model accepted under hard acceleration added up to a
-# guard trip (and their carrier speed was off by a tenth)
-STEP_BALANCE_TOL = 2.5e-4
+# control, and its halves must close their books too. A twentieth of the energy guard's own share
+# (ENERGY_GUARD_REL): the measure counts each joule up to four times (in, stored, dissipated, out), and a
+# drive that takes back what it gave halves the net flow an actuator's ledger is judged by, so a run of a few
+# steps of 20-100 ms (each accelerating or reversing the screw) is judged by their own residuals. At a quarter
+# of the guard's share such runs missed 1.1e-3 … 2e-3 of that flow; at the guard's share, steps accepted
+# under hard acceleration added up to a guard trip (and their carrier speed was off by a tenth)
+STEP_BALANCE_TOL = 5e-5
 STEP_BALANCE_FLOOR_J = 1e-7  # ... or by more than this (creep at a few ε moves little energy per step)
 
 
@@ -320,7 +327,7 @@ class Fu2018(Model):
             s_1g=0.0 if geo.gear_ratio == 1.0 else math.copysign(1.0, 1.0 - geo.gear_ratio),
             span=geo.roller_length_m,  # pins/gears j = 1, 2 at the two ends of the threaded length (assumed span)
             zbar=load_centroid_m(self.params), nut_slides=float(nut_slides), h=self.dt_s,
-            h_min=self.dt_s / 2**MAX_HALVINGS, h_zone=self.dt_s / 2**ZONE_HALVINGS,
+            h_min=min(self.dt_s, HALVING_BASE_S) / 2**MAX_HALVINGS, h_zone=self.dt_s / 2**ZONE_HALVINGS,
             slip_tol=max(SUBSTEP_TOL * self.eps_v, SUBSTEP_TOL_FLOOR_M_S), eps_v=self.eps_v, kss=self.kinetic[0],
             ksc=self.kinetic[1], kcc=self.kinetic[2], jacobian_refresh=float(JACOBIAN_REFRESH_STEPS),
             slip_zone=SLIP_ZONE, balance_tol=STEP_BALANCE_TOL, balance_floor=STEP_BALANCE_FLOOR_J, p=p,

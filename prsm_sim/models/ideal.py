@@ -117,6 +117,15 @@ class Ideal(Model):
         power_threshold_w = self.params.ideal.power_threshold_w
         tanh, copysign = math.tanh, math.copysign
         l_stable = self.reverses_l_stable
+        half_j = 0.5 * J
+
+        def loss(d: float, tau_l: float, w: float) -> float:
+            """The mesh loss and no-load torque opposing motion in direction d (N·m, ≥ 0)."""
+            forward = d * tau_l >= 0.0
+            mu = abs(tau_l) * (k_forward if forward else k_backward)
+            if forward or not self_locking:
+                mu *= tanh(abs(tau_l * w) / power_threshold_w)
+            return mu + t0
 
         def solve(w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
             tau_l = load_n * p
@@ -125,14 +134,10 @@ class Ideal(Model):
                 w1 = 0.0
             else:
                 d = copysign(1.0, w_free)
-                forward = d * tau_l >= 0.0
-                mu = abs(tau_l) * (k_forward if forward else k_backward)
-                if forward or not self_locking:
-                    mu *= tanh(abs(tau_l * w_free) / power_threshold_w)
-                if t0 != 0.0:
-                    mu += t0
-                w_slide = w_free - d * h * mu / j_hb
+                w_slide = w_free - d * h * loss(d, tau_l, w_free) / j_hb
                 w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
+            if w1 == 0.0 and w0 != 0.0:
+                return 0.0, *stopped(w0, torque_nm - tau_l, tau_l)
             # loss + bearing torque actually applied over the step
             friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
             if w0 * w1 >= 0.0 or not l_stable:
@@ -144,6 +149,21 @@ class Ideal(Model):
             dtheta = h * w1
             dw = w1 - w0
             return w1, dtheta, friction_nm * dtheta + 0.5 * J * dw * dw
+
+        def stopped(w0: float, net_nm: float, tau_l: float) -> tuple[float, float]:
+            """(Δθ_S, dissipated work) of a step in which the screw, turning at ω₀, comes to rest and stays.
+
+            Event-located: until it stops the loss opposes the motion it had (direction d₀ of ω₀, not that of
+            the free end speed, which a reversing torque points the other way), so the screw decelerates by
+            D = loss(d₀) + bω₀/2 − d₀ τ_net and rests from t* = J|ω₀|/D (≤ h) on, having turned ½ ω₀ t*. The
+            dissipation is the step's balance, τ_net Δθ + ½ J ω₀², ≥ 0 because τ_net opposes ω₀ by at most
+            J|ω₀|/t* (a trapezoid over the whole step instead turned ½ ω₀ h while the loss pushed back the
+            other way, and booked the energy a reversing torque took from the screw as negative dissipation)."""
+            d0 = copysign(1.0, w0)
+            decel = loss(d0, tau_l, w0) + 0.5 * b * abs(w0) - d0 * net_nm
+            t_stop = min(h, J * abs(w0) / decel) if decel > 0.0 else h
+            dtheta = 0.5 * w0 * t_stop
+            return dtheta, net_nm * dtheta + half_j * w0 * w0
         return solve
 
 

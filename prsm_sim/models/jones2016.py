@@ -21,7 +21,7 @@ import numpy as np
 
 from prsm_sim.errors import InputError, ParamError
 from prsm_sim.models.linear_step import discretise
-from prsm_sim.params import Params
+from prsm_sim.params import END_STOP_STIFFNESS_N_M, Params
 from prsm_sim.physics.contact import ContactPoint, contact_for
 from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.stepping.model import Model
@@ -77,6 +77,15 @@ class Jones2016(Model):
         self.C = fr.viscous_n_s_m * n_contacts * (self.G.T @ self.G)
         self.B = input_matrix(params)
         self.lin = discretise(self.M, self.C, self.B, self.dt_s)
+        # ZOH is exact for the free screw, but against an end or stop the step does not resolve
+        # (h √(k/m) > 2 for the ends' default 1e8 N/m on the screw's own reflected inertia M₀₀) the
+        # position-consistent stop force held over the step reflects the screw's speed (ω₁ ≈ −ω₀, as the
+        # trapezoid does), and viscous friction takes many steps to end that ring. At such steps a step that
+        # reverses the screw inside a contact's solve (`set_contact`) is taken by backward Euler (L-stable),
+        # as `ideal` does, its numerical dissipation booked (`_make_step`); a free reversal stays exact
+        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M * geo.lead_per_rad_m**2 / self.M[0, 0])
+        self.reverses_l_stable = self.dt_s * omega_end > 2.0
+        self._contact = [False]  # `set_contact`: only a contact's trial steps reverse by backward Euler
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (geo.n_rollers, len(PER_ROLLER_QUANTITIES)),
                           PER_ROLLER_QUANTITIES),
@@ -115,15 +124,45 @@ class Jones2016(Model):
             return block.ravel()
 
         finish = self.finisher(slip_speed, internal)
+        reversed_step = self._backward_euler(finish, e_ss, e_sc, e_cc)
+        l_stable, contact = self.reverses_l_stable, self._contact
 
         def step(x, u0: float, u1: float):
             w0, w1 = x[2], x[4]
             n2 = p22 * w0 + p23 * w1 + g20 * u0 + g21 * u1
+            if l_stable and w0 * n2 < 0.0 and contact[0]:
+                return reversed_step(x, u0, u1)
             n3 = p32 * w0 + p33 * w1 + g30 * u0 + g31 * u1
             diss = (w0 * (w00 * w0 + w01 * w1 + w02 * u0 + w03 * u1) + w1 * (w11 * w1 + w12 * u0 + w13 * u1)
                     + u0 * (w22 * u0 + w23 * u1) + u1 * w33 * u1)
             return finish(x, x[1] + p02 * w0 + p03 * w1 + g00 * u0 + g01 * u1, n2,
                           x[3] + p12 * w0 + p13 * w1 + g10 * u0 + g11 * u1, n3, u0, u1, diss,
+                          e_ss * n2 * n2 + e_sc * n2 * n3 + e_cc * n3 * n3)
+        return step
+
+    def set_contact(self, on: bool) -> None:
+        self._contact[0] = bool(on)
+
+    def _backward_euler(self, finish, e_ss: float, e_sc: float, e_cc: float):
+        """The reversing step in a contact at steps too long for it (`reverses_l_stable`): backward Euler,
+        (M + hC) q̇₁ = M q̇₀ + h B u, Δq = h q̇₁. Its books close exactly with the dissipation
+        h q̇₁ᵀ C q̇₁ + ½ Δq̇ᵀ M Δq̇ (the friction's, and the scheme's own numerical loss, ≥ 0), from
+        ½ q̇₁ᵀMq̇₁ − ½ q̇₀ᵀMq̇₀ = q̇₁ᵀ M Δq̇ − ½ Δq̇ᵀ M Δq̇ with M Δq̇ = h (B u − C q̇₁)."""
+        h, M, C = self.dt_s, self.M, self.C
+        inv = np.linalg.inv(M + h * C)
+        (a00, a01), (a10, a11) = (inv @ M).tolist()
+        (b00, b01), (b10, b11) = (h * inv @ self.B).tolist()
+        (c00, c01), (_, c11) = (h * C).tolist()
+        (m00, m01), (_, m11) = (0.5 * M).tolist()
+
+        def step(x, u0: float, u1: float):
+            w0, w1 = x[2], x[4]
+            n2 = a00 * w0 + a01 * w1 + b00 * u0 + b01 * u1
+            n3 = a10 * w0 + a11 * w1 + b10 * u0 + b11 * u1
+            d2, d3 = n2 - w0, n3 - w1
+            diss = (n2 * (c00 * n2 + 2.0 * c01 * n3) + c11 * n3 * n3
+                    + d2 * (m00 * d2 + 2.0 * m01 * d3) + m11 * d3 * d3)
+            return finish(x, x[1] + h * n2, n2, x[3] + h * n3, n3, u0, u1, diss,
                           e_ss * n2 * n2 + e_sc * n2 * n3 + e_cc * n3 * n3)
         return step
 

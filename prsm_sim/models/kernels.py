@@ -608,7 +608,7 @@ def _captured(w0s, w0c, w1s, w1c, g1, sign, pin_abs, gear, tau, load, zone2, K, 
 @_compiled
 def _controlled_step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
     """`step` where the friction state changes: sub-steps checked by step doubling (`_halves`) and halved (down
-    to dt/2**MAX_HALVINGS; slow slip alone to dt/2**ZONE_HALVINGS) until the two answers agree within
+    to min(dt, 1 ms)/2**MAX_HALVINGS; slow slip alone to dt/2**ZONE_HALVINGS) until the two answers agree within
     SUBSTEP_TOL ε of slip and close their books. At rest, or when the slip reaches zero (or the regularised
     creep band) while the static friction can hold (`stick_forces`, `_captured`), the mechanism sticks:
     speeds are set to zero, and the kinetic energy left (slip within a few ε: tiny) is booked as the work of

@@ -225,6 +225,12 @@ class Model:
         """`packed_part` undone: the fields of `part_type` in order (a tuple or the part itself)."""
         return packed
 
+    # -- contact -----------------------------------------------------------------------------
+    def set_contact(self, on: bool) -> None:
+        """Whether the steps that follow are trials of an end's or stop's contact solve (`actuator.stops.solve`,
+        on for its duration). A model whose step reflects the screw's speed off a contact it does not resolve
+        takes its reversing steps in an L-stable form there (`jones2016`); the others ignore it."""
+
     # -- energy ------------------------------------------------------------------------------
     def stored_energy_j(self, screw_speed_rad_s, carrier_speed_rad_s):
         """Energy the model stores at these speeds, J (scalars or arrays): kinetic here; a model
