@@ -100,3 +100,29 @@ def test_a_screw_stopped_within_a_step_by_a_reversing_torque_books_the_event_loc
     assert dissipated == pytest.approx(torque * 0.5 * w0 * t_stop + 0.5 * j * w0**2, rel=1e-12)
     assert dissipated > 0.0
     assert s1.work_in_j == pytest.approx(s1.work_out_j + s1.dissipated_j - 0.5 * j * w0**2, rel=1e-12)
+
+
+@pytest.mark.xfail(strict=True, reason="a stop of a free motion the torque reversed is event-located (t* = J|ω₀|/D), "
+                   "one the loss stops in its own direction turns ½ ω₀ h (the trapezoid): the turn jumps where the "
+                   "free end speed crosses zero and where a reversal becomes a stop. Event-locating every stop and "
+                   "reversal makes it continuous, but then the ideal fit's moved mass came out 80.86 kg "
+                   "[80.16, 81.57] against 80 (docs/fit.md's example): the fit needs a look first")
+def test_a_coasting_screw_turns_continuously_in_its_speed_across_the_edge_of_stopping():
+    # limit case: a screw coasting at ω₀ against its loss (500 N of load, no torque) either slides on (the
+    # trapezoid ½ h (ω₀ + ω₁)) or stops within the step; at the edge ω₁ → 0 and both turn ½ ω₀ h, so Δθ is
+    # continuous in ω₀ with a slope of at most h (∂Δθ/∂ω₀ = ½ h (1 + ∂ω₁/∂ω₀) ≤ h). A fit differentiates
+    # the motion with respect to the moved mass through such steps.
+    import dataclasses
+    import numpy as np
+    p = preset("s30").with_overrides({"geometry.thread_ends": False})
+    m = Simulator(p, "ideal", 1e-3).model
+    speeds = np.linspace(1e-3, 3.0, 3001)
+    turns = []
+    for w0 in speeds:
+        s1, _ = m.step(dataclasses.replace(m.initial_state(0.0), screw_speed_rad_s=float(w0)), 0.0, 500.0)
+        turns.append(s1.screw_angle_rad)
+    stops = [m.step(dataclasses.replace(m.initial_state(0.0), screw_speed_rad_s=float(w)), 0.0, 500.0)[0]
+             .screw_speed_rad_s == 0.0 for w in speeds]
+    assert any(stops) and not all(stops)  # the scan crosses the edge
+    slope = np.abs(np.diff(turns)) / np.diff(speeds)
+    assert slope.max() <= 1e-3 * (1 + 1e-9), slope.max()

@@ -136,7 +136,10 @@ class Ideal(Model):
                 d = copysign(1.0, w_free)
                 w_slide = w_free - d * h * loss(d, tau_l, w_free) / j_hb
                 w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
-            if w1 == 0.0 and w0 != 0.0:
+            # the torque reversed the free motion and the loss stopped it: event-located (`stopped`). A stop in
+            # the free motion's own direction keeps the trapezoid, whose dissipation ½ ω₀ (h τ_net + J ω₀) is
+            # ≥ 0 there (J|ω₀| + h d₀ τ_net > 0 is the free motion's own sign)
+            if w1 == 0.0 and w0 * w_free < 0.0:
                 return 0.0, *stopped(w0, torque_nm - tau_l, tau_l)
             # loss + bearing torque actually applied over the step
             friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
