@@ -228,3 +228,13 @@ def test_no_module_named_by_a_bag_is_imported_and_play_survives_the_corpus(corpu
     assert f"skipped 1 malformed message(s) on {hb.SCREW_TORQUE}" in res.stderr  # never handed to subscribers
     assert "skipped 2 malformed message(s) on /joint_states" in res.stderr
     assert not marker.exists(), "a module named by the bag was imported"
+
+
+def test_a_damaged_metadata_number_leaves_the_report_of_the_messages():
+    """The bag fuzzer's case `flip 208`: one flipped byte turned the run metadata's dt_s "0.001" into
+    "0/001", and `prsm-bag report` ended in a ValueError traceback. The report reads such a value as
+    not recorded."""
+    from prsm_ros.bag.report import _metadata_number
+    assert _metadata_number({"dt_s": "0.001"}, "dt_s") == 0.001
+    assert _metadata_number({"dt_s": "0/001"}, "dt_s") is None
+    assert _metadata_number({"dt_s": "nan"}, "dt_s") is None and _metadata_number({}, "dt_s") is None

@@ -329,6 +329,16 @@ def recorded_rating_n(bag: Bag) -> float | None:
     return c if math.isfinite(c) and c > 0 else None
 
 
+def _metadata_number(meta: dict, key: str) -> float | None:
+    """A number of the bag's run metadata; None where it records none or a value that is no finite number
+    (a damaged metadata record leaves the report of the messages intact)."""
+    try:
+        value = float(meta[key])
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return None
+    return value if math.isfinite(value) else None
+
+
 def _ground_truth_topic(bag: Bag) -> str | None:
     name = TOPIC_DEFS["ground_truth"].resolved()
     suffix = "/" + TOPIC_DEFS["ground_truth"].name.removeprefix("~/")
@@ -367,7 +377,7 @@ def report(bag: Bag, out_dir=None, *, dynamic_load_rating_n: float | None = None
     meta = bag.run_metadata
     result: dict = {
         "bag": str(bag.path), "complete": bag.complete, "note": bag.note,
-        "model": meta.get("model"), "preset": meta.get("preset"), "dt_s": float(meta["dt_s"]) if "dt_s" in meta else None,
+        "model": meta.get("model"), "preset": meta.get("preset"), "dt_s": _metadata_number(meta, "dt_s"),
         "topics": {k: v for k, v in roles.items() if v} | ({"ground_truth": truth_topic} if truth is not None else {}),
         "duration_s": float(t[-1] - t[0]), "samples": int(t.size),
     }
