@@ -329,6 +329,7 @@ class Simulator:
             xn = out[NUT_POSITION_ITEM]  # the item, not the property: read on every step
             if not self._lo <= xn <= self._hi:  # the free step ran past a thread end, or is not finite
                 out = self._at_end_packed(x, out, command, load_n)
+                self._judge_rating(out.load_force_n)
             if out[_RESIDUAL_ITEM] * 0.0 != 0.0:  # the ledger overflowed (a finite nut, an infinite energy)
                 self._non_finite(self.time_s + self.dt_s)
             self._packed = out
@@ -339,10 +340,7 @@ class Simulator:
             xn = out.nut_position_m
             if not self._lo <= xn <= self._hi:
                 new, out = self._at_end_state(s0, (new, out), command, load_n)
-            if out.over_static_rating:  # an actuator's own stops add their force to the nut's load
-                self._over_rating(out.load_force_n)
-            elif self._over_step == self.nstep + 1:
-                self._over_step = -1
+            self._judge_rating(out.load_force_n)  # an end's or an actuator's stop's force joins the load
             if out.energy_residual_j * 0.0 != 0.0:
                 self._non_finite(self.time_s + self.dt_s)
             self._state = new
@@ -382,18 +380,17 @@ class Simulator:
     # locals closure cells, which every step pays for (about 3 % of a linear model's step).
     def _at_end_packed(self, x, free, command, load_n):
         return self._at_end(self.model.unpack_state(x), free, lambda f: self._step_packed(x, command, load_n - f),
-                            lambda r: r.nut_position_m, load_n)
+                            lambda r: r.nut_position_m)
 
     def _at_end_state(self, s0, free, command, load_n):
-        return self._at_end(s0, free, lambda f: self.model.step(s0, command, load_n - f), lambda r: r[1].nut_position_m,
-                            load_n)
+        return self._at_end(s0, free, lambda f: self.model.step(s0, command, load_n - f), lambda r: r[1].nut_position_m)
 
-    def _at_end(self, before: State, free, advance, nut, load_n: float):
+    def _at_end(self, before: State, free, advance, nut):
         """The step against a thread end: the stop law solved on the model's own step (actuator/stops.py);
         the end's force joins the load on the nut (`load_force_n` reports their sum, so the ledger holds
-        its work, and the static rating is judged on it, as the output's `over_static_rating` is). Sets
-        `thread_end_force_n`. A step that leaves the nut non-finite (also where no end is fitted: the
-        bounds are then the float range) raises NonFiniteStateError, nothing changed."""
+        its work, and `step` judges the static rating on it). Sets `thread_end_force_n`. A step that leaves
+        the nut non-finite (also where no end is fitted: the bounds are then the float range) raises
+        NonFiniteStateError, nothing changed."""
         if not math.isfinite(nut(free)):
             self._non_finite(self.time_s + self.dt_s)
         m = self.model
@@ -402,19 +399,11 @@ class Simulator:
         j = m.kinetic[0]
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
-        m.set_contact(True)
-        try:
+        with m.in_contact():
             f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
-        finally:
-            m.set_contact(False)
         if not math.isfinite(nut(res)):
             self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
-        nut_load_n = load_n - f
-        if not -self._static_rating_n <= nut_load_n <= self._static_rating_n:
-            self._over_rating(nut_load_n, stacklevel=5)  # the warning points at the caller of `step`
-        elif self._over_step == self.nstep + 1:  # the load alone was past the rating, the end took it back
-            self._over_step = -1
         return res
 
     @property
@@ -424,6 +413,15 @@ class Simulator:
         empty when none are fitted."""
         model = self.model
         return model.limits if isinstance(model, Actuator) else self._limits
+
+    def _judge_rating(self, nut_load_n: float) -> None:
+        """This step's `over_static_rating` from the nut's load as the output reports it (an end's or stop's
+        force included), where that differs from the load `step` judged: flagged past the rating, cleared
+        where the end took back a load that alone was past it."""
+        if not -self._static_rating_n <= nut_load_n <= self._static_rating_n:
+            self._over_rating(nut_load_n, stacklevel=4)  # the warning points at the caller of `step`
+        elif self._over_step == self.nstep + 1:
+            self._over_step = -1
 
     def _over_rating(self, load_n: float, stacklevel: int = 3) -> None:
         """Flag a step whose nut load exceeds the static rating (`over_static_rating`); said once per simulator,

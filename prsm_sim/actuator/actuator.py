@@ -448,12 +448,9 @@ class Actuator(Model):
             # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
             lim = engaged(self.limits, self._nut_x(res[0]))
             if lim is not None:
-                model.set_contact(True)
-                try:
+                with model.in_contact():
                     f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
                                              p * p * s_th)
-                finally:
-                    model.set_contact(False)
         w.new, w.out, w.tau_st, w.tau_c, w.tau_in = res
         w.f_stop = f_stop
 

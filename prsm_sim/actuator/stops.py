@@ -29,7 +29,7 @@ explicit step).
 
 The thread ends (`Geometry.thread_ends`) are the same contact at ±(screw_length_m − nut_length_m)/2, up
 to half the nut's length; past it they are hard (`end_depth_m`, `_solve_hard`). The callers tell the
-model its steps are the solve's trials (`Model.set_contact`), so a model that would reflect the screw's
+model its steps are the solve's trials (`Model.in_contact`), so a model that would reflect the screw's
 speed off an unresolved contact reverses by an L-stable step there.
 """
 

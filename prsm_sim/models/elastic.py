@@ -65,9 +65,9 @@ import numpy as np
 
 from prsm_sim.models import kernels
 from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, PER_TOOTH_QUANTITIES, Forces, Fu2018,
-                                    Fu2018Part, slip_speed, specialised)
+                                    Fu2018Part, slip_speed)
 from prsm_sim.models.kernels import ROOT_STEP_TOL  # noqa: F401 (public here, where the chain law is described)
-from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel
+from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel, specialised
 from prsm_sim.params import Params
 from prsm_sim.physics import load_sharing as ls
 from prsm_sim.physics.inertia import mass_matrix

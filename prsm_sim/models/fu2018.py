@@ -290,14 +290,13 @@ class Fu2018(Model):
             k_arr, s_arr = np.array(k_arr, dtype=float), np.array(s_arr, dtype=float)
         # (K, S) as the kernels take them: the contract a model built on this core (`elastic`) passes on
         self.kernel_constants = (k_arr, s_arr)
-        self._step_kernel = self._kn.step
         if kernel == "compiled":
             # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
             # the model is built, rather than in the first step of a realtime loop
             self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
         # the per-step path's kernel: the specialisation the warm-up step chose, entered without the dispatch
-        self._step_kernel = specialised(self._kn.step, 0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0,
-                                        *self.kernel_constants)
+        self._step_kernel = kernels.specialised(self._kn.step, 0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0,
+                                                *self.kernel_constants)
 
     def _step_constants(self) -> Fu2018Constants:
         """The step's constants (`kernels.Fu2018Constants`) from the parameters."""
@@ -492,25 +491,6 @@ class Fu2018(Model):
         np.multiply((self.zeta / nt)[None, None, :, None], compact[:, None, None, :2], out=teeth)
         out[:, start + nr * nt * 2:] = compact[:, nq:]
         return out
-
-
-def specialised(fn, *args):
-    """`fn` as the per-step path calls it: for a numba dispatcher the compiled entry point of the specialisation
-    that `args` (an example call's arguments, already compiled) select, else `fn` itself.
-
-    A dispatcher finds the specialisation anew on every call by typing each argument (a third of a microsecond
-    for `kernels.step`'s ten, a tuple among them); the per-step path passes arguments of fixed types (floats
-    checked by its callers, the kernel's own memory and constants), so the entry point found once serves every
-    step, with the same machine code and results. An argument of another type is converted by the entry point
-    as the dispatcher's would be, or refused (TypeError).
-    """
-    overloads = getattr(fn, "overloads", None)
-    if overloads is None:  # the reference kernel: a plain function
-        return fn
-    from numba import typeof  # a compiled kernel is loaded: numba is
-
-    compiled = overloads.get(tuple(typeof(a) for a in args))
-    return fn if compiled is None else compiled.entry_point
 
 
 _AXIAL = Forces._fields.index("axial")  # the nut force's place in a Forces or the kernel's tuple

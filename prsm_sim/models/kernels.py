@@ -195,6 +195,25 @@ _COMPILED: list[str] = []  # the functions `load` compiles, in definition order
 _INLINED: set[str] = set()  # ... of which numba inlines these into their callers (small helpers on the hot path)
 
 
+def specialised(fn, *args):
+    """`fn` as the per-step path calls it: for a numba dispatcher the compiled entry point of the specialisation
+    that `args` (an example call's arguments, already compiled) select, else `fn` itself.
+
+    A dispatcher finds the specialisation anew on every call by typing each argument (a third of a microsecond
+    for `kernels.step`'s ten, a tuple among them); the per-step path passes arguments of fixed types (floats
+    checked by its callers, the kernel's own memory and constants), so the entry point found once serves every
+    step, with the same machine code and results. An argument of another type is converted by the entry point
+    as the dispatcher's would be, or refused (TypeError).
+    """
+    overloads = getattr(fn, "overloads", None)
+    if overloads is None:  # the reference kernel: a plain function
+        return fn
+    from numba import typeof  # a compiled kernel is loaded: numba is
+
+    compiled = overloads.get(tuple(typeof(a) for a in args))
+    return fn if compiled is None else compiled.entry_point
+
+
 def _compiled(fn):
     """Mark a function for numba (compiled by `load`, which replaces it in this module by its dispatcher)."""
     _COMPILED.append(fn.__name__)

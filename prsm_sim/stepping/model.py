@@ -36,6 +36,8 @@ from __future__ import annotations
 
 import copyreg
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from functools import cached_property
 from typing import Any
@@ -228,8 +230,17 @@ class Model:
     # -- contact -----------------------------------------------------------------------------
     def set_contact(self, on: bool) -> None:
         """Whether the steps that follow are trials of an end's or stop's contact solve (`actuator.stops.solve`,
-        on for its duration). A model whose step reflects the screw's speed off a contact it does not resolve
-        takes its reversing steps in an L-stable form there (`jones2016`); the others ignore it."""
+        on for its duration: `in_contact`). A model whose step reflects the screw's speed off a contact it does
+        not resolve takes its reversing steps in an L-stable form there (`jones2016`); the others ignore it."""
+
+    @contextmanager
+    def in_contact(self) -> Iterator[None]:
+        """`set_contact` on for the block (a contact solve's trials), off after it whatever ends the block."""
+        self.set_contact(True)
+        try:
+            yield
+        finally:
+            self.set_contact(False)
 
     # -- energy ------------------------------------------------------------------------------
     def stored_energy_j(self, screw_speed_rad_s, carrier_speed_rad_s):
