@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from prsm_sim.actuator import Actuator
+from prsm_sim.actuator.implicit import probe_inertia
 from prsm_sim.actuator.stops import Limit, engaged, limits_of
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.checks import check_typed, is_finite_number, is_number
@@ -138,6 +139,7 @@ class Simulator:
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
             (-sys.float_info.max, sys.float_info.max)
         self._end_force, self._end_step = 0.0, -1
+        self._probed_inertia: float | None = None  # `_contact_inertia`, on the first end contact
         # the static load rating C₀a (ISO 76's permanent-deformation limit, `Ratings`): a load past it is said once
         c0 = params.ratings.static_load_rating_n
         self._static_rating_n = math.inf if c0 is None else float(c0)
@@ -396,8 +398,7 @@ class Simulator:
         m = self.model
         lim = engaged(self._limits, nut(free))
         assert lim is not None  # the free step ran past a finite end (non-finite ones were refused above)
-        j = m.kinetic[0]
-        compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / j if math.isfinite(j) and j > 0 else 0.0
+        compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / self._contact_inertia()
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
         with m.in_contact():
             f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
@@ -405,6 +406,16 @@ class Simulator:
             self._non_finite(self.time_s + self.dt_s)
         self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
         return res
+
+    def _contact_inertia(self) -> float:
+        """The screw-side inertia (kg·m²) behind the end solve's first guess of the nut's compliance over a step:
+        the model's own mass matrix where it has one, else probed from rest (`probe_inertia`). Without it the
+        first trial force was the law's at the free end (an `elastic` screw at 43 ms, 2.8 MN), which carried the
+        nut metres past the screw's bearing, where no chain law holds."""
+        if self._probed_inertia is None:
+            j = self.model.kinetic[0]
+            self._probed_inertia = j if math.isfinite(j) and j > 0 else probe_inertia(self.model, self.dt_s)
+        return self._probed_inertia
 
     @property
     def limits(self) -> tuple[Limit, ...]:
