@@ -133,3 +133,26 @@ def test_elastic_pressed_onto_a_thread_end_by_80_kn_at_a_43_ms_step_closes_its_b
     from prsm_sim.envelope import case_from_seed
     r = run_case(case_from_seed(5855))
     assert r.ok, r.violations
+
+
+@pytest.mark.parametrize("load_n", [50e3, 150e3])
+def test_elastic_back_driven_onto_a_thread_end_at_a_step_that_does_not_resolve_it_settles_as_backward_euler(load_n):
+    # closed form of backward Euler on an undamped oscillator: a step multiplies the speed by at most
+    # 1/√(1 + (ωh)²). A load back-driving the nut onto the lower end at a 20 ms step (ωh ≈ 10 for the 1e8 N/m
+    # end on the train's reflected mass; the whole screw's reflected inertia below gives the smaller ωh, so
+    # the looser bound): after the impact no step leaves more than that share of the impact speed (envelope
+    # seed 2899: the position-consistent stop force reflected the nut, v₁ ≈ −0.65 v₀, ringing for ten steps),
+    # and every step's books close (the energy guard, 1e-3 of the flow)
+    from prsm_sim.physics.inertia import reflected_inertia
+    p = preset("s30")
+    dt_s, travel, lead = 0.02, p.geometry.travel_m, p.geometry.lead_per_rad_m
+    mass_kg = p.mass.moved_mass_kg + reflected_inertia(p) / lead**2
+    amplification = 1.0 / math.sqrt(1.0 + dt_s**2 * 1e8 / mass_kg)
+    sim = Simulator(p, "elastic", dt_s, nut_position_m=-0.5 * travel + 0.002, initial_load_n=load_n)
+    outs = [sim.step(0.0, load_n) for _ in range(14)]
+    assert all(o.energy_fault == 0.0 for o in outs)
+    hit = next(i for i, o in enumerate(outs) if o.load_force_n != load_n)  # the end took part of the load
+    v_impact = abs(outs[hit].nut_velocity_m_s)
+    assert v_impact > 0.2  # an impact
+    assert max(abs(o.nut_velocity_m_s) for o in outs[hit + 1:]) <= amplification * v_impact
+    assert outs[-1].nut_position_m < -0.5 * travel  # resting on the end

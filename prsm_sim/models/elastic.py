@@ -68,9 +68,10 @@ from prsm_sim.models.fu2018 import (CARRIER_QUANTITIES, PER_ROLLER_QUANTITIES, P
                                     Fu2018Part, slip_speed)
 from prsm_sim.models.kernels import ROOT_STEP_TOL  # noqa: F401 (public here, where the chain law is described)
 from prsm_sim.models.kernels import ElasticConstants, kernel_memory, memory_from_kernel, specialised
-from prsm_sim.params import Params
+from prsm_sim.params import END_STOP_STIFFNESS_N_M, Params
 from prsm_sim.physics import load_sharing as ls
 from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.physics.kinematics import ideal_carrier_ratio
 from prsm_sim.stepping.model import Model
 from prsm_sim.stepping.records import InternalBlock, InternalLayout, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_columns
@@ -317,6 +318,15 @@ class ElasticModel(Model):
         self.eta_running = _sliding_efficiencies(self.czs, self.sin_beta, self.mu_c)
         self.d_mu = (st.breakaway_ratio - 1.0) * self.mu_c
         self.p_over_sin_beta_per_vs = self.p / (self.sin_beta * st.stribeck_speed_m_s)  # ω_S → v/v_s
+        # Against an end or stop the step does not resolve (h √(k/m) > 2 for the ends' default 1e8 N/m on the
+        # train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
+        # step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
+        # steps to end that ring; a contact trial that reverses the nut is then backward Euler in the rigid mode
+        # (`_rigid_shift`), as `jones2016` and `ideal` take theirs
+        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
+        self.reverses_l_stable = self.dt_s * omega_end > 2.0
+        self._contact = [False]  # `set_contact`: only a contact's trial steps are shifted
+        self._carrier_ratio = ideal_carrier_ratio(self.geo)
         nr, nt = self.geo.n_rollers, self.geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
@@ -442,18 +452,47 @@ class ElasticModel(Model):
         advance, kernel_e, core, internal = self._advance, self._kernel_e, self._kernel_core, self._internal
         finish = self.finisher(lambda w_s, w_c, aux: slip_speed(aux[0]),
                                lambda w_s, w_c, aux: internal(aux[0].compact, *aux[1:]))
+        l_stable, contact, rigid_shift = self.reverses_l_stable, self._contact, self._rigid_shift
 
         # the packed part is in the kernel's own form (`packed_part`): floats from the last step or `pack_state`,
         # the inputs floats from the caller's checks, so the step converts nothing
         def step(x, torque_nm: float, load_n: float):
-            sign, pin_abs, gear, mem, x_n, v_n, acc, extra = x[11]
+            sign, pin_abs, gear, mem, x_n, v_n0, acc, extra = x[11]
             (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
-             f_th, e_end) = advance(x[1], x[2], x[3], x[4], x_n, v_n, sign, pin_abs, gear, mem, acc, extra, torque_nm,
+             f_th, e_end) = advance(x[1], x[2], x[3], x[4], x_n, v_n0, sign, pin_abs, gear, mem, acc, extra, torque_nm,
                                     load_n, kernel_e, *core)
+            if l_stable and contact[0] and v_n0 * v_n < 0.0:
+                shifted = rigid_shift(x[11][4], th_s, ws, th_c, x_n, v_n, extra, torque_nm, load_n, v_el)
+                if shifted is not None:
+                    th_s, th_c, x_n, f_th, f_el, k, v_el, lost, delta, d_w_out, d_diss, d_v = shifted
+                    w_out, diss, e_end = w_out + d_w_out, diss + d_diss, e_end + d_v
             return finish(x, th_s, ws, th_c, wc, torque_nm, load_n, diss, e_end,
                           (sign, pin_abs, gear, mem, x_n, v_n, acc, extra),
                           (Forces(*f1), f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
         return step
+
+    def set_contact(self, on: bool) -> None:
+        self._contact[0] = bool(on)
+
+    def _rigid_shift(self, x_n0: float, th_s: float, ws: float, th_c: float, x_n: float, v_n: float, extra: float,
+                     torque_nm: float, load_n: float, v_el: float) -> tuple | None:
+        """A contact trial's reversing step made backward Euler in the rigid mode (`reverses_l_stable`): the
+        sub-steps' end speeds kept, the whole screw–nut train moved along its rigid mode (θ_S, θ_C and x_N
+        together at the ideal ratios: the chain's deflection δ unchanged) so that the nut moved h v_N₁ over the
+        step, as x₁ = x₀ + h v₁ has it. For a rigid train under the held net force F the sub-steps moved it
+        h (v₀ + v₁)/2, so the shift s = h (v₁ − v₀)/2 and the forces' work over it, F s = ½ m (v₁ − v₀)², is the
+        scheme's numerical loss, booked as dissipated with the change of the shaft-length term of V. Returns
+        (θ_S, θ_C, x_N, the chain's end figures as `kernels._el_force` gives them, the load's extra work, the
+        extra dissipation, the change of V), or None where that loss would be negative (the train not rigid
+        over the step: the sub-steps' result stands)."""
+        s = self.dt_s * v_n - (x_n - x_n0)
+        th_s1, th_c1, x_n1 = th_s + s / self.p, th_c + self._carrier_ratio * s / self.p, x_n + s
+        f_th, f_el, k, v_el1, lost, delta, _ = _LAW._el_force(th_s1, ws, x_n1, v_n, extra, self._law_e)
+        d_v = v_el1 - v_el
+        d_diss = torque_nm * s / self.p - load_n * s - d_v
+        if not d_diss >= 0.0:
+            return None
+        return th_s1, th_c1, x_n1, f_th, f_el, k, v_el1, lost, delta, load_n * s, d_diss, d_v
 
     def packed_part(self, part: ElasticPart) -> tuple:
         """The part as `kernels.elastic_advance` takes it: floats, the solver memory as `kernels.kernel_memory`."""
