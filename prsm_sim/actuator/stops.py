@@ -45,6 +45,10 @@ MAX_ITERATIONS = 60
 REL_TOL = 1e-10  # of the contact force (plus 1 mN)
 BRACKET_TOL = 1e-6  # a bracket this narrow (of the force) ends the search
 POSITION_TOL_M = 1e-12  # or k times this: a model's end position is not smoother in the force than its own rounding
+# a step that ends with the nut at rest ends within this of the stop's static law k δ = F (`off_rest`): a
+# fourth of the 2 µm the operating envelope allows, so the refinement's last halving has room to spare
+REST_TOL_M = 5e-7
+MAX_REST_HALVINGS = 16  # ... refined down to h/2**16 at most (a step's last piece; each halving one more solve)
 
 
 class ThreadEndEvent(NamedTuple):
@@ -222,6 +226,19 @@ def _solve_law(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable
         last_width = width
         f = nxt
     return -sgn * best[1], best[2]
+
+
+def off_rest(limit: Limit, force_n: float, x1_m: float, v1_m_s: float) -> bool:
+    """Whether a step that held the stop force `force_n` (N, signed along +x_nut) ends with the nut at rest
+    against `limit` off the static law: the damper at its end speed `v1_m_s` within k · REST_TOL_M (at rest,
+    for the law), the force held off k δ₁ (`x1_m`: its end position) by more than that. The held force
+    carries what moved within the step (the damper's c Δδ/h, a stick/slip jump's side), the end does not:
+    the caller then takes the step as two halves (module doc)."""
+    k = limit.stiffness_n_m
+    tol = k * REST_TOL_M
+    if force_n == 0.0 or limit.damping_n_s_m * abs(v1_m_s) > tol:
+        return False
+    return abs(abs(force_n) - k * max(penetration(limit, x1_m), 0.0)) > tol
 
 
 def absorbed_j(limit: Limit, force_n: float, d0_m: float, d1_m: float) -> float:
