@@ -45,8 +45,8 @@ MAX_ITERATIONS = 60
 REL_TOL = 1e-10  # of the contact force (plus 1 mN)
 BRACKET_TOL = 1e-6  # a bracket this narrow (of the force) ends the search
 POSITION_TOL_M = 1e-12  # or k times this: a model's end position is not smoother in the force than its own rounding
-# a step that ends with the nut at rest ends within this of the stop's static law k δ = F (`off_rest`): a
-# fourth of the 2 µm the operating envelope allows, so the refinement's last halving has room to spare
+# a step that ends with the nut at rest (the damper at its end speed within k times this) ends on the stop's law
+# there, k δ₁ + c δ̇₁, to k times this (`off_rest`): a fourth of the 2 µm the operating envelope allows
 REST_TOL_M = 5e-7
 MAX_REST_HALVINGS = 16  # ... refined down to h/2**16 at most (a step's last piece; each halving one more solve)
 
@@ -230,15 +230,17 @@ def _solve_law(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable
 
 def off_rest(limit: Limit, force_n: float, x1_m: float, v1_m_s: float) -> bool:
     """Whether a step that held the stop force `force_n` (N, signed along +x_nut) ends with the nut at rest
-    against `limit` off the static law: the damper at its end speed `v1_m_s` within k · REST_TOL_M (at rest,
-    for the law), the force held off k δ₁ (`x1_m`: its end position) by more than that. The held force
-    carries what moved within the step (the damper's c Δδ/h, a stick/slip jump's side), the end does not:
-    the caller then takes the step as two halves (module doc)."""
-    k = limit.stiffness_n_m
+    against `limit` (the damper at its end speed `v1_m_s` within k · REST_TOL_M) off the law at its end, k δ₁ +
+    c δ̇₁ (`x1_m`: its end position), by more than k · REST_TOL_M. The force held over a step carries what moved
+    within it (the damper's c Δδ/h, a stick/slip jump's side), the law at its end does not: the caller then
+    takes the step as two halves (module doc)."""
+    k, c = limit.stiffness_n_m, limit.damping_n_s_m
     tol = k * REST_TOL_M
-    if force_n == 0.0 or limit.damping_n_s_m * abs(v1_m_s) > tol:
+    if force_n == 0.0 or c * abs(v1_m_s) > tol:
         return False
-    return abs(abs(force_n) - k * max(penetration(limit, x1_m), 0.0)) > tol
+    d1 = penetration(limit, x1_m)
+    law = max(0.0, k * d1 + c * limit.sign * v1_m_s) if d1 > 0.0 else 0.0
+    return abs(abs(force_n) - law) > tol
 
 
 def absorbed_j(limit: Limit, force_n: float, d0_m: float, d1_m: float) -> float:
