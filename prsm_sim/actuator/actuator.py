@@ -14,7 +14,9 @@ h / n_sub), or once every 1 / (loop_rate × h) steps when slower. Per sub-step:
 drive law on the encoder feedback → current loop → motor torque → (rigid: the rotor inertia
 is part of the screw's; compliant: a torsional spring solved implicitly) → end-stop force and
 dry friction (brake, jam) solved on the screw's linear response → screw model step. The
-energy ledger (source in = load work + dissipated + stored) is kept in the state.
+step's last sub-step, should it end with the nut at rest off its stop's law, is taken again in halves
+(`stops.off_rest`; models built at h / n_sub / 2**k). The energy ledger (source in = load work +
+dissipated + stored) is kept in the state.
 """
 
 from __future__ import annotations
@@ -390,19 +392,15 @@ class Actuator(Model):
                                                               w.tlim, h_loop, ff, ff_nm)
 
     def _sub_step(self, w: _Work, load_n: float, halvings: int, last: bool) -> None:
-        """A sub-step of h = h_sub / 2**halvings: the current loop and motor (`_motor`), the screw with the
-        coupling, brake, jams and stops solved on it (`_advance`), the motor side and ledger (`_book`) and the
-        brake's ramp. The step's `last` piece, should it end with the nut at rest off its stop's static law
-        (`stops.off_rest`: the force held over it carries the motion that ended within it), is taken as two
-        halves instead, the second of them judged likewise, until its end is on the law (the step's time
-        is the whole step's)."""
+        """A sub-step of h_sub / 2**halvings: motor (`_motor`), screw (`_advance`), ledger (`_book`), brake ramp.
+        The step's `last` piece, ending with the nut at rest off its stop's law (`stops.off_rest`), is taken as
+        two halves instead, the second judged likewise (the `stops` module doc); the step's time stays whole."""
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
         if last and lim is not None and halvings < MAX_REST_HALVINGS \
                 and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new)):
-            t_end = w.screw.time_s + h
-            w.halved = True
+            t_end, w.halved = w.screw.time_s + h, True
             self._sub_step(w, load_n, halvings + 1, False)
             self._sub_step(w, load_n, halvings + 1, True)
             if w.screw.time_s != t_end:  # the halves' sum rounded
@@ -424,12 +422,12 @@ class Actuator(Model):
         return N * m.torque_constant_nm_a * cs.mean_current_a
 
     def _advance(self, w: _Work, load_n: float, tau_d: float, h: float, model: Model) -> Limit | None:
-        """The screw (`model`, built at the sub-step h) over one sub-step under the drive's torque `tau_d`, with dry friction (brake, jam), a
-        compliant coupling and an end stop's force solved implicitly on the screw's local linear response
-        ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a). s comes from two model steps at this state (exact for
-        the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J would
-        not do). Leaves the new screw state, its outputs and the solved torques and force in `w`; returns the
-        limit the nut pressed into (None: none)."""
+        """The screw (`model`, built at the sub-step h) over it under the drive's torque `tau_d`, with dry
+        friction (brake, jam), a compliant coupling and an end stop's force solved implicitly on the screw's local
+        linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a). s comes from two model steps at this state
+        (exact for the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J
+        would not do). Leaves the new screw state, its outputs and the solved torques and force in `w`; returns
+        the limit the nut pressed into (None: none)."""
         screw, p, act = w.screw, self.p, w.act
         if self.rigid:
             tau_drive_screw = tau_d
@@ -513,10 +511,8 @@ class Actuator(Model):
         w.th_r, w.w_r = th_r1, w_r1
         if self.n_sub > 1 or w.halved:  # weighted by the share of h_sub (a halved sub-step's pieces)
             out, sums, wt = w.out, w.sums, h / self.h_sub
-            sums[0] += wt * w.tau_in
-            sums[1] += wt * out.power_in_w
-            sums[2] += wt * out.power_out_w
-            sums[3] += wt * out.power_dissipated_w
+            for i, q in enumerate((w.tau_in, out.power_in_w, out.power_out_w, out.power_dissipated_w)):
+                sums[i] += wt * q
         w.screw = new
 
     def _finish(self, st: ActuatorState, w: _Work, command: float) -> tuple[ActuatorState, Outputs]:
@@ -610,7 +606,7 @@ class Actuator(Model):
 
         Motor angle and speed come in screw coordinates (motor / gear ratio); the nut's are its own
         (`elastic`: across the axial chain from the thread, so a linear encoder sees the backlash)."""
-        v_nut = screw.nut_speed_m_s if self.axial_chain else self.p * screw.screw_speed_rad_s
+        v_nut = self._nut_v(screw)
         return TrueSample(motor_angle_rad=motor_angle_rad * self.ratio, screw_angle_rad=screw.screw_angle_rad,
                           screw_speed_rad_s=screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
                           nut_position_m=self._nut_x(screw), nut_velocity_m_s=v_nut, nut_force_n=nut_force_n)

@@ -19,7 +19,20 @@ the friction can take (k δ > F_b) gives way: the nut slides out until it is hel
 (the stuck side would leave it resting deeper than the force it reports); a drive pressing the nut past
 k δ plus the friction slides it in likewise. Sliding is refused only where the stop would give out
 energy doing so (k δ past the band's edge by less than half the spring force of the one-step slip), so
-at rest the force is off k δ by at most that half.
+at rest the force is off k δ by at most that half (of the refined step's slip: below).
+
+The force is held over the step, but the nut may come to rest within it: the step then ends at rest while
+its force still carries the motion that ended inside (the damper's c Δδ/h of a nut that stopped early; on a
+jump, the stuck side's offset). At a 71 ms step, a nut pressed by 210 kN into a 1e7 N/m, 2e5 N·s/m stop
+stopped early in the step 392 µm out from where it started: 1.1 kN of damping, and it rested 110 µm off the
+static deflection of the force it reported. So a step that ends with the nut at rest off the law at its end,
+k δ₁ + c δ̇₁, by more than k · REST_TOL_M (`off_rest`) has its last sub-step taken again as two halves of the
+same model at h/2, the second judged likewise (down to h/2**MAX_REST_HALVINGS): the piece in which the nut
+stops carries the motion, the piece after it starts and ends at rest, δ₁ = δ₀, and its force is k δ. Each
+piece is a step of its own, solved and booked as any (each absorbs ½ k Δδ² + c Δδ²/h ≥ 0), so the books
+close and the stop never gives out energy. (Projecting the rest onto the law instead would move the nut
+with no force doing it, or report a force the step did not hold.) A step that ends moving is not refined:
+its force is the contact's backward Euler, and the refinement costs a solve per halving.
 
 Energy: the work the nut does on the stop over a step is F Δx_N; the stop stores ½ k δ²; the rest,
 F Δx_N − Δ(½ k δ²) = ½ k Δδ² + c Δδ²/h (in contact over the whole step) is ≥ 0 in every case
