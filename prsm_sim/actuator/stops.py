@@ -26,8 +26,9 @@ its force still carries the motion that ended inside (the damper's c Δδ/h of a
 jump, the stuck side's offset). At a 71 ms step, a nut pressed by 210 kN into a 1e7 N/m, 2e5 N·s/m stop
 stopped early in the step 392 µm out from where it started: 1.1 kN of damping, and it rested 110 µm off the
 static deflection of the force it reported. So a step that ends with the nut at rest off the law at its end,
-k δ₁ + c δ̇₁, by more than k · REST_TOL_M (`off_rest`) has its last sub-step taken again as two halves of the
-same model at h/2, the second judged likewise (down to h/2**MAX_REST_HALVINGS): the piece in which the nut
+k δ₁ + c δ̇₁, by more than k · REST_TOL_M (`off_rest`) has its last sub-step taken again by the actuator
+(`Actuator._sub_step`; a bare simulator's thread-end step is not) as two halves of the same model at h/2, the
+second judged likewise (down to h/2**MAX_REST_HALVINGS): the piece in which the nut
 stops carries the motion, the piece after it starts and ends at rest, δ₁ = δ₀, and its force is k δ. Each
 piece is a step of its own, solved and booked as any (each absorbs ½ k Δδ² + c Δδ²/h ≥ 0), so the books
 close and the stop never gives out energy. (Projecting the rest onto the law instead would move the nut
