@@ -323,15 +323,7 @@ class ElasticModel(Model):
         self.eta_running = _sliding_efficiencies(self.czs, self.sin_beta, self.mu_c)
         self.d_mu = (st.breakaway_ratio - 1.0) * self.mu_c
         self.p_over_sin_beta_per_vs = self.p / (self.sin_beta * st.stribeck_speed_m_s)  # ω_S → v/v_s
-        # Against an end or stop the step does not resolve (h √(k/m) > 2 for the ends' default 1e8 N/m on the
-        # train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
-        # step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
-        # steps to end that ring; a contact trial that reverses the nut is then backward Euler in the rigid mode
-        # (`_rigid_shift`), as `jones2016` and `ideal` take theirs
-        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
-        self.reverses_l_stable = self.dt_s * omega_end > 2.0
-        self._contact = [False]  # `set_contact`: only a contact's trial steps are shifted
-        self._carrier_ratio = ideal_carrier_ratio(self.geo)
+        self._contact_setup()
         nr, nt = self.geo.n_rollers, self.geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
@@ -475,6 +467,17 @@ class ElasticModel(Model):
                           (sign, pin_abs, gear, mem, x_n, v_n, acc, extra),
                           (Forces(*f1), f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
         return step
+
+    def _contact_setup(self) -> None:
+        """Against an end or stop the step does not resolve (h √(k/m) > 2 for the ends' default 1e8 N/m on the
+        train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
+        step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
+        steps to end that ring; a contact trial that reverses the nut is then backward Euler in the rigid mode
+        (`_rigid_shift`), as `jones2016` and `ideal` take theirs."""
+        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
+        self.reverses_l_stable = self.dt_s * omega_end > 2.0
+        self._contact = [False]  # `set_contact`: only a contact's trial steps are shifted
+        self._carrier_ratio = ideal_carrier_ratio(self.geo)
 
     def set_contact(self, on: bool) -> None:
         self._contact[0] = bool(on)

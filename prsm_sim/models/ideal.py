@@ -117,7 +117,6 @@ class Ideal(Model):
         power_threshold_w = self.params.ideal.power_threshold_w
         tanh, copysign = math.tanh, math.copysign
         l_stable = self.reverses_l_stable
-        half_j = 0.5 * J
 
         def loss(d: float, tau_l: float, w: float) -> float:
             """The mesh loss and no-load torque opposing motion in direction d (N·m, ≥ 0)."""
@@ -126,6 +125,8 @@ class Ideal(Model):
             if forward or not self_locking:
                 mu *= tanh(abs(tau_l * w) / power_threshold_w)
             return mu + t0
+
+        stopped = self._stop_law(loss)
 
         def solve(w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
             tau_l = load_n * p
@@ -152,6 +153,14 @@ class Ideal(Model):
             dtheta = h * w1
             dw = w1 - w0
             return w1, dtheta, friction_nm * dtheta + 0.5 * J * dw * dw
+
+        return solve
+
+    def _stop_law(self, loss):
+        """``stopped(ω₀, ω_free, τ_net, τ_L) -> (ω_S at the end, Δθ_S, dissipated work)`` of a step in which the
+        screw comes to rest (`_step_law`; `loss(d, τ_L, ω)`: the loss opposing motion in direction d)."""
+        h, J, b = self.dt_s, self.J, self.params.ideal.viscous_nm_s_rad
+        copysign, half_j = math.copysign, 0.5 * self.J
 
         def stopped(w0: float, w_free: float, net_nm: float, tau_l: float) -> tuple[float, float, float]:
             """(ω_S at the end, Δθ_S, dissipated work) of a step in which the screw, turning at ω₀, comes to rest.
@@ -183,7 +192,8 @@ class Ideal(Model):
                     w1 = 0.0
                 dtheta += 0.5 * w1 * r
             return w1, dtheta, net_nm * dtheta + half_j * (w0 * w0 - w1 * w1)
-        return solve
+
+        return stopped
 
 
 _EMPTY = np.zeros(0)
