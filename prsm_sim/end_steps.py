@@ -50,7 +50,7 @@ class EndSteps:
         model = self._model_at(halvings)
         step = model.step_packed
         out = self.solve(model, model.unpack_state(x), free, lambda f: step(x, command, load_n - f),
-                         lambda r: r.nut_position_m, end_time_s)
+                         lambda r: r.nut_position_m, lambda r: r.screw_speed_rad_s, end_time_s)
         lim = engaged(self.limits, out.nut_position_m)
         if not (last and lim is not None and halvings < MAX_REST_HALVINGS
                 and off_rest(lim, self.force_n, out.nut_position_m, out.nut_velocity_m_s)):
@@ -65,10 +65,10 @@ class EndSteps:
             second = self.packed(first, second, command, load_n, end_time_s, halvings + 1, True)
         return joined(first, second, out)
 
-    def solve(self, m: Model, before: State, free, advance, nut, end_time_s: float):
+    def solve(self, m: Model, before: State, free, advance, nut, speed, end_time_s: float):
         """The step of model `m` against the end its free result `free` ran past: the stop law solved on the
-        model's own step (`advance(F)`: the step with the end's force F along +x_nut; `nut(result)`: the nut's
-        end position). Sets `force_n`. NonFiniteStateError where the nut ends non-finite (also where no end
+        model's own step (`advance(F)`: the step with the end's force F along +x_nut; `nut(result)`,
+        `speed(result)`: the nut's end position and the screw's end speed). Sets `force_n`. NonFiniteStateError where the nut ends non-finite (also where no end
         is fitted: the bounds are then the float range)."""
         if not math.isfinite(nut(free)):
             raise non_finite_error(self.model.name, end_time_s)
@@ -76,7 +76,7 @@ class EndSteps:
         assert lim is not None  # the free step ran past a finite end (non-finite ones were refused above)
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * m.dt_s**2 / self._contact_inertia()
         x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
-        with m.in_contact():
+        with m.in_contact(before.screw_speed_rad_s * speed(free) < 0.0):
             f, res = solve_stop(lim, m.dt_s, x0, free, advance, nut, compliance)
         if not math.isfinite(nut(res)):
             raise non_finite_error(self.model.name, end_time_s)

@@ -387,7 +387,7 @@ class Simulator:
     def _at_end_state(self, s0, free, command, load_n):
         m = self.model
         out = self._ends.solve(m, s0, free, lambda f: m.step(s0, command, load_n - f), lambda r: r[1].nut_position_m,
-                               self.time_s + self.dt_s)
+                               lambda r: r[0].screw_speed_rad_s, self.time_s + self.dt_s)
         self._end_step = self.nstep + 1
         return out
 

@@ -469,7 +469,7 @@ class Actuator(Model):
             # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
             lim = engaged(self.limits, self._nut_x(res[0]))
             if lim is not None:
-                with model.in_contact():
+                with model.in_contact(screw.screw_speed_rad_s * res[0].screw_speed_rad_s < 0.0):
                     f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
                                              p * p * s_th)
         w.new, w.out, w.tau_st, w.tau_c, w.tau_in = res

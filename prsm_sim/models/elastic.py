@@ -458,8 +458,8 @@ class ElasticModel(Model):
             (th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, diss, w_out, f1, f_el, k, v_el, lost, delta,
              f_th, e_end) = advance(x[1], x[2], x[3], x[4], x_n, v_n0, sign, pin_abs, gear, mem, acc, extra, torque_nm,
                                     load_n, kernel_e, *core)
-            if l_stable and contact[0] and v_n0 * v_n < 0.0:
-                shifted = rigid_shift(x[11][4], th_s, ws, th_c, x_n, v_n, extra, torque_nm, load_n, v_el)
+            if l_stable and contact[0] and x[2] * ws < 0.0:
+                shifted = rigid_shift(x[1], th_s, ws, th_c, x_n, v_n, extra, torque_nm, load_n, v_el)
                 if shifted is not None:
                     th_s, th_c, x_n, f_th, f_el, k, v_el, lost, delta, d_w_out, d_diss, d_v = shifted
                     w_out, diss, e_end = w_out + d_w_out, diss + d_diss, e_end + d_v
@@ -472,7 +472,7 @@ class ElasticModel(Model):
         """Against an end or stop the step does not resolve (h √(k/m) > 2 for the ends' default 1e8 N/m on the
         train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
         step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
-        steps to end that ring; a contact trial that reverses the nut is then backward Euler in the rigid mode
+        steps to end that ring; a contact trial that reverses the screw is then backward Euler in the rigid mode
         (`_rigid_shift`), as `jones2016` and `ideal` take theirs."""
         omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
         self.reverses_l_stable = self.dt_s * omega_end > 2.0
@@ -482,18 +482,20 @@ class ElasticModel(Model):
     def set_contact(self, on: bool) -> None:
         self._contact[0] = bool(on)
 
-    def _rigid_shift(self, x_n0: float, th_s: float, ws: float, th_c: float, x_n: float, v_n: float, extra: float,
+    def _rigid_shift(self, th_s0: float, th_s: float, ws: float, th_c: float, x_n: float, v_n: float, extra: float,
                      torque_nm: float, load_n: float, v_el: float) -> tuple | None:
-        """A contact trial's reversing step made backward Euler in the rigid mode (`reverses_l_stable`): the
-        sub-steps' end speeds kept, the whole screw–nut train moved along its rigid mode (θ_S, θ_C and x_N
-        together at the ideal ratios: the chain's deflection δ unchanged) so that the nut moved h v_N₁ over the
-        step, as x₁ = x₀ + h v₁ has it. For a rigid train under the held net force F the sub-steps moved it
-        h (v₀ + v₁)/2, so the shift s = h (v₁ − v₀)/2 and the forces' work over it, F s = ½ m (v₁ − v₀)², is the
-        scheme's numerical loss, booked as dissipated with the change of the shaft-length term of V. Returns
-        (θ_S, θ_C, x_N, the chain's end figures as `kernels._el_force` gives them, the load's extra work, the
-        extra dissipation, the change of V), or None where that loss would be negative (the train not rigid
-        over the step: the sub-steps' result stands)."""
-        s = self.dt_s * v_n - (x_n - x_n0)
+        """A contact trial's reversing step made backward Euler in the rigid mode (`reverses_l_stable`; the screw
+        reversed, which the step without the contact's force did not: `Model.in_contact`): the sub-steps' end
+        speeds kept, the whole screw–nut train moved along its rigid mode (θ_S, θ_C and x_N together at the ideal
+        ratios: the chain's deflection δ unchanged) so that the screw turned h ω_S₁ over the step, as
+        θ₁ = θ₀ + h ω₁ has it (the screw's speed, not the nut's: the nut's own swings with the chain's mode). For
+        a rigid train under the held net force F the sub-steps moved it h (v₀ + v₁)/2, so the shift
+        s = h (v₁ − v₀)/2 and the forces' work over it, F s = ½ m (v₁ − v₀)², is the scheme's numerical loss,
+        booked as dissipated with the change of the shaft-length term of V. Returns (θ_S, θ_C, x_N, the chain's
+        end figures as `kernels._el_force` gives them, the load's extra work, the extra dissipation, the change
+        of V), or None where that loss would be negative (the train not rigid over the step: the sub-steps'
+        result stands)."""
+        s = self.p * (self.dt_s * ws - (th_s - th_s0))
         th_s1, th_c1, x_n1 = th_s + s / self.p, th_c + self._carrier_ratio * s / self.p, x_n + s
         f_th, f_el, k, v_el1, lost, delta, _ = _LAW._el_force(th_s1, ws, x_n1, v_n, extra, self._law_e)
         d_v = v_el1 - v_el
