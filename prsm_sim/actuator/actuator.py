@@ -40,6 +40,7 @@ from prsm_sim.errors import InputError
 from prsm_sim.models.registry import build_model, model_class
 from prsm_sim.stepping.ledger import efficiency
 from prsm_sim.stepping.model import Model, check_step_inputs
+from prsm_sim.stepping.packed import PackedOutputs
 from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.stepping.records import InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
@@ -191,6 +192,8 @@ class Actuator(Model):
         self.motor_inertia = 0.0 if m is None else m.rotor_inertia_kgm2 * m.gear_ratio**2  # screw side
         self.n_sub, self.hold_steps = loop_schedule(a.drive.loop_rate_hz, self.dt_s)
         self.h_sub = self.dt_s / self.n_sub
+        self._h_loop = self.h_sub * self.hold_steps  # the drive loop's period
+        self._holding_nm = a.brake.holding_torque_nm
         # end stops and thread ends, the innermost on each side (stops.py)
         self.limits = limits_of(a.stops, params.geometry.travel_m, params.geometry.nut_length_m) \
             if a.stops.fitted or params.geometry.thread_ends else ()
@@ -199,6 +202,7 @@ class Actuator(Model):
         self.p = self.geo.lead_per_rad_m
         self.sensing = SensorSuite(a.sensors, self.ratio, self.rigid, self.p, self.dt_s)
         self.J = probe_inertia(base, self.h_sub)
+        self._s_th_free = 0.5 * self.h_sub * self.h_sub / self.J  # ∂θ1/∂τ of a free sub-step on that inertia
         # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
         self.J_drive = self.J + (0.0 if self.rigid else self.motor_inertia)  # the inertia the drive moves
         self.drive = a.drive.tuned(self.J_drive)
@@ -322,11 +326,6 @@ class Actuator(Model):
             self._advance(w, load_n, tau_d)
             self._book(w, load_n, tau_d)
             w.level = brake_level(self.actuator.brake, w.level, st.brake_engaged, self.h_sub)
-        if self.n_sub > 1:
-            n, sums = self.n_sub, w.sums
-            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
-            w.out = replace(w.out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
-                            power_dissipated_w=pd, efficiency=efficiency(pin, pout, pd))
         return self._finish(st, w, command)
 
     def _begin(self, st: ActuatorState) -> _Work:
@@ -335,11 +334,17 @@ class Actuator(Model):
         w = _Work(st)
         faults = self.all_faults(st)
         w.act = act = fl.active(faults, st.time_s)
-        w.model = model = self._model(act)
+        w.model = self._model(act)
         m = self.actuator.motor
         w.tlim = math.inf if m is None else self.ratio * m.peak_torque_nm * act.torque_factor
-        screw = st.screw
-        extra = fl.extra_clearance_m(faults, st.time_s) if self.axial_chain else 0.0
+        if self.axial_chain:  # a backlash fault's clearance: only a nut on its own chain has one
+            self._clearance(w, faults, st.time_s)
+        return w
+
+    def _clearance(self, w: _Work, faults: tuple[Fault, ...], t_s: float) -> None:
+        """The clearance the backlash faults add at `t_s` applied to the screw's state at the step's start."""
+        model, screw = w.model, w.screw
+        extra = fl.extra_clearance_m(faults, t_s)
         if extra < screw.extra_clearance_m:
             # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
             # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
@@ -354,15 +359,15 @@ class Actuator(Model):
             w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
                                                                        - model.total_stored_energy_j(widened)))
             w.screw = widened
-        return w
 
     def _drive_loop(self, w: _Work, st: ActuatorState, command: float, key: int) -> None:
         """One update of the drive's loops on the encoder feedback (and a linear encoder's, if fitted):
         the torque reference, the speed integrator and, in position mode, the shaped reference."""
         act, p, screw = w.act, self.p, w.screw
         enc_new = self.sensing.read_encoder(w.th_r * self.ratio, screw.screw_angle_rad, act, key, w.enc)
-        h_loop = self.h_sub * self.hold_steps
-        if self.actuator.sensors.encoder_counts_per_rev == 0 and not any(x[0] == "motor_encoder" for x in act.sensor):
+        h_loop = self._h_loop
+        if self.actuator.sensors.encoder_counts_per_rev == 0 and not (
+                act.sensor and any(x[0] == "motor_encoder" for x in act.sensor)):
             w_meas = w.w_r if not self.rigid else screw.screw_speed_rad_s
         else:
             w_meas = (enc_new - w.enc) / h_loop
@@ -417,16 +422,20 @@ class Actuator(Model):
             # linearise where the last step ended: the explicit spring torque k φ0 would swing with
             # the coupling's ringing and evaluate a set-valued friction on the wrong side
             tau_drive_screw = w.tau_c
-        cap = w.level * self.actuator.brake.holding_torque_nm + act.jam_nm
+        cap = w.level * self._holding_nm + act.jam_nm
         implicit = not self.rigid or cap > 0.0
+        # every trial of this sub-step starts from this state: packed once (`Model.step_from`); a trial's
+        # record is kept packed, its `Outputs` built for the accepted step only (`_finish`)
+        x = model.pack_state(screw)
         if implicit:
-            w_a, s_w, th_a, s_th = linear_response(model, screw, tau_drive_screw, load_n, h, self.J)
+            w_a, s_w, th_a, s_th = linear_response(model, x, tau_drive_screw, load_n, h, self.J)
         else:
-            s_th = 0.5 * h * h / self.J
+            s_th = self._s_th_free
         th_r, w_r = w.th_r, w.w_r
+        step, unpack, rigid = model.step_from, model.unpack_state, self.rigid
 
-        def advance(f_stop: float) -> tuple[State, Outputs, float, float, float]:
-            """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, outputs,
+        def advance(f_stop: float) -> tuple[State, PackedOutputs, float, float, float]:
+            """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, its packed record,
             stiction torque, coupling torque, screw torque)."""
             load_in = load_n - f_stop if f_stop != 0.0 else load_n
             t_st = 0.0
@@ -434,11 +443,12 @@ class Actuator(Model):
                 w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
                 t_st = stiction_torque(cap, w_pred, h / s_w, h)
                 th_pred += s_th * t_st
-            if self.rigid:
+            if rigid:
                 tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
-                return (*model.step(screw, tau_in, load_in), t_st, tau_d, tau_in)
+                rec = step(x, tau_in, load_in)
+                return unpack(rec), rec, t_st, tau_d, tau_in
             th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
-            t_c, nw, o = coupling_torque(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+            t_c, nw, o = coupling_torque(model, x, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
                                          th_sfree, s_th, h, self.motor_inertia)
             return nw, o, t_st, t_c, t_c + t_st
 
@@ -498,8 +508,8 @@ class Actuator(Model):
     def _finish(self, st: ActuatorState, w: _Work, command: float) -> tuple[ActuatorState, Outputs]:
         """The next state, and the outputs completed with the actuator block and what the sensors measured
         (the true sample now, delivered `latency_steps` later)."""
-        a, m, screw, led, out = self.actuator, self.actuator.motor, w.screw, w.led, w.out
-        sample = self._sample(w.th_r, w.w_r, screw, out.nut_force_n)
+        a, m, screw, led, rec = self.actuator, self.actuator.motor, w.screw, w.led, w.out
+        sample = self._sample(w.th_r, w.w_r, screw, rec.nut_force_n)
         lat = a.sensors.latency_steps
         history = (st.history + (sample,))[-(lat + 1):] if lat else (sample,)
         before = st.history[0] if st.history else history[0]
@@ -514,7 +524,7 @@ class Actuator(Model):
         x = self._nut_x(screw)
         stop_e = stop_stored_j(self.limits, x)
         depth, at_end = stop_penetration(self.limits, x)
-        cap_b = w.level * a.brake.holding_torque_nm
+        cap_b = w.level * self._holding_nm
         cap_all = cap_b + w.act.jam_nm
         brake_t = w.tau_st * cap_b / cap_all if cap_all > 0 else 0.0
         block = _ActuatorBlock(
@@ -528,11 +538,16 @@ class Actuator(Model):
             load_work_j=led.load_work_j,
             dissipated_j=(screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j
                           - stop_e + led.backlash_j),
-            stored_j=self.stored_energy(nxt),
+            stored_j=self._stored(nxt, stop_e if self.limits else None),
             faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
-        # `out` was made by the screw model for this call alone: completing its internal vector in
-        # place saves a copy of the whole record per step
-        object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
+        # the last sub-step's record (kept packed through the solves) completed by the actuator's blocks; over
+        # several sub-steps the held torque and the powers are their means
+        out = rec.to_outputs(np.concatenate((rec.internal, block, meas)))
+        if self.n_sub > 1:
+            n, sums = self.n_sub, w.sums
+            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
+            out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout, power_dissipated_w=pd,
+                          efficiency=efficiency(pin, pout, pd))
         return nxt, out
 
     # -- what the sensors say -------------------------------------------------------------
@@ -560,14 +575,18 @@ class Actuator(Model):
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own
         total, core and nut kinetic plus the chain's elastic energy, docs/model.md §4.3), a compliant
         rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
+        return self._stored(st, stop_stored_j(self.limits, self._nut_x(st.screw)) if self.limits else None)
+
+    def _stored(self, st: ActuatorState, stop_j: float | None) -> float:
+        """`stored_energy` with the stops' ½ k δ² given (None: no stops fitted), as `_finish` has it already."""
         s, m = st.screw, self.actuator.motor
         ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
         if self.axial_chain:
             e = self._model(fl.NONE).total_stored_energy_j(s)
         else:
             e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
-        if self.limits:
-            e += stop_stored_j(self.limits, self._nut_x(s))
+        if stop_j is not None:
+            e += stop_j
         if m is not None:
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:
