@@ -208,6 +208,8 @@ class Actuator(Model):
         self.drive = a.drive.tuned(self.J_drive)
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
+        # the screw model's part of the internal vector, after which the actuator's block starts
+        self.block_at = base.layout.size
         self.layout = InternalLayout(blocks=base.layout.blocks + (
             InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
             InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
@@ -299,8 +301,11 @@ class Actuator(Model):
         A step starting at t applies the faults active at t, so a fault injected now with
         start_s = now is reported by the very next step.
         """
+        faults = self.all_faults(after)
+        if not faults:
+            return []
         t0 = before.time_s
-        return fl.fault_events(self.all_faults(after), t0 - self.dt_s, t0)
+        return fl.fault_events(faults, t0 - self.dt_s, t0)
 
     # -- the step ------------------------------------------------------------------------
     def step(self, state: ActuatorState, command: float,  # type: ignore[override]
@@ -542,7 +547,11 @@ class Actuator(Model):
             faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
         # the last sub-step's record (kept packed through the solves) completed by the actuator's blocks; over
         # several sub-steps the held torque and the powers are their means
-        out = rec.to_outputs(np.concatenate((rec.internal, block, meas)))
+        internal = np.empty(self.layout.size)
+        k = self.block_at
+        internal[:k] = rec.internal
+        internal[k:] = block + meas
+        out = rec.to_outputs(internal)
         if self.n_sub > 1:
             n, sums = self.n_sub, w.sums
             pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
