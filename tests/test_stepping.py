@@ -21,6 +21,7 @@ from prsm_sim.models import kernels
 from prsm_sim.models.elastic import ElasticPart
 from prsm_sim.models.fu2018 import Fu2018Part
 from prsm_sim.stepping.ledger import efficiency, efficiency_columns, energy_fault, ledger_columns, ledger_step
+from prsm_sim.stepping.records import OUTPUT_FIELDS
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -174,3 +175,27 @@ def test_old_import_paths_are_aliases_of_the_new_homes():
     assert outputs.Trajectory is trajectory.Trajectory
     assert params.Elastic is params.ElasticParams and elastic.Elastic is elastic.ElasticModel
     assert registry.MODELS["elastic"] is elastic.ElasticModel
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+def test_packed_record_values_are_its_fields_bit_for_bit(model):
+    """`PackedOutputs.scalar_values` (written out in one place for the per-step path) gives each field exactly as
+    its property reads it, and `step_from` on a packed state is `step`: the same record, the same next state, bit
+    for bit, over a run through start-up (NaN efficiency), reversals and a load that drives the screw.
+
+    Oracle: the record's own properties, one call per field, and `Model.step` (the public contract)."""
+    sim = Simulator(preset("s30"), model, 1e-3)
+    m, state = sim.model, sim.state
+    fields = [n for n, _ in OUTPUT_FIELDS]
+    for k in range(60):
+        torque, load = (2.0 if k % 20 < 10 else -2.0), (300.0 if k % 15 < 8 else -900.0)
+        rec = m.step_from(m.pack_state(state), torque, load)
+        nxt, out = m.step(state, torque, load)
+        by_field = tuple(getattr(rec, n) for n in fields)
+        assert np.array(rec.scalar_values()).tobytes() == np.array(by_field).tobytes()
+        assert np.array(out.scalar_values()).tobytes() == np.array(by_field).tobytes()
+        assert rec.to_outputs().internal.tobytes() == out.internal.tobytes()
+        assert m.unpack_state(rec) == nxt and repr(m.unpack_state(rec)) == repr(nxt)
+        state = nxt
+    with pytest.raises(InputError, match="torque_nm"):
+        m.step_from(m.pack_state(state), math.nan, 0.0)
