@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import namedtuple
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any, cast
 
 import numpy as np
@@ -91,7 +91,7 @@ class Ledger:
     backlash_j: float = 0.0  # elastic energy a widening clearance released from a loaded flank (growing backlash)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class ActuatorState:
     """The screw model's state plus the drive, motor, brake, sensor and fault memory (pure data).
 
@@ -123,9 +123,47 @@ class ActuatorState:
     reference_m_s: float = 0.0  # its rate, the position loop's feed-forward
     command_prev: float = math.nan  # the position command at the last loop update (its rate: the command's speed)
 
+    def __init__(self, screw: State, step: int = 0, mode: str = "effort", motor_angle_rad: float = 0.0,
+                 motor_speed_rad_s: float = 0.0, current_a: float = 0.0, integral_nm: float = 0.0,
+                 torque_ref_nm: float = 0.0, speed_ref_rad_s: float = 0.0, limited: bool = False,
+                 encoder_rad: float = 0.0, brake_engaged: bool = False, brake_level: float = 0.0,
+                 faults: tuple[Fault, ...] = (), history: tuple[TrueSample, ...] = (), measured: tuple[float, ...] = (),
+                 load_cell_filtered_n: float = 0.0, ledger: Ledger = Ledger(), coupling_nm: float = 0.0,
+                 reference_m: float = math.nan, reference_m_s: float = 0.0, command_prev: float = math.nan) -> None:
+        # the fields' defaults as declared above (tests/test_stepping.py holds them together); each
+        # field set through its slot's own setter (`_STATE_SET`): a state is made every step
+        (s_screw, s_step, s_mode, s_th, s_w, s_i, s_integ, s_tau, s_wref, s_lim, s_enc, s_brake, s_level, s_faults,
+         s_hist, s_meas, s_filt, s_led, s_coup, s_ref, s_refv, s_cmd) = _STATE_SET
+        s_screw(self, screw)
+        s_step(self, step)
+        s_mode(self, mode)
+        s_th(self, motor_angle_rad)
+        s_w(self, motor_speed_rad_s)
+        s_i(self, current_a)
+        s_integ(self, integral_nm)
+        s_tau(self, torque_ref_nm)
+        s_wref(self, speed_ref_rad_s)
+        s_lim(self, limited)
+        s_enc(self, encoder_rad)
+        s_brake(self, brake_engaged)
+        s_level(self, brake_level)
+        s_faults(self, faults)
+        s_hist(self, history)
+        s_meas(self, measured)
+        s_filt(self, load_cell_filtered_n)
+        s_led(self, ledger)
+        s_coup(self, coupling_nm)
+        s_ref(self, reference_m)
+        s_refv(self, reference_m_s)
+        s_cmd(self, command_prev)
+
     @property
     def time_s(self) -> float:
         return self.screw.time_s
+
+
+# the slots' setters of `ActuatorState`, in field order (a frozen record's fields are set past its own __setattr__)
+_STATE_SET = tuple(getattr(ActuatorState, f.name).__set__ for f in fields(ActuatorState))
 
 
 class _Work:

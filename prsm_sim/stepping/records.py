@@ -155,7 +155,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
 )
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packed`) registers as one
     """One step's outputs, SI units, at the step's end or averaged over it where a rate is meant.
 
@@ -237,6 +237,39 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
     over_static_rating: float
     internal: np.ndarray
 
+    def __init__(self, time_s: float, screw_angle_rad: float, screw_speed_rad_s: float, screw_torque_nm: float,
+                 carrier_angle_rad: float, carrier_speed_rad_s: float, roller_spin_rad_s: float, nut_position_m: float,
+                 nut_velocity_m_s: float, nut_force_n: float, load_force_n: float, slip_speed_m_s: float,
+                 power_in_w: float, power_out_w: float, power_dissipated_w: float, efficiency: float,
+                 speed_ratio: float, stored_energy_j: float, energy_flow_j: float, energy_residual_j: float,
+                 energy_fault: float, over_static_rating: float, internal: np.ndarray) -> None:
+        # each field through its slot's own setter (`_OUT_SET`), as `State`: a record is made every step
+        (t, a, s, tau, ca, cs, spin, x, v, f, load, slip, p_in, p_out, p_diss, eff, ratio, stored, flow, resid,
+         fault, over, inner) = _OUT_SET
+        t(self, time_s)
+        a(self, screw_angle_rad)
+        s(self, screw_speed_rad_s)
+        tau(self, screw_torque_nm)
+        ca(self, carrier_angle_rad)
+        cs(self, carrier_speed_rad_s)
+        spin(self, roller_spin_rad_s)
+        x(self, nut_position_m)
+        v(self, nut_velocity_m_s)
+        f(self, nut_force_n)
+        load(self, load_force_n)
+        slip(self, slip_speed_m_s)
+        p_in(self, power_in_w)
+        p_out(self, power_out_w)
+        p_diss(self, power_dissipated_w)
+        eff(self, efficiency)
+        ratio(self, speed_ratio)
+        stored(self, stored_energy_j)
+        flow(self, energy_flow_j)
+        resid(self, energy_residual_j)
+        fault(self, energy_fault)
+        over(self, over_static_rating)
+        inner(self, internal)
+
     def scalars(self) -> dict[str, float]:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return {name: getattr(self, name) for name, _ in OUTPUT_FIELDS}
@@ -247,6 +280,7 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
 
 
 assert tuple(f.name for f in fields(Outputs))[:-1] == tuple(n for n, _ in OUTPUT_FIELDS)
+_OUT_SET = tuple(getattr(Outputs, f.name).__set__ for f in fields(Outputs))  # the slots' setters, in field order
 
 
 @dataclass(frozen=True)
