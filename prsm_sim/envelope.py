@@ -512,9 +512,9 @@ class _Run:
         x, v = out.nut_position_m, out.nut_velocity_m_s
         if res.states is not None:
             res.states.append((out.screw_angle_rad, out.screw_speed_rad_s, x, v))
-        # q · 0 is 0 for a finite q and NaN otherwise: the sum is 0 exactly when all are finite
-        if (out.screw_angle_rad * 0.0 + out.screw_speed_rad_s * 0.0 + out.carrier_speed_rad_s * 0.0 + x * 0.0
-                + v * 0.0 + out.nut_force_n * 0.0 + out.energy_residual_j * 0.0) != 0.0:
+        fin = math.isfinite
+        if not (fin(out.screw_angle_rad) and fin(out.screw_speed_rad_s) and fin(out.carrier_speed_rad_s) and fin(x)
+                and fin(v) and fin(out.nut_force_n) and fin(out.energy_residual_j)):
             res.violations.append(f"non-finite state at t = {t:.4f} s")
             return False
         if out.energy_fault:

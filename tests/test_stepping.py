@@ -201,7 +201,7 @@ def test_packed_record_values_are_its_fields_bit_for_bit(model):
         m.step_from(m.pack_state(state), math.nan, 0.0)
 
 
-@pytest.mark.parametrize("record", ["State", "Outputs", "ActuatorState"])
+@pytest.mark.parametrize("record", ["State", "Outputs", "ActuatorState", "Ledger"])
 def test_hand_written_record_constructors_take_the_declared_fields_and_defaults(record):
     """The records made every step set their slots in a constructor of their own (faster than the generated one):
     it takes every declared field, in order, with the declared default, and makes a record equal field by field
@@ -209,9 +209,9 @@ def test_hand_written_record_constructors_take_the_declared_fields_and_defaults(
     import dataclasses
     import inspect
 
-    from prsm_sim.actuator.actuator import ActuatorState
+    from prsm_sim.actuator.actuator import ActuatorState, Ledger
     from prsm_sim.stepping.records import Outputs
-    cls = {"State": State, "Outputs": Outputs, "ActuatorState": ActuatorState}[record]
+    cls = {"State": State, "Outputs": Outputs, "ActuatorState": ActuatorState, "Ledger": Ledger}[record]
     params = [p for p in inspect.signature(cls.__init__).parameters.values()
               if p.name != "self" and p.kind is not inspect.Parameter.VAR_KEYWORD]
     declared = dataclasses.fields(cls)

@@ -78,7 +78,7 @@ _MEASURED_AT = {n: i for i, (n, _) in enumerate(MEASURED_QUANTITIES)}
 _JOINT_READINGS = ("screw_angle_rad", "screw_speed_rad_s", "nut_position_m", "nut_velocity_m_s", "nut_force_n")
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class Ledger:
     """Energy accumulators of the actuator (J); the screw's own friction is in `State.dissipated_j`."""
 
@@ -89,6 +89,23 @@ class Ledger:
     stop_work_j: float = 0.0  # work the nut did on the end stops
     load_work_j: float = 0.0  # work done against the external load
     backlash_j: float = 0.0  # elastic energy a widening clearance released from a loaded flank (growing backlash)
+
+    def __init__(self, energy_in_j: float = 0.0, copper_j: float = 0.0, coupling_j: float = 0.0,
+                 stiction_j: float = 0.0, stop_work_j: float = 0.0, load_work_j: float = 0.0,
+                 backlash_j: float = 0.0) -> None:
+        # the declared defaults (tests/test_stepping.py holds them together), each field through its slot's
+        # setter (`_LEDGER_SET`): a ledger is made every sub-step
+        s_in, s_cu, s_coup, s_st, s_stop, s_load, s_back = _LEDGER_SET
+        s_in(self, energy_in_j)
+        s_cu(self, copper_j)
+        s_coup(self, coupling_j)
+        s_st(self, stiction_j)
+        s_stop(self, stop_work_j)
+        s_load(self, load_work_j)
+        s_back(self, backlash_j)
+
+
+_LEDGER_SET = tuple(getattr(Ledger, f.name).__set__ for f in fields(Ledger))  # the slots' setters, in field order
 
 
 @dataclass(frozen=True, slots=True, init=False)
