@@ -263,8 +263,7 @@ class Actuator(Model):
         self.drive = a.drive.tuned(self.J_drive)
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
-        # the screw model's part of the internal vector, after which the actuator's block starts
-        self.block_at = base.layout.size
+        self.block_at = base.layout.size  # where the actuator's block starts in the internal vector
         self.layout = InternalLayout(blocks=base.layout.blocks + (
             InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
             InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
@@ -356,11 +355,8 @@ class Actuator(Model):
         A step starting at t applies the faults active at t, so a fault injected now with
         start_s = now is reported by the very next step.
         """
-        faults = self.all_faults(after)
-        if not faults:
-            return []
-        t0 = before.time_s
-        return fl.fault_events(faults, t0 - self.dt_s, t0)
+        t0, faults = before.time_s, self.all_faults(after)
+        return fl.fault_events(faults, t0 - self.dt_s, t0) if faults else []
 
     # -- the step ------------------------------------------------------------------------
     def step(self, state: ActuatorState, command: float,  # type: ignore[override]
@@ -484,9 +480,7 @@ class Actuator(Model):
             tau_drive_screw = w.tau_c
         cap = w.level * self._holding_nm + act.jam_nm
         implicit = not self.rigid or cap > 0.0
-        # every trial of this sub-step starts from this state: packed once (`Model.step_from`); a trial's
-        # record is kept packed, its `Outputs` built for the accepted step only (`_finish`)
-        x = model.pack_state(screw)
+        x = model.pack_state(screw)  # every trial starts here: packed once, its record kept packed (`_finish`)
         if implicit:
             w_a, s_w, th_a, s_th = linear_response(model, x, tau_drive_screw, load_n, h, self.J)
         else:
@@ -598,7 +592,7 @@ class Actuator(Model):
             load_work_j=led.load_work_j,
             dissipated_j=(screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j
                           - stop_e + led.backlash_j),
-            stored_j=self._stored(nxt, stop_e if self.limits else None),
+            stored_j=self.stored_energy(nxt, stop_e),
             faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
         # the last sub-step's record (kept packed through the solves) completed by the actuator's blocks; over
         # several sub-steps the held torque and the powers are their means
@@ -635,22 +629,19 @@ class Actuator(Model):
         """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
         return self._nut_x(st.screw)
 
-    def stored_energy(self, st: ActuatorState) -> float:
+    def stored_energy(self, st: ActuatorState, stop_j: float | None = None) -> float:
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own
         total, core and nut kinetic plus the chain's elastic energy, docs/model.md §4.3), a compliant
-        rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
-        return self._stored(st, stop_stored_j(self.limits, self._nut_x(st.screw)) if self.limits else None)
-
-    def _stored(self, st: ActuatorState, stop_j: float | None) -> float:
-        """`stored_energy` with the stops' ½ k δ² given (None: no stops fitted), as `_finish` has it already."""
+        rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J); `stop_j`: the stops'
+        ½ k δ² where the caller has it already (with stops fitted)."""
         s, m = st.screw, self.actuator.motor
         ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
         if self.axial_chain:
             e = self._model(fl.NONE).total_stored_energy_j(s)
         else:
             e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
-        if stop_j is not None:
-            e += stop_j
+        if self.limits:
+            e += stop_stored_j(self.limits, self._nut_x(s)) if stop_j is None else stop_j
         if m is not None:
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:
