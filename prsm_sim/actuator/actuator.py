@@ -210,7 +210,7 @@ class _Work:
     model: Model
     cs: CurrentStep
     new: State
-    out: Outputs
+    out: PackedOutputs  # the sub-step's record, kept packed (`_finish` builds the step's `Outputs`)
 
 
 class Actuator(Model):
