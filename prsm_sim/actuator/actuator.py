@@ -213,6 +213,28 @@ class _Work:
     out: PackedOutputs  # the sub-step's record, kept packed (`_finish` builds the step's `Outputs`)
 
 
+def _apply_clearance(w: _Work, faults: tuple[Fault, ...], t_s: float, lead_per_rad_m: float,
+                     clearance_m: float) -> None:
+    """The clearance the backlash faults add at `t_s` applied to the screw's state at the step's start (in `w`);
+    `lead_per_rad_m`: L/2π; `clearance_m`: the parameter's axial clearance."""
+    model, screw = w.model, w.screw
+    extra = fl.extra_clearance_m(faults, t_s)
+    if extra < screw.extra_clearance_m:
+        # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
+        # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
+        # parameter's clearance at the next pass through the gap
+        delta = lead_per_rad_m * screw.screw_angle_rad - screw.nut_axial_m
+        extra = max(extra, min(screw.extra_clearance_m, 2.0 * abs(delta) - clearance_m))
+    if extra != screw.extra_clearance_m:
+        # the clearance steps at the step's start: a wider gap at the same deflection unloads the
+        # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
+        # never closes onto a flank), so the ledger and the model's guard stay closed
+        widened = replace(screw, extra_clearance_m=extra)  # type: ignore[call-arg]  # a part field of `State`
+        w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
+                                                                   - model.total_stored_energy_j(widened)))
+        w.screw = widened
+
+
 class Actuator(Model):
     """The actuator around a screw model (any of ideal, jones2016, fu2018, elastic), one step contract."""
 
@@ -394,27 +416,8 @@ class Actuator(Model):
         m = self.actuator.motor
         w.tlim = math.inf if m is None else self.ratio * m.peak_torque_nm * act.torque_factor
         if self.axial_chain:  # a backlash fault's clearance: only a nut on its own chain has one
-            self._clearance(w, faults, st.time_s)
+            _apply_clearance(w, faults, st.time_s, self.p, self.params.elastic.axial_clearance_m)
         return w
-
-    def _clearance(self, w: _Work, faults: tuple[Fault, ...], t_s: float) -> None:
-        """The clearance the backlash faults add at `t_s` applied to the screw's state at the step's start."""
-        model, screw = w.model, w.screw
-        extra = fl.extra_clearance_m(faults, t_s)
-        if extra < screw.extra_clearance_m:
-            # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
-            # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
-            # parameter's clearance at the next pass through the gap
-            delta = self.p * screw.screw_angle_rad - screw.nut_axial_m
-            extra = max(extra, min(screw.extra_clearance_m, 2.0 * abs(delta) - self.params.elastic.axial_clearance_m))
-        if extra != screw.extra_clearance_m:
-            # the clearance steps at the step's start: a wider gap at the same deflection unloads the
-            # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
-            # never closes onto a flank), so the ledger and the model's guard stay closed
-            widened = replace(screw, extra_clearance_m=extra)  # type: ignore[call-arg]  # a part field of `State`
-            w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
-                                                                       - model.total_stored_energy_j(widened)))
-            w.screw = widened
 
     def _drive_loop(self, w: _Work, st: ActuatorState, command: float, key: int) -> None:
         """One update of the drive's loops on the encoder feedback (and a linear encoder's, if fitted):
