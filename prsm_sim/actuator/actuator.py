@@ -279,7 +279,6 @@ class Actuator(Model):
         self.p = self.geo.lead_per_rad_m
         self.sensing = SensorSuite(a.sensors, self.ratio, self.rigid, self.p, self.dt_s)
         self.J = probe_inertia(base, self.h_sub)
-        self._s_th_free = 0.5 * self.h_sub * self.h_sub / self.J  # ∂θ1/∂τ of a free sub-step on that inertia
         # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
         self.J_drive = self.J + (0.0 if self.rigid else self.motor_inertia)  # the inertia the drive moves
         self.drive = a.drive.tuned(self.J_drive)
@@ -487,7 +486,7 @@ class Actuator(Model):
         if implicit:
             w_a, s_w, th_a, s_th = linear_response(model, x, tau_drive_screw, load_n, h, self.J)
         else:
-            s_th = self._s_th_free
+            s_th = 0.5 * h * h / self.J
         th_r, w_r = w.th_r, w.w_r
         step, unpack, rigid = model.step_from, model.unpack_state, self.rigid
 
