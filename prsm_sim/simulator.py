@@ -19,15 +19,14 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from prsm_sim.actuator import Actuator
-from prsm_sim.actuator.implicit import probe_inertia
-from prsm_sim.actuator.stops import Limit, engaged, limits_of
-from prsm_sim.actuator.stops import solve as solve_stop
+from prsm_sim.actuator.stops import Limit, limits_of
 from prsm_sim.checks import check_typed, is_finite_number, is_number
-from prsm_sim.errors import InputError, NonFiniteStateError
+from prsm_sim.errors import InputError
 from prsm_sim.models.registry import MODELS, build_model  # noqa: F401  # MODELS: importable from here too
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.stepping.model import check_step_inputs
+from prsm_sim.end_steps import EndSteps, non_finite_error
 from prsm_sim.stepping.packed import NUT_POSITION_ITEM, PACKED_STATE_SIZE
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows
@@ -138,8 +137,8 @@ class Simulator:
         # without ends the bounds are the float range: `step` still sends an infinite or NaN nut to `_at_end`
         self._lo, self._hi = (-0.5 * travel, 0.5 * travel) if self._limits and travel is not None else \
             (-sys.float_info.max, sys.float_info.max)
-        self._end_force, self._end_step = 0.0, -1
-        self._probed_inertia: float | None = None  # `_contact_inertia`, on the first end contact
+        self._ends = EndSteps(self.model, params, self._limits, self._lo, self._hi, kernel)
+        self._end_step = -1  # the step `_ends.force_n` belongs to
         # the static load rating C₀a (ISO 76's permanent-deformation limit, `Ratings`): a load past it is said once
         c0 = params.ratings.static_load_rating_n
         self._static_rating_n = math.inf if c0 is None else float(c0)
@@ -218,7 +217,7 @@ class Simulator:
                 raise InputError(f"initial_load_n = {initial_load_n!r}: must be a finite number (N)")
             self._initial_load_n = float(initial_load_n)
         self.state = self.model.initial_state(self._initial_nut_position_m, self._initial_load_n)
-        self._end_force, self._end_step = 0.0, -1
+        self._end_step = -1
         self.nstep = 0
         return self.state
 
@@ -381,41 +380,16 @@ class Simulator:
     # The two paths' thread-end steps are methods of their own: a lambda inside `step` would make its
     # locals closure cells, which every step pays for (about 3 % of a linear model's step).
     def _at_end_packed(self, x, free, command, load_n):
-        return self._at_end(self.model.unpack_state(x), free, lambda f: self._step_packed(x, command, load_n - f),
-                            lambda r: r.nut_position_m)
+        out = self._ends.packed(x, free, command, load_n, self.time_s + self.dt_s)
+        self._end_step = self.nstep + 1  # `thread_end_force_n`: this step's (nstep counts it next)
+        return out
 
     def _at_end_state(self, s0, free, command, load_n):
-        return self._at_end(s0, free, lambda f: self.model.step(s0, command, load_n - f), lambda r: r[1].nut_position_m)
-
-    def _at_end(self, before: State, free, advance, nut):
-        """The step against a thread end: the stop law solved on the model's own step (actuator/stops.py);
-        the end's force joins the load on the nut (`load_force_n` reports their sum, so the ledger holds
-        its work, and `step` judges the static rating on it). Sets `thread_end_force_n`. A step that leaves
-        the nut non-finite (also where no end is fitted: the bounds are then the float range) raises
-        NonFiniteStateError, nothing changed."""
-        if not math.isfinite(nut(free)):
-            self._non_finite(self.time_s + self.dt_s)
         m = self.model
-        lim = engaged(self._limits, nut(free))
-        assert lim is not None  # the free step ran past a finite end (non-finite ones were refused above)
-        compliance = m.geo.lead_per_rad_m**2 * 0.5 * self.dt_s**2 / self._contact_inertia()
-        x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
-        with m.in_contact():
-            f, res = solve_stop(lim, self.dt_s, x0, free, advance, nut, compliance)
-        if not math.isfinite(nut(res)):
-            self._non_finite(self.time_s + self.dt_s)
-        self._end_force, self._end_step = f, self.nstep + 1  # this step's (nstep counts it next)
-        return res
-
-    def _contact_inertia(self) -> float:
-        """The screw-side inertia (kg·m²) behind the end solve's first guess of the nut's compliance over a step:
-        the model's own mass matrix where it has one, else probed from rest (`probe_inertia`). Without it the
-        first trial force was the law's at the free end (an `elastic` screw at 43 ms, 2.8 MN), which carried the
-        nut metres past the screw's bearing, where no chain law holds."""
-        if self._probed_inertia is None:
-            j = self.model.kinetic[0]
-            self._probed_inertia = j if math.isfinite(j) and j > 0 else probe_inertia(self.model, self.dt_s)
-        return self._probed_inertia
+        out = self._ends.solve(m, s0, free, lambda f: m.step(s0, command, load_n - f), lambda r: r[1].nut_position_m,
+                               self.time_s + self.dt_s)
+        self._end_step = self.nstep + 1
+        return out
 
     @property
     def limits(self) -> tuple[Limit, ...]:
@@ -452,7 +426,7 @@ class Simulator:
     @property
     def thread_end_force_n(self) -> float:
         """The thread end's force on the nut over the last step, N along +x_nut (0: off the ends)."""
-        return self._end_force if self._end_step == self.nstep else 0.0
+        return self._ends.force_n if self._end_step == self.nstep else 0.0
 
     def _deprecated_torque_nm(self, command, torque_nm):
         if command is not None:
@@ -473,8 +447,7 @@ class Simulator:
             self._non_finite(float(cols["time_s"][k]))
 
     def _non_finite(self, time_s: float):
-        raise NonFiniteStateError(f"model {self.model.name} produced a non-finite state at t = {time_s:.6f} s; "
-                                  "the state before it is kept", time_s)
+        raise non_finite_error(self.model.name, time_s)
 
     def run(self, command, load_n=0.0) -> Trajectory:
         """Advance one step per element of `command` (the model's batch form where it has one).

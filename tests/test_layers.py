@@ -34,7 +34,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_sim.presets", "prsm_sim.life", "prsm_sim.stepping"),  # named sets; life; the records and model contract
     ("prsm_sim.outputs",),  # the records' former home, kept as an alias
     ("prsm_sim.models",),  # the models, their compiled kernels and the registry above them
-    ("prsm_sim.actuator",),  # drive, motor, sensors, brake, faults around a model
+    ("prsm_sim.actuator", "prsm_sim.end_steps"),  # drive, motor, sensors, brake, faults around a model; a bare model's ends
     ("prsm_sim.simulator", "prsm_sim.control"),
     ("prsm_sim.command_gate", "prsm_sim.scenarios"),  # the gate; standard runs
     ("prsm_sim.session", "prsm_sim.datasheet"),  # the runtime session; a model's catalogue figures, a plant from a sheet

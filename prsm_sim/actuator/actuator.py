@@ -14,7 +14,9 @@ h / n_sub), or once every 1 / (loop_rate × h) steps when slower. Per sub-step:
 drive law on the encoder feedback → current loop → motor torque → (rigid: the rotor inertia
 is part of the screw's; compliant: a torsional spring solved implicitly) → end-stop force and
 dry friction (brake, jam) solved on the screw's linear response → screw model step. The
-energy ledger (source in = load work + dissipated + stored) is kept in the state.
+step's last sub-step, should it end with the nut at rest off its stop's law, is taken again in halves
+(`stops.off_rest`; models built at h / n_sub / 2**k). The energy ledger (source in = load work +
+dissipated + stored) is kept in the state.
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
 from prsm_sim.actuator.sensing import SensorSuite
 from prsm_sim.actuator.sensors import MEASURED_QUANTITIES, TrueSample
-from prsm_sim.actuator.stops import engaged, limits_of, stop_penetration, stop_stored_j
+from prsm_sim.actuator.stops import MAX_REST_HALVINGS, Limit, engaged, limits_of, off_rest, stop_penetration, \
+    stop_stored_j
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.errors import InputError
 from prsm_sim.models.registry import build_model, model_class
@@ -190,18 +193,19 @@ class _Work:
 
     __slots__ = ("screw", "led", "th_r", "w_r", "i_a", "integ", "tau_ref", "w_ref", "limited", "enc", "level",
                  "ref", "ref_v", "cmd_prev", "tau_c", "volt", "tau_st", "tau_in", "f_stop", "sums", "act", "model",
-                 "tlim", "cs", "new", "out")
+                 "tlim", "cs", "new", "out", "engaged", "halved")
 
     def __init__(self, st: ActuatorState) -> None:
         self.screw, self.led = st.screw, st.ledger
         self.th_r, self.w_r, self.i_a = st.motor_angle_rad, st.motor_speed_rad_s, st.current_a
         self.integ, self.tau_ref, self.w_ref, self.limited = st.integral_nm, st.torque_ref_nm, st.speed_ref_rad_s, \
             st.limited
-        self.enc, self.level = st.encoder_rad, st.brake_level
+        self.enc, self.level, self.engaged = st.encoder_rad, st.brake_level, st.brake_engaged
+        self.halved = False  # a sub-step was taken in pieces (`Actuator._sub_step`): the outputs are its mean
         self.ref, self.ref_v, self.cmd_prev = st.reference_m, st.reference_m_s, st.command_prev
         self.tau_c = st.coupling_nm
         self.volt = self.tau_st = self.tau_in = self.f_stop = 0.0
-        self.sums = [0.0, 0.0, 0.0, 0.0]  # screw torque, power in, out, dissipated (for n_sub > 1)
+        self.sums = [0.0, 0.0, 0.0, 0.0]  # screw torque, power in, out, dissipated (n_sub > 1 or halved)
         self.act: fl.Active = fl.NONE
         self.tlim = math.inf
 
@@ -274,7 +278,7 @@ class Actuator(Model):
         # end stops and thread ends, the innermost on each side (stops.py)
         self.limits = limits_of(a.stops, params.geometry.travel_m, params.geometry.nut_length_m) \
             if a.stops.fitted or params.geometry.thread_ends else ()
-        self._models: dict[tuple[float, float], Model] = {}
+        self._models: dict[tuple[float, float, int], Model] = {}
         base = self._model(fl.NONE)
         self.p = self.geo.lead_per_rad_m
         self.sensing = SensorSuite(a.sensors, self.ratio, self.rigid, self.p, self.dt_s)
@@ -291,12 +295,13 @@ class Actuator(Model):
         ))
 
     # -- construction helpers ------------------------------------------------------------
-    def _model(self, act: fl.Active) -> Model:
-        key = (act.friction_factor, act.lubrication_factor)
+    def _model(self, act: fl.Active, halvings: int = 0) -> Model:
+        """The screw model the active faults call for, built at the sub-step h_sub / 2**halvings."""
+        key = (act.friction_factor, act.lubrication_factor, halvings)
         mod = self._models.get(key)
         if mod is None:
-            p = self.screw_params if key == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key)
-            mod = self._models[key] = build_model(p, self.model_name, self.h_sub, self.kernel)
+            p = self.screw_params if key[:2] == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key[:2])
+            mod = self._models[key] = build_model(p, self.model_name, math.ldexp(self.h_sub, -halvings), self.kernel)
         return mod
 
     def _accel_limit(self, torque_limit_nm: float) -> float:
@@ -391,18 +396,14 @@ class Actuator(Model):
     def _step_impl(self, st: ActuatorState, command: float,  # type: ignore[override]
                    load_n: float) -> tuple[ActuatorState, Outputs]:
         """The step in its stages: faults and clearance (`_begin`), then per sub-step the drive loop
-        (`_drive_loop`, when due), the current loop and motor (`_motor`), the screw with the coupling,
-        brake, jams and stops solved on it (`_advance`) and the motor side and ledger (`_book`); then the
-        sub-steps' averages, the sensors and the actuator block (`_finish`)."""
+        (`_drive_loop`, when due) and the rest (`_sub_step`); then the sub-steps' averages, the sensors and
+        the actuator block (`_finish`)."""
         w = self._begin(st)
         loop_due = st.step % self.hold_steps == 0
         for j in range(self.n_sub):
             if loop_due:
                 self._drive_loop(w, st, command, st.step * self.n_sub + j)
-            tau_d = self._motor(w)
-            self._advance(w, load_n, tau_d)
-            self._book(w, load_n, tau_d)
-            w.level = brake_level(self.actuator.brake, w.level, st.brake_engaged, self.h_sub)
+            self._sub_step(w, load_n, 0, j == self.n_sub - 1)
         return self._finish(st, w, command)
 
     def _begin(self, st: ActuatorState) -> _Work:
@@ -453,7 +454,25 @@ class Actuator(Model):
         w.tau_ref, w.integ, w.limited, w.w_ref = drive_update(self.drive, st.mode, target, w.integ, w_meas, x_meas, p,
                                                               w.tlim, h_loop, ff, ff_nm)
 
-    def _motor(self, w: _Work) -> float:
+    def _sub_step(self, w: _Work, load_n: float, halvings: int, last: bool) -> None:
+        """A sub-step of h_sub / 2**halvings: motor (`_motor`), screw (`_advance`), ledger (`_book`), brake ramp.
+        The step's `last` piece, ending with the nut at rest off its stop's law (`stops.off_rest`), is taken as
+        two halves instead, the second judged likewise (the `stops` module doc); the step's time stays whole."""
+        h = math.ldexp(self.h_sub, -halvings)
+        tau_d = self._motor(w, h)
+        lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
+        if last and lim is not None and halvings < MAX_REST_HALVINGS \
+                and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new)):
+            t_end, w.halved = w.screw.time_s + h, True
+            self._sub_step(w, load_n, halvings + 1, False)
+            self._sub_step(w, load_n, halvings + 1, True)
+            if w.screw.time_s != t_end:  # the halves' sum rounded
+                w.screw, w.out = replace(w.screw, time_s=t_end), PackedOutputs((t_end,) + w.out[1:])
+            return
+        self._book(w, load_n, tau_d, h)
+        w.level = brake_level(self.actuator.brake, w.level, w.engaged, h)
+
+    def _motor(self, w: _Work, h: float) -> float:
         """The current loop over a sub-step: the motor's torque on the screw side, N·m (the torque
         reference itself without a motor). Keeps the current step and the winding voltage in `w`."""
         m = self.actuator.motor
@@ -461,17 +480,18 @@ class Actuator(Model):
             return w.tau_ref
         N = self.ratio
         i_ref = 0.0 if w.act.drive_off else current_reference(m, w.tau_ref, w.w_r * N)
-        w.cs = cs = current_step(m, w.i_a, i_ref, self.h_sub)
-        w.volt = voltage(m, cs, w.i_a, w.w_r * N, self.h_sub)
+        w.cs = cs = current_step(m, w.i_a, i_ref, h)
+        w.volt = voltage(m, cs, w.i_a, w.w_r * N, h)
         return N * m.torque_constant_nm_a * cs.mean_current_a
 
-    def _advance(self, w: _Work, load_n: float, tau_d: float) -> None:
-        """The screw over one sub-step under the drive's torque `tau_d`, with dry friction (brake, jam), a
-        compliant coupling and an end stop's force solved implicitly on the screw's local linear response
-        ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a). s comes from two model steps at this state (exact for
-        the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J would
-        not do). Leaves the new screw state, its outputs and the solved torques and force in `w`."""
-        model, screw, h, p, act = w.model, w.screw, self.h_sub, self.p, w.act
+    def _advance(self, w: _Work, load_n: float, tau_d: float, h: float, model: Model) -> Limit | None:
+        """The screw (`model`, built at the sub-step h) over it under the drive's torque `tau_d`, with dry
+        friction (brake, jam), a compliant coupling and an end stop's force solved implicitly on the screw's local
+        linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a). s comes from two model steps at this state
+        (exact for the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J
+        would not do). Leaves the new screw state, its outputs and the solved torques and force in `w`; returns
+        the limit the nut pressed into (None: none)."""
+        screw, p, act = w.screw, self.p, w.act
         if self.rigid:
             tau_drive_screw = tau_d
         else:
@@ -510,6 +530,7 @@ class Actuator(Model):
 
         res = advance(0.0)
         f_stop = 0.0
+        lim = None
         if self.limits:
             # the stops act where the nut is: its own coordinate (across the chain in `elastic`)
             lim = engaged(self.limits, self._nut_x(res[0]))
@@ -519,12 +540,13 @@ class Actuator(Model):
                                              p * p * s_th)
         w.new, w.out, w.tau_st, w.tau_c, w.tau_in = res
         w.f_stop = f_stop
+        return lim
 
-    def _book(self, w: _Work, load_n: float, tau_d: float) -> None:
-        """The motor side over the sub-step (with the screw, or through the compliant coupling's spring) and
+    def _book(self, w: _Work, load_n: float, tau_d: float, h: float) -> None:
+        """The motor side over the sub-step h (with the screw, or through the compliant coupling's spring) and
         the energy ledger (source in = load work + dissipated + stored); the sub-step's end becomes the
         next one's start."""
-        m, h, screw, new, led = self.actuator.motor, self.h_sub, w.screw, w.new, w.led
+        m, screw, new, led = self.actuator.motor, w.screw, w.new, w.led
         dth = new.screw_angle_rad - screw.screw_angle_rad
         # where load and stop force act: the nut (its own coordinate in `elastic`)
         dx_nut = new.nut_axial_m - screw.nut_axial_m if self.axial_chain else self.p * dth
@@ -553,12 +575,10 @@ class Actuator(Model):
                        stiction_j=led.stiction_j - w.tau_st * dth, stop_work_j=led.stop_work_j - w.f_stop * dx_nut,
                        load_work_j=led.load_work_j + load_n * dx_nut, backlash_j=led.backlash_j)
         w.th_r, w.w_r = th_r1, w_r1
-        if self.n_sub > 1:
-            out, sums = w.out, w.sums
-            sums[0] += w.tau_in
-            sums[1] += out.power_in_w
-            sums[2] += out.power_out_w
-            sums[3] += out.power_dissipated_w
+        if self.n_sub > 1 or w.halved:  # weighted by the share of h_sub (a halved sub-step's pieces)
+            out, sums, wt = w.out, w.sums, h / self.h_sub
+            for i, q in enumerate((w.tau_in, out.power_in_w, out.power_out_w, out.power_dissipated_w)):
+                sums[i] += wt * q
         w.screw = new
 
     def _finish(self, st: ActuatorState, w: _Work, command: float) -> tuple[ActuatorState, Outputs]:
@@ -603,7 +623,7 @@ class Actuator(Model):
         internal[:k] = rec.internal
         internal[k:] = block + meas
         out = rec.to_outputs(internal)
-        if self.n_sub > 1:
+        if self.n_sub > 1 or w.halved:
             n, sums = self.n_sub, w.sums
             pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
             out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout, power_dissipated_w=pd,
@@ -626,6 +646,10 @@ class Actuator(Model):
     def _nut_x(self, s: State) -> float:
         """Nut position (m): its own coordinate in `elastic`, (L/2π) θ_S in the rigid models."""
         return s.nut_axial_m if self.axial_chain else self.p * s.screw_angle_rad
+
+    def _nut_v(self, s: State) -> float:
+        """Nut velocity (m/s), as `_nut_x`."""
+        return s.nut_speed_m_s if self.axial_chain else self.p * s.screw_speed_rad_s
 
     def nut_position_m(self, st: ActuatorState) -> float:
         """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
@@ -658,7 +682,7 @@ class Actuator(Model):
 
         Motor angle and speed come in screw coordinates (motor / gear ratio); the nut's are its own
         (`elastic`: across the axial chain from the thread, so a linear encoder sees the backlash)."""
-        v_nut = screw.nut_speed_m_s if self.axial_chain else self.p * screw.screw_speed_rad_s
+        v_nut = self._nut_v(screw)
         return TrueSample(motor_angle_rad=motor_angle_rad * self.ratio, screw_angle_rad=screw.screw_angle_rad,
                           screw_speed_rad_s=screw.screw_speed_rad_s if self.rigid else motor_speed_rad_s,
                           nut_position_m=self._nut_x(screw), nut_velocity_m_s=v_nut, nut_force_n=nut_force_n)

@@ -19,7 +19,21 @@ the friction can take (k δ > F_b) gives way: the nut slides out until it is hel
 (the stuck side would leave it resting deeper than the force it reports); a drive pressing the nut past
 k δ plus the friction slides it in likewise. Sliding is refused only where the stop would give out
 energy doing so (k δ past the band's edge by less than half the spring force of the one-step slip), so
-at rest the force is off k δ by at most that half.
+at rest the force is off k δ by at most that half (of the refined step's slip: below).
+
+The force is held over the step, but the nut may come to rest within it: the step then ends at rest while
+its force still carries the motion that ended inside (the damper's c Δδ/h of a nut that stopped early; on a
+jump, the stuck side's offset). At a 71 ms step, a nut pressed by 210 kN into a 1e7 N/m, 2e5 N·s/m stop
+stopped early in the step 392 µm out from where it started: 1.1 kN of damping, and it rested 110 µm off the
+static deflection of the force it reported. So a step that ends with the nut at rest off the law at its end,
+k δ₁ + c δ̇₁, by more than k · REST_TOL_M (`off_rest`) has its last sub-step taken again by the actuator
+(`Actuator._sub_step`; a bare simulator's thread-end step is not) as two halves of the same model at h/2, the
+second judged likewise (down to h/2**MAX_REST_HALVINGS): the piece in which the nut
+stops carries the motion, the piece after it starts and ends at rest, δ₁ = δ₀, and its force is k δ. Each
+piece is a step of its own, solved and booked as any (each absorbs ½ k Δδ² + c Δδ²/h ≥ 0), so the books
+close and the stop never gives out energy. (Projecting the rest onto the law instead would move the nut
+with no force doing it, or report a force the step did not hold.) A step that ends moving is not refined:
+its force is the contact's backward Euler, and the refinement costs a solve per halving.
 
 Energy: the work the nut does on the stop over a step is F Δx_N; the stop stores ½ k δ²; the rest,
 F Δx_N − Δ(½ k δ²) = ½ k Δδ² + c Δδ²/h (in contact over the whole step) is ≥ 0 in every case
@@ -45,6 +59,10 @@ MAX_ITERATIONS = 60
 REL_TOL = 1e-10  # of the contact force (plus 1 mN)
 BRACKET_TOL = 1e-6  # a bracket this narrow (of the force) ends the search
 POSITION_TOL_M = 1e-12  # or k times this: a model's end position is not smoother in the force than its own rounding
+# a step that ends with the nut at rest (the damper at its end speed within k times this) ends on the stop's law
+# there, k δ₁ + c δ̇₁, to k times this (`off_rest`): a fourth of the 2 µm the operating envelope allows
+REST_TOL_M = 5e-7
+MAX_REST_HALVINGS = 16  # ... refined down to h/2**16 at most (a step's last piece; each halving one more solve)
 
 
 class ThreadEndEvent(NamedTuple):
@@ -222,6 +240,21 @@ def _solve_law(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable
         last_width = width
         f = nxt
     return -sgn * best[1], best[2]
+
+
+def off_rest(limit: Limit, force_n: float, x1_m: float, v1_m_s: float) -> bool:
+    """Whether a step that held the stop force `force_n` (N, signed along +x_nut) ends with the nut at rest
+    against `limit` (the damper at its end speed `v1_m_s` within k · REST_TOL_M) off the law at its end, k δ₁ +
+    c δ̇₁ (`x1_m`: its end position), by more than k · REST_TOL_M. The force held over a step carries what moved
+    within it (the damper's c Δδ/h, a stick/slip jump's side), the law at its end does not: the caller then
+    takes the step as two halves (module doc)."""
+    k, c = limit.stiffness_n_m, limit.damping_n_s_m
+    tol = k * REST_TOL_M
+    if force_n == 0.0 or c * abs(v1_m_s) > tol:
+        return False
+    d1 = penetration(limit, x1_m)
+    law = max(0.0, k * d1 + c * limit.sign * v1_m_s) if d1 > 0.0 else 0.0
+    return abs(abs(force_n) - law) > tol
 
 
 def absorbed_j(limit: Limit, force_n: float, d0_m: float, d1_m: float) -> float:

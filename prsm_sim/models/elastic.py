@@ -28,7 +28,9 @@ shaft; `kernels._refinement`); each sub-step is a kick–drift–kick
 for the rotating core under the thread force, taken at the sub-step's midpoint. Impacts: where the
 held elastic force's work f Δδ less the shaft-length force's nsf Δx misses the change of V (a contact
 closing or opening inside the sub-step, an impact, the first sub-steps of a Hertz contact) by more
-than IMPACT_TOL of the sub-step's input work (+ IMPACT_FLOOR of V), the sub-step is redone with the
+than IMPACT_TOL of the sub-step's input work plus IMPACT_FLOOR of V where the miss takes energy out
+(then booked as the contact's loss), of the sub-step's change of V where it would create energy, the
+sub-step is redone with the
 discrete gradient (V₁ − V₀ + nsf Δx)/Δδ, whose work is ΔV exactly (Gonzalez 1996), then by secant
 steps (at most IMPACT_ITERATIONS times, the best attempt kept). Where the path jumps with the force
 (a flank impact reversing the screw into static friction), the attempt kept creates no energy and
@@ -107,7 +109,10 @@ FIT_RANGE = (1e-4, 0.5)  # fraction of the static rating over which δ_nut(F) is
 # contact pay: about 25 % more core steps on ±20 rad/s reversals into 50 µm of play).
 # The floor is small: a chain that rings (a load step near the rating, an impact, the screw held with no input
 # work) stores far more than flows through it per sub-step, and misses of 1e-4 V per sub-step added up to 3e-4 of
-# the flow after a 200 kN load step; at 1e-5 about 2 % of default sub-steps are redone (1e-4: 0.7 %).
+# the flow after a 200 kN load step; at 1e-5 about 2 % of default sub-steps are redone (1e-4: 0.7 %). A miss
+# that would create energy gets the floor of the sub-step's change of V instead (`kernels._settled`): a chain
+# released from its hold under 230 kN stores ~40 J while its first steps move millijoules, and 1e-5 V there
+# was 1.5 % of their flow.
 IMPACT_TOL = 1e-4
 IMPACT_FLOOR = 1e-5
 IMPACT_ITERATIONS = 4
@@ -318,15 +323,7 @@ class ElasticModel(Model):
         self.eta_running = _sliding_efficiencies(self.czs, self.sin_beta, self.mu_c)
         self.d_mu = (st.breakaway_ratio - 1.0) * self.mu_c
         self.p_over_sin_beta_per_vs = self.p / (self.sin_beta * st.stribeck_speed_m_s)  # ω_S → v/v_s
-        # Against an end or stop the step does not resolve (h √(k/m) > 2 for the ends' default 1e8 N/m on the
-        # train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
-        # step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
-        # steps to end that ring; a contact trial that reverses the nut is then backward Euler in the rigid mode
-        # (`_rigid_shift`), as `jones2016` and `ideal` take theirs
-        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
-        self.reverses_l_stable = self.dt_s * omega_end > 2.0
-        self._contact = [False]  # `set_contact`: only a contact's trial steps are shifted
-        self._carrier_ratio = ideal_carrier_ratio(self.geo)
+        self._contact_setup()
         nr, nt = self.geo.n_rollers, self.geo.n_teeth
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (nr, len(PER_ROLLER_QUANTITIES)), PER_ROLLER_QUANTITIES),
@@ -470,6 +467,17 @@ class ElasticModel(Model):
                           (sign, pin_abs, gear, mem, x_n, v_n, acc, extra),
                           (Forces(*f1), f_el, k, v_el, lost, delta, v_n, x_n, extra), f_th, (x_n, v_n, w_out))
         return step
+
+    def _contact_setup(self) -> None:
+        """Against an end or stop the step does not resolve (h √(k/m) > 2 for the ends' default 1e8 N/m on the
+        train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
+        step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
+        steps to end that ring; a contact trial that reverses the nut is then backward Euler in the rigid mode
+        (`_rigid_shift`), as `jones2016` and `ideal` take theirs."""
+        omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
+        self.reverses_l_stable = self.dt_s * omega_end > 2.0
+        self._contact = [False]  # `set_contact`: only a contact's trial steps are shifted
+        self._carrier_ratio = ideal_carrier_ratio(self.geo)
 
     def set_contact(self, on: bool) -> None:
         self._contact[0] = bool(on)

@@ -117,7 +117,6 @@ class Ideal(Model):
         power_threshold_w = self.params.ideal.power_threshold_w
         tanh, copysign = math.tanh, math.copysign
         l_stable = self.reverses_l_stable
-        half_j = 0.5 * J
 
         def loss(d: float, tau_l: float, w: float) -> float:
             """The mesh loss and no-load torque opposing motion in direction d (N·m, ≥ 0)."""
@@ -126,6 +125,8 @@ class Ideal(Model):
             if forward or not self_locking:
                 mu *= tanh(abs(tau_l * w) / power_threshold_w)
             return mu + t0
+
+        stopped = self._stop_law(loss)
 
         def solve(w0: float, torque_nm: float, load_n: float) -> tuple[float, float, float]:
             tau_l = load_n * p
@@ -136,11 +137,11 @@ class Ideal(Model):
                 d = copysign(1.0, w_free)
                 w_slide = w_free - d * h * loss(d, tau_l, w_free) / j_hb
                 w1 = w_slide if w_slide * d > 0.0 else 0.0  # the loss can stop the screw, never reverse it
-            # the torque reversed the free motion and the loss stopped it: event-located (`stopped`). A stop in
-            # the free motion's own direction keeps the trapezoid, whose dissipation ½ ω₀ (h τ_net + J ω₀) is
-            # ≥ 0 there (J|ω₀| + h d₀ τ_net > 0 is the free motion's own sign)
-            if w1 == 0.0 and w0 * w_free < 0.0:
-                return 0.0, *stopped(w0, torque_nm - tau_l, tau_l)
+            # the screw stops within the step (and rests, or turns back): event-located (`stopped`), so the turn
+            # is continuous in ω₀ across the edges of stopping; a reversal at a step too long for an end's contact
+            # is backward Euler instead (below)
+            if w0 != 0.0 and w1 * w0 <= 0.0 and not (l_stable and w1 != 0.0):
+                return stopped(w0, w_free, torque_nm - tau_l, tau_l)
             # loss + bearing torque actually applied over the step
             friction_nm = (torque_nm - tau_l) - J * (w1 - w0) / h
             if w0 * w1 >= 0.0 or not l_stable:
@@ -153,21 +154,46 @@ class Ideal(Model):
             dw = w1 - w0
             return w1, dtheta, friction_nm * dtheta + 0.5 * J * dw * dw
 
-        def stopped(w0: float, net_nm: float, tau_l: float) -> tuple[float, float]:
-            """(Δθ_S, dissipated work) of a step in which the screw, turning at ω₀, comes to rest and stays.
+        return solve
+
+    def _stop_law(self, loss):
+        """``stopped(ω₀, ω_free, τ_net, τ_L) -> (ω_S at the end, Δθ_S, dissipated work)`` of a step in which the
+        screw comes to rest (`_step_law`; `loss(d, τ_L, ω)`: the loss opposing motion in direction d)."""
+        h, J, b = self.dt_s, self.J, self.params.ideal.viscous_nm_s_rad
+        copysign, half_j = math.copysign, 0.5 * self.J
+
+        def stopped(w0: float, w_free: float, net_nm: float, tau_l: float) -> tuple[float, float, float]:
+            """(ω_S at the end, Δθ_S, dissipated work) of a step in which the screw, turning at ω₀, comes to rest.
 
             Event-located: until it stops the loss opposes the motion it had (direction d₀ of ω₀, not that of
-            the free end speed, which a reversing torque points the other way), so the screw decelerates by
-            D = loss(d₀) + bω₀/2 − d₀ τ_net and rests from t* = J|ω₀|/D (≤ h) on, having turned ½ ω₀ t*. The
-            dissipation is the step's balance, τ_net Δθ + ½ J ω₀², ≥ 0 because τ_net opposes ω₀ by at most
-            J|ω₀|/t* (a trapezoid over the whole step instead turned ½ ω₀ h while the loss pushed back the
-            other way, and booked the energy a reversing torque took from the screw as negative dissipation)."""
+            the free end speed, which a reversing torque points the other way; its size, faded or not, at the
+            free end speed as a whole step's is, so t* = h exactly where sliding on would end at rest), so the
+            screw decelerates by D = loss(d₀) − d₀ τ_net and rests at t* = J|ω₀|/D (≤ h), having turned ½ ω₀ t*
+            (the bearing's viscous torque acts on the end speed, as in the whole step: zero at rest). From rest
+            it turns back over the rest of the step, r = h − t*, where the net torque exceeds the loss it meets
+            (taken at the free speed r τ_net/(J + r b) and clipped at rest, as a whole step's is, so the end
+            speed is continuous where turning back begins): ω₁ = (r τ_net − d₁ r loss(d₁))/(J + r b), turning
+            ½ ω₁ r more. The dissipation is the step's balance, τ_net Δθ + ½ J (ω₀² − ω₁²): until the stop
+            ½ J ω₀² loss/D ≥ 0, after it ½ ω₁ r (d₁ loss + b ω₁) ≥ 0 (a trapezoid over the whole step instead
+            turned ½ (ω₀ + ω₁) h while the loss pushed back the other way, and booked the energy a reversing
+            torque took from the screw as negative dissipation). The turn is then continuous in ω₀ across
+            every edge: sliding on, resting, turning back."""
             d0 = copysign(1.0, w0)
-            decel = loss(d0, tau_l, w0) + 0.5 * b * abs(w0) - d0 * net_nm
+            decel = loss(d0, tau_l, w_free) - d0 * net_nm
             t_stop = min(h, J * abs(w0) / decel) if decel > 0.0 else h
             dtheta = 0.5 * w0 * t_stop
-            return dtheta, net_nm * dtheta + half_j * w0 * w0
-        return solve
+            w1, r = 0.0, h - t_stop
+            if r > 0.0 and net_nm != 0.0:
+                j_rb = J + r * b
+                w_back = r * net_nm / j_rb
+                d1 = copysign(1.0, w_back)
+                w1 = w_back - d1 * r * loss(d1, tau_l, w_back) / j_rb
+                if w1 * d1 <= 0.0:
+                    w1 = 0.0
+                dtheta += 0.5 * w1 * r
+            return w1, dtheta, net_nm * dtheta + half_j * (w0 * w0 - w1 * w1)
+
+        return stopped
 
 
 _EMPTY = np.zeros(0)

@@ -90,6 +90,15 @@ def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear
     return finish
 
 
+def joined(first: PackedOutputs, second: PackedOutputs, whole: PackedOutputs) -> PackedOutputs:
+    """One step's record from its two pieces in turn (`second` continued `first`'s state): the state, end values
+    and end forces of `second`, the step's works and dissipation summed over both, the energy guard's verdict of
+    either, and the constants (the step's dt for its powers) of `whole`, a record of the whole step."""
+    return PackedOutputs(second[:_DISS] + (first[_DISS] + second[_DISS], first[_WIN] + second[_WIN],
+                                          first[_WOUT] + second[_WOUT]) + second[_NUT_F:_FAULT]
+                         + (max(first[_FAULT], second[_FAULT]), whole[_K]) + second[_AUX:])
+
+
 class _BuiltOnce:
     """A field computed on first read and kept in the record's own dict (a non-data descriptor)."""
 
