@@ -62,6 +62,7 @@ MAX_CLEARANCE_M = 2.5e-4  # clearances drawn log-uniform up to this (the issue's
 LOAD_MIN_N = 50.0  # loads drawn log-uniform from this to the screw's static rating C₀a
 DATASHEET_SHARE = 0.25  # cases on a datasheet-built screw instead of the s30 preset
 _Q = {n: i for i, (n, _) in enumerate(ACTUATOR_QUANTITIES)}
+_BOOKS_AT = tuple(_Q[q] for q in ("energy_in_j", "load_work_j", "dissipated_j", "stored_j"))  # what `_books` reads
 
 
 def case_from_seed(seed: int) -> dict:
@@ -511,9 +512,9 @@ class _Run:
         x, v = out.nut_position_m, out.nut_velocity_m_s
         if res.states is not None:
             res.states.append((out.screw_angle_rad, out.screw_speed_rad_s, x, v))
-        scal = (out.screw_angle_rad, out.screw_speed_rad_s, out.carrier_speed_rad_s, x, v, out.nut_force_n,
-                out.energy_residual_j)
-        if not all(math.isfinite(q) for q in scal):
+        fin = math.isfinite
+        if not (fin(out.screw_angle_rad) and fin(out.screw_speed_rad_s) and fin(out.carrier_speed_rad_s) and fin(x)
+                and fin(v) and fin(out.nut_force_n) and fin(out.energy_residual_j)):
             res.violations.append(f"non-finite state at t = {t:.4f} s")
             return False
         if out.energy_fault:
@@ -547,9 +548,8 @@ class _Run:
             # work of the screw torque and of the external load over the step
             return (self.energy_in_prev + out.power_in_w * self.dt, self.load_work_prev + f * (x - self.x_prev),
                     out.stored_energy_j)
-        blk = self.sim.layout.view(out.internal, "actuator")
-        e_in, load_work, diss, stored = (float(blk[_Q[q]]) for q in ("energy_in_j", "load_work_j", "dissipated_j",
-                                                                     "stored_j"))
+        at = self.sim.model.block_at  # the actuator's block in the internal vector
+        e_in, load_work, diss, stored = out.internal[[at + i for i in _BOOKS_AT]].tolist()
         miss = e_in - load_work - diss - (stored - self.stored0)
         scale = abs(e_in) + abs(load_work) + abs(diss)
         if scale > ENERGY_GUARD_MIN_FLOW_J and abs(miss) > ENERGY_GUARD_REL * scale:  # the guard's own rule

@@ -294,8 +294,8 @@ class Session:
             raise self._non_finite(out.time_s, command)
         if act is not None and before is not None:
             self._events += act.events(before, sim.state)
-            at_end = bool(self.layout.view(out.internal, "actuator")[_THREAD_END]) if self._thread_ends else False
-            end_force = self.layout.view(out.internal, "actuator")[_STOP_FORCE] if at_end else 0.0
+            at_end = bool(out.internal[act.block_at + _THREAD_END]) if self._thread_ends else False
+            end_force = out.internal[act.block_at + _STOP_FORCE] if at_end else 0.0
         else:
             at_end = (end_force := sim.thread_end_force_n) != 0.0
         if at_end != self._at_thread_end:

@@ -21,6 +21,7 @@ from prsm_sim.models import kernels
 from prsm_sim.models.elastic import ElasticPart
 from prsm_sim.models.fu2018 import Fu2018Part
 from prsm_sim.stepping.ledger import efficiency, efficiency_columns, energy_fault, ledger_columns, ledger_step
+from prsm_sim.stepping.records import OUTPUT_FIELDS
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -174,3 +175,54 @@ def test_old_import_paths_are_aliases_of_the_new_homes():
     assert outputs.Trajectory is trajectory.Trajectory
     assert params.Elastic is params.ElasticParams and elastic.Elastic is elastic.ElasticModel
     assert registry.MODELS["elastic"] is elastic.ElasticModel
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+def test_packed_record_values_are_its_fields_bit_for_bit(model):
+    """`PackedOutputs.scalar_values` (written out in one place for the per-step path) gives each field exactly as
+    its property reads it, and `step_from` on a packed state is `step`: the same record, the same next state, bit
+    for bit, over a run through start-up (NaN efficiency), reversals and a load that drives the screw.
+
+    Oracle: the record's own properties, one call per field, and `Model.step` (the public contract)."""
+    sim = Simulator(preset("s30"), model, 1e-3)
+    m, state = sim.model, sim.state
+    fields = [n for n, _ in OUTPUT_FIELDS]
+    for k in range(60):
+        torque, load = (2.0 if k % 20 < 10 else -2.0), (300.0 if k % 15 < 8 else -900.0)
+        rec = m.step_from(m.pack_state(state), torque, load)
+        nxt, out = m.step(state, torque, load)
+        by_field = tuple(getattr(rec, n) for n in fields)
+        assert np.array(rec.scalar_values()).tobytes() == np.array(by_field).tobytes()
+        assert np.array(out.scalar_values()).tobytes() == np.array(by_field).tobytes()
+        assert rec.to_outputs().internal.tobytes() == out.internal.tobytes()
+        assert m.unpack_state(rec) == nxt and repr(m.unpack_state(rec)) == repr(nxt)
+        state = nxt
+    with pytest.raises(InputError, match="torque_nm"):
+        m.step_from(m.pack_state(state), math.nan, 0.0)
+
+
+@pytest.mark.parametrize("record", ["State", "Outputs", "ActuatorState", "Ledger"])
+def test_hand_written_record_constructors_take_the_declared_fields_and_defaults(record):
+    """The records made every step set their slots in a constructor of their own (faster than the generated one):
+    it takes every declared field, in order, with the declared default, and makes a record equal field by field
+    to the one those values describe. Oracle: the dataclass field declarations."""
+    import dataclasses
+    import inspect
+
+    from prsm_sim.actuator.actuator import ActuatorState, Ledger
+    from prsm_sim.stepping.records import Outputs
+    cls = {"State": State, "Outputs": Outputs, "ActuatorState": ActuatorState, "Ledger": Ledger}[record]
+    params = [p for p in inspect.signature(cls.__init__).parameters.values()
+              if p.name != "self" and p.kind is not inspect.Parameter.VAR_KEYWORD]
+    declared = dataclasses.fields(cls)
+    assert [p.name for p in params] == [f.name for f in declared]
+    for p, f in zip(params, declared):
+        if f.default is dataclasses.MISSING:  # `State` declares none: its constructor's zeros are the state at rest
+            assert record == "State" or p.default is inspect.Parameter.empty, f.name
+        else:
+            assert p.default == f.default or (p.default != p.default and f.default != f.default), f.name  # NaN too
+    values = {f.name: (State() if f.name == "screw" else float(k) + 0.5) for k, f in enumerate(declared)}
+    made = cls(**values)
+    assert all(getattr(made, n) is v for n, v in values.items())
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        setattr(made, declared[1].name, 1.0)

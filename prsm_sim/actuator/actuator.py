@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import namedtuple
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any, cast
 
 import numpy as np
@@ -43,6 +43,7 @@ from prsm_sim.errors import InputError
 from prsm_sim.models.registry import build_model, model_class
 from prsm_sim.stepping.ledger import efficiency
 from prsm_sim.stepping.model import Model, check_step_inputs
+from prsm_sim.stepping.packed import PackedOutputs
 from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.stepping.records import InternalBlock, InternalLayout, Outputs, State
 from prsm_sim.params import Params
@@ -80,7 +81,7 @@ _MEASURED_AT = {n: i for i, (n, _) in enumerate(MEASURED_QUANTITIES)}
 _JOINT_READINGS = ("screw_angle_rad", "screw_speed_rad_s", "nut_position_m", "nut_velocity_m_s", "nut_force_n")
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class Ledger:
     """Energy accumulators of the actuator (J); the screw's own friction is in `State.dissipated_j`."""
 
@@ -92,8 +93,25 @@ class Ledger:
     load_work_j: float = 0.0  # work done against the external load
     backlash_j: float = 0.0  # elastic energy a widening clearance released from a loaded flank (growing backlash)
 
+    def __init__(self, energy_in_j: float = 0.0, copper_j: float = 0.0, coupling_j: float = 0.0,
+                 stiction_j: float = 0.0, stop_work_j: float = 0.0, load_work_j: float = 0.0,
+                 backlash_j: float = 0.0) -> None:
+        # the declared defaults (tests/test_stepping.py holds them together), each field through its slot's
+        # setter (`_LEDGER_SET`): a ledger is made every sub-step
+        s_in, s_cu, s_coup, s_st, s_stop, s_load, s_back = _LEDGER_SET
+        s_in(self, energy_in_j)
+        s_cu(self, copper_j)
+        s_coup(self, coupling_j)
+        s_st(self, stiction_j)
+        s_stop(self, stop_work_j)
+        s_load(self, load_work_j)
+        s_back(self, backlash_j)
 
-@dataclass(frozen=True, slots=True)
+
+_LEDGER_SET = tuple(getattr(Ledger, f.name).__set__ for f in fields(Ledger))  # the slots' setters, in field order
+
+
+@dataclass(frozen=True, slots=True, init=False)
 class ActuatorState:
     """The screw model's state plus the drive, motor, brake, sensor and fault memory (pure data).
 
@@ -125,9 +143,47 @@ class ActuatorState:
     reference_m_s: float = 0.0  # its rate, the position loop's feed-forward
     command_prev: float = math.nan  # the position command at the last loop update (its rate: the command's speed)
 
+    def __init__(self, screw: State, step: int = 0, mode: str = "effort", motor_angle_rad: float = 0.0,
+                 motor_speed_rad_s: float = 0.0, current_a: float = 0.0, integral_nm: float = 0.0,
+                 torque_ref_nm: float = 0.0, speed_ref_rad_s: float = 0.0, limited: bool = False,
+                 encoder_rad: float = 0.0, brake_engaged: bool = False, brake_level: float = 0.0,
+                 faults: tuple[Fault, ...] = (), history: tuple[TrueSample, ...] = (), measured: tuple[float, ...] = (),
+                 load_cell_filtered_n: float = 0.0, ledger: Ledger = Ledger(), coupling_nm: float = 0.0,
+                 reference_m: float = math.nan, reference_m_s: float = 0.0, command_prev: float = math.nan) -> None:
+        # the fields' defaults as declared above (tests/test_stepping.py holds them together); each
+        # field set through its slot's own setter (`_STATE_SET`): a state is made every step
+        (s_screw, s_step, s_mode, s_th, s_w, s_i, s_integ, s_tau, s_wref, s_lim, s_enc, s_brake, s_level, s_faults,
+         s_hist, s_meas, s_filt, s_led, s_coup, s_ref, s_refv, s_cmd) = _STATE_SET
+        s_screw(self, screw)
+        s_step(self, step)
+        s_mode(self, mode)
+        s_th(self, motor_angle_rad)
+        s_w(self, motor_speed_rad_s)
+        s_i(self, current_a)
+        s_integ(self, integral_nm)
+        s_tau(self, torque_ref_nm)
+        s_wref(self, speed_ref_rad_s)
+        s_lim(self, limited)
+        s_enc(self, encoder_rad)
+        s_brake(self, brake_engaged)
+        s_level(self, brake_level)
+        s_faults(self, faults)
+        s_hist(self, history)
+        s_meas(self, measured)
+        s_filt(self, load_cell_filtered_n)
+        s_led(self, ledger)
+        s_coup(self, coupling_nm)
+        s_ref(self, reference_m)
+        s_refv(self, reference_m_s)
+        s_cmd(self, command_prev)
+
     @property
     def time_s(self) -> float:
         return self.screw.time_s
+
+
+# the slots' setters of `ActuatorState`, in field order (a frozen record's fields are set past its own __setattr__)
+_STATE_SET = tuple(getattr(ActuatorState, f.name).__set__ for f in fields(ActuatorState))
 
 
 class _Work:
@@ -158,7 +214,29 @@ class _Work:
     model: Model
     cs: CurrentStep
     new: State
-    out: Outputs
+    out: PackedOutputs  # the sub-step's record, kept packed (`_finish` builds the step's `Outputs`)
+
+
+def _apply_clearance(w: _Work, faults: tuple[Fault, ...], t_s: float, lead_per_rad_m: float,
+                     clearance_m: float) -> None:
+    """The clearance the backlash faults add at `t_s` applied to the screw's state at the step's start (in `w`);
+    `lead_per_rad_m`: L/2π; `clearance_m`: the parameter's axial clearance."""
+    model, screw = w.model, w.screw
+    extra = fl.extra_clearance_m(faults, t_s)
+    if extra < screw.extra_clearance_m:
+        # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
+        # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
+        # parameter's clearance at the next pass through the gap
+        delta = lead_per_rad_m * screw.screw_angle_rad - screw.nut_axial_m
+        extra = max(extra, min(screw.extra_clearance_m, 2.0 * abs(delta) - clearance_m))
+    if extra != screw.extra_clearance_m:
+        # the clearance steps at the step's start: a wider gap at the same deflection unloads the
+        # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
+        # never closes onto a flank), so the ledger and the model's guard stay closed
+        widened = replace(screw, extra_clearance_m=extra)  # type: ignore[call-arg]  # a part field of `State`
+        w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
+                                                                   - model.total_stored_energy_j(widened)))
+        w.screw = widened
 
 
 class Actuator(Model):
@@ -195,6 +273,8 @@ class Actuator(Model):
         self.motor_inertia = 0.0 if m is None else m.rotor_inertia_kgm2 * m.gear_ratio**2  # screw side
         self.n_sub, self.hold_steps = loop_schedule(a.drive.loop_rate_hz, self.dt_s)
         self.h_sub = self.dt_s / self.n_sub
+        self._h_loop = self.h_sub * self.hold_steps  # the drive loop's period
+        self._holding_nm = a.brake.holding_torque_nm
         # end stops and thread ends, the innermost on each side (stops.py)
         self.limits = limits_of(a.stops, params.geometry.travel_m, params.geometry.nut_length_m) \
             if a.stops.fitted or params.geometry.thread_ends else ()
@@ -208,6 +288,7 @@ class Actuator(Model):
         self.drive = a.drive.tuned(self.J_drive)
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
+        self.block_at = base.layout.size  # where the actuator's block starts in the internal vector
         self.layout = InternalLayout(blocks=base.layout.blocks + (
             InternalBlock("actuator", ("quantity",), (len(ACTUATOR_QUANTITIES),), ACTUATOR_QUANTITIES),
             InternalBlock("measured", ("quantity",), (len(MEASURED_QUANTITIES),), MEASURED_QUANTITIES),
@@ -300,8 +381,8 @@ class Actuator(Model):
         A step starting at t applies the faults active at t, so a fault injected now with
         start_s = now is reported by the very next step.
         """
-        t0 = before.time_s
-        return fl.fault_events(self.all_faults(after), t0 - self.dt_s, t0)
+        t0, faults = before.time_s, self.all_faults(after)
+        return fl.fault_events(faults, t0 - self.dt_s, t0) if faults else []
 
     # -- the step ------------------------------------------------------------------------
     def step(self, state: ActuatorState, command: float,  # type: ignore[override]
@@ -323,11 +404,6 @@ class Actuator(Model):
             if loop_due:
                 self._drive_loop(w, st, command, st.step * self.n_sub + j)
             self._sub_step(w, load_n, 0, j == self.n_sub - 1)
-        if self.n_sub > 1 or w.halved:
-            n, sums = self.n_sub, w.sums
-            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
-            w.out = replace(w.out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout,
-                            power_dissipated_w=pd, efficiency=efficiency(pin, pout, pd))
         return self._finish(st, w, command)
 
     def _begin(self, st: ActuatorState) -> _Work:
@@ -336,25 +412,11 @@ class Actuator(Model):
         w = _Work(st)
         faults = self.all_faults(st)
         w.act = act = fl.active(faults, st.time_s)
-        w.model = model = self._model(act)
+        w.model = self._model(act)
         m = self.actuator.motor
         w.tlim = math.inf if m is None else self.ratio * m.peak_torque_nm * act.torque_factor
-        screw = st.screw
-        extra = fl.extra_clearance_m(faults, st.time_s) if self.axial_chain else 0.0
-        if extra < screw.extra_clearance_m:
-            # a cleared fault: the gap closes back only as far as the flanks are apart (2|δ| − c), never
-            # into a loaded flank (that would be a force step of k Δc/2 out of nothing); it reaches the
-            # parameter's clearance at the next pass through the gap
-            delta = self.p * screw.screw_angle_rad - screw.nut_axial_m
-            extra = max(extra, min(screw.extra_clearance_m, 2.0 * abs(delta) - self.params.elastic.axial_clearance_m))
-        if extra != screw.extra_clearance_m:
-            # the clearance steps at the step's start: a wider gap at the same deflection unloads the
-            # flank in contact, releasing its elastic energy (booked as dissipated: ≥ 0, since the gap
-            # never closes onto a flank), so the ledger and the model's guard stay closed
-            widened = replace(screw, extra_clearance_m=extra)  # type: ignore[call-arg]  # a part field of `State`
-            w.led = replace(w.led, backlash_j=w.led.backlash_j + float(model.total_stored_energy_j(screw)
-                                                                       - model.total_stored_energy_j(widened)))
-            w.screw = widened
+        if self.axial_chain:  # a backlash fault's clearance: only a nut on its own chain has one
+            _apply_clearance(w, faults, st.time_s, self.p, self.params.elastic.axial_clearance_m)
         return w
 
     def _drive_loop(self, w: _Work, st: ActuatorState, command: float, key: int) -> None:
@@ -362,8 +424,9 @@ class Actuator(Model):
         the torque reference, the speed integrator and, in position mode, the shaped reference."""
         act, p, screw = w.act, self.p, w.screw
         enc_new = self.sensing.read_encoder(w.th_r * self.ratio, screw.screw_angle_rad, act, key, w.enc)
-        h_loop = self.h_sub * self.hold_steps
-        if self.actuator.sensors.encoder_counts_per_rev == 0 and not any(x[0] == "motor_encoder" for x in act.sensor):
+        h_loop = self._h_loop
+        if self.actuator.sensors.encoder_counts_per_rev == 0 and not (
+                act.sensor and any(x[0] == "motor_encoder" for x in act.sensor)):
             w_meas = w.w_r if not self.rigid else screw.screw_speed_rad_s
         else:
             w_meas = (enc_new - w.enc) / h_loop
@@ -404,7 +467,7 @@ class Actuator(Model):
             self._sub_step(w, load_n, halvings + 1, False)
             self._sub_step(w, load_n, halvings + 1, True)
             if w.screw.time_s != t_end:  # the halves' sum rounded
-                w.screw, w.out = replace(w.screw, time_s=t_end), replace(w.out, time_s=t_end)
+                w.screw, w.out = replace(w.screw, time_s=t_end), PackedOutputs((t_end,) + w.out[1:])
             return
         self._book(w, load_n, tau_d, h)
         w.level = brake_level(self.actuator.brake, w.level, w.engaged, h)
@@ -437,16 +500,18 @@ class Actuator(Model):
             # linearise where the last step ended: the explicit spring torque k φ0 would swing with
             # the coupling's ringing and evaluate a set-valued friction on the wrong side
             tau_drive_screw = w.tau_c
-        cap = w.level * self.actuator.brake.holding_torque_nm + act.jam_nm
+        cap = w.level * self._holding_nm + act.jam_nm
         implicit = not self.rigid or cap > 0.0
+        x = model.pack_state(screw)  # every trial starts here: packed once, its record kept packed (`_finish`)
         if implicit:
-            w_a, s_w, th_a, s_th = linear_response(model, screw, tau_drive_screw, load_n, h, self.J)
+            w_a, s_w, th_a, s_th = linear_response(model, x, tau_drive_screw, load_n, h, self.J)
         else:
             s_th = 0.5 * h * h / self.J
         th_r, w_r = w.th_r, w.w_r
+        step, unpack, rigid = model.step_from, model.unpack_state, self.rigid
 
-        def advance(f_stop: float) -> tuple[State, Outputs, float, float, float]:
-            """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, outputs,
+        def advance(f_stop: float) -> tuple[State, PackedOutputs, float, float, float]:
+            """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, its packed record,
             stiction torque, coupling torque, screw torque)."""
             load_in = load_n - f_stop if f_stop != 0.0 else load_n
             t_st = 0.0
@@ -454,11 +519,12 @@ class Actuator(Model):
                 w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
                 t_st = stiction_torque(cap, w_pred, h / s_w, h)
                 th_pred += s_th * t_st
-            if self.rigid:
+            if rigid:
                 tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
-                return (*model.step(screw, tau_in, load_in), t_st, tau_d, tau_in)
+                rec = step(x, tau_in, load_in)
+                return unpack(rec), rec, t_st, tau_d, tau_in
             th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
-            t_c, nw, o = coupling_torque(model, screw, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+            t_c, nw, o = coupling_torque(model, x, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
                                          th_sfree, s_th, h, self.motor_inertia)
             return nw, o, t_st, t_c, t_c + t_st
 
@@ -518,8 +584,8 @@ class Actuator(Model):
     def _finish(self, st: ActuatorState, w: _Work, command: float) -> tuple[ActuatorState, Outputs]:
         """The next state, and the outputs completed with the actuator block and what the sensors measured
         (the true sample now, delivered `latency_steps` later)."""
-        a, m, screw, led, out = self.actuator, self.actuator.motor, w.screw, w.led, w.out
-        sample = self._sample(w.th_r, w.w_r, screw, out.nut_force_n)
+        a, m, screw, led, rec = self.actuator, self.actuator.motor, w.screw, w.led, w.out
+        sample = self._sample(w.th_r, w.w_r, screw, rec.nut_force_n)
         lat = a.sensors.latency_steps
         history = (st.history + (sample,))[-(lat + 1):] if lat else (sample,)
         before = st.history[0] if st.history else history[0]
@@ -534,7 +600,7 @@ class Actuator(Model):
         x = self._nut_x(screw)
         stop_e = stop_stored_j(self.limits, x)
         depth, at_end = stop_penetration(self.limits, x)
-        cap_b = w.level * a.brake.holding_torque_nm
+        cap_b = w.level * self._holding_nm
         cap_all = cap_b + w.act.jam_nm
         brake_t = w.tau_st * cap_b / cap_all if cap_all > 0 else 0.0
         block = _ActuatorBlock(
@@ -548,11 +614,20 @@ class Actuator(Model):
             load_work_j=led.load_work_j,
             dissipated_j=(screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j
                           - stop_e + led.backlash_j),
-            stored_j=self.stored_energy(nxt),
+            stored_j=self.stored_energy(nxt, stop_e),
             faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
-        # `out` was made by the screw model for this call alone: completing its internal vector in
-        # place saves a copy of the whole record per step
-        object.__setattr__(out, "internal", np.concatenate((out.internal, block, meas)))
+        # the last sub-step's record (kept packed through the solves) completed by the actuator's blocks; over
+        # several sub-steps the held torque and the powers are their means
+        internal = np.empty(self.layout.size)
+        k = self.block_at
+        internal[:k] = rec.internal
+        internal[k:] = block + meas
+        out = rec.to_outputs(internal)
+        if self.n_sub > 1 or w.halved:
+            n, sums = self.n_sub, w.sums
+            pin, pout, pd = sums[1] / n, sums[2] / n, sums[3] / n
+            out = replace(out, screw_torque_nm=sums[0] / n, power_in_w=pin, power_out_w=pout, power_dissipated_w=pd,
+                          efficiency=efficiency(pin, pout, pd))
         return nxt, out
 
     # -- what the sensors say -------------------------------------------------------------
@@ -580,10 +655,11 @@ class Actuator(Model):
         """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
         return self._nut_x(st.screw)
 
-    def stored_energy(self, st: ActuatorState) -> float:
+    def stored_energy(self, st: ActuatorState, stop_j: float | None = None) -> float:
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own
         total, core and nut kinetic plus the chain's elastic energy, docs/model.md §4.3), a compliant
-        rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J)."""
+        rotor's, magnetic ½ L i², coupling ½ k φ² and end-stop ½ k δ² energy (J); `stop_j`: the stops'
+        ½ k δ² where the caller has it already (with stops fitted)."""
         s, m = st.screw, self.actuator.motor
         ws, wc = s.screw_speed_rad_s, s.carrier_speed_rad_s
         if self.axial_chain:
@@ -591,7 +667,7 @@ class Actuator(Model):
         else:
             e = 0.5 * (self._kss * ws * ws + 2.0 * self._ksc * ws * wc + self._kcc * wc * wc)
         if self.limits:
-            e += stop_stored_j(self.limits, self._nut_x(s))
+            e += stop_stored_j(self.limits, self._nut_x(s)) if stop_j is None else stop_j
         if m is not None:
             e += 0.5 * m.inductance_h * st.current_a**2
             if not self.rigid:

@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 
 from prsm_sim.stepping.model import Model
-from prsm_sim.stepping.records import Outputs, State
+from prsm_sim.stepping.packed import PackedOutputs
+from prsm_sim.stepping.records import State
 
 
 PROBE_TORQUE_NM = 10.0  # the inertia probe's torque step, N·m: well above a screw's no-load torque
@@ -31,27 +32,30 @@ def probe_inertia(model: Model, h_s: float) -> float:
     return h_s * PROBE_TORQUE_NM / (w2 - w1)
 
 
-def linear_response(model: Model, screw: State, tau_nm: float, load_n: float, h_s: float,
+def linear_response(model: Model, x: tuple, tau_nm: float, load_n: float, h_s: float,
                     inertia_kgm2: float) -> tuple[float, float, float, float]:
-    """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from this state.
+    """End speed ω1 and angle θ1 at (τ, F) and their sensitivities to τ, by two steps from the packed
+    state `x` (`Model.pack_state`).
 
     Returns (ω1, ∂ω1/∂τ, θ1, ∂θ1/∂τ); a load acts as τ = −(L/2π) F. `inertia_kgm2`: the probed
     inertia (`probe_inertia`), whose response stands in where the model's is stuck. Exact for the linear
     models; for fu2018 the local slope (its effective inertia moves with the friction regime).
     """
-    a = model.step(screw, tau_nm, load_n)[0]
+    step = model.step_from
+    a = step(x, tau_nm, load_n)  # a packed record: θ_S at item 1, ω_S at 2
     d = 1e-3 * max(1.0, abs(tau_nm))
-    b = model.step(screw, tau_nm + d, load_n)[0]
-    s_w = (b.screw_speed_rad_s - a.screw_speed_rad_s) / d
-    s_th = (b.screw_angle_rad - a.screw_angle_rad) / d
+    b = step(x, tau_nm + d, load_n)
+    w_a, th_a = a[2], a[1]
+    s_w = (b[2] - w_a) / d
+    s_th = (b[1] - th_a) / d
     if not (math.isfinite(s_w) and s_w > 0.0 and math.isfinite(s_th) and s_th > 0.0):
         s_w, s_th = h_s / inertia_kgm2, 0.5 * h_s**2 / inertia_kgm2  # a stuck response: the probed inertia's
-    return a.screw_speed_rad_s, s_w, a.screw_angle_rad, s_th
+    return w_a, s_w, th_a, s_th
 
 
-def coupling_torque(model: Model, screw: State, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
+def coupling_torque(model: Model, x: tuple, tau_st: float, load_n: float, th_r_free: float, tau_d: float,
                     phi0: float, k: float, c: float, th_sfree: float, s_th: float, h_s: float,
-                    rotor_inertia_kgm2: float) -> tuple[float, State, Outputs]:
+                    rotor_inertia_kgm2: float) -> tuple[float, State, PackedOutputs]:
     """The compliant coupling's torque held over the step, solved to consistency with the screw model.
 
     τ_c = k (φ0 + φ1)/2 + c (φ1 − φ0)/h, φ1 = θ_r1(τ_c) − θ_s1(τ_c): the motor at constant
@@ -61,28 +65,29 @@ def coupling_torque(model: Model, screw: State, tau_st: float, load_n: float, th
     torque scale (one model step for the linear models). Its work is then ΔV + c Δφ²/h:
     the ledger stays exact and the scheme cannot gain energy, so a stiff coupling stays
     stable at the step (trapezoidal rule). `th_r_free`: the rotor's end angle with no coupling torque;
-    `h_s`, `rotor_inertia_kgm2`: the sub-step and the rotor's inertia on the screw side. Returns (τ_c,
-    screw state, outputs).
+    `h_s`, `rotor_inertia_kgm2`: the sub-step and the rotor's inertia on the screw side. `x`: the screw's
+    state packed (`Model.pack_state`). Returns (τ_c, the screw's next state, the step's packed record).
     """
     h, jr = h_s, rotor_inertia_kgm2
     G, H = 0.5 * k + c / h, 0.5 * k - c / h
     q_r = 0.5 * h * h / jr
+    step = model.step_from
 
     def residual(tau):
-        new, out = model.step(screw, tau + tau_st, load_n)
-        phi1 = th_r_free + q_r * (tau_d - tau) - new.screw_angle_rad
-        return tau - (G * phi1 + H * phi0), new, out
+        rec = step(x, tau + tau_st, load_n)
+        phi1 = th_r_free + q_r * (tau_d - tau) - rec[1]  # θ_S at the step's end
+        return tau - (G * phi1 + H * phi0), rec
 
     slope = 1.0 + G * (q_r + s_th)
     t0 = (G * (th_r_free + q_r * tau_d - th_sfree) + H * phi0) / slope  # the linear solution
-    r0, new, out = residual(t0)
+    r0, rec = residual(t0)
     scale = 1e-12 * max(1.0, abs(t0), abs(tau_d))
     if abs(r0) <= scale:
-        return t0, new, out
+        return t0, model.unpack_state(rec), rec
     t1 = t0 - r0 / slope
     for _ in range(30):
-        r1, new, out = residual(t1)
+        r1, rec = residual(t1)
         if abs(r1) <= scale or r1 == r0:
             break
         t0, t1, r0 = t1, t1 - r1 * (t1 - t0) / (r1 - r0), r1
-    return t1, new, out
+    return t1, model.unpack_state(rec), rec

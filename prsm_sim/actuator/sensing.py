@@ -18,6 +18,10 @@ from prsm_sim.actuator.sensors import (MEASURED_QUANTITIES, SENSORS, STREAM, Tru
 
 _MEASURED_NAMES = tuple(n for n, _ in MEASURED_QUANTITIES)
 _READING_NAMES = tuple(q for s in SENSORS for q in s.names)  # the readings of the measured block, in order
+# `SensorSuite.measure` makes the readings in this order (a new sensor's reading goes in there too)
+assert _READING_NAMES == ("motor_angle_rad", "screw_angle_rad", "screw_speed_rad_s", "nut_position_m",
+                          "nut_velocity_m_s", "nut_force_n")
+_ALL_FRESH = (1.0,) * len(SENSORS)  # the freshness flags when no sensor dropped out or is faulted
 
 
 class SensorSuite:
@@ -82,44 +86,46 @@ class SensorSuite:
         filter's memory. Returns the MEASURED_QUANTITIES values and the new filter memory.
         """
         sp, h = self.params, self.dt_s
-        vals = self._read_motor_encoder(now, before, first)
-        vals.update(self._read_nut(now, before, first, vals))
+        motor, screw, speed = self._read_motor_encoder(now, before, first)
+        nut_x, nut_v = self._read_nut(now, before, first, screw, speed)
         # load cell, in a conditioning chain's order: element (true force) → amplifier (bias, white noise of
         # σ per sample at the step rate) → anti-alias first-order low-pass, so the filter acts on the noise
         raw = now.nut_force_n + sp.load_cell_bias_n if sp.load_cell_bias_n else now.nut_force_n
         if sp.load_cell_noise_n:
             raw += sp.load_cell_noise_n * normal(sp.seed, key, STREAM["load_cell"])
         filt = first_order(filtered_n, raw, sp.load_cell_bandwidth_hz, h) if not first else raw
-        vals["nut_force_n"] = filt
+        readings = (motor, screw, speed, nut_x, nut_v, filt)  # in _READING_NAMES order
+        if not (prev and (sp.dropout_probability > 0 or act.sensor)):
+            return readings + _ALL_FRESH, filt  # nothing dropped or faulted: every sensor fresh
+        vals = dict(zip(_READING_NAMES, readings))
         fresh = {s.name: 1.0 for s in SENSORS}
-        if prev:
-            self._hold_or_fault(vals, fresh, dict(zip(_MEASURED_NAMES, prev)), act, key)
+        self._hold_or_fault(vals, fresh, dict(zip(_MEASURED_NAMES, prev)), act, key)
         return tuple(vals[n] for n in _READING_NAMES) + tuple(fresh[s.name] for s in SENSORS), filt
 
-    def _read_motor_encoder(self, now: TrueSample, before: TrueSample, first: bool) -> dict[str, float]:
+    def _read_motor_encoder(self, now: TrueSample, before: TrueSample, first: bool) -> tuple[float, float, float]:
         """The motor encoder's readings: motor angle, and from it the screw's angle and speed (by
         differences of counts over the step; ideal: the true values)."""
         ang = self.encoder_screw_angle(now.motor_angle_rad, now.screw_angle_rad)
         if self.params.encoder_counts_per_rev == 0:
-            return {"motor_angle_rad": now.motor_angle_rad, "screw_angle_rad": ang,
-                    "screw_speed_rad_s": now.screw_speed_rad_s}
+            return now.motor_angle_rad, ang, now.screw_speed_rad_s
         spd = 0.0 if first else (ang - self.encoder_screw_angle(before.motor_angle_rad, before.screw_angle_rad)) \
             / self.dt_s
-        return {"motor_angle_rad": ang * self.ratio, "screw_angle_rad": ang, "screw_speed_rad_s": spd}
+        return ang * self.ratio, ang, spd
 
-    def _read_nut(self, now: TrueSample, before: TrueSample, first: bool, enc: dict[str, float]) -> dict[str, float]:
+    def _read_nut(self, now: TrueSample, before: TrueSample, first: bool, screw_angle_rad: float,
+                  screw_speed_rad_s: float) -> tuple[float, float]:
         """Nut position and velocity: from the linear encoder if fitted, else through the lead from the
-        motor encoder's readings `enc` (ideal and rigid: the true values)."""
+        motor encoder's readings of the screw's angle and speed (ideal and rigid: the true values)."""
         sp, p = self.params, self.p
         res = sp.linear_encoder_resolution_m
         if res is None:
             if sp.encoder_counts_per_rev == 0 and self.rigid:
-                return {"nut_position_m": now.nut_position_m, "nut_velocity_m_s": now.nut_velocity_m_s}
-            return {"nut_position_m": p * enc["screw_angle_rad"], "nut_velocity_m_s": p * enc["screw_speed_rad_s"]}
+                return now.nut_position_m, now.nut_velocity_m_s
+            return p * screw_angle_rad, p * screw_speed_rad_s
         x = quantise(now.nut_position_m, res)
         v = now.nut_velocity_m_s if res == 0 else (0.0 if first else (x - quantise(before.nut_position_m, res))
                                                    / self.dt_s)
-        return {"nut_position_m": x, "nut_velocity_m_s": v}
+        return x, v
 
     def _hold_or_fault(self, vals: dict[str, float], fresh: dict[str, float], prev: dict[str, float],
                        act: fl.Active, key: int) -> None:

@@ -178,6 +178,16 @@ class Model:
         rec = self.step_packed(self.pack_state(state), command, load_n)
         return self.unpack_state(rec), rec.to_outputs()
 
+    def step_from(self, x: tuple, command: float, load_n: float) -> PackedOutputs:
+        """`step` from the packed state `x` (`pack_state`), returning the packed record: its first
+        PACKED_STATE_SIZE items are the next packed state (`unpack_state` makes the `State` `step` returns),
+        and it reads as the `Outputs` `step` returns (`to_outputs` builds that record). For a caller that
+        steps several times from one state and reads a few outputs of most of those steps (the actuator's
+        implicit solves: a trial needs the end speed and angle, the accepted step everything), so the state
+        is packed once and no full record is built for a trial. InputError as `step` for a bad input."""
+        command, load_n = check_step_inputs(command, load_n, self.command_name)
+        return self.step_packed(x, command, load_n)
+
     @cached_property
     def step_packed(self):
         """The model's step function on the packed state: ``step_packed(x, command, load_n) -> PackedOutputs``

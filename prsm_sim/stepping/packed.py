@@ -184,16 +184,26 @@ class PackedOutputs(tuple):
         return self[_K].internal(self[2], self[4], self[_AUX])
 
     def scalar_values(self) -> tuple[float, ...]:
-        """The scalar outputs as one tuple, in OUTPUT_FIELDS order."""
-        return tuple(getter(self) for getter in _GETTERS)
+        """The scalar outputs as one tuple, in OUTPUT_FIELDS order: each as its property computes it, written
+        out in one place (a full record is built every step on the actuator's path, where a call per field
+        cost more than the fields; tests/test_stepping.py holds it to the properties, field by field)."""
+        k, w_s, w_c, load = self[_K], self[2], self[4], self[_LOAD]
+        dt = k.dt_s
+        p_in, p_out, p_diss = self[_WIN] / dt, self[_WOUT] / dt, self[_DISS] / dt
+        return (self[0], self[1], w_s, self[_TAU], self[3], w_c, -k.gear_ratio * w_c, self[_NUT_X], self[_NUT_V],
+                self[_NUT_F], load, k.slip_speed(w_s, w_c, self[_AUX]), p_in, p_out, p_diss,
+                efficiency(p_in, p_out, p_diss), speed_ratio(w_s, w_c), self[10], self[8], self[9], self[_FAULT],
+                over_static_rating(load, k.static_rating_n))
 
     def scalars(self) -> dict[str, float]:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return dict(zip(_FIELD_NAMES, self.scalar_values()))
 
-    def to_outputs(self) -> Outputs:
-        """The record as a plain `Outputs` (every field computed)."""
-        return Outputs(*self.scalar_values(), self.internal)  # type: ignore[arg-type, call-arg]  # the fields in order
+    def to_outputs(self, internal: np.ndarray | None = None) -> Outputs:
+        """The record as a plain `Outputs` (every field computed); `internal`: an internal vector in place of the
+        model's (a wrapper that appends blocks of its own to it: the actuator)."""
+        return Outputs(*self.scalar_values(),  # type: ignore[arg-type, call-arg]  # the fields in order
+                       self.internal if internal is None else internal)
 
     def __reduce__(self):
         return (Outputs, (*self.scalar_values(), self.internal))
@@ -215,5 +225,4 @@ class PackedOutputs(tuple):
 
 
 _FIELD_NAMES = tuple(n for n, _ in OUTPUT_FIELDS)
-_GETTERS = tuple(getattr(PackedOutputs, n).fget for n in _FIELD_NAMES)
 Outputs.register(PackedOutputs)

@@ -87,19 +87,30 @@ class State:
                  energy_residual_j: float = 0.0, part: tuple = (), **part_fields) -> None:
         if part_fields:
             part = _with_part_fields(part, part_fields)
-        for name, value in (("time_s", time_s), ("screw_angle_rad", screw_angle_rad),
-                            ("screw_speed_rad_s", screw_speed_rad_s), ("carrier_angle_rad", carrier_angle_rad),
-                            ("carrier_speed_rad_s", carrier_speed_rad_s), ("work_in_j", work_in_j),
-                            ("work_out_j", work_out_j), ("dissipated_j", dissipated_j),
-                            ("energy_flow_j", energy_flow_j), ("energy_residual_j", energy_residual_j),
-                            ("part", part)):
-            object.__setattr__(self, name, value)
+        # each field through its slot's own setter (`_SET`): a third of object.__setattr__'s cost, and states
+        # are made on every step and every trial of an implicit solve
+        t, a, s, ca, cs, wi, wo, d, ef, er, p = _SET
+        t(self, time_s)
+        a(self, screw_angle_rad)
+        s(self, screw_speed_rad_s)
+        ca(self, carrier_angle_rad)
+        cs(self, carrier_speed_rad_s)
+        wi(self, work_in_j)
+        wo(self, work_out_j)
+        d(self, dissipated_j)
+        ef(self, energy_flow_j)
+        er(self, energy_residual_j)
+        p(self, part)
 
     def __getattr__(self, name: str):
         """A field of the model's part by name (called only when the state itself has no such attribute)."""
         if name not in LEGACY_PART_FIELDS:
             return object.__getattribute__(self, name)  # the usual AttributeError
         return getattr(object.__getattribute__(self, "part"), name, LEGACY_PART_FIELDS[name])
+
+
+# the slots' setters of `State`, in field order (a frozen record's fields are set past its own __setattr__)
+_SET = tuple(getattr(State, f.name).__set__ for f in fields(State))
 
 
 def _with_part_fields(part: tuple, values: dict) -> tuple:
@@ -144,7 +155,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
 )
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packed`) registers as one
     """One step's outputs, SI units, at the step's end or averaged over it where a rate is meant.
 
@@ -226,6 +237,39 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
     over_static_rating: float
     internal: np.ndarray
 
+    def __init__(self, time_s: float, screw_angle_rad: float, screw_speed_rad_s: float, screw_torque_nm: float,
+                 carrier_angle_rad: float, carrier_speed_rad_s: float, roller_spin_rad_s: float, nut_position_m: float,
+                 nut_velocity_m_s: float, nut_force_n: float, load_force_n: float, slip_speed_m_s: float,
+                 power_in_w: float, power_out_w: float, power_dissipated_w: float, efficiency: float,
+                 speed_ratio: float, stored_energy_j: float, energy_flow_j: float, energy_residual_j: float,
+                 energy_fault: float, over_static_rating: float, internal: np.ndarray) -> None:
+        # each field through its slot's own setter (`_OUT_SET`), as `State`: a record is made every step
+        (t, a, s, tau, ca, cs, spin, x, v, f, load, slip, p_in, p_out, p_diss, eff, ratio, stored, flow, resid,
+         fault, over, inner) = _OUT_SET
+        t(self, time_s)
+        a(self, screw_angle_rad)
+        s(self, screw_speed_rad_s)
+        tau(self, screw_torque_nm)
+        ca(self, carrier_angle_rad)
+        cs(self, carrier_speed_rad_s)
+        spin(self, roller_spin_rad_s)
+        x(self, nut_position_m)
+        v(self, nut_velocity_m_s)
+        f(self, nut_force_n)
+        load(self, load_force_n)
+        slip(self, slip_speed_m_s)
+        p_in(self, power_in_w)
+        p_out(self, power_out_w)
+        p_diss(self, power_dissipated_w)
+        eff(self, efficiency)
+        ratio(self, speed_ratio)
+        stored(self, stored_energy_j)
+        flow(self, energy_flow_j)
+        resid(self, energy_residual_j)
+        fault(self, energy_fault)
+        over(self, over_static_rating)
+        inner(self, internal)
+
     def scalars(self) -> dict[str, float]:
         """The scalar outputs by name, in `OUTPUT_FIELDS` order (everything but `internal`)."""
         return {name: getattr(self, name) for name, _ in OUTPUT_FIELDS}
@@ -236,6 +280,7 @@ class Outputs(metaclass=ABCMeta):  # ABCMeta: the packed record (`stepping.packe
 
 
 assert tuple(f.name for f in fields(Outputs))[:-1] == tuple(n for n, _ in OUTPUT_FIELDS)
+_OUT_SET = tuple(getattr(Outputs, f.name).__set__ for f in fields(Outputs))  # the slots' setters, in field order
 
 
 @dataclass(frozen=True)
