@@ -68,8 +68,8 @@ class EndSteps:
     def solve(self, m: Model, before: State, free, advance, nut, speed, end_time_s: float):
         """The step of model `m` against the end its free result `free` ran past: the stop law solved on the
         model's own step (`advance(F)`: the step with the end's force F along +x_nut; `nut(result)`,
-        `speed(result)`: the nut's end position and the screw's end speed). Sets `force_n`. NonFiniteStateError where the nut ends non-finite (also where no end
-        is fitted: the bounds are then the float range)."""
+        `speed(result)`: the nut's end position and the screw's end speed). Sets `force_n`. NonFiniteStateError
+        where the nut ends non-finite (also where no end is fitted: the bounds are then the float range)."""
         if not math.isfinite(nut(free)):
             raise non_finite_error(self.model.name, end_time_s)
         lim = engaged(self.limits, nut(free))

@@ -21,12 +21,12 @@ import numpy as np
 from prsm_sim.actuator import Actuator
 from prsm_sim.actuator.stops import Limit, limits_of
 from prsm_sim.checks import check_typed, is_finite_number, is_number
+from prsm_sim.end_steps import EndSteps, non_finite_error
 from prsm_sim.errors import InputError
 from prsm_sim.models.registry import MODELS, build_model  # noqa: F401  # MODELS: importable from here too
 from prsm_sim.params import Params
 from prsm_sim.plain import from_plain, reachable_types, to_plain
 from prsm_sim.stepping.model import check_step_inputs
-from prsm_sim.end_steps import EndSteps, non_finite_error
 from prsm_sim.stepping.packed import NUT_POSITION_ITEM, PACKED_STATE_SIZE
 from prsm_sim.stepping.records import InternalLayout, Outputs, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_rows

@@ -906,9 +906,9 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
 def _settled(att, v_el0, torque_nm, E):
     """The attempt's held elastic force did the work ΔV (or the chain did not move): its miss creates no more
     energy than IMPACT_TOL of the input work, and takes out no more than that plus IMPACT_FLOOR of V (booked as
-    the contact's loss, `_settle`). A miss that creates energy is held to the input work alone: a chain held at
-    rest under a load near the rating stores ~40 J while a step moves millijoules, and misses of 1e-5 V created
-    1.5 % of the first steps' flow there."""
+    the contact's loss, `_settle`). A miss that creates energy is held to IMPACT_TOL of the input work plus
+    IMPACT_FLOOR of the sub-step's |ΔV|, not of V: a chain held at rest under a load near the rating stores ~40 J
+    while a step moves millijoules, and misses of 1e-5 V created 1.5 % of the first steps' flow there."""
     if abs(att[15]) < 1e-15:
         return True
     tol = E[EL.impact_tol] * abs(torque_nm * att[6])
