@@ -13,6 +13,9 @@ brake, pause, reset), so what the envelope checks is what the node runs.
   (`Session.get_state`) continues in a fresh session exactly where it stopped;
 - every state is finite; the model's energy guard never trips, and the actuator's ledger
   (energy in = load work + dissipated + Δstored) closes within the guard's limit;
+- the second law, step by step: what friction, contacts and the scheme have dissipated never falls
+  (by more than SECOND_LAW_TOL of the energy that has flowed, and SECOND_LAW_FLOOR_J): a books-closing step
+  can still create energy by booking it as negative dissipation;
 - an impact goes no further past a stop or thread end than the work allows: ½ k δ² ≤ W, W the
   energy stored at first contact plus the work of the drive and the load since;
 - at rest against a stop, δ lies within the static deflection of the net force pressing the nut
@@ -60,6 +63,9 @@ RATE_HZ = (10.0, 1e5)
 MAX_STEPS = 2000  # screw-model steps per case (drive sub-steps counted): small steps mean shorter runs
 MAX_CLEARANCE_M = 2.5e-4  # clearances drawn log-uniform up to this (the issue's 200 µm and past it)
 LOAD_MIN_N = 50.0  # loads drawn log-uniform from this to the screw's static rating C₀a
+# a step's dissipation may fall by rounding only: sums of ~1e4 terms of the flow's size carry ~1e-12 of it
+SECOND_LAW_TOL = 1e-9
+SECOND_LAW_FLOOR_J = 1e-9
 DATASHEET_SHARE = 0.25  # cases on a datasheet-built screw instead of the s30 preset
 _Q = {n: i for i, (n, _) in enumerate(ACTUATOR_QUANTITIES)}
 _BOOKS_AT = tuple(_Q[q] for q in ("energy_in_j", "load_work_j", "dissipated_j", "stored_j"))  # what `_books` reads
@@ -439,6 +445,7 @@ class _Run:
             self.x_prev, self.stored_prev = model.nut_motion(st)[0], model.total_stored_energy_j(st)
         self.stored0 = self.stored_prev
         self.v_prev = self.energy_in_prev = self.load_work_prev = 0.0
+        self.diss_prev = 0.0 if self.act is None else model.dissipated_j(st)
         self.w_contact: float | None = None  # energy available since first contact
         self.ctl = _Controller(self.case, self.p, self.dt)
         self.engaged = self.released = False
@@ -546,8 +553,10 @@ class _Run:
         misses more than the energy guard allows."""
         if self.act is None:
             # work of the screw torque and of the external load over the step
-            return (self.energy_in_prev + out.power_in_w * self.dt, self.load_work_prev + f * (x - self.x_prev),
-                    out.stored_energy_j)
+            e_in, load_work = self.energy_in_prev + out.power_in_w * self.dt, self.load_work_prev + f * (x - self.x_prev)
+            if not self._second_law(out.power_dissipated_w * self.dt, abs(e_in) + abs(load_work), t):
+                return None
+            return e_in, load_work, out.stored_energy_j
         at = self.sim.model.block_at  # the actuator's block in the internal vector
         e_in, load_work, diss, stored = out.internal[[at + i for i in _BOOKS_AT]].tolist()
         miss = e_in - load_work - diss - (stored - self.stored0)
@@ -555,7 +564,18 @@ class _Run:
         if scale > ENERGY_GUARD_MIN_FLOW_J and abs(miss) > ENERGY_GUARD_REL * scale:  # the guard's own rule
             self.res.violations.append(f"actuator ledger misses {miss:.3g} J of {scale:.3g} J at t = {t:.4f} s")
             return None
+        if not self._second_law(diss - self.diss_prev, scale, t):
+            return None
+        self.diss_prev = diss
         return e_in, load_work, stored
+
+    def _second_law(self, dissipated_j: float, flow_j: float, t: float) -> bool:
+        """A step's dissipation (J) is not negative beyond rounding of the flow so far (`flow_j`, J)."""
+        if dissipated_j >= -(SECOND_LAW_TOL * flow_j + SECOND_LAW_FLOOR_J):
+            return True
+        self.res.violations.append(f"dissipation fell by {-dissipated_j:.4g} J of {flow_j:.4g} J flowed at "
+                                   f"t = {t:.4f} s")
+        return False
 
     def _impact_within_work(self, delta: float, e_in: float, load_work: float, t: float) -> bool:
         """½ k δ² ≤ W past a stop or thread end, W the energy stored at first contact plus the work of the

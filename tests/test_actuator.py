@@ -537,3 +537,30 @@ def test_default_gains_are_tuned_on_the_inertia_and_settle(name, model, motor):
         assert np.all(np.isfinite(y))
         assert y[-1] == pytest.approx(cmd, rel=0.02)
         assert y.max() < 1.25 * cmd
+
+
+@pytest.mark.parametrize("model", ["jones2016", "fu2018", "elastic"])
+def test_a_brake_on_a_screw_reversing_within_a_step_only_dissipates(model):
+    """Oracle: dry friction's work, C × the path the shaft slides (second law: never negative), from a
+    2,000× finer step. The screw spins back at 400 rad/s; an engaged 7 N·m brake and a 10.7 N·m drive
+    turn it round within one 26 ms step (envelope seed 12993's kind). The torque held over the step is
+    set by its end speed; before the step was located it pushed along the motion before the reversal
+    and the brake gave out 18–27 J."""
+    h, cap, tau = 0.026, 7.0, 10.7
+    ap = ActuatorParams(brake=BrakeParams(holding_torque_nm=cap, engage_time_s=0.0))
+    act = Actuator(s30(), h, model, ap)
+    st = act.command_brake(act.initial_state(0.0), True)  # full capacity from the end of the next step
+    st, _ = act.step(st, -400.0 * act.J / h, 0.0)
+    assert st.screw.screw_speed_rad_s < -350.0
+    st1, _ = act.step(st, tau, 0.0)
+    coarse = st1.ledger.stiction_j - st.ledger.stiction_j
+    fine, s, path = Actuator(s30(), h / 2000, model, ap), st, 0.0
+    for _ in range(2000):
+        s2, _ = fine.step(s, tau, 0.0)
+        path += abs(s2.screw.screw_angle_rad - s.screw.screw_angle_rad)
+        s = s2
+    assert s.ledger.stiction_j - st.ledger.stiction_j == pytest.approx(cap * path, rel=1e-5)
+    assert st1.screw.screw_speed_rad_s > 0.0  # it did turn round within the step
+    # the coarse step's own integration of the 26 ms motion (end speed 0.92–0.95× the fine one's) bounds
+    # how close it comes; its sign is the law
+    assert 0.7 * cap * path < coarse < 1.05 * cap * path

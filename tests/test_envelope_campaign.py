@@ -122,3 +122,39 @@ def test_a_tiny_campaign_on_ray_interrupted_and_resumed(tmp_path):
 def test_options_a_mode_does_not_take_are_refused(args, expect, tmp_path, capsys):
     assert sim.main(["envelope", *args, "-o", str(tmp_path)]) == 2
     assert expect in capsys.readouterr().err
+
+
+def test_each_result_names_the_core_it_ran_on_and_the_report_splits_ranges_by_it(tmp_path, capsys):
+    """Oracle: hashlib over the package's sources, recomputed here; a source byte changed (a copy of the package)
+    gives another digest. Seed ranges run on two cores merge into one report that says which ran on which."""
+    import hashlib
+    import shutil
+    from pathlib import Path
+
+    import prsm_sim
+    root = Path(prsm_sim.__file__).parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    digest = envelope.physics_digest()
+    assert digest == h.hexdigest()[:12]
+    assert envelope._run_batch([5])[0]["physics"] == digest
+    copy = tmp_path / "pkg" / "prsm_sim"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    (copy / "envelope.py").write_text((root / "envelope.py").read_text(encoding="utf-8") + "\n", encoding="utf-8")
+    r = subprocess.run([sys.executable, "-c", "from prsm_ros.sweep.envelope import physics_digest as d; print(d())"],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                       env={**os.environ, "PYTHONPATH": f"{tmp_path / 'pkg'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() not in ("", digest)
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    (a / "results.jsonl").write_text("".join(json.dumps({**_row(s), "physics": digest}) + "\n" for s in range(4)),
+                                     encoding="utf-8")
+    (b / "results.jsonl").write_text("".join(json.dumps({**_row(s), "physics": "0123456789ab"}) + "\n"
+                                             for s in range(4, 6)), encoding="utf-8")
+    assert sim.main(["envelope", "--merge", str(a), str(b), "-o", str(tmp_path / "m")]) == 0
+    assert f"mixed cores: {digest}: 4 runs, 0123456789ab: 2 runs" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "m" / "summary.json").read_text())
+    assert summary["physics"] == {digest: [[0, 3]], "0123456789ab": [[4, 5]]}

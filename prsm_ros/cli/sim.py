@@ -441,7 +441,9 @@ def _envelope_report(args, summary: dict) -> None:
     print(dumps(summary) if args.json else
           f"{summary['runs']} runs (seeds {', '.join(f'{a}…{b}' for a, b in summary['seed_ranges'])}), "
           f"{summary['steps']} steps, {summary['cpu_s']} CPU s: {summary['failed']} broke an invariant"
-          + (f" (cases in {args.output}/failures)" if summary["failed"] else ""))
+          + (f" (cases in {args.output}/failures)" if summary["failed"] else "")
+          + ("" if len(summary["physics"]) <= 1 else
+             f"; mixed cores: {', '.join(f'{d}: {sum(b - a + 1 for a, b in r)} runs' for d, r in summary['physics'].items())}"))
 
 
 def _envelope_one(args) -> None:

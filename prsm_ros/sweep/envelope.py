@@ -7,7 +7,8 @@
 
 Cases are drawn from consecutive seeds (`case_from_seed`) and run in small batches as Ray tasks (an
 embedded Ray on this machine by default, or a cluster by address). Every case run is appended to
-OUT/results.jsonl as its batch returns (one JSON line: seed, what it broke, steps, seconds), so a
+OUT/results.jsonl as its batch returns (one JSON line: seed, what it broke, steps, seconds and the digest
+of the core it ran on, `physics_digest`), so a
 run stopped by Ctrl-C, a reboot or a kill keeps what finished, and the same command run again skips
 the seeds already there. Every case that broke an invariant is also written to
 OUT/failures/seed-N.yaml: the case itself (plain data), what it broke and the one command that
@@ -17,6 +18,8 @@ directory, or merged from several (`--merge`), report as one.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import os
 import time
@@ -26,8 +29,22 @@ BATCH = 4  # cases per Ray task: seconds of work, and little lost to a Ctrl-C
 RESULTS = "results.jsonl"
 
 
+@functools.lru_cache(maxsize=1)
+def physics_digest() -> str:
+    """The first 12 hex digits of the SHA-256 of the prsm_sim package's Python sources as this process imports
+    them (paths and bytes, in path order): results of one digest come from one core, so seed ranges run
+    apart (other days, other machines) add up to one campaign only where their digests agree."""
+    import prsm_sim
+    root = Path(prsm_sim.__file__).parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
+
+
 def _run_batch(seeds: list[int]) -> list[dict]:
     from prsm_sim.envelope import case_from_seed, run_case
+    digest = physics_digest()
     out = []
     for s in seeds:
         case = case_from_seed(s)
@@ -35,7 +52,7 @@ def _run_batch(seeds: list[int]) -> list[dict]:
         r = run_case(case)
         out.append({"seed": s, "violations": r.violations, "steps": r.steps, "seconds": time.perf_counter() - t,
                     "model": case["model"], "interface": case["interface"], "controller": case["controller"],
-                    "dt_s": case["dt_s"]})
+                    "dt_s": case["dt_s"], "physics": digest})
     return out
 
 
@@ -171,7 +188,11 @@ def summarize(rows) -> dict:
         key = r["violations"][0].split(" at t =")[0].split(":")[0][:60]
         by_kind[key] = by_kind.get(key, 0) + 1
         by_model.setdefault(r.get("model", "?"), []).append(r["seed"])
+    physics: dict[str, list[list[int]]] = {}
+    for r in rows:  # seed ranges by the core they ran on ("?": results written before digests were kept)
+        physics.setdefault(r.get("physics", "?"), []).append(r["seed"])
     return {"runs": len(rows), "failed": len(failed), "seed_ranges": _ranges([r["seed"] for r in rows]),
+            "physics": {d: _ranges(seeds) for d, seeds in physics.items()},
             "cpu_s": round(sum(r["seconds"] for r in rows), 1), "steps": sum(r["steps"] for r in rows),
             "failures_by_kind": by_kind, "failed_seeds_by_model": by_model, "failed_seeds": [r["seed"] for r in failed][:200]}
 

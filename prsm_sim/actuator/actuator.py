@@ -29,7 +29,7 @@ from typing import Any, cast
 import numpy as np
 
 from prsm_sim.actuator import faults as fl
-from prsm_sim.actuator.brake import brake_level, stiction_torque
+from prsm_sim.actuator.brake import brake_level, stiction_torque, works_on_shaft
 from prsm_sim.actuator.drive import drive_update, loop_schedule, shape_reference
 from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
 from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
@@ -461,11 +461,12 @@ class Actuator(Model):
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
-        if last and lim is not None and halvings < MAX_REST_HALVINGS \
-                and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new)):
+        if halvings < MAX_REST_HALVINGS and (
+                works_on_shaft(w.tau_st, w.new.screw_angle_rad - w.screw.screw_angle_rad)
+                or last and lim is not None and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new))):
             t_end, w.halved = w.screw.time_s + h, True
             self._sub_step(w, load_n, halvings + 1, False)
-            self._sub_step(w, load_n, halvings + 1, True)
+            self._sub_step(w, load_n, halvings + 1, last)
             if w.screw.time_s != t_end:  # the halves' sum rounded
                 w.screw, w.out = replace(w.screw, time_s=t_end), PackedOutputs((t_end,) + w.out[1:])
             return
@@ -612,8 +613,7 @@ class Actuator(Model):
             jam_torque_nm=w.tau_st - brake_t, stop_force_n=w.f_stop, stop_penetration_m=depth,
             stop_absorbed_j=led.stop_work_j - stop_e, thread_end=float(at_end), energy_in_j=led.energy_in_j,
             load_work_j=led.load_work_j,
-            dissipated_j=(screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j
-                          - stop_e + led.backlash_j),
+            dissipated_j=self.dissipated_j(nxt, stop_e),
             stored_j=self.stored_energy(nxt, stop_e),
             faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
         # the last sub-step's record (kept packed through the solves) completed by the actuator's blocks; over
@@ -654,6 +654,16 @@ class Actuator(Model):
     def nut_position_m(self, st: ActuatorState) -> float:
         """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
         return self._nut_x(st.screw)
+
+    def dissipated_j(self, st: ActuatorState, stop_j: float | None = None) -> float:
+        """What the actuator has dissipated up to `st` (J): the screw model's friction, copper, coupling damping,
+        brake and jams, backlash impacts and the stops' work less what they hold as ½ k δ² (`stop_j` where the
+        caller has it already)."""
+        led = st.ledger
+        if stop_j is None:
+            stop_j = stop_stored_j(self.limits, self._nut_x(st.screw))
+        return (st.screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_j
+                + led.backlash_j)
 
     def stored_energy(self, st: ActuatorState, stop_j: float | None = None) -> float:
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from prsm_sim.actuator.params import BrakeParams
 
+# The work a dry friction torque held over a step may do on the shaft before the step is taken again in halves
+# (`works_on_shaft`): far below what a held brake's rounding leaves (|τ| ≤ 1e3 N·m over ≤ 1e-12 rad of drift) is
+# not needed, and halving from a 14 J reversal reaches it in the 16 halvings a step may take (4× less per halving).
+DRY_WORK_TOL_J = 1e-9
+
 
 def brake_level(brake: BrakeParams, level: float, engaged: bool, dt_s: float) -> float:
     """Brake level in [0, 1] after `dt_s`: ramps linearly to 1 over engage_time_s, to 0 over release_time_s."""
@@ -23,3 +28,16 @@ def stiction_torque(capacity_nm: float, w_free_rad_s: float, inertia_kgm2: float
         return 0.0
     need = -inertia_kgm2 * w_free_rad_s / h_s
     return max(-capacity_nm, min(capacity_nm, need))
+
+
+def works_on_shaft(torque_nm: float, angle_change_rad: float) -> bool:
+    """Whether a dry friction torque held over a step did work on the shaft, τ Δθ > DRY_WORK_TOL_J.
+
+    Dry friction only takes energy out, −τ Δθ ≥ 0 over any motion. A torque held over a step is set by the
+    end speed (`stiction_torque`); when the shaft reverses inside the step, the motion before the reversal
+    ran along that torque, and over a whole step it can outweigh the rest (a brake engaging on a screw that
+    turns back from −421 to +14 rad/s in a 26 ms step gave 14 J). The caller then takes the step as two
+    halves, the half holding the reversal likewise, which locates it: the work of the piece that holds it
+    falls as the piece's length squared.
+    """
+    return torque_nm * angle_change_rad > DRY_WORK_TOL_J
