@@ -32,6 +32,10 @@ HERMETIC_ENV = {
     # an embedded Ray on loopback only (prsm_ros.ray_runner.LOCAL_ONLY_ENV), read when Ray is imported:
     # test modules import Ray before their fixtures start it
     "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
+    # set before numpy loads here, as every prsm command sets it (prsm_ros/__init__.py): scipy's expm behind
+    # a model's friction work form differs in the last bit with OpenBLAS's thread count, and the tests
+    # compare runs in this process with runs in the processes it starts bit for bit
+    "OPENBLAS_NUM_THREADS": "1",
 }
 
 # Removed: each changes what a test sees (discovery peers, a DDS profile, security enclaves, log

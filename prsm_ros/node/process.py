@@ -14,16 +14,11 @@ import signal
 import sys
 import threading
 
-# Before numpy loads: the node's matrices are a few rows, so BLAS threads only cost, and with every
-# core busy OpenBLAS's spin-wait starves the very threads it waits for (eleven nodes started at once
-# spent minutes in one 10 x 10 expm). A value the user set is kept.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-import rclpy  # noqa: E402
-import rclpy.executors  # noqa: E402
-import rclpy.signals  # noqa: E402
-from rclpy.node import Node  # noqa: E402
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy  # noqa: E402
+import rclpy
+import rclpy.executors
+import rclpy.signals
+from rclpy.node import Node
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 import prsm_sim  # noqa: E402
 from prsm_sim import PrsmError  # noqa: E402
