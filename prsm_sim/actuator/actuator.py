@@ -13,9 +13,10 @@ Per step (h) the drive's loop runs n_sub = loop_rate × h times (the screw model
 h / n_sub), or once every 1 / (loop_rate × h) steps when slower. Per sub-step:
 drive law on the encoder feedback → current loop → motor torque → (rigid: the rotor inertia
 is part of the screw's; compliant: a torsional spring solved implicitly) → end-stop force and
-dry friction (brake, jam) solved on the screw's linear response → screw model step. The
-step's last sub-step, should it end with the nut at rest off its stop's law, is taken again in halves
-(`stops.off_rest`; models built at h / n_sub / 2**k). The energy ledger (source in = load work +
+dry friction (brake, jam) solved on the screw's linear response → screw model step. A sub-step
+whose dry friction did work on the shaft (the screw turned round inside it: `brake.works_on_shaft`), and
+the step's last sub-step, should it end with the nut at rest off its stop's law (`stops.off_rest`), are
+taken again in halves (models built at h / n_sub / 2**k). The energy ledger (source in = load work +
 dissipated + stored) is kept in the state.
 """
 
@@ -456,8 +457,9 @@ class Actuator(Model):
 
     def _sub_step(self, w: _Work, load_n: float, halvings: int, last: bool) -> None:
         """A sub-step of h_sub / 2**halvings: motor (`_motor`), screw (`_advance`), ledger (`_book`), brake ramp.
-        The step's `last` piece, ending with the nut at rest off its stop's law (`stops.off_rest`), is taken as
-        two halves instead, the second judged likewise (the `stops` module doc); the step's time stays whole."""
+        A piece whose dry friction did work on the shaft (`brake.works_on_shaft`), and the step's `last` piece
+        ending with the nut at rest off its stop's law (`stops.off_rest`), are taken as two halves instead,
+        each judged likewise (the `stops` module doc); the step's time stays whole."""
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))

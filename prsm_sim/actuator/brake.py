@@ -5,8 +5,8 @@ from __future__ import annotations
 from prsm_sim.actuator.params import BrakeParams
 
 # The work a dry friction torque held over a step may do on the shaft before the step is taken again in halves
-# (`works_on_shaft`): far below what a held brake's rounding leaves (|τ| ≤ 1e3 N·m over ≤ 1e-12 rad of drift) is
-# not needed, and halving from a 14 J reversal reaches it in the 16 halvings a step may take (4× less per halving).
+# (`works_on_shaft`): above what a held brake's rounding leaves (|τ| ≤ 1e3 N·m over ≤ 1e-12 rad of drift), so a
+# held brake is never halved; a 14 J reversal falls to a few nJ in the 16 halvings a step may take (4× per halving).
 DRY_WORK_TOL_J = 1e-9
 
 
