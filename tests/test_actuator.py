@@ -564,3 +564,27 @@ def test_a_brake_on_a_screw_reversing_within_a_step_only_dissipates(model):
     # the coarse step's own integration of the 26 ms motion (end speed 0.92–0.95× the fine one's) bounds
     # how close it comes; its sign is the law
     assert 0.7 * cap * path < coarse < 1.05 * cap * path
+
+
+@pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018", "elastic"])
+@pytest.mark.parametrize("stops", [True, False], ids=["stop", "thread-end"])
+def test_a_brake_slipping_under_a_load_past_its_capacity_only_dissipates(model, stops):
+    """Oracle: the second law, step by step (dry friction's work −τ Δθ ≥ 0). 183 kN back-drives the s30 nut
+    through an engaged 9.8 N·m brake (envelope seed 812's setting: 4 ms steps) into a 1e7 N/m stop or onto a
+    thread end. The brake's torque was solved on the screw's linear response, which the load across
+    `elastic`'s chain, `fu2018`'s regimes and a contact within the step all depart from: before the torque
+    was corrected on the model's end speed and a step stopping inside was located, single steps gave
+    0.2–110 J back."""
+    h = 0.0040650406504065045
+    kw = {"stops": StopParams(min_position_m=-0.01137, max_position_m=0.04291, stiffness_n_m=1e7,
+                              damping_n_s_m=0.0)} if stops else {}
+    act = Actuator(s30(), h, model, ActuatorParams(brake=BrakeParams(holding_torque_nm=9.82), **kw))
+    st = act.command_brake(act.initial_state(-0.007), True)
+    works = []
+    for _ in range(60):
+        nxt, _ = act.step(st, 0.0, 183163.3)
+        works.append(nxt.ledger.stiction_j - st.ledger.stiction_j)
+        st = nxt
+    assert min(works) >= -1e-9, min(works)
+    assert sum(works) > 1.0  # it slipped: the brake took energy out
+    assert act.nut_position_m(st) < -0.02  # carried past the stop's face or onto the thread end

@@ -30,7 +30,7 @@ from typing import Any, cast
 import numpy as np
 
 from prsm_sim.actuator import faults as fl
-from prsm_sim.actuator.brake import brake_level, stiction_torque, works_on_shaft
+from prsm_sim.actuator.brake import DRY_CORRECTIONS, brake_level, pushes_along, stiction_torque, works_on_shaft
 from prsm_sim.actuator.drive import drive_update, loop_schedule, shape_reference
 from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
 from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
@@ -194,7 +194,7 @@ class _Work:
 
     __slots__ = ("screw", "led", "th_r", "w_r", "i_a", "integ", "tau_ref", "w_ref", "limited", "enc", "level",
                  "ref", "ref_v", "cmd_prev", "tau_c", "volt", "tau_st", "tau_in", "f_stop", "sums", "act", "model",
-                 "tlim", "cs", "new", "out", "engaged", "halved")
+                 "tlim", "cs", "new", "out", "engaged", "halved", "dry_halvings")
 
     def __init__(self, st: ActuatorState) -> None:
         self.screw, self.led = st.screw, st.ledger
@@ -203,6 +203,7 @@ class _Work:
             st.limited
         self.enc, self.level, self.engaged = st.encoder_rad, st.brake_level, st.brake_engaged
         self.halved = False  # a sub-step was taken in pieces (`Actuator._sub_step`): the outputs are its mean
+        self.dry_halvings = 0  # pieces halved for a reversal under dry friction: one per level on the path to it
         self.ref, self.ref_v, self.cmd_prev = st.reference_m, st.reference_m_s, st.command_prev
         self.tau_c = st.coupling_nm
         self.volt = self.tau_st = self.tau_in = self.f_stop = 0.0
@@ -463,10 +464,13 @@ class Actuator(Model):
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
+        # a reversal's halving follows the piece that holds it, at most one per level (a budget, so no cascade)
+        dry = w.dry_halvings < MAX_REST_HALVINGS and works_on_shaft(w.tau_st, w.new.screw_angle_rad
+                                                                    - w.screw.screw_angle_rad)
         if halvings < MAX_REST_HALVINGS and (
-                works_on_shaft(w.tau_st, w.new.screw_angle_rad - w.screw.screw_angle_rad)
-                or last and lim is not None and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new))):
+                dry or last and lim is not None and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new))):
             t_end, w.halved = w.screw.time_s + h, True
+            w.dry_halvings += dry
             self._sub_step(w, load_n, halvings + 1, False)
             self._sub_step(w, load_n, halvings + 1, last)
             if w.screw.time_s != t_end:  # the halves' sum rounded
@@ -517,16 +521,30 @@ class Actuator(Model):
             """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, its packed record,
             stiction torque, coupling torque, screw torque)."""
             load_in = load_n - f_stop if f_stop != 0.0 else load_n
-            t_st = 0.0
-            if implicit:
-                w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
-                t_st = stiction_torque(cap, w_pred, h / s_w, h)
-                th_pred += s_th * t_st
+            if not implicit:
+                rec = step(x, tau_drive_screw, load_in)
+                return unpack(rec), rec, 0.0, tau_d, tau_drive_screw
+            w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
+            t_st = stiction_torque(cap, w_pred, h / s_w, h)
+            res = trial(t_st, load_in, th_pred)
+            for _ in range(DRY_CORRECTIONS):
+                w1 = res[0].screw_speed_rad_s
+                if not pushes_along(t_st, w1, h):
+                    break
+                # the linear response mispredicted the end speed (the load across `elastic`'s chain, `fu2018`'s
+                # regimes): a Newton step on the speed the model gave, on the screw's own slope s
+                t_st = stiction_torque(cap, w1 - s_w * t_st, h / s_w, h)
+                res = trial(t_st, load_in, th_pred)
+            return res
+
+        def trial(t_st: float, load_in: float, th_pred: float) -> tuple[State, PackedOutputs, float, float, float]:
+            """The sub-step with the dry friction torque t_st held over it: `advance`'s tuple."""
             if rigid:
                 tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
                 rec = step(x, tau_in, load_in)
                 return unpack(rec), rec, t_st, tau_d, tau_in
-            th_sfree = th_pred - s_th * tau_drive_screw  # the screw's end angle with no coupling torque
+            # the screw's end angle with no coupling torque
+            th_sfree = th_pred + s_th * t_st - s_th * tau_drive_screw
             t_c, nw, o = coupling_torque(model, x, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
                                          th_sfree, s_th, h, self.motor_inertia)
             return nw, o, t_st, t_c, t_c + t_st

@@ -8,6 +8,9 @@ from prsm_sim.actuator.params import BrakeParams
 # (`works_on_shaft`): above what a held brake's rounding leaves (|τ| ≤ 1e3 N·m over ≤ 1e-12 rad of drift), so a
 # held brake is never halved; a 14 J reversal falls to a few nJ in the 16 halvings a step may take (4× per halving).
 DRY_WORK_TOL_J = 1e-9
+# Newton steps on the model's end speed when the linear response put the held torque on the wrong side of it
+# (`pushes_along`): one lands on the law where the screw's own slope holds (the linear models: never needed)
+DRY_CORRECTIONS = 3
 
 
 def brake_level(brake: BrakeParams, level: float, engaged: bool, dt_s: float) -> float:
@@ -22,7 +25,8 @@ def stiction_torque(capacity_nm: float, w_free_rad_s: float, inertia_kgm2: float
 
     A dry friction (brake pads, a jam) is set-valued: it holds when the torque needed to stop
     the shaft, −J ω_free / h, is within the capacity, else slips at the capacity. Solved on the
-    screw's linear response; `Actuator` corrects once with the model's actual end speed.
+    screw's linear response; `Actuator` corrects it on the model's end speed where that lands on the
+    torque's side (`pushes_along`).
     """
     if capacity_nm <= 0.0:
         return 0.0
@@ -30,14 +34,27 @@ def stiction_torque(capacity_nm: float, w_free_rad_s: float, inertia_kgm2: float
     return max(-capacity_nm, min(capacity_nm, need))
 
 
+def pushes_along(torque_nm: float, end_speed_rad_s: float, h_s: float) -> bool:
+    """Whether a dry friction torque held over a step pushes the shaft the way it turns at the step's end, by
+    more than DRY_WORK_TOL_J of power over the step: against the law (the friction opposes the motion, or holds
+    it at rest). The torque was solved on a linear response of the screw (`stiction_torque`); where the model's
+    step departs from it (a load acting across `elastic`'s chain, `fu2018`'s friction regimes), the end
+    speed can come out on the torque's side, and the brake then drives the screw (a 9.8 N·m brake gave out 4 J
+    a 4 ms step under 183 kN pressing the nut into a stop). The caller then corrects the torque on the speed
+    the model gave."""
+    return torque_nm * end_speed_rad_s * h_s > DRY_WORK_TOL_J
+
+
 def works_on_shaft(torque_nm: float, angle_change_rad: float) -> bool:
     """Whether a dry friction torque held over a step did work on the shaft, τ Δθ > DRY_WORK_TOL_J.
 
     Dry friction only takes energy out, −τ Δθ ≥ 0 over any motion. A torque held over a step is set by the
-    end speed (`stiction_torque`); when the shaft reverses inside the step, the motion before the reversal
-    ran along that torque, and over a whole step it can outweigh the rest (a brake engaging on a screw that
-    turns back from −421 to +14 rad/s in a 26 ms step gave 14 J). The caller then takes the step as two
-    halves, the half holding the reversal likewise, which locates it: the work of the piece that holds it
-    falls as the piece's length squared.
+    end speed (`stiction_torque`, corrected on the model's end speed where the linear response missed it:
+    `pushes_along`); when the shaft reverses or stops inside the step, the motion before ran along that
+    torque, and over a whole step it can outweigh the rest (a brake engaging on a screw that turns back from
+    −421 to +14 rad/s in a 26 ms step gave 14 J). The caller takes such a step as two halves, the half
+    holding the reversal likewise, which locates it: the work of the piece that holds it falls as the
+    piece's length squared. A held shaft does not trip it: its end speed is corrected until the torque's
+    power over the step is within the tolerance, so its motion is too.
     """
     return torque_nm * angle_change_rad > DRY_WORK_TOL_J
