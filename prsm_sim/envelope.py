@@ -38,15 +38,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from prsm_sim.actuator import (ACTUATOR_QUANTITIES, ActuatorParams, BrakeParams, DriveParams, Fault, MotorParams,
-                               StopParams)
+from prsm_sim.actuator import (
+    ACTUATOR_QUANTITIES,
+    ActuatorParams,
+    BrakeParams,
+    DriveParams,
+    Fault,
+    MotorParams,
+    StopParams,
+)
+from prsm_sim.actuator.stops import stop_stored_j
 from prsm_sim.control import PositionController
+from prsm_sim.models.registry import MODELS as REGISTERED_MODELS
+from prsm_sim.models.registry import model_class
 from prsm_sim.physics.inertia import reflected_inertia
-from prsm_sim.models.registry import MODELS as REGISTERED_MODELS, model_class
 from prsm_sim.presets import preset
 from prsm_sim.session import Session, SessionConfig
-from prsm_sim.stepping.records import Outputs
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL
+from prsm_sim.stepping.records import Outputs
 
 MODELS = tuple(REGISTERED_MODELS)  # drawn in the registry's order
 INTERFACES = ("torque", "effort", "velocity", "position")
@@ -445,7 +454,8 @@ class _Run:
             self.x_prev, self.stored_prev = model.nut_motion(st)[0], model.total_stored_energy_j(st)
         self.stored0 = self.stored_prev
         self.v_prev = self.energy_in_prev = self.load_work_prev = 0.0
-        self.diss_prev = 0.0 if self.act is None else model.dissipated_j(st)
+        self.diss_prev = 0.0 if self.act is None else st.ledger.dissipated_j(
+            st.screw.dissipated_j, stop_stored_j(self.limits, model.nut_position_m(st)))
         self.w_contact: float | None = None  # energy available since first contact
         self.ctl = _Controller(self.case, self.p, self.dt)
         self.engaged = self.released = False

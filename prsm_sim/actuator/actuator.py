@@ -30,7 +30,7 @@ from typing import Any, cast
 import numpy as np
 
 from prsm_sim.actuator import faults as fl
-from prsm_sim.actuator.brake import DRY_CORRECTIONS, brake_level, pushes_along, stiction_torque, works_on_shaft
+from prsm_sim.actuator.brake import brake_level, held_torque, works_on_shaft
 from prsm_sim.actuator.drive import drive_update, loop_schedule, shape_reference
 from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
 from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
@@ -107,6 +107,12 @@ class Ledger:
         s_stop(self, stop_work_j)
         s_load(self, load_work_j)
         s_back(self, backlash_j)
+
+    def dissipated_j(self, screw_j: float, stop_stored_j: float) -> float:
+        """Dissipated up to here (J): the screw model's friction `screw_j`, copper, coupling damping, brake and
+        jams, backlash, and the stops' work less what they hold as ½ k δ² (`stop_stored_j`)."""
+        return (screw_j + self.copper_j + self.coupling_j + self.stiction_j + self.stop_work_j - stop_stored_j
+                + self.backlash_j)
 
 
 _LEDGER_SET = tuple(getattr(Ledger, f.name).__set__ for f in fields(Ledger))  # the slots' setters, in field order
@@ -460,11 +466,11 @@ class Actuator(Model):
         """A sub-step of h_sub / 2**halvings: motor (`_motor`), screw (`_advance`), ledger (`_book`), brake ramp.
         A piece whose dry friction did work on the shaft (`brake.works_on_shaft`), and the step's `last` piece
         ending with the nut at rest off its stop's law (`stops.off_rest`), are taken as two halves instead,
-        each judged likewise (the `stops` module doc); the step's time stays whole."""
+        each judged likewise (the `stops` module doc; a reversal's halving follows the piece that holds it, one
+        piece per level: no cascade); the step's time stays whole."""
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
-        # a reversal's halving follows the piece that holds it, at most one per level (a budget, so no cascade)
         dry = w.dry_halvings < MAX_REST_HALVINGS and works_on_shaft(w.tau_st, w.new.screw_angle_rad
                                                                     - w.screw.screw_angle_rad)
         if halvings < MAX_REST_HALVINGS and (
@@ -494,10 +500,9 @@ class Actuator(Model):
     def _advance(self, w: _Work, load_n: float, tau_d: float, h: float, model: Model) -> Limit | None:
         """The screw (`model`, built at the sub-step h) over it under the drive's torque `tau_d`, with dry
         friction (brake, jam), a compliant coupling and an end stop's force solved implicitly on the screw's local
-        linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a). s comes from two model steps at this state
-        (exact for the linear models; fu2018's effective inertia moves with its friction regime, so a fixed J
-        would not do). Leaves the new screw state, its outputs and the solved torques and force in `w`; returns
-        the limit the nut pressed into (None: none)."""
+        linear response ω1(τ, F) = ω_a + s (τ − τ_a) − p s (F − F_a), s from two model steps at this state (exact
+        for the linear models; fu2018's effective inertia moves with its friction regime). Leaves the new screw
+        state, its outputs and the solved torques and force in `w`; returns the limit pressed into (None: none)."""
         screw, p, act = w.screw, self.p, w.act
         if self.rigid:
             tau_drive_screw = tau_d
@@ -521,33 +526,19 @@ class Actuator(Model):
             """The sub-step with the stop force f_stop (along +x_nut) on the nut: (state, its packed record,
             stiction torque, coupling torque, screw torque)."""
             load_in = load_n - f_stop if f_stop != 0.0 else load_n
-            if not implicit:
-                rec = step(x, tau_drive_screw, load_in)
-                return unpack(rec), rec, 0.0, tau_d, tau_drive_screw
-            w_pred, th_pred = w_a + p * s_w * f_stop, th_a + p * s_th * f_stop
-            t_st = stiction_torque(cap, w_pred, h / s_w, h)
-            res = trial(t_st, load_in, th_pred)
-            for _ in range(DRY_CORRECTIONS):
-                w1 = res[0].screw_speed_rad_s
-                if not pushes_along(t_st, w1, h):
-                    break
-                # the linear response mispredicted the end speed (the load across `elastic`'s chain, `fu2018`'s
-                # regimes): a Newton step on the speed the model gave, on the screw's own slope s
-                t_st = stiction_torque(cap, w1 - s_w * t_st, h / s_w, h)
-                res = trial(t_st, load_in, th_pred)
-            return res
+            th_pred = th_a + p * s_th * f_stop if implicit else 0.0
 
-        def trial(t_st: float, load_in: float, th_pred: float) -> tuple[State, PackedOutputs, float, float, float]:
-            """The sub-step with the dry friction torque t_st held over it: `advance`'s tuple."""
-            if rigid:
-                tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
-                rec = step(x, tau_in, load_in)
-                return unpack(rec), rec, t_st, tau_d, tau_in
-            # the screw's end angle with no coupling torque
-            th_sfree = th_pred + s_th * t_st - s_th * tau_drive_screw
-            t_c, nw, o = coupling_torque(model, x, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
-                                         th_sfree, s_th, h, self.motor_inertia)
-            return nw, o, t_st, t_c, t_c + t_st
+            def trial(t_st: float) -> tuple[State, PackedOutputs, float, float, float]:
+                """The sub-step with the dry friction torque t_st held over it."""
+                if rigid:
+                    tau_in = tau_drive_screw + t_st if t_st != 0.0 else tau_drive_screw
+                    rec = step(x, tau_in, load_in)
+                    return unpack(rec), rec, t_st, tau_d, tau_in
+                th_sfree = th_pred + s_th * t_st - s_th * tau_drive_screw  # its end angle with no coupling torque
+                t_c, nw, o = coupling_torque(model, x, t_st, load_in, th_r + h * w_r, tau_d, phi0, k, c,
+                                             th_sfree, s_th, h, self.motor_inertia)
+                return nw, o, t_st, t_c, t_c + t_st
+            return held_torque(cap, w_a + p * s_w * f_stop, s_w, h, trial) if implicit else trial(0.0)
 
         res = advance(0.0)
         f_stop = 0.0
@@ -633,7 +624,7 @@ class Actuator(Model):
             jam_torque_nm=w.tau_st - brake_t, stop_force_n=w.f_stop, stop_penetration_m=depth,
             stop_absorbed_j=led.stop_work_j - stop_e, thread_end=float(at_end), energy_in_j=led.energy_in_j,
             load_work_j=led.load_work_j,
-            dissipated_j=self.dissipated_j(nxt, stop_e),
+            dissipated_j=led.dissipated_j(screw.dissipated_j, stop_e),
             stored_j=self.stored_energy(nxt, stop_e),
             faults_active=float(sum(f.active(st.time_s) for f in self.all_faults(st))) if w.act is not fl.NONE else 0.0)
         # the last sub-step's record (kept packed through the solves) completed by the actuator's blocks; over
@@ -674,16 +665,6 @@ class Actuator(Model):
     def nut_position_m(self, st: ActuatorState) -> float:
         """The nut's position in `st`, m (its own coordinate across the axial chain in `elastic`)."""
         return self._nut_x(st.screw)
-
-    def dissipated_j(self, st: ActuatorState, stop_j: float | None = None) -> float:
-        """What the actuator has dissipated up to `st` (J): the screw model's friction, copper, coupling damping,
-        brake and jams, backlash impacts and the stops' work less what they hold as ½ k δ² (`stop_j` where the
-        caller has it already)."""
-        led = st.ledger
-        if stop_j is None:
-            stop_j = stop_stored_j(self.limits, self._nut_x(st.screw))
-        return (st.screw.dissipated_j + led.copper_j + led.coupling_j + led.stiction_j + led.stop_work_j - stop_j
-                + led.backlash_j)
 
     def stored_energy(self, st: ActuatorState, stop_j: float | None = None) -> float:
         """Kinetic (screw model incl. a rigid rotor, ½ q̇ᵀ M q̇, Jones 2016 eq. 27; `elastic`: its own

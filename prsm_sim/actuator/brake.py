@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, TypeVar
+
 from prsm_sim.actuator.params import BrakeParams
+
+R = TypeVar("R", bound=tuple[Any, ...])  # a step's result, its end state first
 
 # The work a dry friction torque held over a step may do on the shaft before the step is taken again in halves
 # (`works_on_shaft`): above what a held brake's rounding leaves (|τ| ≤ 1e3 N·m over ≤ 1e-12 rad of drift), so a
@@ -32,6 +37,25 @@ def stiction_torque(capacity_nm: float, w_free_rad_s: float, inertia_kgm2: float
         return 0.0
     need = -inertia_kgm2 * w_free_rad_s / h_s
     return max(-capacity_nm, min(capacity_nm, need))
+
+
+def held_torque(capacity_nm: float, w_free_rad_s: float, slope_rad_s_nm: float, h_s: float,
+                trial: Callable[[float], R]) -> R:
+    """The step `trial(τ)` (its result's first item the end state) with the dry friction torque τ solved on the
+    screw's linear response ω₁ = ω_free + s τ (`stiction_torque`, J = h/s), then corrected where the step's end
+    speed lands on the torque's side (`pushes_along`): the linear response mispredicted it (the load across
+    `elastic`'s chain, `fu2018`'s regimes), and a Newton step on the speed the model gave, on the screw's own
+    slope s, puts the torque back on the law (up to DRY_CORRECTIONS)."""
+    inertia = h_s / slope_rad_s_nm
+    t_st = stiction_torque(capacity_nm, w_free_rad_s, inertia, h_s)
+    res = trial(t_st)
+    for _ in range(DRY_CORRECTIONS):
+        w1 = res[0].screw_speed_rad_s
+        if not pushes_along(t_st, w1, h_s):
+            break
+        t_st = stiction_torque(capacity_nm, w1 - slope_rad_s_nm * t_st, inertia, h_s)
+        res = trial(t_st)
+    return res
 
 
 def pushes_along(torque_nm: float, end_speed_rad_s: float, h_s: float) -> bool:
