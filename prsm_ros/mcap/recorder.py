@@ -527,7 +527,7 @@ class McapRecorder:
         ids: dict[str, int] = {}
         checked: dict[str, type] = {}  # untrusted topics → the class their bytes must deserialize as
         last_flush = time.monotonic()
-        queue, lock = self._queue, self._lock
+        queue = self._queue
         clock = time.perf_counter
         # short drains (see MAX_WAKE_S); close() wakes the thread at once
         wake_s = min(self._flush_interval_s, MAX_WAKE_S)
