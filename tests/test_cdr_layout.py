@@ -33,11 +33,21 @@ def _decodes(data: bytes, cls) -> bool:
     return True
 
 
-def test_check_answers_as_rclpy_for_mutations_of_a_learnt_shape(tmp_path):
+def _checking_file(path, deterministic: bool) -> McapFile:
+    """A file whose `check` knows layouts: a deterministic one has them, another learns them as the
+    recorder does when a received topic is declared (`prepare_checks`)."""
+    f = McapFile(path, deterministic=deterministic)
+    if not deterministic:
+        f.prepare_checks()
+    return f
+
+
+@pytest.mark.parametrize("deterministic", [True, False])
+def test_check_answers_as_rclpy_for_mutations_of_a_learnt_shape(tmp_path, deterministic):
     """Every single-byte change of a reference (lengths, strings, numbers, padding, header) and a few
-    truncations: the deterministic file's check, its shape learnt from good references, says what
-    rclpy's deserializer says."""
-    f = McapFile(tmp_path / "c.mcap", deterministic=True)
+    truncations: the file's check, its shape learnt from good references, says what rclpy's
+    deserializer says (a lockstep file and a realtime one alike)."""
+    f = _checking_file(tmp_path / "c.mcap", deterministic)
     try:
         for k in range(3):  # learnt: numbers only changing
             assert f.check(JointState, _reference(k))
@@ -89,8 +99,9 @@ def test_a_reused_layout_zeroes_what_a_fresh_walk_zeroes():
     assert dirtied > 0
 
 
-def test_float64_commands_check_as_rclpy(tmp_path):
-    f = McapFile(tmp_path / "f.mcap", deterministic=True)
+@pytest.mark.parametrize("deterministic", [True, False])
+def test_float64_commands_check_as_rclpy(tmp_path, deterministic):
+    f = _checking_file(tmp_path / "f.mcap", deterministic)
     try:
         good = [serialize_message(Float64(data=float(k))) for k in range(3)]
         assert all(f.check(Float64, g) for g in good)
@@ -98,5 +109,25 @@ def test_float64_commands_check_as_rclpy(tmp_path):
             assert f.check(Float64, bad) == _decodes(bad, Float64) is False
         longer = good[0] + b"\x00" * 8
         assert f.check(Float64, longer) == _decodes(longer, Float64)
+    finally:
+        f.abort()
+
+
+def test_realtime_commands_are_decoded_once_per_shape(tmp_path):
+    """A realtime file (not deterministic) checks a stream of torque commands, each a new number, with
+    rclpy's deserializer once for their shape, not once per message; bad bytes are still decoded."""
+    f = _checking_file(tmp_path / "r.mcap", deterministic=False)
+    decoded = []
+    deserialize = f._codec.deserialize
+
+    def counting(data, cls):
+        decoded.append(data)
+        return deserialize(data, cls)
+
+    f._codec.deserialize = counting
+    try:
+        assert all(f.check(Float64, serialize_message(Float64(data=0.001 * k))) for k in range(100))
+        assert len(decoded) == 1
+        assert not f.check(Float64, b"\x00\x01\x00\x00\x01") and len(decoded) == 2
     finally:
         f.abort()

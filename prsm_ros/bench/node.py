@@ -87,18 +87,59 @@ def realtime_run(model: str, seconds: float, *, record: bool = True, preset: str
             rclpy.try_shutdown(context=ctx)
             os.sched_setscheduler(0, policy, sched_param)
             sys.setswitchinterval(switch)
-    # step k started at t0 + (k+1)·period + late[k]; drop the first second's start-up transients
+    return {"steps": steps, **pacing_figures(late, period),
+            "cpu_pct": 100 * cpu / wall, "overruns": overruns, "skipped": skipped, "record_dropped": rec_dropped,
+            "scheduling": scheduling}
+
+
+def pacing_figures(late: np.ndarray, period: float) -> dict:
+    """Rate and jitter from a `DeadlinePacer`'s lateness ring: step k started at t0 + (k+1)·period + late[k];
+    the first second's start-up transients are dropped."""
     skip = min(len(late) // 4, int(round(1.0 / period)))
     late = late[skip:]
     starts = (np.arange(len(late)) + 1) * period + late
     rate = (len(late) - 1) / (starts[-1] - starts[0])
     periods = np.diff(starts)
-    return {"steps": steps, "rate_hz": rate, "rate_error_pct": 100 * (rate * period - 1),
+    return {"rate_hz": rate, "rate_error_pct": 100 * (rate * period - 1),
             "jitter_p99_us": 1e6 * float(np.percentile(np.abs(periods - period), 99)),
             "jitter_max_us": 1e6 * float(np.max(np.abs(periods - period))),
-            "late_p99_us": 1e6 * float(np.percentile(late, 99)),
-            "cpu_pct": 100 * cpu / wall, "overruns": overruns, "skipped": skipped, "record_dropped": rec_dropped,
-            "scheduling": scheduling}
+            "late_p99_us": 1e6 * float(np.percentile(late, 99))}
+
+
+def pacing_floor(seconds: float, period_s: float = 1e-3) -> dict:
+    """The floor under the node's period jitter: the node's pacing with nothing to do.
+
+    A thread scheduled as the node's step thread (`realtime_priority`'s default SCHED_FIFO level when
+    the OS allows, timer slack 1 ns, the node's GIL switch interval) waits on a `DeadlinePacer` at the
+    node's default rate, `pacing_spin` 0, and does nothing else: the jitter the OS and this machine
+    give a Python thread sleeping to absolute deadlines, measured as `realtime_run` measures the node's.
+    """
+    import threading
+
+    from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack, request_realtime_priority
+    from prsm_ros.node.parameters import NODE_PARAMETERS
+    from prsm_ros.node.ros_node import REALTIME_SWITCH_INTERVAL_S
+
+    priority = next(p.default for p in NODE_PARAMETERS if p.name == "realtime_priority")
+    result: dict = {}
+
+    def loop() -> None:
+        reduce_timer_slack()
+        result["scheduling"] = request_realtime_priority(priority)  # this thread only; it ends with the run
+        pacer = DeadlinePacer(period_s)
+        for _ in range(int(round(seconds / period_s))):
+            pacer.wait()
+        result["late"] = np.array(pacer.stats.lateness_s)
+
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
+    try:
+        thread = threading.Thread(target=loop, name="prsm-bench-pacing-floor")
+        thread.start()
+        thread.join()
+    finally:
+        sys.setswitchinterval(switch)
+    return {**pacing_figures(result["late"], period_s), "scheduling": result["scheduling"]}
 
 
 def demo_loop(model: str, sim_seconds: float, time_mode: str, *, record: bool = True, preset: str = "s30",
@@ -157,6 +198,7 @@ def measure(quick: bool = False) -> list[dict]:
     model, note = bench_model()
     seconds = 3.0 if quick else 60.0
     rt = realtime_run(model, seconds)
+    pace = pacing_floor(min(seconds, 10.0))  # the jitter's floor, right after the node (same machine state)
     ls = lockstep_round_trips(model, 1.0 if quick else 10.0)
     # the peer: the same loop with rclpy's Python executor in the node, right after (same machine)
     ls_single = lockstep_round_trips(model, 1.0 if quick else 10.0, executor="single")
@@ -170,7 +212,11 @@ def measure(quick: bool = False) -> list[dict]:
         figure("node realtime period jitter p99", rt["jitter_p99_us"], "µs", "≤ 100", rt["jitter_p99_us"] <= 100, None,
                f"max {rt['jitter_max_us']:.0f} µs; start lateness p99 {rt['late_p99_us']:.0f} µs; "
                f"overruns {rt['overruns']}, skipped periods {rt['skipped']}; step thread "
-               f"{rt['scheduling']['step_thread']}, others {rt['scheduling']['other_threads']}"),
+               f"{rt['scheduling']['step_thread']}, others {rt['scheduling']['other_threads']}; "
+               f"{rt['jitter_p99_us'] / pace['jitter_p99_us']:.2f}× the pacing floor of this run"),
+        figure("pacing floor: period jitter p99 of a bare paced thread", pace["jitter_p99_us"], "µs", "(peer)", None,
+               None, f"the node's pacing (DeadlinePacer at 1 kHz, pacing_spin 0, {pace['scheduling']}, timer slack "
+                     f"1 ns) with nothing to do, in this process right after the node; max {pace['jitter_max_us']:.0f} µs"),
         figure("node realtime CPU share of one core", rt["cpu_pct"], "%", "≤ 30", rt["cpu_pct"] <= 30, None,
                f"all threads of the node process (step loop, executor, recorder); dropped records {rt['record_dropped']}"),
         figure("node lockstep command→state round trips", ls["round_trips_per_s"], "1/s", "≥ 2000",

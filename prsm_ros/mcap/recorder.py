@@ -52,6 +52,9 @@ YIELD_S = 5e-5
 # each drain is then a burst of ~3 ms of writes that competes with the step loop and the controller: the
 # bench's command-to-state latency p99 went from 1.9-3.2 ms to 4.4-6.6 ms, so latency wins.
 MAX_WAKE_S = 0.01
+# Queue entries (the node's steps) the writer thread takes and writes as one batch: at 1 kHz a drain every
+# MAX_WAKE_S finds about ten; the batch's Python stays well within a WORK_SLICE_S.
+BATCH_ENTRIES = 16
 FLUSH_INTERVAL_S = 0.05  # see McapRecorder: a chunk's finishing burst, and the loss on SIGKILL
 CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the queue, the summary and the footer
 # Deterministic files: how far (log time) a message may arrive behind the newest one and still be put
@@ -153,6 +156,7 @@ class McapFile:
         # deterministic: padding zeroed, messages in (log time, channel, sequence) order (see `write`)
         self.deterministic = bool(deterministic)
         self._normalise = CdrNormaliser(self._codec.ros_distro) if deterministic else None
+        self._layouts = self._normalise.layouts if self._normalise is not None else None  # `check`'s (`prepare_checks`)
         self._type_of: dict[int, str] = {}
         self._checked_good: dict[type, bytes] = {}
         self._decoded: set[tuple[type, bytes]] = set()  # (class, decisive bytes) that decoded (`check`)
@@ -190,14 +194,15 @@ class McapFile:
         """Whether `data` deserializes as `msg_class` (the codec's own deserializer).
 
         The last bytes that did are kept per class: a command held for many steps is checked once.
-        A deterministic file knows the messages' layouts (`cdr_layout`): bytes whose decisive part
-        (lengths, strings, booleans: all decoding can fail on) is that of bytes that decoded are
-        good without decoding them again (a controller's references, numbers only changing)."""
+        Bytes whose decisive part (`cdr_layout`: lengths, strings, booleans, all decoding can fail
+        on) is that of bytes that decoded are good without decoding them again: a controller's
+        commands and references, numbers only changing, are decoded once per shape, not once per
+        message (at 1 kHz rclpy's deserializer was a fifth of the writer thread)."""
         if self._checked_good.get(msg_class) == data:
             return True
-        lay = key = None
-        if self._normalise is not None:
-            lay = self._normalise.layouts.layout(self._codec.type_name(msg_class), data)
+        layouts, key = self._layouts, None
+        if layouts is not None:
+            lay = layouts.layout(self._codec.type_name(msg_class), data)
             key = None if lay is None else (msg_class, lay.decisive_bytes(data))
             if key in self._decoded:
                 return True
@@ -211,6 +216,16 @@ class McapFile:
                 self._decoded.clear()
             self._decoded.add(key)
         return True
+
+    def prepare_checks(self) -> None:
+        """Learn the message definitions `check` walks layouts with (a typestore: ~0.8 s, so at start-up,
+        not in the writer thread beside a running step loop). Without them `check` decodes every new message."""
+        if self._layouts is None:
+            from prsm_ros.mcap.codec import CdrNormaliser
+            try:
+                self._layouts = CdrNormaliser(self._codec.ros_distro).layouts
+            except (ParamError, ImportError):  # no typestore for this distribution: decode each message
+                pass
 
     def add_channel(self, topic: str, msg_class, qos) -> int:
         """Declare `topic` (schema and QoS metadata); returns its channel id. Re-adding is a no-op."""
@@ -401,6 +416,8 @@ class McapRecorder:
             raise InputError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
                              f"cannot add it again as {mcap_schema.type_name(msg_class)}")
         mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the thread
+        if untrusted and self._file is not None:
+            self._file.prepare_checks()
         self._classes[topic] = msg_class
         self._queue.append((topic, msg_class, qos, untrusted))
 
@@ -510,7 +527,7 @@ class McapRecorder:
         ids: dict[str, int] = {}
         checked: dict[str, type] = {}  # untrusted topics → the class their bytes must deserialize as
         last_flush = time.monotonic()
-        queue, lock = self._queue, self._lock
+        queue = self._queue
         clock = time.perf_counter
         # short drains (see MAX_WAKE_S); close() wakes the thread at once
         wake_s = min(self._flush_interval_s, MAX_WAKE_S)
@@ -520,15 +537,13 @@ class McapRecorder:
             try:
                 slice_end = clock() + WORK_SLICE_S
                 while queue and f is not None:
-                    entry = queue.popleft()
-                    if type(entry) is tuple:  # a channel declaration, kept in order with the messages
-                        topic, cls, qos, untrusted = entry
+                    if type(queue[0]) is tuple:  # a channel declaration, kept in order with the messages
+                        topic, cls, qos, untrusted = queue.popleft()
                         ids[topic] = f.add_channel(topic, cls, qos)
                         if untrusted:
                             checked[topic] = cls
                         continue
-                    with lock:
-                        self._queued -= len(entry)
+                    entry = self._take_batch(queue)
                     if checked:
                         entry = self._well_formed(f, entry, checked)
                     f.write_many([(ids[topic], msg, stamp) for topic, msg, stamp in entry])
@@ -552,6 +567,20 @@ class McapRecorder:
                 self._discard_queued()
             if stopping:
                 return
+
+    def _take_batch(self, queue: deque) -> list:
+        """The messages of up to BATCH_ENTRIES queued entries (each a step's), up to the next channel
+        declaration, as one list: the per-call work of checking and writing is paid per batch, not per step."""
+        entry = queue.popleft()
+        if queue and type(queue[0]) is list:
+            entry = list(entry)  # the caller's list stays untouched
+            for _ in range(BATCH_ENTRIES - 1):
+                if not queue or type(queue[0]) is not list:
+                    break
+                entry += queue.popleft()
+        with self._lock:
+            self._queued -= len(entry)
+        return entry
 
     def _well_formed(self, f: McapFile, entry: list, checked: dict[str, type]) -> list:
         """`entry` without the bytes on untrusted topics that do not deserialize (counted in `_malformed`)."""

@@ -60,6 +60,7 @@ class CommandIntake:
         # wait_for_controller: paused until the first command accepted from a controller (`hand_over`)
         self.await_controller = cfg.wait_for_controller
         self.readers_awaited = False  # lockstep: the first command waits for its state's readers (Outlets.await_readers)
+        self.rerun = node.rerun  # the live Rerun sink or None: the node's sinks are fixed once it is built
 
     def on_command(self, key: str, raw: bytes, info: dict) -> None:
         """One command message as CDR bytes.
@@ -80,8 +81,8 @@ class CommandIntake:
         if key == "nut_position_reference":
             # at the stamp of the state it answers, not at the moment it arrived (that races the steps)
             self.outlets.record(key, raw, reference_stamp_ns(raw))
-            if node.rerun is not None:  # the live recording shows it too, as a bag's conversion does
-                node.rerun.submit_reference(raw, node.config.joint_names[1])
+            if self.rerun is not None:  # the live recording shows it too, as a bag's conversion does
+                self.rerun.submit_reference(raw, self.joints["position"])
             return
         reason, header_ns, malformed = self.offer(key, raw)
         if malformed:  # not this type's CDR: kept out of the bag
