@@ -75,6 +75,8 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # sleep: `sleep(0)` lets the releasing thread win the race to re-take the GIL), which bounds the
 # loop's wait near one slice; `BatchedStream` does the same between entities.
 ROWS_PER_SLICE = 16
+FLUSH_PERIOD_S = 0.2  # default period of the scalar outputs' sends (module docstring)
+SCENE_RATE_HZ = 30.0  # default rate of the 3-D scene's frames, of simulation time
 LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D scene (module docstring)
 # default simulation-time rate of the internal loads' samples (module docstring): a multiple of the
 # scene's default 30 Hz, so each scene frame is one of the samples and adds no row of its own
@@ -129,6 +131,24 @@ def _save_path(target: str) -> Path:
     return path
 
 
+def loads_sample_rows(time_s: np.ndarray, loads_rate_hz: float | None, scene_rate_hz: float,
+                      slots: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int]]:
+    """Rows of a batch of steps (ending at `time_s`, s) whose internal loads the live view sends: the
+    first step of each 1/loads_rate_hz and of each 1/scene_rate_hz of simulation time (so every scene
+    frame is among them), or every row for `loads_rate_hz` None.
+
+    `slots` are the last row's slots at the two rates (`scene.scene_frame_indices`; (-1, -1) to
+    start): pass the returned ones back with the next batch, so a stream cut into batches anywhere
+    is sampled like the whole.
+    """
+    if loads_rate_hz is None:
+        return np.arange(len(time_s)), slots
+    from prsm_ros.viz.scene import scene_frame_indices
+    loads, loads_slot = scene_frame_indices(time_s, loads_rate_hz, slots[0])
+    frames, frame_slot = scene_frame_indices(time_s, scene_rate_hz, slots[1])
+    return np.union1d(loads, frames), (loads_slot, frame_slot)
+
+
 class RecordingWriter:
     """One Rerun recording of a PRSM run: static scene, batches of steps, default blueprint.
 
@@ -138,7 +158,7 @@ class RecordingWriter:
 
     def __init__(self, rec: Any, params: Params | None, layout: InternalLayout, model_name: str, *,
                  scalar_names: Iterable[str] = tuple(n for n, _ in OUTPUT_FIELDS),
-                 scene_rate_hz: float = 30.0, yield_s: float = 0.0) -> None:
+                 scene_rate_hz: float = SCENE_RATE_HZ, yield_s: float = 0.0) -> None:
         from prsm_ros.viz import scene as rerun_scene, series as rerun_series
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
@@ -209,7 +229,7 @@ class RerunSink:
     """
 
     def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
-                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.2, loads_period_s: float | None = None,
+                 scene_rate_hz: float = SCENE_RATE_HZ, flush_period_s: float = FLUSH_PERIOD_S, loads_period_s: float | None = None,
                  loads_rate_hz: float | None = LOADS_RATE_HZ, queue_size: int = 100_000,
                  recording_name: str | None = None) -> None:
         if mode not in MODES:
@@ -385,15 +405,9 @@ class RerunSink:
         return parts[0] if len(parts) == 1 else {k: np.concatenate([c[k] for c in parts]) for k in parts[0]}
 
     def _loads_rows(self, time_s: np.ndarray) -> np.ndarray:
-        """Indices of the steps (ending at `time_s`) whose internal loads are sent: the first of each
-        1/loads_rate_hz of simulation time and each scene frame's (module docstring), or all."""
-        if self.loads_rate_hz is None:
-            return np.arange(len(time_s))
-        from prsm_ros.viz.scene import scene_frame_indices
-        loads, loads_slot = scene_frame_indices(time_s, self.loads_rate_hz, self._slots[0])
-        frames, frame_slot = scene_frame_indices(time_s, self.scene_rate_hz, self._slots[1])
-        self._slots = (loads_slot, frame_slot)
-        return np.union1d(loads, frames)
+        """Indices of the steps (ending at `time_s`) whose internal loads are sent (`loads_sample_rows`)."""
+        idx, self._slots = loads_sample_rows(time_s, self.loads_rate_hz, self.scene_rate_hz, self._slots)
+        return idx
 
     def _send_loads(self) -> None:
         """The internal loads' series and the scene of the sampled steps sent as scalars since the last time."""
