@@ -4,7 +4,7 @@
     sink.submit(out)        # per step, from the 1 kHz loop: appends to a bounded queue, nothing else
     sink.close()            # drains the queue, finalises the file
 
-A background thread sends what the loop queued at two periods, every step kept:
+A background thread sends what the loop queued at two periods, every step's scalar outputs kept:
 
 - every `flush_period_s` (0.2 s): the scalar outputs' series (position, force, speed, torque,
   powers, …), so the plots lag the loop by at most that;
