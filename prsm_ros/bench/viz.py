@@ -115,7 +115,7 @@ def floor_cost(seconds: float, path: Path) -> dict:
     from prsm_sim import Simulator, preset
 
     from prsm_ros.viz.sink import (APPLICATION_ID, FLUSH_PERIOD_S, LOADS_PERIOD_S, LOADS_RATE_HZ, SCENE_RATE_HZ,
-                                   RecordingWriter, loads_sample_rows, yield_s)
+                                   YIELD_S, RecordingWriter, loads_sample_rows)
 
     params = preset(PRESET)
     steps = int(seconds * 1000)
@@ -128,7 +128,7 @@ def floor_cost(seconds: float, path: Path) -> dict:
     with node_scheduling() as (applied, raise_loop):
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
         rec.save(path)
-        writer = RecordingWriter(rec, params, traj.layout, MODEL, yield_s=yield_s())
+        writer = RecordingWriter(rec, params, traj.layout, MODEL, yield_s=YIELD_S)
         writer.send_blueprint()
         writer.log_static()
 

@@ -43,7 +43,6 @@ import atexit
 import math
 import os
 import struct
-import sys
 import threading
 import time
 import uuid
@@ -74,12 +73,12 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # a 1 kHz loop woken on its deadline then waits for: up to the switch interval (5 ms by default) per
 # hand-over. So it converts ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real
 # sleep: `sleep(0)` lets the releasing thread win the race to re-take the GIL), which bounds the
-# loop's wait near one slice; `BatchedStream` does the same between entities. Where the interpreter
-# already hands the lock over within YIELD_ABOVE_SWITCH_S (the node's realtime mode sets 100 µs) the
-# thread neither slices nor sleeps: the loop waits no longer for it, and the ~270 sleeps a second
-# cost 2.5-3 % of a core (the sink's thread, fu2018 at 1 kHz on the 2-core VM, `prsm-bench --only rerun`).
+# loop's wait near one slice; `BatchedStream` does the same between entities. The node's realtime
+# mode hands the lock over after 100 µs, but the loop still waits that long and longer behind a native
+# call that holds the lock: without the sleeps the loop's lateness p99 beside the sink was 0.45-2.6 ms
+# in five runs, with them 0.39-0.83 ms in four (fu2018 at 1 kHz, 2-core VM, the loop of `prsm-bench --only
+# rerun`; the sink with all loads in three, sampled in one).
 ROWS_PER_SLICE = 16
-YIELD_ABOVE_SWITCH_S = 2e-4
 FLUSH_PERIOD_S = 0.2  # default period of the scalar outputs' sends (module docstring)
 SCENE_RATE_HZ = 30.0  # default rate of the 3-D scene's frames, of simulation time
 LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D scene (module docstring)
@@ -87,12 +86,6 @@ LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D
 # scene's default 30 Hz, so each scene frame is one of the samples and adds no row of its own
 LOADS_RATE_HZ = 120.0
 YIELD_S = 5e-5
-
-
-def yield_s() -> float:
-    """How long the sending thread sleeps between slices and sends to hand the GIL back: YIELD_S, or 0
-    where the interpreter hands it over within YIELD_ABOVE_SWITCH_S anyway (the comment at ROWS_PER_SLICE)."""
-    return YIELD_S if sys.getswitchinterval() > YIELD_ABOVE_SWITCH_S else 0.0
 
 
 def rerun_forced_off() -> bool:
@@ -284,7 +277,6 @@ class RerunSink:
         self._closed = False
         self._thread: threading.Thread | None = None
         self._wake = threading.Event()
-        self._yield_s = YIELD_S  # this drain's sleep between slices and sends (set per drain)
         self.writer: RecordingWriter | None = None
         if self.mode == "off":
             return
@@ -392,8 +384,6 @@ class RerunSink:
             return
         t0 = time.perf_counter()
         rows = [self._queue.popleft() for _ in range(n)]
-        self._yield_s = yield_s()
-        self.writer.rec.yield_s = self._yield_s
         try:
             if n:
                 columns = self._scalar_columns(rows)
@@ -410,15 +400,12 @@ class RerunSink:
             self.batches += 1
         self.flush_time_s += time.perf_counter() - t0
 
-    def _slices(self, rows: list[Outputs]):
-        """The rows in slices of ROWS_PER_SLICE with the GIL handed back after each, or all at once
-        when the thread does not yield (the comment at ROWS_PER_SLICE)."""
-        if not self._yield_s:
-            yield rows
-            return
+    @staticmethod
+    def _slices(rows: list[Outputs]):
+        """The rows in slices of ROWS_PER_SLICE, the GIL handed back after each (the comment at ROWS_PER_SLICE)."""
         for i in range(0, len(rows), ROWS_PER_SLICE):
             yield rows[i:i + ROWS_PER_SLICE]
-            time.sleep(self._yield_s)
+            time.sleep(YIELD_S)
 
     def _scalar_columns(self, rows: list[Outputs]) -> dict[str, np.ndarray]:
         """The rows' scalar outputs as columns (`_slices`)."""
