@@ -233,9 +233,9 @@ class RerunSink:
     """
 
     def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
-                 scene_rate_hz: float = SCENE_RATE_HZ, flush_period_s: float = FLUSH_PERIOD_S, loads_period_s: float | None = None,
-                 loads_rate_hz: float | None = LOADS_RATE_HZ, queue_size: int = 100_000,
-                 recording_name: str | None = None) -> None:
+                 scene_rate_hz: float = SCENE_RATE_HZ, flush_period_s: float = FLUSH_PERIOD_S,
+                 loads_period_s: float | None = None, loads_rate_hz: float | None = LOADS_RATE_HZ,
+                 queue_size: int = 100_000, recording_name: str | None = None) -> None:
         if mode not in MODES:
             raise ParamError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
         if not (isinstance(flush_period_s, (int, float)) and 0 < flush_period_s <= 10):
