@@ -167,7 +167,8 @@ class RecordingWriter:
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
         from prsm_ros.viz.columns import BatchedStream
-        self.rec: Any = BatchedStream(rec, yield_s=yield_s)  # a batch's columns go out in few calls: the cost is per call
+        # a batch's columns go out in few calls: the cost is per call
+        self.rec: Any = BatchedStream(rec, yield_s=yield_s)
         self.params = params
         self.layout = layout
         self.model_name = model_name
