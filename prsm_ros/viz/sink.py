@@ -75,9 +75,8 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # sleep: `sleep(0)` lets the releasing thread win the race to re-take the GIL), which bounds the
 # loop's wait near one slice; `BatchedStream` does the same between entities. The node's realtime
 # mode hands the lock over after 100 µs, but the loop still waits that long and longer behind a native
-# call that holds the lock: without the sleeps the loop's lateness p99 beside the sink was 0.45-2.6 ms
-# in five runs, with them 0.39-0.83 ms in four (fu2018 at 1 kHz, 2-core VM, the loop of `prsm-bench --only
-# rerun`; the sink with all loads in three, sampled in one).
+# call that holds the lock: without the sleeps the loop's lateness p99 beside the sink was above 1 ms
+# in 3 of 6 runs, with them in 1 of 7 (fu2018 at 1 kHz, 2-core VM, the loop of `prsm-bench --only rerun`).
 ROWS_PER_SLICE = 16
 FLUSH_PERIOD_S = 0.2  # default period of the scalar outputs' sends (module docstring)
 SCENE_RATE_HZ = 30.0  # default rate of the 3-D scene's frames, of simulation time
