@@ -76,7 +76,8 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # loop's wait near one slice; `BatchedStream` does the same between entities. The node's realtime
 # mode hands the lock over after 100 µs, but the loop still waits that long and longer behind a native
 # call that holds the lock: without the sleeps the loop's lateness p99 beside the sink was above 1 ms
-# in 3 of 6 runs, with them in 1 of 7 (fu2018 at 1 kHz, 2-core VM, the loop of `prsm-bench --only rerun`).
+# in 3 of 7 runs, with them in 1 of 9 (fu2018 at 1 kHz, 2-core VM, the loop of `prsm-bench --only rerun`),
+# for about 2 % of a core more.
 ROWS_PER_SLICE = 16
 FLUSH_PERIOD_S = 0.2  # default period of the scalar outputs' sends (module docstring)
 SCENE_RATE_HZ = 30.0  # default rate of the 3-D scene's frames, of simulation time
