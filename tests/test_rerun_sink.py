@@ -335,6 +335,30 @@ def test_bad_scene_rate_is_refused(tmp_path):
                   scene_rate_hz=0.0)
 
 
+def test_loads_samples_hold_every_scene_frame_and_do_not_depend_on_where_batches_are_cut():
+    """The first step of each 1/rate slot (integer ms arithmetic as the oracle), every scene frame among
+    them even at a rate that is no multiple of the scene's, and the same rows whatever the batches."""
+    from prsm_ros.viz.scene import scene_frame_indices
+    from prsm_ros.viz.sink import loads_sample_rows
+
+    t = np.arange(1, 2001) * 1e-3
+    whole, _ = loads_sample_rows(t, 100.0, 30.0, (-1, -1))
+    ms = np.arange(1, 2001)
+    firsts = {int(np.flatnonzero(ms * r // 1000 == slot)[0]) for r in (100, 30) for slot in set(ms * r // 1000)}
+    assert whole.tolist() == sorted(firsts)
+    frames, _ = scene_frame_indices(t, 30.0, -1)
+    assert set(frames.tolist()) <= set(whole.tolist())
+    rng = np.random.default_rng(7)
+    cuts = np.sort(rng.choice(np.arange(1, 2000), 25, replace=False))
+    slots, parts = (-1, -1), []
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, 2000], strict=True):
+        idx, slots = loads_sample_rows(t[lo:hi], 100.0, 30.0, slots)
+        parts.extend((idx + lo).tolist())
+    assert parts == whole.tolist()
+    every, same = loads_sample_rows(t[:10], None, 30.0, (3, 4))
+    assert every.tolist() == list(range(10)) and same == (3, 4)
+
+
 @pytest.mark.parametrize("rate", [0.0, -1.0, math.inf, math.nan, "120"])
 def test_bad_loads_rate_is_refused_before_anything_starts(tmp_path, rate):
     params = preset("jones2016")
