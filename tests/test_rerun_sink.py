@@ -50,9 +50,9 @@ def run_into(sink: RerunSink, model: str, n: int = N_STEPS, preset_name: str = "
     return params, sim, outs
 
 
-def expected_frames(outs) -> int:
-    """Scene frames at RATE_HZ: one per distinct 1/RATE_HZ slot of step times (integer ms arithmetic)."""
-    return len({round(o.time_s * 1000) * int(RATE_HZ) // 1000 for o in outs})
+def expected_frames(outs, rate_hz: float = RATE_HZ) -> int:
+    """Scene frames at `rate_hz`: one per distinct 1/rate_hz slot of step times (integer ms arithmetic)."""
+    return len({round(o.time_s * 1000) * int(rate_hz) // 1000 for o in outs})
 
 
 @pytest.fixture(scope="module")
@@ -73,8 +73,10 @@ def test_save_mode_file_verifies_and_holds_every_step(jones_run):
     rows = rrd_rows(path)
     for name, _ in OUTPUT_FIELDS[1:]:
         assert rows[(f"/{scalar_path(name)}", "Scalars:scalars")] == N_STEPS, name
+    # the internal loads: the first step of each 1/120 s, every scene frame among them (120 = 4 × 30 Hz)
+    assert sink.loads_rate_hz == 120.0
     for q, unit in sim.layout.blocks[0].quantities:
-        assert rows[(f"/{block_path('per_roller', q, unit)}", "Scalars:scalars")] == N_STEPS, q
+        assert rows[(f"/{block_path('per_roller', q, unit)}", "Scalars:scalars")] == expected_frames(outs, 120) == 181
     frames = expected_frames(outs)
     assert sink.stats()["scene_frames"] == frames == 46
     assert rows[("/world/screw", "Transform3D:quaternion")] == frames
@@ -160,12 +162,13 @@ def test_fu2018_normal_arrows_tooth_points_and_heat_maps(tmp_path):
     path = tmp_path / "fu.rrd"
     params = preset("s30")
     sim = Simulator(params, "fu2018")
-    sink = RerunSink("save", str(path), params, sim.layout, "fu2018", scene_rate_hz=RATE_HZ)
+    sink = RerunSink("save", str(path), params, sim.layout, "fu2018", scene_rate_hz=RATE_HZ, loads_rate_hz=None)
     _, sim, outs = run_into(sink, "fu2018", n=600)
     assert rrd_verify(path).returncode == 0
     geo, nr, nt = params.geometry, params.geometry.n_rollers, params.geometry.n_teeth
     frames = expected_frames(outs)
     rows = rrd_rows(path)
+    assert rows[("/series/per_roller/screw_normal_force_n", "Scalars:scalars")] == 600  # loads_rate_hz None: every step
     for fam in ("screw_normal_force", "nut_normal_force", "screw_friction", "gear_force", "pin_force"):
         assert rows[(f"/world/nut/carrier/forces/{fam}", "Arrows3D:vectors")] == frames, fam
     for side in ("screw", "nut"):
@@ -330,6 +333,39 @@ def test_bad_scene_rate_is_refused(tmp_path):
     with pytest.raises(ValueError, match="scene_rate_hz"):
         RerunSink("save", str(tmp_path / "x.rrd"), params, Simulator(params, "jones2016").layout, "jones2016",
                   scene_rate_hz=0.0)
+
+
+def test_loads_samples_hold_every_scene_frame_and_do_not_depend_on_where_batches_are_cut():
+    """The first step of each 1/rate slot (integer ms arithmetic as the oracle), every scene frame among
+    them even at a rate that is no multiple of the scene's, and the same rows whatever the batches."""
+    from prsm_ros.viz.scene import scene_frame_indices
+    from prsm_ros.viz.sink import loads_sample_rows
+
+    t = np.arange(1, 2001) * 1e-3
+    whole, _ = loads_sample_rows(t, 100.0, 30.0, (-1, -1))
+    ms = np.arange(1, 2001)
+    firsts = {int(np.flatnonzero(ms * r // 1000 == slot)[0]) for r in (100, 30) for slot in set(ms * r // 1000)}
+    assert whole.tolist() == sorted(firsts)
+    frames, _ = scene_frame_indices(t, 30.0, -1)
+    assert set(frames.tolist()) <= set(whole.tolist())
+    rng = np.random.default_rng(7)
+    cuts = np.sort(rng.choice(np.arange(1, 2000), 25, replace=False))
+    slots, parts = (-1, -1), []
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, 2000], strict=True):
+        idx, slots = loads_sample_rows(t[lo:hi], 100.0, 30.0, slots)
+        parts.extend((idx + lo).tolist())
+    assert parts == whole.tolist()
+    every, same = loads_sample_rows(t[:10], None, 30.0, (3, 4))
+    assert every.tolist() == list(range(10)) and same == (3, 4)
+
+
+@pytest.mark.parametrize("rate", [0.0, -1.0, math.inf, math.nan, "120"])
+def test_bad_loads_rate_is_refused_before_anything_starts(tmp_path, rate):
+    params = preset("jones2016")
+    with pytest.raises(ValueError, match="loads_rate_hz"):
+        RerunSink("save", str(tmp_path / "x.rrd"), params, Simulator(params, "jones2016").layout, "jones2016",
+                  loads_rate_hz=rate)
+    assert list(tmp_path.iterdir()) == []
 
 
 # -- streaming modes: a real gRPC server (the rerun binary) receives the data ------------------------

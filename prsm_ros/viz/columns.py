@@ -39,12 +39,18 @@ class ArrowColumn:
         return self._array
 
 
+def _column(descriptor: Any, array: pa.Array, rows: int, per_row: int) -> rr.ComponentColumn:
+    """A component column of `rows` rows of `per_row` values each, its row offsets given outright
+    (what `ComponentColumn.partition` computes from lengths with a cumulative sum)."""
+    return rr.ComponentColumn(descriptor, ArrowColumn(array), offsets=np.arange(0, rows * per_row + 1, per_row,
+                                                                              dtype=np.int32))
+
+
 def scalars_column(values: np.ndarray) -> rr.ComponentColumn:
     """`Scalars:scalars` of a steps (× lines) array: one row per step, one scalar per line (float64)."""
     v = np.ascontiguousarray(values, dtype=np.float64)
-    column = rr.ComponentColumn(rr.Scalars.descriptor_scalars(), ArrowColumn(pa.array(v.reshape(-1))))
     per_row = int(np.prod(v.shape[1:], dtype=np.int64))
-    return column if v.ndim == 1 else column.partition(np.full(v.shape[0], per_row))
+    return _column(rr.Scalars.descriptor_scalars(), pa.array(v.reshape(-1)), v.shape[0], per_row)
 
 
 def vectors_column(descriptor: Any, values: np.ndarray, per_row: int | None = None) -> rr.ComponentColumn:
@@ -53,16 +59,17 @@ def vectors_column(descriptor: Any, values: np.ndarray, per_row: int | None = No
     v = np.ascontiguousarray(values, dtype=np.float32)
     width = v.shape[-1]
     kind = pa.list_(pa.field("item", pa.float32(), nullable=False), width)
-    column = rr.ComponentColumn(descriptor, ArrowColumn(pa.FixedSizeListArray.from_arrays(
-        pa.array(v.reshape(-1)), type=kind)))
-    return column if per_row is None else column.partition(np.full(len(v.reshape(-1, width)) // per_row, per_row))
+    vectors = len(v.reshape(-1, width))
+    per_row = per_row or 1
+    return _column(descriptor, pa.FixedSizeListArray.from_arrays(pa.array(v.reshape(-1)), type=kind),
+                   vectors // per_row, per_row)
 
 
 def colors_column(descriptor: Any, rgba: np.ndarray, per_row: int) -> rr.ComponentColumn:
     """A column of colours from RGBA bytes ((rows × per_row) × 4), packed 0xRRGGBBAA as Rerun's `Color` is."""
     c = np.asarray(rgba, dtype=np.uint32).reshape(-1, 4)
     packed = (c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | c[:, 3]
-    return rr.ComponentColumn(descriptor, ArrowColumn(pa.array(packed))).partition(np.full(len(c) // per_row, per_row))
+    return _column(descriptor, pa.array(packed), len(c) // per_row, per_row)
 
 
 def _field(name: str, array: pa.Array, meta: dict[bytes, bytes]) -> pa.Field:

@@ -12,9 +12,10 @@ What a bag gives, in order of preference:
 Topics are found by `prsm_ros.bag.reader.resolve_topics` (type and name suffix, so a namespaced or
 remapped node still converts). The `…/nut_position_reference` input (stamped: at the stamp of the state it
 answers; or a plain Float64) is plotted beside the outputs, as the live recording does; the `…/screw_torque`
-command is not (it is the applied screw torque, already a series). Other joint names than `screw_joint` / `nut_joint` are given with `screw_joint=` /
-`nut_joint=`; when the joint states name neither, the summary warns that the scene cannot move. Geometry comes from the run metadata (`prsm_run`
-parameters_yaml, written by our recorder); a bag without it gets its `preset`, else a schematic
+command is not (it is the applied screw torque, already a series). Other joint names than
+`screw_joint` / `nut_joint` are given with `screw_joint=` / `nut_joint=`; when the joint states
+name neither, the summary warns that the scene cannot move. Geometry comes from the run metadata
+(`prsm_run` parameters_yaml, written by our recorder); a bag without it gets its `preset`, else a schematic
 geometry (preset s30), and the summary says so. Time: our bags are stamped with simulation time
 and keep it; a foreign bag's `sim_time` is the time since its first message.
 """

@@ -70,6 +70,7 @@ ABOUT = "about"
 FORCE_REF_N = 1.0  # arrow length grows by r_R per decade above this force
 COLOR_RANGE_N = (0.1, 1e4)  # colour ramp end points (log scale)
 _RAMP = np.array([[40, 80, 220], [0, 190, 220], [60, 200, 60], [240, 215, 40], [220, 40, 30]], dtype=float)
+_RAMP_STOPS = np.arange(len(_RAMP), dtype=float)
 
 _COLORS = {"screw": (150, 150, 160, 255), "thread": (90, 90, 100, 255), "nut": (70, 120, 200, 90),
            "nut_thread": (70, 120, 200, 200), "roller": (215, 140, 60, 255), "roller_body": (215, 140, 60, 70),
@@ -107,10 +108,11 @@ def color_by_magnitude(force_n: np.ndarray) -> np.ndarray:
     lo, hi = (math.log10(v) for v in COLOR_RANGE_N)
     f = np.maximum(np.abs(np.asarray(force_n, dtype=float)), COLOR_RANGE_N[0])
     x = np.clip((np.log10(f) - lo) / (hi - lo), 0.0, 1.0) * (len(_RAMP) - 1)
-    stops = np.arange(len(_RAMP))
-    rgb = np.stack([np.interp(x, stops, _RAMP[:, c]) for c in range(3)], axis=-1)
-    alpha = np.full(rgb.shape[:-1] + (1,), 255.0)
-    return np.concatenate([rgb, alpha], axis=-1).astype(np.uint8)
+    out = np.empty(x.shape + (4,), dtype=np.uint8)  # each channel written in place: no stack, no copy
+    for c in range(3):
+        out[..., c] = np.interp(x, _RAMP_STOPS, _RAMP[:, c])  # truncated toward zero, as astype(np.uint8)
+    out[..., 3] = 255
+    return out
 
 
 def arrow_length_m(force_n: np.ndarray, roller_radius_m: float) -> np.ndarray:

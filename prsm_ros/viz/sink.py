@@ -4,12 +4,19 @@
     sink.submit(out)        # per step, from the 1 kHz loop: appends to a bounded queue, nothing else
     sink.close()            # drains the queue, finalises the file
 
-A background thread sends what the loop queued at two periods, every step kept:
+A background thread sends what the loop queued at two periods, every step's scalar outputs kept:
 
 - every `flush_period_s` (0.2 s): the scalar outputs' series (position, force, speed, torque,
   powers, …), so the plots lag the loop by at most that;
-- every `loads_period_s` (1 s): the internal loads' series (per roller) and the 3D scene (poses,
-  arrows, tooth points, heat maps) for the first step of each 1/scene_rate_hz of simulation time.
+- every `loads_period_s` (1 s): the internal loads' series (per roller) for the first step of each
+  1/loads_rate_hz (120 Hz) of simulation time, and the 3D scene (poses, arrows, tooth points, heat
+  maps) for the first step of each 1/scene_rate_hz (30 Hz), a step the loads' series also holds.
+
+Every step's scalar outputs are sent; the internal loads are sampled because reading a step's
+internal vector is the costliest part of a row (fu2018: its ~830 labelled loads expanded per step,
+10-70 µs on the 2-core VM, against 6-15 µs for the scalar outputs), and plots refreshed a few times a
+second show no more at 1 kHz than at 120 Hz. `loads_rate_hz=None` keeps every step's loads; a bag
+keeps every step and `bag_to_rrd` converts every step.
 
 Rerun's cost is per entity and send, hardly per row (about 0.1 ms of the SDK's own work per entity
 and send on the 2-core VM, beside the Python that builds the columns), and a batch holds about 20
@@ -33,6 +40,7 @@ This module imports `rerun` only when a sink or writer is actually made, so impo
 from __future__ import annotations
 
 import atexit
+import math
 import os
 import struct
 import threading
@@ -65,9 +73,18 @@ CLOSE_TIMEOUT_S = 10.0  # default wait in close() for the background thread, the
 # a 1 kHz loop woken on its deadline then waits for: up to the switch interval (5 ms by default) per
 # hand-over. So it converts ROWS_PER_SLICE rows at a time and sleeps YIELD_S between slices (a real
 # sleep: `sleep(0)` lets the releasing thread win the race to re-take the GIL), which bounds the
-# loop's wait near one slice; `BatchedStream` does the same between entities.
+# loop's wait near one slice; `BatchedStream` does the same between entities. The node's realtime
+# mode hands the lock over after 100 µs, but the loop still waits that long and longer behind a native
+# call that holds the lock: without the sleeps the loop's lateness p99 beside the sink was above 1 ms
+# in 3 of 7 runs, with them in 1 of 9 (fu2018 at 1 kHz, 2-core VM, the loop of `prsm-bench --only rerun`),
+# for about 2 % of a core more.
 ROWS_PER_SLICE = 16
+FLUSH_PERIOD_S = 0.2  # default period of the scalar outputs' sends (module docstring)
+SCENE_RATE_HZ = 30.0  # default rate of the 3-D scene's frames, of simulation time
 LOADS_PERIOD_S = 1.0  # default period of the internal loads' series and the 3-D scene (module docstring)
+# default simulation-time rate of the internal loads' samples (module docstring): a multiple of the
+# scene's default 30 Hz, so each scene frame is one of the samples and adds no row of its own
+LOADS_RATE_HZ = 120.0
 YIELD_S = 5e-5
 
 
@@ -118,6 +135,24 @@ def _save_path(target: str) -> Path:
     return path
 
 
+def loads_sample_rows(time_s: np.ndarray, loads_rate_hz: float | None, scene_rate_hz: float,
+                      slots: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int]]:
+    """Rows of a batch of steps (ending at `time_s`, s) whose internal loads the live view sends: the
+    first step of each 1/loads_rate_hz and of each 1/scene_rate_hz of simulation time (so every scene
+    frame is among them), or every row for `loads_rate_hz` None.
+
+    `slots` are the last row's slots at the two rates (`scene.scene_frame_indices`; (-1, -1) to
+    start): pass the returned ones back with the next batch, so a stream cut into batches anywhere
+    is sampled like the whole.
+    """
+    if loads_rate_hz is None:
+        return np.arange(len(time_s)), slots
+    from prsm_ros.viz.scene import scene_frame_indices
+    loads, loads_slot = scene_frame_indices(time_s, loads_rate_hz, slots[0])
+    frames, frame_slot = scene_frame_indices(time_s, scene_rate_hz, slots[1])
+    return np.union1d(loads, frames), (loads_slot, frame_slot)
+
+
 class RecordingWriter:
     """One Rerun recording of a PRSM run: static scene, batches of steps, default blueprint.
 
@@ -127,12 +162,13 @@ class RecordingWriter:
 
     def __init__(self, rec: Any, params: Params | None, layout: InternalLayout, model_name: str, *,
                  scalar_names: Iterable[str] = tuple(n for n, _ in OUTPUT_FIELDS),
-                 scene_rate_hz: float = 30.0, yield_s: float = 0.0) -> None:
+                 scene_rate_hz: float = SCENE_RATE_HZ, yield_s: float = 0.0) -> None:
         from prsm_ros.viz import scene as rerun_scene, series as rerun_series
         if not (np.isfinite(scene_rate_hz) and scene_rate_hz > 0):
             raise ParamError(f"scene_rate_hz = {scene_rate_hz!r}: must be a finite number > 0")
         from prsm_ros.viz.columns import BatchedStream
-        self.rec: Any = BatchedStream(rec, yield_s=yield_s)  # a batch's columns go out in few calls: the cost is per call
+        # a batch's columns go out in few calls: the cost is per call
+        self.rec: Any = BatchedStream(rec, yield_s=yield_s)
         self.params = params
         self.layout = layout
         self.model_name = model_name
@@ -198,7 +234,8 @@ class RerunSink:
     """
 
     def __init__(self, mode: str, target: str, params: Params, layout: InternalLayout, model_name: str, *,
-                 scene_rate_hz: float = 30.0, flush_period_s: float = 0.2, loads_period_s: float | None = None,
+                 scene_rate_hz: float = SCENE_RATE_HZ, flush_period_s: float = FLUSH_PERIOD_S,
+                 loads_period_s: float | None = None, loads_rate_hz: float | None = LOADS_RATE_HZ,
                  queue_size: int = 100_000, recording_name: str | None = None) -> None:
         if mode not in MODES:
             raise ParamError(f"rerun = {mode!r}: must be one of {', '.join(MODES)}")
@@ -209,6 +246,9 @@ class RerunSink:
         if not (isinstance(loads_period_s, (int, float)) and flush_period_s <= loads_period_s <= 60):
             raise ParamError(f"loads_period_s = {loads_period_s!r}: must be in [flush_period_s = {flush_period_s!r}, "
                              "60] s")
+        if loads_rate_hz is not None and not (isinstance(loads_rate_hz, (int, float)) and 0 < loads_rate_hz < math.inf):
+            raise ParamError(f"loads_rate_hz = {loads_rate_hz!r}: must be a finite number > 0 (Hz of simulation "
+                             "time), or None for every step")
         if not (isinstance(queue_size, int) and queue_size > 0):
             raise ParamError(f"queue_size = {queue_size!r}: must be a whole number > 0")
         self.requested_mode = mode
@@ -218,6 +258,9 @@ class RerunSink:
         self.model_name = model_name
         self.flush_period_s = float(flush_period_s)
         self.loads_period_s = float(loads_period_s)
+        self.loads_rate_hz = None if loads_rate_hz is None else float(loads_rate_hz)
+        self.scene_rate_hz = float(scene_rate_hz)
+        self._slots = (-1, -1)  # the last step's slot at loads_rate_hz and at scene_rate_hz (`scene_frame_indices`)
         self._pending: list[tuple[list[Outputs], dict[str, np.ndarray]]] = []  # sent as scalars, loads not yet
         self._loads_due = 0.0
         self.queue_size = queue_size
@@ -346,7 +389,8 @@ class RerunSink:
             if n:
                 columns = self._scalar_columns(rows)
                 self.writer.send(columns, None, loads=False)
-                self._pending.append((rows, columns))
+                keep = self._loads_rows(columns["time_s"])
+                self._pending.append(([rows[i] for i in keep], {k: v[keep] for k, v in columns.items()}))
             if self._pending and (final or t0 >= self._loads_due):
                 self._loads_due = t0 + self.loads_period_s
                 self._send_loads()
@@ -357,25 +401,33 @@ class RerunSink:
             self.batches += 1
         self.flush_time_s += time.perf_counter() - t0
 
-    def _scalar_columns(self, rows: list[Outputs]) -> dict[str, np.ndarray]:
-        """The rows' scalar outputs as columns, ROWS_PER_SLICE rows at a time with the GIL handed back between."""
-        parts = []
+    @staticmethod
+    def _slices(rows: list[Outputs]):
+        """The rows in slices of ROWS_PER_SLICE, the GIL handed back after each (the comment at ROWS_PER_SLICE)."""
         for i in range(0, len(rows), ROWS_PER_SLICE):
-            parts.append(trajectory_from_rows(rows[i:i + ROWS_PER_SLICE], self.layout, State()).columns)
+            yield rows[i:i + ROWS_PER_SLICE]
             time.sleep(YIELD_S)
+
+    def _scalar_columns(self, rows: list[Outputs]) -> dict[str, np.ndarray]:
+        """The rows' scalar outputs as columns (`_slices`)."""
+        parts = [trajectory_from_rows(part, self.layout, State()).columns for part in self._slices(rows)]
         return parts[0] if len(parts) == 1 else {k: np.concatenate([c[k] for c in parts]) for k in parts[0]}
 
+    def _loads_rows(self, time_s: np.ndarray) -> np.ndarray:
+        """Indices of the steps (ending at `time_s`) whose internal loads are sent (`loads_sample_rows`)."""
+        idx, self._slots = loads_sample_rows(time_s, self.loads_rate_hz, self.scene_rate_hz, self._slots)
+        return idx
+
     def _send_loads(self) -> None:
-        """The internal loads' series and the scene of the steps sent as scalars since the last time."""
+        """The internal loads' series and the scene of the sampled steps sent as scalars since the last time."""
         pending, self._pending = self._pending, []
         rows = [r for rs, _ in pending for r in rs]
+        if not rows:
+            return
         columns = {k: np.concatenate([c[k] for _, c in pending]) for k in pending[0][1]}
         internal = None
         if self.layout.size:
-            parts = []
-            for i in range(0, len(rows), ROWS_PER_SLICE):
-                parts.append(np.array([r.internal for r in rows[i:i + ROWS_PER_SLICE]], dtype=float))
-                time.sleep(YIELD_S)
+            parts = [np.array([r.internal for r in part], dtype=float) for part in self._slices(rows)]
             internal = np.concatenate(parts).reshape(len(rows), self.layout.size)
         writer = self.writer
         assert writer is not None  # the background thread runs only on a started sink
