@@ -191,7 +191,10 @@ def test_a_lockstep_command_of_a_million_steps_leaves_the_node_responsive(tmp_pa
     from std_msgs.msg import Float64
     from std_srvs.srv import SetBool, Trigger
 
-    params = {"time_mode": "lockstep", "lockstep_steps": 1_000_000, "record": False, "cmd_timeout": 0.0}
+    # with the actuator a step costs ~0.1 ms, so the 10^6 steps outlast the two calls by a minute or more even on a
+    # loaded machine (the bare screw's ~15 µs let a loaded client's calls arrive after the last step)
+    params = {"time_mode": "lockstep", "lockstep_steps": 1_000_000, "record": False, "cmd_timeout": 0.0,
+              "actuator": "{motor: {}}"}
     with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
         js = cli.subscribe("/joint_states", JointState)
         cli.publisher(TORQUE, Float64)
