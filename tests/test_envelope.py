@@ -42,7 +42,7 @@ def known_open(case: dict, violations: list[str]) -> str | None:
     not yet fixed at its cause, or None: a step of 5 ms or more on an end (the stop solve and the models
     at steps that do not resolve the contact: books, rest and ringing); a load near the static rating
     running the nut off a thread end; the second law broken by `fu2018`'s or `elastic`'s dissipation falling
-    within a step (tests/envelope_found.json: 1059, 2811, 3259, 4840, 241390)."""
+    within a step (pinned open in tests/envelope_found.json)."""
     v = violations[0]
     books = v.startswith(("energy guard tripped", "actuator ledger misses", "impact past the work", "at rest"))
     if case["dt_s"] >= 0.005 and (books or v.startswith("screw speed rings")):
