@@ -78,7 +78,9 @@ def works_on_shaft(torque_nm: float, angle_change_rad: float) -> bool:
     torque, and over a whole step it can outweigh the rest (a brake engaging on a screw that turns back from
     −421 to +14 rad/s in a 26 ms step gave 14 J). The caller takes such a step as two halves, the half
     holding the reversal likewise, which locates it: the work of the piece that holds it falls as the
-    piece's length squared. A held shaft does not trip it: its end speed is corrected until the torque's
-    power over the step is within the tolerance, so its motion is too.
+    piece's length squared. A held shaft whose end speed the correction put back on the law leaves τ Δθ within
+    the tolerance; one the correction left creeping along the torque (its DRY_CORRECTIONS Newton steps converge
+    only linearly where `fu2018`'s own stiction kinks the response near rest) trips it on every piece, which the
+    caller's budget of one piece per level bounds.
     """
     return torque_nm * angle_change_rad > DRY_WORK_TOL_J
