@@ -588,3 +588,63 @@ def test_a_brake_slipping_under_a_load_past_its_capacity_only_dissipates(model, 
     assert min(works) >= -1e-9, min(works)
     assert sum(works) > 1.0  # it slipped: the brake took energy out
     assert act.nut_position_m(st) < -0.02  # carried past the stop's face or onto the thread end
+
+
+class _End:
+    """A step's end state as `brake.held_torque` reads it."""
+
+    def __init__(self, w: float):
+        self.screw_speed_rad_s = w
+
+
+@pytest.mark.parametrize("w_free", [0.9, -0.9, 40.0, 5.0, -3.0])
+def test_the_held_torque_lands_on_the_law_where_the_response_kinks_near_rest(w_free):
+    """Oracle: the closed-form root of a piecewise-linear end speed. A model whose end speed departs from the
+    linear response the first torque is solved on (by 0.5 rad/s against the free motion: the load across
+    `elastic`'s chain) and is stiff near rest (fu2018's stiction: slope s/50 within 1 rad/s of it, s beyond)
+    makes that torque push along a creeping shaft; the search on the model's own end speed lands on the law
+    (the torque stops the shaft: |ω₁ τ| h within 1e-9 J at the root; or slips at the capacity against it)
+    within its trial budget. Newton steps on s gain only 2 % a step there (envelope seeds 1059, 2811, 9858,
+    11717: the torque left pushing along the creeping shaft)."""
+    from prsm_sim.actuator.brake import DRY_CORRECTIONS, DRY_WORK_TOL_J, held_torque
+    s, h, cap = 2.0, 5e-3, 6.2
+    offset = -math.copysign(0.5, w_free)
+
+    def end_speed(t):
+        u = w_free + offset + s * t
+        return u / 50.0 if abs(u) < 1.0 else u - math.copysign(1.0 - 1.0 / 50.0, u)  # continuous at |u| = 1
+
+    trials = []
+
+    def trial(t):
+        trials.append(t)
+        return (_End(end_speed(t)), t)
+
+    end, t = held_torque(cap, w_free, s, h, trial)
+    root = -(w_free + offset) / s
+    w1 = end.screw_speed_rad_s
+    if abs(root) <= cap:
+        assert t * w1 * h <= DRY_WORK_TOL_J  # never pushing along
+        assert abs(w1 * t) * h <= 10 * DRY_WORK_TOL_J  # and held: at the root, to the tolerance's order
+        assert t == pytest.approx(root, abs=1e-5)
+    else:
+        assert t == -math.copysign(cap, w_free)
+        assert t * w1 < 0.0
+    assert len(trials) <= DRY_CORRECTIONS + 2
+
+
+def test_a_stop_pushing_a_nut_out_past_its_stored_energy_gives_out():
+    """Oracle: the closed form of a stop's books, F Δx − Δ(½ k δ²) (envelope seed 241390's step: 285.4 N held
+    while the nut went from 1.6 µm in to 15.5 µm out of a 1e8 N/m thread end: −4.77 mJ), against a nut held
+    where k δ = F (0 J) and one pressed in by the law's force (> 0)."""
+    from prsm_sim.actuator.stops import GIVE_TOL_J, Limit, absorbed_j, gives_out
+    lim = Limit(0.1, 1.0, 1e8, 2e5, True, 0.01)
+    f, x0, x1 = -285.4, 0.1 + 1.606e-6, 0.1 - 15.55e-6
+    closed = 285.4 * (-15.55e-6 - 1.606e-6) - 0.5e8 * (0.0 - 1.606e-6 ** 2)
+    assert absorbed_j(lim, 285.4, 1.606e-6, -15.55e-6) == pytest.approx(closed, rel=1e-12)
+    assert closed == pytest.approx(-4.767e-3, rel=1e-3)
+    assert gives_out(lim, f, x0, x1)
+    assert not gives_out(lim, -285.4, 0.1 + 2.854e-6, 0.1 + 2.854e-6)
+    assert not gives_out(lim, -2000.0, 0.1, 0.1 + 15e-6)
+    assert not gives_out(lim, 0.0, x0, x1)
+    assert GIVE_TOL_J == 1e-9

@@ -41,16 +41,13 @@ def known_open(case: dict, violations: list[str]) -> str | None:
     """Why a drawn case's violation is a defect already found and pinned (tests/test_envelope_found.py) and
     not yet fixed at its cause, or None: a step of 5 ms or more on an end (the stop solve and the models
     at steps that do not resolve the contact: books, rest and ringing); a load near the static rating
-    running the nut off a thread end; the second law broken by `fu2018`'s or `elastic`'s dissipation falling
-    within a step (pinned open in tests/envelope_found.json)."""
+    running the nut off a thread end."""
     v = violations[0]
     books = v.startswith(("energy guard tripped", "actuator ledger misses", "impact past the work", "at rest"))
     if case["dt_s"] >= 0.005 and (books or v.startswith("screw speed rings")):
         return "a step of 5 ms or more on an end"
     if "left its threads" in v and abs(case["load"]["value_n"]) > 1e5:
         return "a load near the static rating back-drives the nut off a thread end"
-    if v.startswith("dissipation fell") and case["model"] in ("fu2018", "elastic"):
-        return "fu2018's and elastic's dissipation falling in a step (a held brake on a creeping shaft, elastic's contacts)"
     return None
 
 

@@ -14,7 +14,8 @@ h / n_sub), or once every 1 / (loop_rate × h) steps when slower. Per sub-step:
 drive law on the encoder feedback → current loop → motor torque → (rigid: the rotor inertia
 is part of the screw's; compliant: a torsional spring solved implicitly) → end-stop force and
 dry friction (brake, jam) solved on the screw's linear response → screw model step. A sub-step
-whose dry friction did work on the shaft (the screw turned round inside it: `brake.works_on_shaft`), and
+whose dry friction did work on the shaft (the screw turned round inside it: `brake.works_on_shaft`) or whose
+stop gave out energy (the screw's response jumped across the stop's law: `stops.gives_out`), and
 the step's last sub-step, should it end with the nut at rest off its stop's law (`stops.off_rest`), are
 taken again in halves (models built at h / n_sub / 2**k). The energy ledger (source in = load work +
 dissipated + stored) is kept in the state.
@@ -37,8 +38,8 @@ from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
 from prsm_sim.actuator.sensing import SensorSuite
 from prsm_sim.actuator.sensors import MEASURED_QUANTITIES, TrueSample
-from prsm_sim.actuator.stops import MAX_REST_HALVINGS, Limit, engaged, limits_of, off_rest, stop_penetration, \
-    stop_stored_j
+from prsm_sim.actuator.stops import MAX_REST_HALVINGS, Limit, engaged, gives_out, limits_of, off_rest, \
+    stop_penetration, stop_stored_j
 from prsm_sim.actuator.stops import solve as solve_stop
 from prsm_sim.errors import InputError
 from prsm_sim.models.registry import build_model, model_class
@@ -200,7 +201,7 @@ class _Work:
 
     __slots__ = ("screw", "led", "th_r", "w_r", "i_a", "integ", "tau_ref", "w_ref", "limited", "enc", "level",
                  "ref", "ref_v", "cmd_prev", "tau_c", "volt", "tau_st", "tau_in", "f_stop", "sums", "act", "model",
-                 "tlim", "cs", "new", "out", "engaged", "halved", "dry_halvings")
+                 "tlim", "cs", "new", "out", "engaged", "halved", "work_halvings")
 
     def __init__(self, st: ActuatorState) -> None:
         self.screw, self.led = st.screw, st.ledger
@@ -209,7 +210,8 @@ class _Work:
             st.limited
         self.enc, self.level, self.engaged = st.encoder_rad, st.brake_level, st.brake_engaged
         self.halved = False  # a sub-step was taken in pieces (`Actuator._sub_step`): the outputs are its mean
-        self.dry_halvings = 0  # pieces halved for a reversal under dry friction: one per level on the path to it
+        # pieces halved for a brake or jam, or a stop, that did work on the shaft: one per level on the path to it
+        self.work_halvings = 0
         self.ref, self.ref_v, self.cmd_prev = st.reference_m, st.reference_m_s, st.command_prev
         self.tau_c = st.coupling_nm
         self.volt = self.tau_st = self.tau_in = self.f_stop = 0.0
@@ -464,19 +466,20 @@ class Actuator(Model):
 
     def _sub_step(self, w: _Work, load_n: float, halvings: int, last: bool) -> None:
         """A sub-step of h_sub / 2**halvings: motor (`_motor`), screw (`_advance`), ledger (`_book`), brake ramp.
-        A piece whose dry friction did work on the shaft (`brake.works_on_shaft`), and the step's `last` piece
-        ending with the nut at rest off its stop's law (`stops.off_rest`), are taken as two halves instead,
-        each judged likewise (the `stops` module doc; a reversal's halving follows the piece that holds it, one
+        A piece whose dry friction did work on the shaft (`brake.works_on_shaft`) or whose stop gave out energy
+        (`stops.gives_out`), and the step's `last` piece ending with the nut at rest off its stop's law
+        (`stops.off_rest`), are taken as two halves instead, each judged likewise (the `stops` module doc; a reversal's halving follows the piece that holds it, one
         piece per level: no cascade); the step's time stays whole."""
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
-        dry = w.dry_halvings < MAX_REST_HALVINGS and works_on_shaft(w.tau_st, w.new.screw_angle_rad
-                                                                    - w.screw.screw_angle_rad)
+        gave = w.work_halvings < MAX_REST_HALVINGS and (
+            works_on_shaft(w.tau_st, w.new.screw_angle_rad - w.screw.screw_angle_rad)
+            or lim is not None and gives_out(lim, w.f_stop, self._nut_x(w.screw), self._nut_x(w.new)))
         if halvings < MAX_REST_HALVINGS and (
-                dry or last and lim is not None and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new))):
+                gave or last and lim is not None and off_rest(lim, w.f_stop, self._nut_x(w.new), self._nut_v(w.new))):
             t_end, w.halved = w.screw.time_s + h, True
-            w.dry_halvings += dry
+            w.work_halvings += gave
             self._sub_step(w, load_n, halvings + 1, False)
             self._sub_step(w, load_n, halvings + 1, last)
             if w.screw.time_s != t_end:  # the halves' sum rounded
