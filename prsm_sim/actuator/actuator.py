@@ -466,10 +466,9 @@ class Actuator(Model):
 
     def _sub_step(self, w: _Work, load_n: float, halvings: int, last: bool) -> None:
         """A sub-step of h_sub / 2**halvings: motor (`_motor`), screw (`_advance`), ledger (`_book`), brake ramp.
-        A piece whose dry friction did work on the shaft (`brake.works_on_shaft`) or whose stop gave out energy
-        (`stops.gives_out`), and the step's `last` piece ending with the nut at rest off its stop's law
-        (`stops.off_rest`), are taken as two halves instead, each judged likewise (the `stops` module doc; a reversal's halving follows the piece that holds it, one
-        piece per level: no cascade); the step's time stays whole."""
+        A piece whose brake or jam did work on the shaft (`brake.works_on_shaft`) or whose stop gave out energy
+        (`stops.gives_out`), and the step's `last` piece ending at rest off its stop's law (`stops.off_rest`), are
+        taken as two halves, each judged likewise (`stops` module doc; one piece per level); its time stays whole."""
         h = math.ldexp(self.h_sub, -halvings)
         tau_d = self._motor(w, h)
         lim = self._advance(w, load_n, tau_d, h, w.model if halvings == 0 else self._model(w.act, halvings))
