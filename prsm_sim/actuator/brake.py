@@ -16,8 +16,8 @@ R = TypeVar("R", bound=tuple[Any, ...])  # a step's result, its end state first
 DRY_WORK_TOL_J = 1e-9
 # Trials of the bracketed search (`held_torque`) past its two ends (the linear response's torque, the capacity):
 # regula falsi lands in one where the screw's response is linear in the torque; where it is not (`fu2018`'s
-# regimes, `elastic`'s chain), the ten brake cases of the envelope's regression set took up to this many in 50 of
-# 2,067 solves and ran out in 16 (each then keeps its nearest trial that does not push along: `held_torque`)
+# regimes, `elastic`'s chain), of 2,067 solves in the ten brake cases of the envelope's regression set 66 took 11
+# or 12 and 13 ran out (each then keeps its nearest trial that does not push along: `held_torque`)
 DRY_CORRECTIONS = 12
 
 

@@ -23,7 +23,7 @@ at rest the force is off k δ by at most that half (of the refined step's slip: 
 out energy (an `elastic` nut at rest within its clearance, 1.6 µm into a thread end under 195 N: its screw
 slid 36 µm in or out of the end within a 5.6 ms step for forces 1 mN apart, and both sides gave out
 4.8–17 mJ), the actuator takes the step again in halves (`gives_out`): the slide on either side shrinks with
-the step, and the piece holding the jump gives out no more than the tolerance.
+the step, so the piece holding the jump gives out less, within the halvings' budget.
 
 The force is held over the step, but the nut may come to rest within it: the step then ends at rest while
 its force still carries the motion that ended inside (the damper's c Δδ/h of a nut that stopped early; on a
@@ -269,7 +269,7 @@ def gives_out(limit: Limit, force_n: float, x0_m: float, x1_m: float) -> bool:
     gave out energy, `absorbed_j` < −GIVE_TOL_J: the law's solve found the step's response jumping across the
     law (a stick/slip flipping the screw's slide within the step) with both sides giving out (the module doc).
     The caller then takes the step as two halves: a shorter step moves the nut less on either side of the
-    jump, so the piece holding it gives out less, down to the tolerance."""
+    jump, so the piece holding it gives out less (judged likewise, within the caller's budget of halvings)."""
     if force_n == 0.0:
         return False
     d0, d1 = penetration(limit, x0_m), penetration(limit, x1_m)
