@@ -197,6 +197,6 @@ def test_node_keeps_stepping_when_its_writer_process_is_killed(tmp_path):
         assert level >= 1 and int(values["record_dropped"]) > 0
         n = len(clock)
         cli.spin_until(lambda: len(clock) > n + 500, 30.0, "steps after the writer died")
-        assert node.stop(signal.SIGINT) in (0, 1), node.stderr
+        assert node.stop(signal.SIGINT) == 0, node.stderr  # a lost recording is reported, never fatal
     assert "Traceback" not in node.stderr
     assert not open_bag(bag).complete

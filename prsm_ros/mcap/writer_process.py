@@ -18,7 +18,7 @@ Frames (parent → child), each a `FRAME` header (kind, payload length) and the 
 - `F` finish: write the summary and footer, answer `done`, exit.
 
 Lines (child → parent): `open`, or `error WHAT` (the file could not be opened; nothing else follows);
-then `count WRITTEN MALFORMED` after each batch; `done WRITTEN MALFORMED` after finishing, or
+then `count WRITTEN MALFORMED` after each flush; `done WRITTEN MALFORMED` after finishing, or
 `fail WRITTEN MALFORMED WHAT` when writing failed (the file is closed as it is).
 
 End of input without `F`, or the parent gone (`os.getppid()` checked every `PARENT_POLL_S`: a
@@ -163,20 +163,23 @@ def serve(reader: FrameReader, out: int) -> int:
     f = w.file
     next_flush = time.monotonic() + w.flush_interval_s
     handlers = {b"C": w.channel, b"M": w.messages}
+    written_since_flush = False
     try:
         while True:
-            wait = PARENT_POLL_S if f.deterministic else min(PARENT_POLL_S, max(next_flush - time.monotonic(), 0.0))
-            frames = reader.frames(wait)
+            frames = reader.frames(PARENT_POLL_S)
             for kind, payload in frames:
                 if kind == b"F":
                     f.finish()
                     _say(out, f"done {w.counts()}")
                     return 0
                 handlers[kind](payload)
-            if frames:
-                _say(out, f"count {w.counts()}")
-            if not f.deterministic and time.monotonic() >= next_flush:
+            written_since_flush = written_since_flush or bool(frames)
+            # flushed when the data comes (every wake-up costs CPU: none for the clock alone while data
+            # flows), or at the poll after it stops; a deterministic file only pushes its bytes to the OS
+            if written_since_flush and time.monotonic() >= next_flush:
                 f.flush()  # bounds the loss on SIGKILL (see recorder.FLUSH_INTERVAL_S)
+                _say(out, f"count {w.counts()}")
+                written_since_flush = False
                 next_flush = time.monotonic() + w.flush_interval_s
     except ParentGone:
         f.abort()  # no summary: a killed parent's file stays as the thread recorder's would
