@@ -6,7 +6,9 @@ by default; `prsm_ros.mcap.codec` for writing without ROS), `offered_qos_profile
 with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
 metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
 
-`McapRecorder` is what the node uses (the recorder never runs on the step path): the
+`McapRecorder` records from a thread of the caller's process (the offline tools; the node runs the same
+`McapFile` in a child process, `recorder_process.McapProcessRecorder`, so that the writer's Python never
+holds the step thread's interpreter lock). The
 caller only appends `(channel, message, stamp)` to a bounded queue; a background thread serializes,
 writes, and flushes a finished chunk at least every `flush_interval_s`, so a killed process loses
 at most that much. An unwritable path or a full disk sets `.error`, stops recording and counts
