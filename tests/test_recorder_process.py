@@ -131,6 +131,22 @@ def test_writer_killed_mid_run_sets_error_the_caller_runs_on_and_counts_stay_exa
     assert values == [float(k) for k in range(len(values))] and 0 < len(values) <= rec.messages_written
 
 
+def test_a_writer_process_that_cannot_start_is_an_error_at_once_and_counts_stay_exact(tmp_path, monkeypatch):
+    from std_msgs.msg import Float64
+
+    def no_process(*args, **kwargs):
+        raise BlockingIOError(11, "Resource temporarily unavailable")  # fork/exec refused: EAGAIN
+
+    monkeypatch.setattr(subprocess, "Popen", no_process)
+    rec = McapProcessRecorder(tmp_path / "n.mcap")
+    assert rec.error == (f"recording to {tmp_path / 'n.mcap'} stopped: the writer process could not start: "
+                         "Resource temporarily unavailable")
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    rec.write_many([("/a", Float64(data=1.0), k) for k in range(3)])
+    assert not rec.close() and (rec.messages_written, rec.messages_dropped) == (0, 3)
+    assert not (tmp_path / "n.mcap").exists()
+
+
 _WRITER = """
     import json, sys, time
     from std_msgs.msg import Float64

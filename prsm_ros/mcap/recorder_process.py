@@ -75,8 +75,14 @@ class McapProcessRecorder(RecorderQueue):
         self._thread: threading.Thread | None = None
         opening = {"path": str(self.path), "metadata": metadata or {}, "chunk_size": int(chunk_size),
                    "deterministic": bool(deterministic), "flush_interval_s": float(flush_interval_s)}
-        self._proc = self._spawn()
-        failure = self._handshake(_frame(b"O", json.dumps(opening).encode()))
+        self._in = self._out = -1
+        try:
+            self._proc: subprocess.Popen | None = self._spawn()
+        except OSError as e:  # no processes or descriptors left
+            self._proc = None
+            failure: str | None = f"the writer process could not start: {e.strerror or e}"
+        else:
+            failure = self._handshake(_frame(b"O", json.dumps(opening).encode()))
         if failure is not None:
             self.error = f"recording to {self.path} stopped: {failure}"
             self._settle()
@@ -88,8 +94,12 @@ class McapProcessRecorder(RecorderQueue):
         atexit.register(self.close)
 
     def _spawn(self) -> subprocess.Popen:
-        data_r, self._out = os.pipe()
         self._in, status_w = os.pipe()
+        try:
+            data_r, self._out = os.pipe()
+        except OSError:
+            os.close(status_w)
+            raise
         try:
             fcntl.fcntl(self._out, _F_SETPIPE_SZ, PIPE_BYTES)
         except OSError:
@@ -107,11 +117,16 @@ class McapProcessRecorder(RecorderQueue):
 
     def _handshake(self, opening: bytes) -> str | None:
         """Send the open frame and wait for the child's answer; None when the file is open, else why not."""
+        deadline = time.monotonic() + OPEN_TIMEOUT_S
+        os.set_blocking(self._out, False)  # a child that never reads must not hold the caller past the deadline
+        view = memoryview(opening)
         try:
-            self._send(opening)
+            while view and select.select([], [self._out], [], max(deadline - time.monotonic(), 0.0))[1]:
+                view = view[os.write(self._out, view):]
         except OSError:
             pass  # the child is gone: its answer (or its absence) says why
-        deadline = time.monotonic() + OPEN_TIMEOUT_S
+        finally:
+            os.set_blocking(self._out, True)
         while True:
             line = self._next_line(max(deadline - time.monotonic(), 0.0))
             if line is None:
@@ -286,6 +301,8 @@ class McapProcessRecorder(RecorderQueue):
 
     def _ended(self) -> str:
         """Why the child is gone, in words."""
+        if self._proc is None:
+            return "the writer process did not start"
         try:
             code = self._proc.wait(timeout=KILL_WAIT_S)
         except subprocess.TimeoutExpired:
@@ -313,6 +330,8 @@ class McapProcessRecorder(RecorderQueue):
 
     def _reap(self, timeout_s: float) -> None:
         """Wait up to `timeout_s` for the child to exit, then kill it."""
+        if self._proc is None:
+            return
         try:
             self._proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
