@@ -463,6 +463,24 @@ class RecorderQueue:
     def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
         raise NotImplementedError
 
+    def _stop_writer(self, thread: threading.Thread | None, timeout_s: float, give_up) -> None:
+        """Close admission (later writes are counted as dropped; queued ones are still written), tell the
+        writer to finish and wait up to `timeout_s` for `thread`; if it is still at work, `give_up()`
+        counts what will not be written and `error` says so."""
+        self._closed = True
+        with self._lock:
+            self._writing = False
+        atexit.unregister(self.close)
+        self._stop.set()
+        if thread is None:
+            return
+        thread.join(timeout=timeout_s)
+        if thread.is_alive():
+            lost = give_up()
+            self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
+                                        f"{timeout_s:g} s (stalled disk?); {lost} queued messages were not "
+                                        "written and the file has no summary")
+
 
 class McapRecorder(RecorderQueue):
     """Record ROS 2 messages to MCAP without blocking the caller (cross-helper contract).
@@ -540,17 +558,7 @@ class McapRecorder(RecorderQueue):
         chunk). Idempotent (a second call returns the first's verdict); safe after an error.
         """
         if not self._closed:
-            self._closed = True
-            with self._lock:
-                self._writing = False  # later writes are counted as dropped; queued ones are still written
-            atexit.unregister(self.close)
-            self._stop.set()
-            self._thread.join(timeout=timeout_s)
-            if self._thread.is_alive():
-                lost = self._discard_queued()
-                self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
-                                            f"{timeout_s:g} s (stalled disk?); {lost} queued messages were not "
-                                            "written and the file has no summary")
+            self._stop_writer(self._thread, timeout_s, self._discard_queued)
         return self.error is None
 
     # ---- writer thread -----------------------------------------------------------------------

@@ -29,6 +29,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 from prsm_ros.mcap import schema as mcap_schema
 from prsm_ros.mcap.recorder import (CLOSE_TIMEOUT_S, DEFAULT_CHUNK_SIZE, FLUSH_INTERVAL_S, MAX_WAKE_S,
@@ -71,7 +73,7 @@ class McapProcessRecorder(RecorderQueue):
         self._child_done = False  # it said done or fail
         self._eof = False  # its answers ended
         self._status = bytearray()
-        self._serialize = None
+        self._serialize: Callable[[Any], bytes] | None = None
         self._thread: threading.Thread | None = None
         opening = {"path": str(self.path), "metadata": metadata or {}, "chunk_size": int(chunk_size),
                    "deterministic": bool(deterministic), "flush_interval_s": float(flush_interval_s)}
@@ -167,19 +169,8 @@ class McapProcessRecorder(RecorderQueue):
         If the child has not finished by then (a stalled disk), it is killed: what it had not
         confirmed is counted as dropped, `error` says so, and the file is readable up to its last chunk."""
         if not self._closed:
-            self._closed = True
-            with self._lock:
-                self._writing = False  # later writes are counted as dropped; queued ones are still written
-            atexit.unregister(self.close)
             deadline = time.monotonic() + timeout_s
-            self._stop.set()
-            if self._thread is not None:
-                self._thread.join(timeout=timeout_s)
-                if self._thread.is_alive():
-                    lost = self._settle()
-                    self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
-                                                f"{timeout_s:g} s (stalled disk?); {lost} messages were not "
-                                                "written and the file has no summary")
+            self._stop_writer(self._thread, timeout_s, self._settle)
             self._reap(max(deadline - time.monotonic(), 0.0))
         return self.error is None
 
@@ -219,14 +210,18 @@ class McapProcessRecorder(RecorderQueue):
         parts = []
         for topic, msg, stamp in entry:
             if type(msg) is not bytes:
-                if self._serialize is None:
-                    from rclpy.serialization import serialize_message
-                    self._serialize = serialize_message
-                msg = self._serialize(msg)
+                msg = self._serializer()(msg)
             parts.append(pack(index[topic], stamp, len(msg)))
             parts.append(msg)
         body = b"".join(parts)
         return FRAME.pack(b"M", len(body)) + body
+
+    def _serializer(self) -> Callable[[Any], bytes]:
+        """rclpy's serializer (what `McapFile` uses for message objects), imported when first needed."""
+        if self._serialize is None:
+            from rclpy.serialization import serialize_message
+            self._serialize = serialize_message
+        return self._serialize
 
     def _taken(self, entry: list) -> list:
         if self._settled:  # counted as lost when the counts were settled

@@ -110,7 +110,8 @@ class Writer:
 
     def messages(self, payload: memoryview) -> None:
         ids, checked, check, unpack, size = self.ids, self.checked, self.file.check, MESSAGE.unpack_from, MESSAGE.size
-        items, off, end = [], 0, len(payload)
+        items: list[tuple[int, object, int]] = []
+        off, end = 0, len(payload)
         while off < end:
             index, stamp, n = unpack(payload, off)
             off += size
