@@ -147,6 +147,25 @@ def test_a_writer_process_that_cannot_start_is_an_error_at_once_and_counts_stay_
     assert not (tmp_path / "n.mcap").exists()
 
 
+def test_a_stalled_writer_process_lets_close_return_within_its_timeout(tmp_path):
+    """The child stopped (SIGSTOP: a disk that no longer answers looks the same from here): close gives up
+    within its timeout, kills it, says so, and counts every message."""
+    from std_msgs.msg import Float64
+
+    path = tmp_path / "s.mcap"
+    rec = McapProcessRecorder(path)
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    os.kill(rec._proc.pid, signal.SIGSTOP)
+    for k in range(20_000):
+        rec.write_many([("/a", Float64(data=float(k)), k)])
+    t0 = time.monotonic()
+    assert not rec.close(timeout_s=1.0)
+    assert time.monotonic() - t0 < 1.0 + 2.0  # the kill's reaping, bounded
+    assert "did not finish within 1 s" in rec.error and "no summary" in rec.error
+    assert rec.messages_written + rec.messages_dropped + rec.messages_malformed == 20_000
+    assert rec._proc.poll() == -signal.SIGKILL
+
+
 _WRITER = """
     import json, sys, time
     from std_msgs.msg import Float64
