@@ -46,6 +46,7 @@ FORWARD_WAKE_S = 0.025
 OPEN_TIMEOUT_S = 60.0  # the child's start (interpreter, mcap, rclpy) and the file opened, on a busy machine
 PIPE_BYTES = 1 << 20  # asked of the kernel for the pipe to the child (a full pipe blocks the forwarder only)
 KILL_WAIT_S = 0.5  # reaping a child killed after a close that timed out (SIGKILL acts at once)
+EXIT_WAIT_S = 5.0  # after the child's answers end, its exit status (what `error` names) on a busy machine
 _F_SETPIPE_SZ = 1031  # fcntl.h (Linux)
 
 
@@ -177,32 +178,39 @@ class McapProcessRecorder(RecorderQueue):
     # ---- forwarding thread ---------------------------------------------------------------------
 
     def _run(self) -> None:
-        queue = self._queue
         try:
-            while True:
-                stopping = self._stop.wait(self._wake_s)
-                self._read_status()
-                if self._child_done or self._eof or self._settled_now():
-                    break
-                try:
-                    while queue:
-                        if type(queue[0]) is bytes:  # a channel declaration, kept in order with the messages
-                            self._send(queue.popleft())
-                        else:
-                            self._send(self._pack(self._take_batch(queue)))
-                    if stopping:
-                        self._send(_frame(b"F", b""))
-                        self._finish()
-                        break
-                except OSError:  # the child is gone (EPIPE): its last lines, or their absence, say why
-                    self._read_status()
-                    break
+            self._forward()
+        except Exception as e:  # never a file left unfinished while close reports success
+            self.error = self.error or f"recording to {self.path} stopped: {type(e).__name__}: {e}"
+        try:
             if not self._settled_now():
                 if self.error is None and not self._child_done:
                     self.error = f"recording to {self.path} stopped: {self._ended()}"
                 self._settle()
         finally:
             self._close_pipes()
+
+    def _forward(self) -> None:
+        """Hand what is queued to the child every wake-up; after close, the finish frame and the child's answer."""
+        queue = self._queue
+        while True:
+            stopping = self._stop.wait(self._wake_s)
+            self._read_status()
+            if self._child_done or self._eof or self._settled_now():
+                return
+            try:
+                while queue:
+                    if type(queue[0]) is bytes:  # a channel declaration, kept in order with the messages
+                        self._send(queue.popleft())
+                    else:
+                        self._send(self._pack(self._take_batch(queue)))
+                if stopping:
+                    self._send(_frame(b"F", b""))
+                    self._finish()
+                    return
+            except OSError:  # the child is gone (EPIPE): its last lines, or their absence, say why
+                self._read_status()
+                return
 
     def _pack(self, entry: list) -> bytes:
         """One `M` frame: each message's header and CDR bytes (objects serialised here, as `McapFile` would)."""
@@ -299,7 +307,7 @@ class McapProcessRecorder(RecorderQueue):
         if self._proc is None:
             return "the writer process did not start"
         try:
-            code = self._proc.wait(timeout=KILL_WAIT_S)
+            code = self._proc.wait(timeout=EXIT_WAIT_S)
         except subprocess.TimeoutExpired:
             return "the writer process stopped answering"
         if code < 0:
