@@ -27,6 +27,10 @@ from prsm_ros.bag.reader import open_bag, scan_records
 from prsm_ros.messages import TOPICS, MessageMapper, STEP_TOPICS, time_ns
 from prsm_ros.mcap.offline import write_trajectory_mcap
 from prsm_ros.mcap.recorder import McapRecorder, run_metadata
+from prsm_ros.mcap.recorder_process import McapProcessRecorder
+
+# The caller's contract holds for both: the writer in a thread (offline tools) and in a child process (the node)
+RECORDERS = pytest.mark.parametrize("Recorder", [McapRecorder, McapProcessRecorder])
 
 RERUN = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
 CHILD_ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1"}
@@ -188,11 +192,12 @@ def test_offline_bag_carries_the_trajectory_values(tmp_path):
     assert cmd[0].log_time_ns == 0  # taken at the start of the step it drives
 
 
-def test_recorder_refuses_caller_mistakes_at_once(tmp_path):
+@RECORDERS
+def test_recorder_refuses_caller_mistakes_at_once(tmp_path, Recorder):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    with McapRecorder(tmp_path / "m.mcap") as rec:
+    with Recorder(tmp_path / "m.mcap") as rec:
         rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
         with pytest.raises(KeyError, match="not added"):
             rec.write("/b", Float64(), 0)
@@ -205,13 +210,14 @@ def test_recorder_refuses_caller_mistakes_at_once(tmp_path):
         with pytest.raises(ValueError, match="cannot add it again"):
             rec.add_channel("/a", JointState, TOPICS["joint_states"].qos)
     with pytest.raises(ValueError, match="queue_size"):
-        McapRecorder(tmp_path / "q.mcap", queue_size=0)
+        Recorder(tmp_path / "q.mcap", queue_size=0)
 
 
-def test_full_queue_drops_and_counts_instead_of_blocking(tmp_path):
+@RECORDERS
+def test_full_queue_drops_and_counts_instead_of_blocking(tmp_path, Recorder):
     from std_msgs.msg import Float64
 
-    rec = McapRecorder(tmp_path / "q.mcap", queue_size=10)
+    rec = Recorder(tmp_path / "q.mcap", queue_size=10)
     rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
     for k in range(1000):
         rec.write("/a", Float64(data=float(k)), k)
@@ -223,7 +229,8 @@ def test_full_queue_drops_and_counts_instead_of_blocking(tmp_path):
     assert open_bag(tmp_path / "q.mcap").topics["/a"].count == rec.messages_written
 
 
-def test_untrusted_channels_record_only_bytes_that_deserialize(tmp_path):
+@RECORDERS
+def test_untrusted_channels_record_only_bytes_that_deserialize(tmp_path, Recorder):
     """A 4-byte ~/screw_torque used to be recorded as received and then broke export and to-rrd.
     Oracle: rclpy's own serializer for the good bytes; the reader's malformed count (0)."""
     from rclpy.serialization import serialize_message
@@ -231,7 +238,7 @@ def test_untrusted_channels_record_only_bytes_that_deserialize(tmp_path):
 
     good = [serialize_message(Float64(data=float(k))) for k in range(5)]
     bad = [b"\x00\x01\x00\x00", b"", b"\x00\x01\x00\x00\x01"]
-    with McapRecorder(tmp_path / "u.mcap") as rec:
+    with Recorder(tmp_path / "u.mcap") as rec:
         rec.add_channel("/cmd", Float64, TOPICS["screw_torque"].qos, untrusted=True)
         rec.add_channel("/out", Float64, TOPICS["screw_torque"].qos)
         for k, data in enumerate([good[0], bad[0], good[1], bad[1], good[2], bad[2], good[3], good[4]]):
@@ -282,11 +289,12 @@ def test_chunk_indexes_are_kept_packed_and_the_file_is_unchanged(tmp_path):
     assert packed < 1.5 * record < plain / 3, (packed, record, plain)
 
 
-def test_unwritable_path_sets_error_and_the_caller_keeps_running(tmp_path):
+@RECORDERS
+def test_unwritable_path_sets_error_and_the_caller_keeps_running(tmp_path, Recorder):
     from std_msgs.msg import Float64
 
     for bad in (tmp_path / "missing_dir" / "x.mcap", tmp_path):  # no such directory; a directory
-        rec = McapRecorder(bad)
+        rec = Recorder(bad)
         assert rec.error is not None and str(bad) in rec.error
         rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
         for k in range(5):
@@ -296,10 +304,11 @@ def test_unwritable_path_sets_error_and_the_caller_keeps_running(tmp_path):
         assert rec.messages_dropped == 5 and rec.messages_written == 0
 
 
-def test_dev_full_reports_no_space_and_the_caller_keeps_running():
+@RECORDERS
+def test_dev_full_reports_no_space_and_the_caller_keeps_running(Recorder):
     from std_msgs.msg import Float64
 
-    rec = McapRecorder("/dev/full")  # every write returns ENOSPC, as on a full disk
+    rec = Recorder("/dev/full")  # every write returns ENOSPC, as on a full disk
     rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
     for k in range(3):
         rec.write("/a", Float64(data=1.0), k)

@@ -42,7 +42,7 @@ import numpy as np
 from prsm_sim import MODELS, Session, Simulator, preset
 from prsm_sim.physics.inertia import reflected_inertia
 
-from prsm_ros.bench.common import BenchError, area_main, figure
+from prsm_ros.bench.common import BenchError, area_main, figure, tree_cpu_s
 from prsm_ros.node.parameters import DEFAULT_MODEL
 from prsm_ros.ros_env import isolated_env, start_module
 
@@ -52,12 +52,6 @@ PRESET = "s30"  # the node's default preset
 
 
 # -- the loop, node and controller over DDS ------------------------------------------------------
-def _proc_cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process and all its threads (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def start_hogs() -> list[subprocess.Popen]:
     """One busy Python process per core, normal priority (the issue's "loaded" condition)."""
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
@@ -99,7 +93,7 @@ def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, m
                             line = raw.decode(errors="replace").strip()
                             lines.append(line)
                             if line in ("measuring", "measured"):
-                                cpu[line] = (_proc_cpu_s(node.pid), time.perf_counter())
+                                cpu[line] = (tree_cpu_s(node.pid), time.perf_counter())  # with its MCAP writer
                         ctl.wait(timeout=30)
                     finally:
                         watchdog.cancel()
@@ -170,7 +164,7 @@ def loop_figures(quick: bool) -> list[dict]:
         ratio = s["node_cpu_pct"] / floor["value"] if floor and floor["value"] > 0 else math.nan
         figs.append(figure(f"node CPU share of one core ({cond})", s["node_cpu_pct"], "%", "≤ 15",
                            s["node_cpu_pct"] <= 15, None,
-                           "all threads of the node process (step loop, executor, middleware, recorder) over "
+                           "all threads of the node process (step loop, executor, middleware, recorder) and its MCAP writer process over "
                            f"the measured window; {ratio:.2f}× the rclpy floor of this run (aim ≤ 1.5×)"))
     figs.append(floor if floor is not None else floor_figure(seconds))
     figs.extend(model_cpu_figures(quick))

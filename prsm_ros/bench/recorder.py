@@ -3,14 +3,17 @@
 - throughput: messages per second from the first `write` until `close()` returns (chunking, zstd,
   indexes, summary), for the node's per-step topics of a real run (joint states, wrench, internal
   loads of the model's layout, /clock, the torque command), handed over as the node hands them:
-  CDR bytes from its encoder (`cdr_write.StepEncoder`), in one batch per step (`write_many`);
+  CDR bytes from its encoder (`cdr_write.StepEncoder`), in one batch per step (`write_many`), to the
+  recorder of the node's fast mode and the offline tools (`McapRecorder`, the writer in a thread) and,
+  beside it, to the paced modes' (`McapProcessRecorder`: the writer in a child process, whose CPU is counted);
 - peers of the throughput, same messages, same run: the native work alone (zstd and CRC-32 of the
   same chunks' bytes, what no Python writer can go below) and `foxglove-sdk`'s MCAP writer (native
   code; its files are not the recorder's bytes, see docs/bags.md);
 - CPU at 1 kHz: a loop paced on absolute 1 ms deadlines that maps each step's outputs to the
   messages (as the node does) and records them, against the same loop without recording; the
-  difference in process CPU time per wall second is the recorder's cost (% of one core), and the
-  loop's lateness percentiles show whether the writer thread disturbs the step loop.
+  difference in CPU time per wall second (this process and its writer process) is the recorder's
+  cost (% of one core), and the loop's lateness percentiles show whether the writer disturbs the
+  step loop; the same with the thread recorder beside it.
 
 Figures are printed, never asserted (`prsm-bench` aggregates them).
 """
@@ -23,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prsm_ros.bench.common import BenchError, area_main, figure, paced_loop
+from prsm_ros.bench.common import BenchError, area_main, cpu_with_children_s, figure, paced_loop
 
 THROUGHPUT_TARGET = 100_000.0  # messages/s
 CPU_TARGET_PCT = 5.0  # % of a core at 1 kHz
@@ -75,26 +78,34 @@ def _step_bytes(traj, model: str) -> list[tuple[int, list[bytes]]]:
     return prepared
 
 
-def throughput(model: str, steps: int, repeats: int) -> tuple[float, float, float, int, float]:
+def _recorder(kind: str):
+    """The node's recorder ("process") or the thread recorder of the offline tools ("thread")."""
+    if kind == "process":
+        from prsm_ros.mcap.recorder_process import McapProcessRecorder
+        return McapProcessRecorder
+    from prsm_ros.mcap.recorder import McapRecorder
+    return McapRecorder
+
+
+def throughput(model: str, steps: int, repeats: int, kind: str = "process") -> tuple[float, float, float, int, float]:
     """(median messages/s, spread, MB/s of file, messages per run, median messages per CPU second).
 
-    Messages per CPU second (process time, all threads) is what a busy machine changes least: the
-    wall-clock rate there measures the share of a core the run got as much as the writer."""
-    from prsm_ros.mcap.recorder import McapRecorder
-
+    Messages per CPU second (all threads, and the writer process) is what a busy machine changes
+    least: the wall-clock rate there measures the share of a core the run got as much as the writer."""
+    Recorder = _recorder(kind)
     prepared = _prepared(model, steps)
     rates, sizes, cpu_rates = [], [], []
     n_msgs = 0
     with tempfile.TemporaryDirectory() as d:
         for r in range(repeats + 1):  # run 0 warms up (imports, schema files, zstd) and is not counted
             path = Path(d) / f"t{r}.mcap"
-            rec = McapRecorder(path, queue_size=10 * len(prepared) + 10)
+            rec = Recorder(path, queue_size=10 * len(prepared) + 10)
             topics, cmd_topic = _channels(rec)
-            t0, c0 = time.perf_counter(), time.process_time()
+            t0, c0 = time.perf_counter(), cpu_with_children_s()
             for stamp, msgs in prepared:
                 rec.write_many([(cmd_topic, msgs[0], stamp), *zip(topics, msgs[1:], [stamp] * len(topics), strict=True)])
             rec.close()
-            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            wall, cpu = time.perf_counter() - t0, cpu_with_children_s() - c0
             n_msgs = rec.messages_written
             if rec.messages_dropped or rec.error:
                 raise BenchError(f"benchmark run lost messages: dropped {rec.messages_dropped}, error {rec.error}")
@@ -183,14 +194,13 @@ def foxglove_peer(model: str, steps: int) -> float | None:
         return len(prepared) * len(channels) / (time.process_time() - t0)
 
 
-def loop_cost(model: str, seconds: float, record: bool) -> dict:
-    """A 1 kHz loop mapping (and optionally recording) each step's messages, as the node does."""
-    from prsm_ros.mcap.recorder import McapRecorder
-
+def loop_cost(model: str, seconds: float, record: str | None) -> dict:
+    """A 1 kHz loop mapping (and optionally recording: `record` "process" or "thread") each step's messages,
+    as the node does."""
     steps = int(seconds * 1000)
     prepared = _prepared(model, steps)
     with tempfile.TemporaryDirectory() as d:
-        rec = McapRecorder(Path(d) / "loop.mcap") if record else None
+        rec = _recorder(record)(Path(d) / "loop.mcap") if record else None
         topics, cmd_topic = _channels(rec) if rec is not None else ([], "")
 
         def step(k: int) -> None:
@@ -209,32 +219,39 @@ def measure(quick: bool = False) -> list[dict]:
     from prsm_sim import MODELS
     model = "fu2018" if "fu2018" in MODELS else "jones2016"
     steps = 2000 if quick else 10_000
-    rate, spread, mb_s, n, cpu_rate = throughput(model, steps, 1 if quick else 5)
+    # in batch (the node's fast mode) the writer is the thread; paced (realtime, lockstep) the process
+    rate, spread, mb_s, n, cpu_rate = throughput(model, steps, 1 if quick else 5, kind="thread")
+    p_rate, _, _, _, p_cpu_rate = throughput(model, steps, 1 if quick else 3, kind="process")
     floor = native_floor(model, steps)
     fox = foxglove_peer(model, steps)
     seconds = 1.0 if quick else 10.0
-    base = loop_cost(model, seconds, record=False)
-    rec = loop_cost(model, seconds, record=True)
+    base = loop_cost(model, seconds, record=None)
+    rec = loop_cost(model, seconds, record="process")
+    thread = loop_cost(model, seconds, record="thread")
     cost = (rec["cpu_per_wall"] - base["cpu_per_wall"]) * 100
+    thread_cost = (thread["cpu_per_wall"] - base["cpu_per_wall"]) * 100
     per_s = rec["written"] / seconds
     _prepared.cache_clear()
     fox_note = "not installed" if fox is None else f"{fox:,.0f}"
     return [
         figure(f"MCAP recorder throughput ({model} topics, 5 per step)", rate, "msg/s", f"≥ {THROUGHPUT_TARGET:.0f}",
                rate >= THROUGHPUT_TARGET, spread,
-               f"{n} messages per run, {mb_s:.1f} MB/s of file, zstd chunks + indexes; per CPU second (all threads): "
-               f"{cpu_rate:,.0f}, beside zstd + CRC of the same chunks alone {floor:,.0f} and foxglove-sdk's native "
-               f"writer {fox_note}"),
+               f"{n} messages per run, {mb_s:.1f} MB/s of file, zstd chunks + indexes, the fast mode's recorder (the "
+               f"writer thread); per CPU second: {cpu_rate:,.0f}, beside zstd + CRC of the same chunks alone "
+               f"{floor:,.0f} and foxglove-sdk's native writer {fox_note}; the paced modes' recorder (writer process) "
+               f"{p_rate:,.0f} msg/s, {p_cpu_rate:,.0f} per CPU second (itself and its process)"),
         figure("MCAP recorder messages per CPU second over its native floor (zstd + CRC alone)", cpu_rate / floor, "×",
                "(peer)", None, None,
                f"foxglove-sdk's writer over the same floor: {'n/a' if fox is None else f'{fox / floor:.2f}×'}"),
         figure("MCAP recorder CPU at 1 kHz, all topics", cost, "% core", f"≤ {CPU_TARGET_PCT:g}", cost <= CPU_TARGET_PCT,
                None, f"{per_s:.0f} msg/s recorded; loop alone {base['cpu_per_wall'] * 100:.1f} % of a core, "
-                     f"with recorder {rec['cpu_per_wall'] * 100:.1f} %; dropped {rec['dropped']}; the native "
-                     f"floor (zstd + CRC) at this rate {per_s / floor * 100:.1f} % of a core"),
+                     f"with the node's recorder {rec['cpu_per_wall'] * 100:.1f} % (this process and its writer "
+                     f"process); dropped {rec['dropped']}; the native floor (zstd + CRC) at this rate "
+                     f"{per_s / floor * 100:.1f} % of a core; the thread recorder {thread_cost:.1f} %"),
         figure("1 kHz loop lateness p99 with recorder", rec["late_p99_ms"], "ms", "≤ 1", rec["late_p99_ms"] <= 1.0, None,
                f"without recorder p99 {base['late_p99_ms']:.3f} ms; p50 {rec['late_p50_ms']:.3f} vs {base['late_p50_ms']:.3f} ms; "
-               f"max {rec['late_max_ms']:.2f} vs {base['late_max_ms']:.2f} ms (OS scheduling on a shared machine shows here too)"),
+               f"max {rec['late_max_ms']:.2f} vs {base['late_max_ms']:.2f} ms (OS scheduling on a shared machine shows here too); "
+               f"with the thread recorder p99 {thread['late_p99_ms']:.3f} ms"),
     ]
 
 

@@ -3,7 +3,7 @@
 Target: 1 h of simulated time at 1 kHz in `fast` mode with recording, memory growth
 < 20 MB. The node runs in its own process on an isolated domain; this process sends one torque
 command (held: cmd_timeout 0), reads the node's simulation time from /diagnostics, and samples
-the node's resident set size from /proc. Growth is the RSS at the end minus the RSS once 5 % of
+the resident set size of the node and its MCAP writer process (which holds the chunk indexes) from /proc. Growth is the RSS at the end minus the RSS once 5 % of
 the run is done (start-up allocations, DDS discovery and the recorder's first chunks excluded).
 """
 
@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from prsm_ros.bench.common import BenchError, area_main, figure
+from prsm_ros.bench.common import BenchError, area_main, descendants, figure
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
 
 TARGET_GROWTH_MB = 20.0
@@ -28,6 +28,17 @@ def rss_mb(pid: int) -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
     raise BenchError(f"no VmRSS for pid {pid}")
+
+
+def tree_rss_mb(pid: int) -> float:
+    """Resident set size of a process and its live descendants (the node's writer process), MB."""
+    total = rss_mb(pid)
+    for child in descendants(pid):
+        try:
+            total += rss_mb(child)
+        except (OSError, BenchError):
+            continue  # ended meanwhile
+    return total
 
 
 def soak(sim_seconds: float, *, model: str = "jones2016", timeout_s: float = 3600.0) -> dict:
@@ -70,7 +81,7 @@ def soak(sim_seconds: float, *, model: str = "jones2016", timeout_s: float = 360
                     raise BenchError(f"prsm-node exited early ({node_proc.returncode}): {err}")
                 pub.publish(Float64(data=0.05))
                 executor.spin_once(timeout_sec=0.5)
-                samples.append((time.monotonic() - t0, latest["sim_time_s"], rss_mb(node_proc.pid)))
+                samples.append((time.monotonic() - t0, latest["sim_time_s"], tree_rss_mb(node_proc.pid)))
                 if latest["sim_time_s"] >= sim_seconds:
                     break
         finally:

@@ -6,7 +6,9 @@ by default; `prsm_ros.mcap.codec` for writing without ROS), `offered_qos_profile
 with message indexes, log_time = publish_time = the stamp given (simulation time in ns). Run
 metadata goes into MCAP metadata records at the start of the file, so even a killed run keeps it.
 
-`McapRecorder` is what the node uses (the recorder never runs on the step path): the
+`McapRecorder` records from a thread of the caller's process (the offline tools; the node runs the same
+`McapFile` in a child process, `recorder_process.McapProcessRecorder`, so that the writer's Python never
+holds the step thread's interpreter lock). The
 caller only appends `(channel, message, stamp)` to a bounded queue; a background thread serializes,
 writes, and flushes a finished chunk at least every `flush_interval_s`, so a killed process loses
 at most that much. An unwritable path or a full disk sets `.error`, stops recording and counts
@@ -229,21 +231,25 @@ class McapFile:
 
     def add_channel(self, topic: str, msg_class, qos) -> int:
         """Declare `topic` (schema and QoS metadata); returns its channel id. Re-adding is a no-op."""
+        return self.add_named_channel(topic, self._codec.type_name(msg_class),
+                                      mcap_schema.offered_qos_profiles_yaml(qos), msg_class)
+
+    def add_named_channel(self, topic: str, name: str, qos_yaml: str, msg_class=None) -> int:
+        """`add_channel` by type name (`pkg/msg/Type`) and `offered_qos_profiles` text: what a writer in
+        another process is told (`recorder_process`). `msg_class` is only needed by `check`."""
         known = self._channels.get(topic)
-        codec = self._codec
-        name = codec.type_name(msg_class)
         if known is not None:
-            if known[1] is not msg_class:
-                raise InputError(f"topic {topic!r} was added as {codec.type_name(known[1])}; "
+            if self._type_of[known[0]] != name:
+                raise InputError(f"topic {topic!r} was added as {self._type_of[known[0]]}; "
                                  f"cannot add it again as {name}")
             return known[0]
         sid = self._schema_ids.get(name)
         if sid is None:
             sid = self._writer.register_schema(name, mcap_schema.SCHEMA_ENCODING,
-                                               codec.definition(name).encode("utf-8"))
+                                               self._codec.definition(name).encode("utf-8"))
             self._schema_ids[name] = sid
-        meta = {"offered_qos_profiles": mcap_schema.offered_qos_profiles_yaml(qos)}
-        type_hash = codec.type_hash(name)
+        meta = {"offered_qos_profiles": qos_yaml}
+        type_hash = self._codec.type_hash(name)
         if type_hash:
             meta["topic_type_hash"] = type_hash
         cid = self._writer.register_channel(topic, mcap_schema.MESSAGE_ENCODING, sid, meta)
@@ -320,43 +326,23 @@ class McapFile:
             pass  # a buffered tail that cannot be written (disk full) is lost either way
 
 
-class McapRecorder:
-    """Record ROS 2 messages to MCAP without blocking the caller (cross-helper contract).
+class RecorderQueue:
+    """The caller's side of a recorder: a bounded queue that never blocks, and exact counts.
 
-        rec = McapRecorder("run.mcap", metadata=run_metadata(...))
-        rec.add_channel("/joint_states", JointState, qos)
-        rec.write("/joint_states", msg, stamp_ns)      # enqueue only
-        rec.close()                                     # flush, summary, footer
-
-    `metadata`: MCAP metadata records {name: {key: value}} written at the start of the file.
-    `queue_size`: messages held for the writer thread; when full, `write` drops and counts.
-    `deterministic`: the same messages give the same bytes (`McapFile.write`: padding zeroed,
-    messages in log-time order), chunks closed by size only, so a lockstep run can be a golden
-    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between
-    forced chunk flushes. It bounds the loss on SIGKILL, and the size of each chunk's finishing
-    work: zstd and the CRC (native, the interpreter lock released) and the chunk's message index
-    (kept in arrays, written in one piece per channel) are proportional to the chunk, and a longer
-    chunk is a longer burst beside the node's step thread (interleaved runs on a busy machine with
-    the index built in Python, the larger burst: command-to-state latency p99 1.46–1.79 ms with
-    0.25 s, 1.15–1.89 ms with 0.05 s, 0.88 ms unrecorded).
-
-    `write_many` hands a step's messages over as one queue entry; the writer thread writes each
-    entry as one batch (`McapFile.write_many`), so the Python per message is a record header, an
-    index entry and a count.
+    The caller appends entries (a channel declaration, a tuple; or a step's messages, a list of
+    `(topic, message, stamp)`); a thread of the subclass empties it with `_take_batch`. `_lock` guards
+    the admission state: `_writing`, both drop counters, and the decision to append. The caller holds
+    it for a check and an append; the emptying thread takes it only to stop admission and to count
+    what it discards. So a message is either queued before admission stops (and then written or
+    counted by whoever empties the queue) or counted at once: the counts are exact whatever the
+    threads do.
     """
 
-    def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
-                 queue_size: int = 100_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
-                 flush_interval_s: float = FLUSH_INTERVAL_S, deterministic: bool = False) -> None:
+    def __init__(self, path, queue_size: int) -> None:
         if not isinstance(queue_size, int) or queue_size < 1:
             raise ParamError(f"queue_size = {queue_size!r}: must be a whole number >= 1")
         self.path = Path(path)
         self.error: str | None = None
-        # `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
-        # append. The caller holds it for a check and an append; the writer thread takes it only
-        # to stop admission and to count what it discards. So a message is either queued before
-        # admission stops (and then written or counted by whoever empties the queue) or counted
-        # at once: the counts are exact whatever the threads do.
         self._lock = threading.Lock()
         self._dropped_full = 0
         self._lost = 0
@@ -366,28 +352,9 @@ class McapRecorder:
         self._queued = 0
         self._queue_size = queue_size
         self._classes: dict[str, type] = {}
-        self._malformed = 0  # untrusted bytes that did not deserialize (writer thread only)
-        self._flush_interval_s = float(flush_interval_s)
         self._stop = threading.Event()
         self._closed = False
         self._writing = True
-        self._file: McapFile | None = None
-        self._final_written = 0
-        try:
-            self._file = McapFile(self.path, metadata=metadata, chunk_size=chunk_size, deterministic=deterministic)
-        except OSError as e:
-            self._fail(e)
-        self._thread = threading.Thread(target=self._run, name=f"mcap-recorder:{self.path.name}", daemon=True)
-        self._thread.start()
-        atexit.register(self.close)
-
-    # ---- caller side: cheap, never blocks ----------------------------------------------------
-
-    @property
-    def messages_written(self) -> int:
-        """Messages handed to the MCAP writer (on disk once their chunk is flushed)."""
-        f = self._file
-        return f.messages_written if f is not None else self._final_written
 
     @property
     def messages_dropped(self) -> int:
@@ -396,39 +363,26 @@ class McapRecorder:
             return self._dropped_full + self._lost
 
     @property
-    def messages_malformed(self) -> int:
-        """Bytes on an `untrusted` channel that did not deserialize as its type: not written."""
-        return self._malformed
-
-    @property
     def queue_length(self) -> int:
         return self._queued
 
-    def add_channel(self, topic: str, msg_class, qos, *, untrusted: bool = False) -> None:
-        """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing).
-
-        `untrusted`: the bytes written to it come from elsewhere (a subscription); each is checked
-        in the writer thread and left out, counted in `messages_malformed`, when it does not
-        deserialize as `msg_class`.
-        """
-        known = self._classes.get(topic)
-        if known is not None and known is not msg_class:
-            raise InputError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
-                             f"cannot add it again as {mcap_schema.type_name(msg_class)}")
-        mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the thread
-        if untrusted and self._file is not None:
-            self._file.prepare_checks()
-        self._classes[topic] = msg_class
-        self._queue.append((topic, msg_class, qos, untrusted))
-
     def backlog(self) -> int:
-        """Messages queued for the writer thread: a producer with no deadline (the node's `fast`
-        mode) waits while this is high instead of losing messages to a full queue."""
+        """Messages queued for the writer: a producer with no deadline (the node's `fast` mode) waits
+        while this is high instead of losing messages to a full queue."""
         return self._queued
 
     @property
     def queue_size(self) -> int:
         return self._queue_size
+
+    def _declare(self, topic: str, msg_class) -> None:
+        """Check that `topic` may be added as `msg_class` (the .msg files are read now: SchemaError if missing)."""
+        known = self._classes.get(topic)
+        if known is not None and known is not msg_class:
+            raise InputError(f"topic {topic!r} was added as {mcap_schema.type_name(known)}; "
+                             f"cannot add it again as {mcap_schema.type_name(msg_class)}")
+        mcap_schema.full_definition(mcap_schema.type_name(msg_class))  # fail here, not in the writer
+        self._classes[topic] = msg_class
 
     def write(self, topic: str, msg, stamp_ns: int) -> None:
         """Enqueue one message stamped `stamp_ns` (log and publish time, ns). Never blocks."""
@@ -467,29 +421,6 @@ class McapRecorder:
                 self._queued += len(batch)
                 self._queue.append(batch)
 
-    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
-        """Write what is queued, then the summary and footer; True when the file was finished cleanly.
-
-        Writes after close are counted as dropped. If the writer thread has not finished within
-        `timeout_s` (a stalled disk or network file system), close gives up waiting: what is
-        still queued is counted as dropped, `error` says so, and the file is left to the thread
-        (it finishes the file if the disk recovers; otherwise it is readable up to its last
-        chunk). Idempotent (a second call returns the first's verdict); safe after an error.
-        """
-        if not self._closed:
-            self._closed = True
-            with self._lock:
-                self._writing = False  # later writes are counted as dropped; queued ones are still written
-            atexit.unregister(self.close)
-            self._stop.set()
-            self._thread.join(timeout=timeout_s)
-            if self._thread.is_alive():
-                lost = self._discard_queued()
-                self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
-                                            f"{timeout_s:g} s (stalled disk?); {lost} queued messages were not "
-                                            "written and the file has no summary")
-        return self.error is None
-
     def _discard_queued(self) -> int:
         """Empty the queue, counting the messages in it as dropped; returns how many (either thread)."""
         n = 0
@@ -505,11 +436,130 @@ class McapRecorder:
             self._queued -= n
         return n
 
-    def __enter__(self) -> McapRecorder:
+    def _take_batch(self, queue: deque) -> list:
+        """The messages of up to BATCH_ENTRIES queued entries (each a step's), up to the next channel
+        declaration, as one list: the per-call work of checking and writing is paid per batch, not per step."""
+        entry = queue.popleft()
+        if queue and type(queue[0]) is list:
+            entry = list(entry)  # the caller's list stays untouched
+            for _ in range(BATCH_ENTRIES - 1):
+                if not queue or type(queue[0]) is not list:
+                    break
+                entry += queue.popleft()
+        with self._lock:
+            self._queued -= len(entry)
+            return self._taken(entry)
+
+    def _taken(self, entry: list) -> list:
+        """`entry` as taken from the queue (under `_lock`): what the emptying thread goes on to write."""
+        return entry
+
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        raise NotImplementedError
+
+    def _stop_writer(self, thread: threading.Thread | None, timeout_s: float, give_up) -> None:
+        """Close admission (later writes are counted as dropped; queued ones are still written), tell the
+        writer to finish and wait up to `timeout_s` for `thread`; if it is still at work, `give_up()`
+        counts what will not be written and `error` says so."""
+        self._closed = True
+        with self._lock:
+            self._writing = False
+        atexit.unregister(self.close)
+        self._stop.set()
+        if thread is None:
+            return
+        thread.join(timeout=timeout_s)
+        if thread.is_alive():
+            lost = give_up()
+            self.error = self.error or (f"recording to {self.path} stopped: the writer did not finish within "
+                                        f"{timeout_s:g} s (stalled disk?); {lost} queued messages were not "
+                                        "written and the file has no summary")
+
+
+class McapRecorder(RecorderQueue):
+    """Record ROS 2 messages to MCAP without blocking the caller (cross-helper contract).
+
+        rec = McapRecorder("run.mcap", metadata=run_metadata(...))
+        rec.add_channel("/joint_states", JointState, qos)
+        rec.write("/joint_states", msg, stamp_ns)      # enqueue only
+        rec.close()                                     # flush, summary, footer
+
+    `metadata`: MCAP metadata records {name: {key: value}} written at the start of the file.
+    `queue_size`: messages held for the writer thread; when full, `write` drops and counts.
+    `deterministic`: the same messages give the same bytes (`McapFile.write`: padding zeroed,
+    messages in log-time order), chunks closed by size only, so a lockstep run can be a golden
+    file; a killed process then loses the chunk in progress. `flush_interval_s`: wall time between
+    forced chunk flushes. It bounds the loss on SIGKILL, and the size of each chunk's finishing
+    work: zstd and the CRC (native, the interpreter lock released) and the chunk's message index
+    (kept in arrays, written in one piece per channel) are proportional to the chunk, and a longer
+    chunk is a longer burst beside the node's step thread (interleaved runs on a busy machine with
+    the index built in Python, the larger burst: command-to-state latency p99 1.46–1.79 ms with
+    0.25 s, 1.15–1.89 ms with 0.05 s, 0.88 ms unrecorded).
+
+    `write_many` hands a step's messages over as one queue entry; the writer thread writes each
+    entry as one batch (`McapFile.write_many`), so the Python per message is a record header, an
+    index entry and a count.
+    """
+
+    def __init__(self, path, *, metadata: dict[str, dict[str, str]] | None = None,
+                 queue_size: int = 100_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
+                 flush_interval_s: float = FLUSH_INTERVAL_S, deterministic: bool = False) -> None:
+        super().__init__(path, queue_size)
+        self._malformed = 0  # untrusted bytes that did not deserialize (writer thread only)
+        self._flush_interval_s = float(flush_interval_s)
+        self._file: McapFile | None = None
+        self._final_written = 0
+        try:
+            self._file = McapFile(self.path, metadata=metadata, chunk_size=chunk_size, deterministic=deterministic)
+        except OSError as e:
+            self._fail(e)
+        self._thread = threading.Thread(target=self._run, name=f"mcap-recorder:{self.path.name}", daemon=True)
+        self._thread.start()
+        atexit.register(self.close)
+
+    # ---- caller side: cheap, never blocks ----------------------------------------------------
+
+    @property
+    def messages_written(self) -> int:
+        """Messages handed to the MCAP writer (on disk once their chunk is flushed)."""
+        f = self._file
+        return f.messages_written if f is not None else self._final_written
+
+    @property
+    def messages_malformed(self) -> int:
+        """Bytes on an `untrusted` channel that did not deserialize as its type: not written."""
+        return self._malformed
+
+    def add_channel(self, topic: str, msg_class, qos, *, untrusted: bool = False) -> None:
+        """Declare a topic before writing to it. The .msg files are read now (SchemaError if missing).
+
+        `untrusted`: the bytes written to it come from elsewhere (a subscription); each is checked
+        in the writer thread and left out, counted in `messages_malformed`, when it does not
+        deserialize as `msg_class`.
+        """
+        self._declare(topic, msg_class)
+        if untrusted and self._file is not None:
+            self._file.prepare_checks()
+        self._queue.append((topic, msg_class, qos, untrusted))
+
+    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Write what is queued, then the summary and footer; True when the file was finished cleanly.
+
+        Writes after close are counted as dropped. If the writer thread has not finished within
+        `timeout_s` (a stalled disk or network file system), close gives up waiting: what is
+        still queued is counted as dropped, `error` says so, and the file is left to the thread
+        (it finishes the file if the disk recovers; otherwise it is readable up to its last
+        chunk). Idempotent (a second call returns the first's verdict); safe after an error.
+        """
+        if not self._closed:
+            self._stop_writer(self._thread, timeout_s, self._discard_queued)
+        return self.error is None
 
     # ---- writer thread -----------------------------------------------------------------------
 
@@ -567,20 +617,6 @@ class McapRecorder:
                 self._discard_queued()
             if stopping:
                 return
-
-    def _take_batch(self, queue: deque) -> list:
-        """The messages of up to BATCH_ENTRIES queued entries (each a step's), up to the next channel
-        declaration, as one list: the per-call work of checking and writing is paid per batch, not per step."""
-        entry = queue.popleft()
-        if queue and type(queue[0]) is list:
-            entry = list(entry)  # the caller's list stays untouched
-            for _ in range(BATCH_ENTRIES - 1):
-                if not queue or type(queue[0]) is not list:
-                    break
-                entry += queue.popleft()
-        with self._lock:
-            self._queued -= len(entry)
-        return entry
 
     def _well_formed(self, f: McapFile, entry: list, checked: dict[str, type]) -> list:
         """`entry` without the bytes on untrusted topics that do not deserialize (counted in `_malformed`)."""
