@@ -235,3 +235,19 @@ def test_node_keeps_stepping_when_its_writer_process_is_killed(tmp_path):
         assert node.stop(signal.SIGINT) == 0, node.stderr  # a lost recording is reported, never fatal
     assert "Traceback" not in node.stderr
     assert not open_bag(bag).complete
+
+
+def test_an_untrusted_channel_of_a_package_outside_the_interface_is_refused_by_the_writer(tmp_path):
+    """The child imports a class to check untrusted bytes by its type name, from the interface's message packages
+    only (`schema.message_class`): a channel of another package stops the recording with a line naming it."""
+    from rcl_interfaces.msg import Log
+
+    path = tmp_path / "p.mcap"
+    rec = McapProcessRecorder(path)
+    rec.add_channel("/rosout_in", Log, TOPICS["screw_torque"].qos, untrusted=True)
+    rec.write("/rosout_in", Log(), 0)
+    _wait_until(lambda: rec.error is not None, 20, "the writer's refusal")
+    assert "'rcl_interfaces/msg/Log' is not a message class of builtin_interfaces, diagnostic_msgs" in rec.error
+    assert "/rosout_in" in rec.error
+    assert not rec.close()
+    assert rec.messages_written + rec.messages_dropped + rec.messages_malformed == 1

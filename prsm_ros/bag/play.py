@@ -15,22 +15,16 @@ handed to subscribers.
 
 from __future__ import annotations
 
-import importlib
-import re
 import time
 
 from prsm_ros.mcap import schema as mcap_schema
+from prsm_ros.mcap.schema import MESSAGE_PACKAGES, message_class
 from prsm_ros.bag.reader import Bag, BagError
 
 
 WAIT_FOR_SUBSCRIBERS_S = 30.0
 MAX_PLAY_WALL_S = 86_400.0  # one playback's length in wall time (log-time span / rate): longer is refused up front
 MAX_DELAY_S = 3600.0
-# The ROS message packages play may import (those of the node's interface, the `ros` extra). A
-# bag's schema names a package; importing it would run whatever module of that name is on the path.
-MESSAGE_PACKAGES = frozenset({"std_msgs", "sensor_msgs", "geometry_msgs", "diagnostic_msgs", "rosgraph_msgs",
-                              "builtin_interfaces"})
-_TYPE_NAME = re.compile(r"[A-Z][A-Za-z0-9]*")
 
 
 def _wait_for_subscribers(pubs: dict, context, timeout_s: float) -> None:
@@ -44,18 +38,6 @@ def _wait_for_subscribers(pubs: dict, context, timeout_s: float) -> None:
         time.sleep(0.02)
     raise BagError(f"no subscriber appeared within {timeout_s:g} s on {', '.join(missing)} "
                    "(drop --wait-for-subscribers to play regardless)")
-
-
-def message_class(type_name: str):
-    """The rclpy message class of `pkg/msg/Type`; None when `pkg` is not one of MESSAGE_PACKAGES or not installed."""
-    parts = type_name.split("/")
-    if len(parts) != 3 or parts[1] != "msg" or parts[0] not in MESSAGE_PACKAGES or not _TYPE_NAME.fullmatch(parts[2]):
-        return None
-    try:
-        cls = getattr(importlib.import_module(f"{parts[0]}.msg"), parts[2])
-    except (ImportError, AttributeError):
-        return None
-    return cls if isinstance(cls, type) else None
 
 
 def _why_skipped(bag: Bag, topic: str) -> str:

@@ -154,15 +154,15 @@ class McapProcessRecorder(RecorderQueue):
 
     def add_channel(self, topic: str, msg_class, qos, *, untrusted: bool = False) -> None:
         """Declare a topic before writing to it (`McapRecorder.add_channel`); the child is told its type
-        name, QoS text and, when `untrusted`, where its class lives, for checking its bytes."""
+        name and QoS text, and whether its bytes are to be checked (`untrusted`: the child imports the class by
+        that type name, from the interface's message packages only)."""
         self._declare(topic, msg_class)
         if topic in self._index:
             return
         self._index[topic] = len(self._index)
         self._queue.append(_frame(b"C", json.dumps({
             "topic": topic, "type": mcap_schema.type_name(msg_class),
-            "qos": mcap_schema.offered_qos_profiles_yaml(qos), "untrusted": bool(untrusted),
-            "module": msg_class.__module__.rsplit(".", 1)[0], "name": msg_class.__name__}).encode()))
+            "qos": mcap_schema.offered_qos_profiles_yaml(qos), "untrusted": bool(untrusted)}).encode()))
 
     def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
         """`McapRecorder.close`: what is queued is written, then the summary and footer, within `timeout_s`.

@@ -54,6 +54,27 @@ class SchemaError(PrsmError, LookupError):
     """A message definition could not be found or understood; the message names the type and where it looked."""
 
 
+# The ROS message packages a class may be imported from by its type name (those of the node's interface, the
+# `ros` extra): a bag's schema or a writer's channel names a package, and importing it would run whatever
+# module of that name is on the path.
+MESSAGE_PACKAGES = frozenset({"std_msgs", "sensor_msgs", "geometry_msgs", "diagnostic_msgs", "rosgraph_msgs",
+                              "builtin_interfaces"})
+_TYPE_NAME = re.compile(r"[A-Z][A-Za-z0-9]*")
+
+
+def message_class(type_name: str):
+    """The rclpy message class of `pkg/msg/Type`; None when `pkg` is not one of MESSAGE_PACKAGES or not installed."""
+    import importlib
+    parts = type_name.split("/")
+    if len(parts) != 3 or parts[1] != "msg" or parts[0] not in MESSAGE_PACKAGES or not _TYPE_NAME.fullmatch(parts[2]):
+        return None
+    try:
+        cls = getattr(importlib.import_module(f"{parts[0]}.msg"), parts[2])
+    except (ImportError, AttributeError):
+        return None
+    return cls if isinstance(cls, type) else None
+
+
 def type_name(msg_class) -> str:
     """`pkg/msg/Type` for a generated rclpy message class (e.g. std_msgs.msg.Float64 → std_msgs/msg/Float64)."""
     module = msg_class.__module__  # e.g. "std_msgs.msg._float64"

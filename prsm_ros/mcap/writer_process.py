@@ -10,9 +10,9 @@ waits for it.
 Frames (parent → child), each a `FRAME` header (kind, payload length) and the payload:
 
 - `O` open (first, once): JSON {path, metadata, chunk_size, deterministic, flush_interval_s};
-- `C` a channel: JSON {topic, type, qos, untrusted, module, name}: the type name, its
-  `offered_qos_profiles` text, and for an untrusted channel where its generated class lives (its
-  bytes are checked with rclpy's deserializer, as the thread recorder checks them);
+- `C` a channel: JSON {topic, type, qos, untrusted}: the type name, its `offered_qos_profiles` text,
+  and whether its bytes are checked with rclpy's deserializer, as the thread recorder checks them (the
+  class imported by its type name from the interface's message packages only: `schema.message_class`);
 - `M` messages: for each, `MESSAGE` (channel index in the order the channels came, stamp ns, length)
   and the CDR bytes;
 - `F` finish: write the summary and footer, answer `done`, exit.
@@ -32,32 +32,24 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import select
 import signal
 import struct
 import sys
 import time
 
+from prsm_sim.errors import InputError
+
+from prsm_ros.mcap import schema as mcap_schema
+
 FRAME = struct.Struct("<cI")  # kind, payload length
 MESSAGE = struct.Struct("<HqI")  # channel index, stamp ns (log = publish time), CDR length
 PARENT_POLL_S = 0.1  # how long the child may outlive a parent that died without closing the pipe
 READ_BYTES = 1 << 20
-# Where a generated rclpy message class may be imported from: `pkg.msg`, `Type` (nothing else is imported)
-_MODULE = re.compile(r"[a-z][a-z0-9_]*\.msg")
-_CLASS = re.compile(r"[A-Z][A-Za-z0-9]*")
 
 
 class ParentGone(Exception):
     """Input ended without a finish frame: the parent died."""
-
-
-def message_class(module: str, name: str):
-    """The generated rclpy class `module.name` (an untrusted channel's bytes are checked against it)."""
-    if not _MODULE.fullmatch(module) or not _CLASS.fullmatch(name):
-        raise ValueError(f"message class {module}.{name}: not a generated ROS 2 message class")
-    import importlib
-    return getattr(importlib.import_module(module), name)
 
 
 class FrameReader:
@@ -102,7 +94,12 @@ class Writer:
 
     def channel(self, payload: memoryview) -> None:
         c = json.loads(bytes(payload))
-        cls = message_class(c["module"], c["name"]) if c["untrusted"] else None
+        cls = None
+        if c["untrusted"]:  # only the interface's message packages are imported (`schema.message_class`)
+            cls = mcap_schema.message_class(c["type"])
+            if cls is None:
+                raise InputError(f"channel {c['topic']}: type {c['type']!r} is not a message class of "
+                                 f"{', '.join(sorted(mcap_schema.MESSAGE_PACKAGES))}: its bytes cannot be checked")
         if cls is not None:
             self.file.prepare_checks()
             self.checked[len(self.ids)] = cls
