@@ -3,8 +3,9 @@
 Target: 1 h of simulated time at 1 kHz in `fast` mode with recording, memory growth
 < 20 MB. The node runs in its own process on an isolated domain; this process sends one torque
 command (held: cmd_timeout 0), reads the node's simulation time from /diagnostics, and samples
-the resident set size of the node and its MCAP writer process (which holds the chunk indexes) from /proc. Growth is the RSS at the end minus the RSS once 5 % of
-the run is done (start-up allocations, DDS discovery and the recorder's first chunks excluded).
+the resident set size of the node and of any process it started from /proc (fast mode records from a
+thread; in realtime and lockstep mode a writer process holds the chunk indexes). Growth is the RSS at
+the end minus the RSS once 5 % of the run is done (start-up allocations, DDS discovery and the recorder's first chunks excluded).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def rss_mb(pid: int) -> float:
 
 
 def tree_rss_mb(pid: int) -> float:
-    """Resident set size of a process and its live descendants (the node's writer process), MB."""
+    """Resident set size of a process and its live descendants (a node's writer process, where it has one), MB."""
     total = rss_mb(pid)
     for child in descendants(pid):
         try:

@@ -100,7 +100,6 @@ class Writer:
             if cls is None:
                 raise InputError(f"channel {c['topic']}: type {c['type']!r} is not a message class of "
                                  f"{', '.join(sorted(mcap_schema.MESSAGE_PACKAGES))}: its bytes cannot be checked")
-        if cls is not None:
             self.file.prepare_checks()
             self.checked[len(self.ids)] = cls
         self.ids.append(self.file.add_named_channel(c["topic"], c["type"], c["qos"], cls))
