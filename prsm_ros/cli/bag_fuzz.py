@@ -282,7 +282,17 @@ def preload(verbs) -> None:
         import prsm_ros.bag.play  # noqa: F401
         import rclpy  # noqa: F401
     if "to-rrd" in verbs:
+        # what a conversion imports on first use (2-3 s a child otherwise): Rerun and the views, pandas
+        # (Rerun's first log), scipy.optimize (the scene's contact points)
+        import pandas  # noqa: F401
+        import rerun  # noqa: F401
+        import scipy.optimize  # noqa: F401
+
+        import prsm_ros.viz.blueprint  # noqa: F401
+        import prsm_ros.viz.columns  # noqa: F401
         import prsm_ros.viz.from_bag  # noqa: F401
+        import prsm_ros.viz.scene  # noqa: F401
+        import prsm_ros.viz.series  # noqa: F401
     if "layout" in verbs:
         import prsm_ros.bag.foxglove_layout  # noqa: F401
 
