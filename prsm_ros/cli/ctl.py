@@ -131,6 +131,7 @@ class Ctl:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._topics: dict[str, str] | None = None
+        self._clients: dict[tuple[str, Any], Any] = {}  # (service name, type) → its client (`_client`)
 
     def close(self) -> None:
         import rclpy
@@ -151,26 +152,29 @@ class Ctl:
         import os
 
         from std_srvs.srv import SetBool
-        client = self.node.create_client(SetBool, f"{self.target}/pause")
+        client = self._client(SetBool, f"{self.target}/pause")
         domain = os.environ.get("ROS_DOMAIN_ID", "0") or "0"
-        try:
-            self.spin_until(client.service_is_ready,
-                            f"node {self.target} not found on ROS_DOMAIN_ID {domain} (is prsm-node running, "
-                            "with the same ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE?)")
-        finally:
-            self.node.destroy_client(client)
+        self.spin_until(client.service_is_ready,
+                        f"node {self.target} not found on ROS_DOMAIN_ID {domain} (is prsm-node running, "
+                        "with the same ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE?)")
+
+    def _client(self, srv_class, name: str):
+        """One client per service for the life of this Ctl: a new client's endpoints must be discovered
+        by the node again before it is ready (seconds, at times), so the one `wait_for_node` matched is
+        the one `~/pause` is then called with."""
+        client = self._clients.get((name, srv_class))
+        if client is None:
+            client = self._clients[(name, srv_class)] = self.node.create_client(srv_class, name)
+        return client
 
     # -- services ----------------------------------------------------------------------------
     def call(self, service: str, srv_class, request=None):
         name = service if service.startswith("/") else f"{self.target}/{service}"
-        client = self.node.create_client(srv_class, name)
-        try:
-            self.spin_until(client.service_is_ready, f"service {name} did not appear")
-            future = client.call_async(request if request is not None else srv_class.Request())
-            self.spin_until(future.done, f"no answer from {name}")
-            return future.result()
-        finally:
-            self.node.destroy_client(client)
+        client = self._client(srv_class, name)
+        self.spin_until(client.service_is_ready, f"service {name} did not appear")
+        future = client.call_async(request if request is not None else srv_class.Request())
+        self.spin_until(future.done, f"no answer from {name}")
+        return future.result()
 
     def trigger(self, service: str, request=None) -> dict:
         """Call a Trigger/SetBool service; a refusal is a CtlError with the node's reason."""
