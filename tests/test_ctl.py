@@ -42,10 +42,17 @@ def node(tmp_path_factory):
         assert proc.stop() == 0, proc.stderr
 
 
+CTL = [sys.executable, "-m", "prsm_ros.cli.ctl"]
+
+
+def ctl_env(env: dict) -> dict:
+    """`env` for a prsm-ctl process that imports this checkout's packages."""
+    return {**env, "PYTHONPATH": os.pathsep.join(sys.path)}
+
+
 def run_text(env: dict, *argv: str) -> tuple[int, str, str]:
     """(exit status, stdout, stderr) of one `prsm-ctl` process on `env`'s domain."""
-    r = subprocess.run([sys.executable, "-m", "prsm_ros.cli.ctl", "--timeout", TIMEOUT, *argv],
-                       env={**env, "PYTHONPATH": os.pathsep.join(sys.path)}, capture_output=True, text=True,
+    r = subprocess.run([*CTL, "--timeout", TIMEOUT, *argv], env=ctl_env(env), capture_output=True, text=True,
                        timeout=120 * CEILING_FACTOR)
     return r.returncode, r.stdout, r.stderr
 
@@ -163,14 +170,11 @@ def test_brake_fault_events(node):
 
 
 def test_the_command_state_follow_and_a_missing_node(node, tmp_path):
-    base = [sys.executable, "-m", "prsm_ros.cli.ctl"]
-    env = {**ENV, "PYTHONPATH": os.pathsep.join(sys.path)}
-    r = subprocess.run(base + ["--node", "/nobody", "--timeout", "1", "state"], env=env, capture_output=True,
-                       text=True, timeout=60 * CEILING_FACTOR)
-    assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr.count("\n") == 1 and "node /nobody not found on ROS_DOMAIN_ID" in r.stderr
-    assert run_cli(base + ["resume"], env) == 0
-    follow = subprocess.Popen(base + ["state", "--follow", "--rate", "50"], env=env, stdout=subprocess.PIPE,
+    rc, out, err = run_text(ENV, "--node", "/nobody", "--timeout", "1", "state")
+    assert rc == 2 and out == ""
+    assert err.count("\n") == 1 and "node /nobody not found on ROS_DOMAIN_ID" in err
+    assert run(ENV, "resume")[0] == 0
+    follow = subprocess.Popen([*CTL, "state", "--follow", "--rate", "50"], env=ctl_env(ENV), stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
     try:
         lines = [follow.stdout.readline() for _ in range(3)]  # blocks until the node's states arrive
@@ -181,11 +185,7 @@ def test_the_command_state_follow_and_a_missing_node(node, tmp_path):
         if follow.poll() is None:
             follow.kill()
             follow.wait()
-    assert run_cli(base + ["pause"], env) == 0
-
-
-def run_cli(cmd: list[str], env: dict) -> int:
-    return subprocess.run(cmd + ["--timeout", TIMEOUT], env=env, capture_output=True, timeout=120 * CEILING_FACTOR).returncode
+    assert run(ENV, "pause")[0] == 0
 
 
 def test_wait_for_controller_hands_the_plant_to_the_first_command(tmp_path):
