@@ -3,8 +3,8 @@
 Each verb runs as its own `prsm-ctl` process, as a user runs it (its exit status, its JSON lines
 and its one-line errors). Not in this process: a second rclpy context created here after the
 first is closed took 2.8–3.0 s to discover the node (Fast DDS, localhost discovery), a new
-`prsm-ctl pause` process 1.0 s (median of ten). What each verb did is checked on the node itself (its parameters, its
-services' answers, its topics), not on prsm-ctl's own words.
+`prsm-ctl pause` process 1.0 s (median of ten). What each verb did is checked on the node itself
+(its parameters, its services' answers, its topics), not on prsm-ctl's own words.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ any other; when it is not played (absent, or not selected), a Clock with the cur
 published before each new log time
 (the simulator's convention: the bag time is the simulation time), so nodes with
 use_sim_time follow the playback. Only the message packages of the node's interface
-(`MESSAGE_PACKAGES`) are ever imported, never a package named by the bag; topics of other types,
+(`schema.MESSAGE_PACKAGES`) are ever imported, never a package named by the bag; topics of other types,
 and topics whose messages cannot be decoded, are skipped and reported. Each message is decoded
 before it is sent (rclpy's deserializer), so a malformed one is skipped and counted rather than
 handed to subscribers.
@@ -18,7 +18,6 @@ from __future__ import annotations
 import time
 
 from prsm_ros.mcap import schema as mcap_schema
-from prsm_ros.mcap.schema import MESSAGE_PACKAGES, message_class
 from prsm_ros.bag.reader import Bag, BagError
 
 
@@ -45,8 +44,8 @@ def _why_skipped(bag: Bag, topic: str) -> str:
     if info.problem:
         return f"{info.type or 'no schema'}: {info.problem}"
     package = info.type.split("/")[0]
-    if package not in MESSAGE_PACKAGES:
-        return f"{info.type}: play publishes only the types of {', '.join(sorted(MESSAGE_PACKAGES))}"
+    if package not in mcap_schema.MESSAGE_PACKAGES:
+        return f"{info.type}: play publishes only the types of {', '.join(sorted(mcap_schema.MESSAGE_PACKAGES))}"
     return f"{info.type}: message package not installed"
 
 
@@ -78,7 +77,7 @@ def _check_wall_time(bag: Bag, topics: list[str], start_ns: int | None, end_ns: 
 
 def _playable(bag: Bag, selected: list[str]) -> tuple[dict, dict, list[str]]:
     """(topic → message class or None, skipped topic → why, playable topics) of a selection."""
-    classes = {t: None if bag.topics[t].problem or _bad_name(t) else message_class(bag.topics[t].type)
+    classes = {t: None if bag.topics[t].problem or _bad_name(t) else mcap_schema.message_class(bag.topics[t].type)
                for t in selected}
     skipped = {t: _bad_name(t) or _why_skipped(bag, t) for t, c in classes.items() if c is None}
     playable = [t for t in selected if classes[t] is not None]
