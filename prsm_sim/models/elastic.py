@@ -473,7 +473,9 @@ class ElasticModel(Model):
         train's reflected mass: the nut's and the core's J/p²) the position-consistent stop force held over the
         step reflects the train's speed (v₁ ≈ −v₀, as the trapezoid does) and the contact's damping takes many
         steps to end that ring; a contact trial that reverses the screw is then backward Euler in the rigid mode
-        (`_rigid_shift`), as `jones2016` and `ideal` take theirs."""
+        (`_rigid_shift`), as `ideal` takes its own (`jones2016` takes every contact trial so; shifting the trials
+        that do not reverse too undoes the settling of a train back-driven onto an end,
+        tests/test_envelope_large_steps.py)."""
         omega_end = math.sqrt(END_STOP_STIFFNESS_N_M / (self.m + self._m_core[0][0] / self.p**2))
         self.reverses_l_stable = self.dt_s * omega_end > 2.0
         self._contact = [False]  # `set_contact`: only a contact's trial steps are shifted

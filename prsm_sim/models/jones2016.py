@@ -80,12 +80,15 @@ class Jones2016(Model):
         # ZOH is exact for the free screw, but against an end or stop the step does not resolve
         # (h √(k/m) > 2 for the ends' default 1e8 N/m on the screw's own reflected inertia M₀₀) the
         # position-consistent stop force held over the step reflects the screw's speed (ω₁ ≈ −ω₀, as the
-        # trapezoid does), and viscous friction takes many steps to end that ring. At such steps a step that
-        # reverses the screw inside a contact's solve (`set_contact`) is taken by backward Euler (L-stable),
-        # as `ideal` does, its numerical dissipation booked (`_make_step`); a free reversal stays exact
+        # trapezoid does), and viscous friction takes many steps to end that ring. At such steps every trial
+        # step of a contact's solve (`set_contact`) is backward Euler (L-stable), its numerical dissipation
+        # booked (`_make_step`); a free step stays exact. All the trials, not only those that reverse the screw:
+        # the end position is then affine in the contact's force and the stop law's root exists, where a switch
+        # at the ZOH's own reversal jumps it by ~h v₀/2 and can end the step at rest off the balance of load and
+        # drive (envelope seed 47316: 84 µm at 0.1 s)
         omega_end = math.sqrt(END_STOP_STIFFNESS_N_M * geo.lead_per_rad_m**2 / self.M[0, 0])
         self.reverses_l_stable = self.dt_s * omega_end > 2.0
-        self._contact = [False]  # `set_contact`: only a contact's trial steps reverse by backward Euler
+        self._contact = [False]  # `set_contact`: only a contact's trial steps are backward Euler
         self.layout = InternalLayout(blocks=(
             InternalBlock("per_roller", ("roller", "quantity"), (geo.n_rollers, len(PER_ROLLER_QUANTITIES)),
                           PER_ROLLER_QUANTITIES),
@@ -130,7 +133,7 @@ class Jones2016(Model):
         def step(x, u0: float, u1: float):
             w0, w1 = x[2], x[4]
             n2 = p22 * w0 + p23 * w1 + g20 * u0 + g21 * u1
-            if l_stable and w0 * n2 < 0.0 and contact[0]:
+            if l_stable and contact[0]:
                 return reversed_step(x, u0, u1)
             n3 = p32 * w0 + p33 * w1 + g30 * u0 + g31 * u1
             diss = (w0 * (w00 * w0 + w01 * w1 + w02 * u0 + w03 * u1) + w1 * (w11 * w1 + w12 * u0 + w13 * u1)
@@ -144,7 +147,7 @@ class Jones2016(Model):
         self._contact[0] = bool(on)
 
     def _backward_euler(self, finish, e_ss: float, e_sc: float, e_cc: float):
-        """The reversing step in a contact at steps too long for it (`reverses_l_stable`): backward Euler,
+        """A contact's trial step at steps too long for it (`reverses_l_stable`): backward Euler,
         (M + hC) q̇₁ = M q̇₀ + h B u, Δq = h q̇₁. Its books close exactly with the dissipation
         h q̇₁ᵀ C q̇₁ + ½ Δq̇ᵀ M Δq̇ (the friction's, and the scheme's own numerical loss, ≥ 0), from
         ½ q̇₁ᵀMq̇₁ − ½ q̇₀ᵀMq̇₀ = q̇₁ᵀ M Δq̇ − ½ Δq̇ᵀ M Δq̇ with M Δq̇ = h (B u − C q̇₁)."""

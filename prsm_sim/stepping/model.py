@@ -241,8 +241,8 @@ class Model:
     def set_contact(self, on: bool) -> None:
         """Whether the steps that follow are trials of an end's or stop's contact solve (`actuator.stops.solve`,
         on for its duration: `in_contact`) whose reversals are the contact's. A model whose step reflects the
-        screw's speed off a contact it does not resolve takes its reversing steps in an L-stable form there
-        (`jones2016`, `elastic`); the others ignore it."""
+        screw's speed off a contact it does not resolve takes its steps there in an L-stable form (`jones2016`
+        every trial, `elastic` those that reverse the screw); the others ignore it."""
 
     @contextmanager
     def in_contact(self, free_reverses: bool = False) -> Iterator[None]:
