@@ -66,9 +66,9 @@ REST_SLACK_M = 2e-6  # rest penetration beyond the static deflection allowed (th
 P2P_LIMIT_RAD_S = 0.5
 SETTLE_S = 0.1  # an impact's decay before a hold is judged
 # a ring held at a step this many times shorter (the drive's loop rate kept) with a peak to peak within this share
-# of the case's is the closed loop's own (`_Run._rings_alike_when_resolved`): 10× takes a 1e7-1e8 N/m stop's
-# mode on the default motor's reflected inertia from h ω > 2 to h ω < 0.5; 25 % spans a resolved limit cycle's
-# change with the step (seed 46302: 4 % from 5.7 ms to 0.57 ms)
+# of the case's is the closed loop's own (`_Run._rings_alike_when_resolved`): a limit cycle of the loop changed by
+# 4 % over that decade of steps (seed 46302, 5.7 to 0.57 ms), the step's own rings by all of it (seeds 1602, 4574,
+# 5563 on the exact contact step: 36-268 rad/s at 14-33 ms, none at a tenth of it)
 RESOLVE_FACTOR = 10
 RING_AGREEMENT = 0.25
 TORQUE_LIMIT_NM = 10.0  # the default motor's, also the bare loop's clamp

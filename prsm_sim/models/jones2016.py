@@ -127,14 +127,14 @@ class Jones2016(Model):
             return block.ravel()
 
         finish = self.finisher(slip_speed, internal)
-        reversed_step = self._backward_euler(finish, e_ss, e_sc, e_cc)
+        contact_step = self._backward_euler(finish, e_ss, e_sc, e_cc)
         l_stable, contact = self.reverses_l_stable, self._contact
 
         def step(x, u0: float, u1: float):
+            if l_stable and contact[0]:
+                return contact_step(x, u0, u1)
             w0, w1 = x[2], x[4]
             n2 = p22 * w0 + p23 * w1 + g20 * u0 + g21 * u1
-            if l_stable and contact[0]:
-                return reversed_step(x, u0, u1)
             n3 = p32 * w0 + p33 * w1 + g30 * u0 + g31 * u1
             diss = (w0 * (w00 * w0 + w01 * w1 + w02 * u0 + w03 * u1) + w1 * (w11 * w1 + w12 * u0 + w13 * u1)
                     + u0 * (w22 * u0 + w23 * u1) + u1 * w33 * u1)
