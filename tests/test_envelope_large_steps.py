@@ -116,7 +116,6 @@ def test_jones2016_pressed_onto_an_end_at_a_step_that_does_not_resolve_it_comes_
     assert s.work_in_j == pytest.approx(s.work_out_j + s.dissipated_j + sim.model.total_stored_energy_j(s), rel=1e-9)
 
 
-
 def test_jones2016_contact_trials_at_a_step_that_does_not_resolve_the_end_are_backward_euler_in_the_stop_force():
     # closed form: backward Euler, (M + hC) q̇₁ = M q̇₀ + h B u, Δq = h q̇₁, for every trial of a contact's solve at
     # a step that does not resolve the end, so the nut's end position is affine in the stop's force and the
@@ -144,7 +143,6 @@ def test_jones2016_contact_trials_at_a_step_that_does_not_resolve_the_end_are_ba
             angles.append(s1.screw_angle_rad)
     # affine in the force across the old switch: no jump (the ZOH step there moved the nut ~(L/2π) h ω₀/2 more)
     assert angles[1] - angles[0] == pytest.approx(angles[2] - angles[1], rel=1e-6)
-
 
 
 def test_a_ring_the_step_makes_is_caught_and_one_the_loop_makes_is_not(monkeypatch):
