@@ -3,7 +3,7 @@
 .. include:: ../docs/guide.md
 """
 
-from prsm_sim.errors import InputError, ModelError, ParamError, PrsmError
+from prsm_sim.errors import DriveLoopWarning, InputError, ModelError, ParamError, PrsmError
 from prsm_sim.models.registry import MODELS, build_model
 from prsm_sim.params import Friction, Geometry, IdealLoss, Loads, MassProperties, Params
 from prsm_sim.presets import PRESETS, preset
@@ -38,7 +38,7 @@ __version__: str = _version()
 
 __all__ = [
     "__version__",
-    "PrsmError", "ParamError", "InputError", "ModelError",
+    "PrsmError", "ParamError", "InputError", "ModelError", "DriveLoopWarning",
     "OUTPUT_FIELDS", "InternalBlock", "InternalLayout", "Outputs", "State", "Trajectory",
     "Friction", "Geometry", "IdealLoss", "Loads", "MassProperties", "Params",
     "PRESETS", "preset", "MODELS", "Simulator", "build_model", "Session", "SessionConfig",

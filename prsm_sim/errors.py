@@ -1,7 +1,8 @@
 """The project's one error family: catch `PrsmError` for all of them, or one member.
 
 Every message names what was wrong (the field or input), the value, and what is allowed, in
-one line, so a command-line tool can print it as it is and exit with status 2.
+one line, so a command-line tool can print it as it is and exit with status 2. `DriveLoopWarning` is the
+one warning category of its own: a setting that runs, but not as a user would mean it to.
 """
 
 from __future__ import annotations
@@ -35,3 +36,7 @@ class NonFiniteStateError(ModelError):
     def __init__(self, message: str, time_s: float) -> None:
         super().__init__(message)
         self.time_s = time_s
+
+
+class DriveLoopWarning(UserWarning):
+    """The drive's sampled loop, as configured, does not settle on the inertia it drives: it will ring."""

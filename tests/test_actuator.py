@@ -6,6 +6,7 @@ Each test names its oracle: a closed form, a conservation law, or the bare model
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -648,3 +649,38 @@ def test_a_stop_pushing_a_nut_out_past_its_stored_energy_gives_out():
     assert not gives_out(lim, -2000.0, 0.1, 0.1 + 15e-6)
     assert not gives_out(lim, 0.0, x0, x1)
     assert GIVE_TOL_J == 1e-9
+
+
+@pytest.mark.parametrize("mode,command", [("velocity", 5.0), ("position", 2e-4)])
+def test_the_sampled_loop_settles_below_the_jury_bound_and_rings_above_it(mode, command):
+    """Oracle: Jury's conditions on the PI speed loop sampled every h on an inertia J (a = kp h/J, b = ki h²/J,
+    poles of z² + (a + b − 2) z + (1 − a)): with the default tuning ki = kp ω_b/4 it settles only for
+    ω_b h < 4(√2 − 1) ≈ 1.657 (a 30 Hz loop needs more than 114 updates a second), and with no integral
+    (b = 0) only for a < 2. `sampled_loop_radius` crosses 1 at both bounds; a lossless screw driven at the step's
+    rate settles 10 % below the bound, and 10 % above it rings (grown into a limit cycle on the torque limit), and
+    its actuator says so when built."""
+    from prsm_sim.actuator.drive import sampled_loop_radius
+    from prsm_sim.errors import DriveLoopWarning
+    j, wb = 4e-4, 2 * math.pi * 30.0
+    tuned = DriveParams().tuned(j)
+    bound = 4 * (math.sqrt(2) - 1) / wb
+    assert sampled_loop_radius(tuned, mode, j, bound) == pytest.approx(1.0, abs=1e-9)
+    assert sampled_loop_radius(tuned, mode, j, 0.99 * bound) < 1.0 < sampled_loop_radius(tuned, mode, j, 1.01 * bound)
+    p_only = DriveParams(speed_kp_nm_s_rad=j * 100.0, speed_ki_nm_rad=0.0).tuned(j)
+    assert sampled_loop_radius(p_only, "velocity", j, 2.0 / 100.0) == pytest.approx(1.0, abs=1e-9)  # z = 1 − a
+    assert sampled_loop_radius(tuned, "effort", j, 1.0) == 0.0
+    p = s30(**LOSSLESS)
+    for factor, rings in ((0.9, False), (1.1, True)):
+        dt = factor * bound
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            act = Actuator(p, dt, "ideal", ActuatorParams(motor=MotorParams(), drive=DriveParams(mode=mode)))
+        assert any(issubclass(w.category, DriveLoopWarning) for w in said) == rings
+        assert (act.drive_loop_radius(mode) >= 1.0) == rings
+        _, outs = run(act, act.initial_state(0.0), command, 0.0, 120)
+        w = np.array([o.screw_speed_rad_s for o in outs]) - (command if mode == "velocity" else 0.0)
+        if rings:  # a limit cycle: the screw's speed error flips sign at every update, tens of rad/s either way
+            assert np.abs(w[-20:]).min() > 10.0 and np.all(w[-20:-1] * w[-19:] < 0.0)
+        else:
+            y = w if mode == "velocity" else np.array([o.nut_position_m for o in outs]) - command
+            assert np.abs(y[-20:]).max() < 1e-3 * command

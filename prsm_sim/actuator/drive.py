@@ -10,6 +10,8 @@ import math
 import warnings
 from typing import NamedTuple
 
+import numpy as np
+
 from prsm_sim.errors import InputError
 from prsm_sim.actuator.params import DriveParams
 
@@ -110,3 +112,41 @@ def drive_update(drive: DriveParams, mode: str, command: float, integral_nm: flo
         edge = math.copysign(torque_limit_nm, raw) - kp * e - feedforward_nm
         integ = min(integ, max(edge, integral_nm)) if raw > 0 else max(integ, min(edge, integral_nm))
     return DriveOut(torque_nm=tau, integral_nm=integ, limited=limited, speed_reference_rad_s=w_ref)
+
+
+def sampled_loop_radius(drive: DriveParams, mode: str, inertia_kgm2: float, h_s: float,
+                        speed_from_angles: bool = False) -> float:
+    """The spectral radius of the drive's loops closed on a rigid inertia, sampled every `h_s`: below 1
+    they settle, at or above it they ring at the loop's own rate (a limit cycle once the torque saturates).
+
+    The linear, unsaturated loop of `drive_update` (command zero, no feed-forward) on J θ̈ = τ with τ held
+    over each update (exact for the inertia: θ⁺ = θ + h ω + h² τ/(2J), ω⁺ = ω + h τ/J), the speed read as ω at
+    the sample or, `speed_from_angles`, as the last update's angle change over h (a quantised encoder).
+    In velocity mode with ki = kp ω_b/4 (`DriveParams.tuned`) and the speed read at the sample, the loop's
+    poles solve z² + (a + b − 2) z + (1 − a) = 0 with a = kp h/J, b = ki h²/J; the Jury conditions then
+    hold for ω_b h < 4 (√2 − 1) ≈ 1.657: a 30 Hz speed loop needs more than 114 updates a second. The
+    position loop's cascade (kp_pos = ω_b/5) leaves that bound where it is; a speed read from angles
+    lowers it. Effort mode closes no loop: 0.
+    """
+    if mode == "effort":
+        return 0.0
+    kp, ki, kx = drive.speed_kp_nm_s_rad, drive.speed_ki_nm_rad, drive.position_kp_1_s
+    if kp is None or ki is None or kx is None:
+        raise InputError("drive: gains left None (tune them first: DriveParams.tuned(inertia_kgm2))")
+    h, j = h_s, inertia_kgm2
+    kx = kx if mode == "position" else 0.0
+    # state z = (θ, ω, S, d): S the integrator's memory, d the last update's angle change. The loop reads
+    # ω_meas = ω (or d/h) and the position error −θ; e = −kx θ − ω_meas, S⁺ = S + ki h e, τ = kp e + S⁺
+    read = (0.0, 0.0, 0.0, 1.0 / h) if speed_from_angles else (0.0, 1.0, 0.0, 0.0)
+    e = np.array([-kx, 0.0, 0.0, 0.0]) - np.array(read)
+    s_new = np.array([0.0, 0.0, 1.0, 0.0]) + ki * h * e
+    tau = kp * e + s_new
+    a = np.array([
+        [1.0, h, 0.0, 0.0] + 0.5 * h * h / j * tau,
+        [0.0, 1.0, 0.0, 0.0] + h / j * tau,
+        s_new,
+        [0.0, h, 0.0, 0.0] + 0.5 * h * h / j * tau,
+    ])
+    if kx == 0.0:  # the angle does not feed back (velocity mode): its own pole at 1 is no ring
+        a = a[1:, 1:]
+    return float(max(abs(np.linalg.eigvals(a))))

@@ -302,8 +302,8 @@ class ElasticModel(Model):
         self.screw_side_mass_kg = ms
         self.mu = ms * self.m / (ms + self.m)
         self.zeta = params.elastic.contact_damping_ratio
-        k_max = max(ls.AxialChain(params).at(f).stiffness_n_per_m
-                    for f in (0.0, 0.5 * params.resolved_ratings.static_load_rating_n))
+        chain = ls.AxialChain(params)  # built once: a preloaded pair's is 401 load-distribution solves
+        k_max = max(chain.at(f).stiffness_n_per_m for f in (0.0, 0.5 * params.resolved_ratings.static_load_rating_n))
         omega = math.sqrt(k_max / self.mu)
         self.substeps = max(1, math.ceil(omega * self.dt_s / OMEGA_H_MAX))
         self.core = Fu2018(core_params, self.dt_s / self.substeps, kernel=kernel)
