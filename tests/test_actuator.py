@@ -668,6 +668,7 @@ def test_the_sampled_loop_settles_below_the_jury_bound_and_rings_above_it(mode, 
     assert sampled_loop_radius(tuned, mode, j, 0.99 * bound) < 1.0 < sampled_loop_radius(tuned, mode, j, 1.01 * bound)
     p_only = DriveParams(speed_kp_nm_s_rad=j * 100.0, speed_ki_nm_rad=0.0).tuned(j)
     assert sampled_loop_radius(p_only, "velocity", j, 2.0 / 100.0) == pytest.approx(1.0, abs=1e-9)  # z = 1 − a
+    assert sampled_loop_radius(p_only, "velocity", j, 1.0 / 100.0) == pytest.approx(0.0, abs=1e-9)  # deadbeat, a = 1
     assert sampled_loop_radius(tuned, "effort", j, 1.0) == 0.0
     p = s30(**LOSSLESS)
     for factor, rings in ((0.9, False), (1.1, True)):

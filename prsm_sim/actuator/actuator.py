@@ -24,7 +24,6 @@ dissipated + stored) is kept in the state.
 from __future__ import annotations
 
 import math
-import warnings
 from collections import namedtuple
 from dataclasses import dataclass, fields, replace
 from typing import Any, cast
@@ -33,7 +32,7 @@ import numpy as np
 
 from prsm_sim.actuator import faults as fl
 from prsm_sim.actuator.brake import brake_level, held_torque, works_on_shaft
-from prsm_sim.actuator.drive import drive_update, loop_schedule, sampled_loop_radius, shape_reference
+from prsm_sim.actuator.drive import drive_update, loop_schedule, shape_reference, tuned_drive
 from prsm_sim.actuator.implicit import coupling_torque, linear_response, probe_inertia
 from prsm_sim.actuator.motor import CurrentStep, current_reference, current_step, voltage
 from prsm_sim.actuator.params import COMMAND_INTERFACES, ActuatorParams, Fault, check_interface
@@ -42,7 +41,7 @@ from prsm_sim.actuator.sensors import MEASURED_QUANTITIES, TrueSample
 from prsm_sim.actuator.stops import MAX_REST_HALVINGS, Limit, engaged, gives_out, limits_of, off_rest, \
     stop_penetration, stop_stored_j
 from prsm_sim.actuator.stops import solve as solve_stop
-from prsm_sim.errors import DriveLoopWarning, InputError
+from prsm_sim.errors import InputError
 from prsm_sim.models.registry import build_model, model_class
 from prsm_sim.stepping.ledger import efficiency
 from prsm_sim.stepping.model import Model, check_step_inputs
@@ -294,16 +293,9 @@ class Actuator(Model):
         self.p = self.geo.lead_per_rad_m
         self.sensing = SensorSuite(a.sensors, self.ratio, self.rigid, self.p, self.dt_s)
         self.J = probe_inertia(base, self.h_sub)
-        # the drive's gains, those left None tuned on the inertia it drives (rigid: J; compliant: J + rotor)
+        # the drive's gains tuned on the inertia it drives (rigid: J; compliant: J + rotor), its loops' radius by mode
         self.J_drive = self.J + (0.0 if self.rigid else self.motor_inertia)  # the inertia the drive moves
-        self.drive = a.drive.tuned(self.J_drive)
-        radius = self.drive_loop_radius(a.drive.mode)
-        if radius >= 1.0:
-            warnings.warn(f"drive: the {a.drive.mode} loop updated at {1.0 / self._h_loop:g} Hz (drive.loop_rate_hz = "
-                          f"{a.drive.loop_rate_hz!r}, dt_s = {self.dt_s!r}) with drive.speed_bandwidth_hz = "
-                          f"{a.drive.speed_bandwidth_hz!r} does not settle on the {self.J_drive:.4g} kg·m² it drives "
-                          f"(sampled-loop pole |z| = {radius:.3f} >= 1): it rings at the loop's rate; raise the loop "
-                          "rate or lower the bandwidth", DriveLoopWarning, stacklevel=4)
+        self.drive, self.drive_loop_radius = tuned_drive(a.drive, self.J_drive, self._h_loop, self.dt_s, a.sensors)
         self.M = mass_matrix(self.screw_params)
         self._kss, self._ksc, self._kcc = float(self.M[0, 0]), float(self.M[0, 1]), float(self.M[1, 1])
         self.block_at = base.layout.size  # where the actuator's block starts in the internal vector
@@ -321,13 +313,6 @@ class Actuator(Model):
             p = self.screw_params if key[:2] == (1.0, 1.0) else fl.scaled_params(self.screw_params, *key[:2])
             mod = self._models[key] = build_model(p, self.model_name, math.ldexp(self.h_sub, -halvings), self.kernel)
         return mod
-
-    def drive_loop_radius(self, mode: str) -> float:
-        """`drive.sampled_loop_radius` of this actuator's drive in `mode` (an interface), on the inertia it drives
-        (rigid: screw, nut, carrier and rotor; a compliant coupling's two masses taken as one), at its loop period,
-        the speed read as the drive reads it: ≥ 1, the loop rings by itself."""
-        return sampled_loop_radius(self.drive, mode, self.J_drive, self._h_loop,
-                                   speed_from_angles=self.actuator.sensors.encoder_counts_per_rev != 0)
 
     def _accel_limit(self, torque_limit_nm: float) -> float:
         """Screw acceleration (rad/s²) the position reference may ask for: half the torque limit on the inertia

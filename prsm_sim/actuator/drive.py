@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 
-from prsm_sim.errors import InputError
-from prsm_sim.actuator.params import DriveParams
+from prsm_sim.errors import DriveLoopWarning, InputError
+from prsm_sim.actuator.params import DriveParams, SensorParams
 
 
 class DriveOut(NamedTuple):
@@ -147,6 +149,26 @@ def sampled_loop_radius(drive: DriveParams, mode: str, inertia_kgm2: float, h_s:
         s_new,
         [0.0, h, 0.0, 0.0] + 0.5 * h * h / j * tau,
     ])
-    if kx == 0.0:  # the angle does not feed back (velocity mode): its own pole at 1 is no ring
-        a = a[1:, 1:]
-    return float(max(abs(np.linalg.eigvals(a))))
+    # a state that does not feed back holds its value, a pole at 1 that is no ring: the angle in velocity mode
+    # (and a position loop of no gain), the integrator's memory with no integral gain
+    keep = [i for i, fed in enumerate((kx != 0.0, True, ki != 0.0, True)) if fed]
+    return float(max(abs(np.linalg.eigvals(a[np.ix_(keep, keep)]))))
+
+
+def tuned_drive(drive: DriveParams, inertia_kgm2: float, h_loop_s: float, dt_s: float,
+                sensors: SensorParams) -> tuple[DriveParams, Callable[[str], float]]:
+    """The drive's gains tuned on the inertia it moves (`DriveParams.tuned`), and the spectral radius of its
+    loops by mode (`sampled_loop_radius` at the loop period `h_loop_s`, the speed read as `sensors` give it:
+    from angles with a quantised encoder). Where the loop of the drive's own mode does not settle (radius ≥ 1)
+    `warnings.warn` says so once, `DriveLoopWarning`, with the rate and bandwidth to change."""
+    tuned = drive.tuned(inertia_kgm2)
+    radius = partial(sampled_loop_radius, tuned, inertia_kgm2=inertia_kgm2, h_s=h_loop_s,
+                     speed_from_angles=sensors.encoder_counts_per_rev != 0)
+    r = radius(drive.mode)
+    if r >= 1.0:
+        warnings.warn(f"drive: the {drive.mode} loop updated at {1.0 / h_loop_s:g} Hz (drive.loop_rate_hz = "
+                      f"{drive.loop_rate_hz!r}, dt_s = {dt_s!r}) with drive.speed_bandwidth_hz = "
+                      f"{drive.speed_bandwidth_hz!r} does not settle on the {inertia_kgm2:.4g} kg·m² it drives "
+                      f"(sampled-loop pole |z| = {r:.3f} >= 1): it rings at the loop's rate; raise the loop rate or "
+                      "lower the bandwidth", DriveLoopWarning, stacklevel=5)
+    return tuned, radius
