@@ -193,3 +193,27 @@ def test_reset_while_paused_with_an_actuator_publishes_the_rest_state(tmp_path):
     assert list(rest_js.position) == [meas.screw_angle_rad, meas.nut_position_m]
     assert list(rest_js.velocity) == [0.0, 0.0] and list(rest_js.effort) == [0.0, meas.nut_force_n]
     assert list(rest_gt.effort) == [0.0, LOAD_N]  # at rest the nut carries the load
+
+
+@pytest.mark.slow
+def test_a_drive_loop_that_cannot_settle_is_said_in_the_node_s_own_log(tmp_path):
+    """Oracle: the Jury bound of the drive's sampled speed loop (docs/actuator.md): the default 30 Hz loop needs more
+    than 114 updates a second, so a position loop at the node's 50 Hz step rings by itself. The actuator's
+    `DriveLoopWarning` reaches a ROS user as the node's own warning, on /rosout and on the console in ROS's
+    format, not as Python's file-and-line print."""
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+
+    params = {"model": "ideal", "preset": "s30", "time_mode": "lockstep", "update_rate": 50, "record": False,
+              "command_interface": "position", "actuator": "{motor: {}}"}
+    latched = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    with NodeProcess(ENV, params, workdir=tmp_path / "run") as proc, RosClient(ENV) as cli:
+        logs = cli.subscribe("/rosout", Log, qos=latched)
+        cli.wait_for_node(proc)
+        cli.spin_until(lambda: any("DriveLoopWarning" in m.msg for m in logs), 10.0, "the warning on /rosout")
+        assert proc.stop() == 0
+    said = [m for m in logs if "DriveLoopWarning" in m.msg]
+    assert len(said) == 1 and said[0].level == Log.WARN and said[0].name == "prsm_actuator"
+    assert "the position loop updated at 50 Hz" in said[0].msg
+    console = [line for line in proc.stderr.splitlines() if "DriveLoopWarning" in line]
+    assert len(console) == 1 and console[0].startswith("[WARN]") and "[prsm_actuator]" in console[0]

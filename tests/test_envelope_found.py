@@ -1,4 +1,4 @@
-"""Cases the widened envelope campaign (`prsm-sim envelope --runs 100000`, seeds 0-5815 run) found broken, each
+"""Cases the widened envelope campaign (`prsm-sim envelope --runs 100000`) found broken, each
 pinned as a regression case by its whole case (tests/envelope_found.json: plain data, independent of later
 changes to the draws), with what it broke and the defect that breaks it.
 

@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 
 import rclpy
 import rclpy.executors
@@ -110,13 +111,15 @@ def _run(sources: ParamSources) -> int:
     node = executor = None
     try:
         try:
-            node = PrsmNode(param_sources=sources)
+            with warnings.catch_warnings(record=True) as said:
+                node = PrsmNode(param_sources=sources)
         except PrsmError as e:  # a parameter refused (ConfigError), or a model the parameters cannot build
             _exit_now(2, f"prsm-node: error: {e}")
         except Exception as e:  # e.g. an RCLError for a QoS override the middleware refuses
             if os.environ.get("PRSM_DEBUG"):
                 raise
             _exit_now(1, f"prsm-node: error: could not start: {type(e).__name__}: {e} (PRSM_DEBUG=1 shows where)")
+        _log_warnings(node.get_logger(), said)
         executor = node.make_executor()
         if node.config.time_mode == "realtime" and node.config.realtime_priority > 1:
             # our own process: the middleware's threads too (not done when PrsmNode is embedded elsewhere)
@@ -134,6 +137,18 @@ def _run(sources: ParamSources) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _log_warnings(logger, said: list[warnings.WarningMessage]) -> None:
+    """Python's warnings (a drive loop that cannot settle, a loop rate off the step grid, a load past the
+    static rating) as the node's own log lines, where a ROS user's tools read them (the console in ROS's
+    format, /rosout): those its start gave, then every later one."""
+    def log(message, category, *_where, **_kw) -> None:
+        logger.warning(f"{category.__name__}: {message}")
+
+    for w in said:
+        log(w.message, w.category)
+    warnings.showwarning = log
 
 
 def _print_urdf(sources: ParamSources) -> int:
