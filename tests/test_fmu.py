@@ -556,3 +556,16 @@ def test_a_refused_state_changes_nothing(tmp_path):
     assert core.tunables == good["tunables"] and core.get_state() == good
     assert core.do_step(0.0, DT) is not None
     assert core.set_state(good) is True and core.do_step(0.0, DT) is None
+
+
+def test_a_drive_loop_tuned_past_its_bound_is_said_through_the_fmu_logger(tmp_path):
+    """Oracle: the sampled speed loop's pole z = 1 − a (a = kp h/J) leaves the unit circle at a > 2
+    (docs/actuator.md): a kp of 3 J/h, J the inertia the defaults were tuned on (kp = J · 2π · 30 Hz), rings by
+    itself, and the FMU's logger says so with status "warning"; the defaults at 1 kHz say nothing."""
+    core, logs = make_core(tmp_path, config_for("jones2016", "velocity"))
+    assert not [m for status, m in logs if status == "warning"]
+    j = core.get("drive_speed_kp_nm_s_rad") / (2 * math.pi * 30.0)
+    core.set("drive_speed_kp_nm_s_rad", 3.0 * j / DT)
+    said = [m for status, m in logs if status == "warning"]
+    assert len(said) == 1 and said[0].startswith("DriveLoopWarning: drive: the velocity loop updated at 1000 Hz")
+    assert core.do_step(0.0, DT) is None  # said, not refused

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from collections.abc import Callable
@@ -169,8 +170,10 @@ class SlaveCore:
         check_version(config)
         self.config = config
         self.log = lambda msg, status: log(brief(msg), status)
-        self.session = session_from_config(config)
-        session_from_config(config).step()  # a throwaway copy compiles the first step here, not in a doStep
+        with warnings.catch_warnings(record=True) as said:
+            self.session = session_from_config(config)
+            session_from_config(config).step()  # a throwaway copy compiles the first step here, not in a doStep
+        self._log_warnings(said)
         s = self.session
         self.dt_s = s.dt_s
         self.interface = s.interface
@@ -288,9 +291,17 @@ class SlaveCore:
             parts = {"drive": drive, "motor": a.motor}
             parts[group] = replace(parts[group], **{field: value})
             s.actuator_params = replace(a, **parts)
-            s.rebuild(s.params)
+            with warnings.catch_warnings(record=True) as said:
+                s.rebuild(s.params)
+            self._log_warnings(said)
         self.tunables[name] = value
         self._row = None
+
+    def _log_warnings(self, said: list[warnings.WarningMessage]) -> None:
+        """What the library said without refusing while the session was built (a drive loop that cannot settle),
+        through the FMU's logger, where the importer shows it: status "warning"."""
+        for w in said:
+            self.log(f"{w.category.__name__}: {w.message}", "warning")
 
     # -- stepping -----------------------------------------------------------------------------
     def do_step(self, current_time: float, step_size: float) -> str | None:
