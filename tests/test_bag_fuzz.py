@@ -66,7 +66,8 @@ def test_mutated_bags_through_info_check_and_repair(ops):
 
 
 @pytest.mark.slow
-@settings(max_examples=40, derandomize=True, deadline=None, suppress_health_check=list(HealthCheck))
+# 20 cases here (about a minute); thousands behind the command in the module doc
+@settings(max_examples=20, derandomize=True, deadline=None, suppress_health_check=list(HealthCheck))
 @given(OPS)
 def test_mutated_bags_through_every_verb(ops):
     assert _case(ops, fuzz.VERBS) == {}, ops

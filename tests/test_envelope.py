@@ -155,9 +155,11 @@ def test_envelope(data):
     _check(draw_case(_Draws(data)))
 
 
+# 100 seeds drawn beyond the campaign's range: seeds 0-99,999 of this core ran in `prsm-sim envelope`, whose
+# results are kept in docs/validation/data (docs/studies.md), so CI spends its minutes on seeds the campaign has not run
 @pytest.mark.slow
-@settings(derandomize=True, deadline=None, max_examples=300, suppress_health_check=[HealthCheck.too_slow])
-@given(st.integers(0, 2**31 - 1))
+@settings(derandomize=True, deadline=None, max_examples=100, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(100_000, 2**31 - 1))
 def test_envelope_by_seed(seed):
     _check(case_from_seed(seed))
 
