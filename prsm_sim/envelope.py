@@ -630,8 +630,13 @@ class _Run:
 
     def check_rest(self) -> None:
         """At rest against a stop at the end: δ within the static deflection of the net force + 2 µm
-        (screw and nut: an elastic nut can still ring on its chain while the screw is held)."""
-        last = int(round(0.1 / self.dt))
+        (screw and nut: an elastic nut can still ring on its chain while the screw is held).
+
+        At rest over the last 0.1 s from its start: the state before the window's first step is at rest too.
+        The nut force is the one held over the last step, static only when that step began at rest: a step
+        that stops the screw on a stiff stop (backward Euler at a step that does not resolve it ends at rest
+        where it began) holds the force of the stopping impulse, not the static law's."""
+        last = int(round(0.1 / self.dt)) + 1  # end states: the window's steps and the state it starts from
         hist_w, hist_v, hist_contact = self.hist_w, self.hist_v, self.hist_contact
         if len(hist_w) >= last and max(abs(w) for w in hist_w[-last:]) < 1e-3 \
                 and max(abs(q) for q in hist_v[-last:]) < 1e-6 and hist_contact[-1] > 0.0:

@@ -155,8 +155,8 @@ def test_envelope(data):
     _check(draw_case(_Draws(data)))
 
 
-# 100 seeds drawn beyond the campaign's range: seeds 0-99,999 of this core ran in `prsm-sim envelope`, whose
-# results are kept in docs/validation/data (docs/studies.md), so CI spends its minutes on seeds the campaign has not run
+# 100 seeds drawn beyond 0-99,999, the range the 10⁵ campaign runs (`prsm-sim envelope`; its results are kept in
+# docs/validation/data, docs/studies.md): CI spends its minutes on seeds the campaign does not run
 @pytest.mark.slow
 @settings(derandomize=True, deadline=None, max_examples=100, suppress_health_check=[HealthCheck.too_slow])
 @given(st.integers(100_000, 2**31 - 1))

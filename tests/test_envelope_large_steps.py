@@ -73,6 +73,29 @@ def test_a_nut_at_rest_on_an_end_is_judged_by_the_load_held_over_the_last_step(s
     assert r.max_penetration_m > 0.0
 
 
+def test_a_screw_stopped_on_a_stop_within_the_last_step_is_not_judged_at_rest():
+    """Envelope seed 86275: `jones2016` at an 83 ms step, the screw at 209 rad/s driven into a 1e7 N/m stop,
+    stopped within the run's last step. Backward Euler at a step that does not resolve the stop ends the step
+    where it began (x₁ = x₀ + h v₁ with v₁ = 0), so the nut force held over that step is the stopping impulse's
+    (667 N), not the static law's (f − kδ = 379.4 − 387.8 N). The rest check judges only a rest that began
+    before its window; given one more sample at rest, the same end is judged and found off the law."""
+    from prsm_sim.envelope import Result, _Run
+    case = _fixed_case(86275)
+    r = run_case(case, record=True)
+    assert r.ok, r.violations
+    (_, w0, x0, _), (_, w1, x1, v1) = r.states[-2], r.states[-1]
+    assert w0 > 100.0 and abs(w1) < 1e-9 and abs(v1) < 1e-12
+    assert x1 == pytest.approx(x0, abs=1e-12)  # backward Euler: ended at rest where it began
+    run = _Run(case, Result())
+    assert run.loop()
+    delta, f = run.hist_contact[-1], run.hist_load[-1]
+    assert abs((f - run.last.nut_force_n) - run.k_stop * delta) > 200.0  # the held force is not the static one
+    for hist, value in ((run.hist_w, 0.0), (run.hist_v, 0.0), (run.hist_contact, delta), (run.hist_load, f)):
+        hist[-2] = value  # as if the screw had been at rest through the step before too
+    run.check_rest()
+    assert [v for v in run.res.violations if v.startswith("at rest 38.78 µm into the stop")], run.res.violations
+
+
 @pytest.mark.parametrize("model", ["ideal", "jones2016", "fu2018"])
 def test_a_load_past_the_rating_driving_the_nut_into_a_thread_end_meets_a_hard_end_at_half_the_nut(model):
     # closed form of the impact (½ k δ² = F (d + δ) under a constant force F from rest at a distance d,
