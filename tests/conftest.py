@@ -18,11 +18,13 @@ from __future__ import annotations
 import os
 import signal
 
+from ros_domains import domain_id
+
 # The RMW the `ros` extra installs; a shell's RMW_IMPLEMENTATION=rmw_cyclonedds_cpp would fail to load.
 RMW = "rmw_fastrtps_cpp"
 
 HERMETIC_ENV = {
-    "ROS_DOMAIN_ID": str(1 + os.getpid() % 232),  # ros_procs picks per-module domains from the pid too
+    "ROS_DOMAIN_ID": str(domain_id("conftest")),  # this process's; ros_procs picks one per module the same way
     "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
     "RMW_IMPLEMENTATION": RMW,
     # Fast DDS's shared-memory transport logs "Failed init_port …: open_and_lock_file failed" to stderr

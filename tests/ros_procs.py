@@ -1,7 +1,8 @@
 """Shared helpers for tests that run real ROS 2 processes talking over DDS on this machine.
 
 - `ros_test_env(salt)`: an environment isolated per test module and per pytest process: a unique
-  ROS_DOMAIN_ID (from the pid and a salt, in 1..232), localhost-only discovery, RERUN=off
+  ROS_DOMAIN_ID (`ros_domains.domain_id`: from the pid and a salt, in
+  this pytest-xdist worker's slice of 1..232), localhost-only discovery, RERUN=off
   (`prsm_ros.ros_env.isolated_env`, ignoring whatever the developer's shell has set).
 - `NodeProcess`: `prsm-node` in its own OS process with `-p name:=value` parameters; stop it with
   SIGINT/SIGTERM and get its exit code and output.
@@ -17,23 +18,18 @@ import os
 import signal
 import subprocess
 import time
-import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
+from ros_domains import domain_id
 
 # Every timeout here is a ceiling on waiting for an event, never a duration: a passing test does not
 # wait for it. The ceilings the tests name are what a quiet machine needs with margin; they are
 # stretched by this factor, so a machine whose every core is busy (several suites side by side,
 # CPU hogs) only makes the tests slower, never makes them fail.
 CEILING_FACTOR = 6.0
-
-
-def domain_id(salt: str = "") -> int:
-    """A ROS_DOMAIN_ID in 1..232 that differs between concurrent pytest processes and modules."""
-    return 1 + (os.getpid() + zlib.crc32(salt.encode())) % 232
 
 
 def ros_test_env(salt: str = "", **extra: str) -> dict[str, str]:

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from prsm_sim import Simulator, preset
+from ros_domains import domain_id
 from prsm_sim.scenarios import default_spec, run_scenario
 from prsm_ros.cli.bag import main
 from prsm_ros.bag.reader import open_bag
@@ -27,7 +28,7 @@ from prsm_ros.mcap.offline import write_trajectory_mcap
 
 MODEL = "fu2018"  # a rename must fail here, not quietly test another model
 ROOT = Path(__file__).resolve().parent.parent
-DOMAIN_ID = str(os.getpid() % 100 + 100)
+DOMAIN_ID = str(domain_id("test_bag_cli"))
 ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": DOMAIN_ID,
        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 

@@ -22,10 +22,11 @@ from prsm_sim import Simulator, preset
 from prsm_ros.cli.bag import EXIT_ERROR, main
 from prsm_ros.cli.make_bags import pd_tracking
 from prsm_ros.mcap.offline import write_trajectory_mcap
+from ros_domains import domain_id
 
 ROOT = Path(__file__).resolve().parent.parent
 STEPS = 400  # the base bag: 0.4 s at 1 ms
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": str(os.getpid() % 100 + 100),
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": str(domain_id("test_bag_hostile")),
        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 ENV.pop("RERUN", None)
 

@@ -19,9 +19,10 @@ import hostile_bags as hb
 from prsm_ros.cli import bag_fuzz as fuzz
 from prsm_ros.bag.reader import MAX_CHUNK_BYTES, ChunkSkipped, chunk_data, open_bag
 from prsm_ros.cli.bag import EXIT_ERROR, main
+from ros_domains import domain_id
 
 ROOT = Path(__file__).resolve().parent.parent
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": str(os.getpid() % 100 + 100),
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": str(domain_id("test_bag_limits")),
        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "PYTHONPATH": f"{ROOT}{os.pathsep}{ROOT / 'tests'}"}
 
 

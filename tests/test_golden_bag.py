@@ -16,6 +16,8 @@ import sys
 
 import pytest
 
+from ros_domains import domain_id
+
 # the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
 pytestmark = pytest.mark.slow
 
@@ -28,9 +30,9 @@ DURATION_S = "1.0"
 def _demo(tmp_path, name: str) -> tuple[dict, bytes]:
     record = tmp_path / "run.mcap"  # the same path both times: it is part of the recorded node parameters
     env = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1"}
-    env.pop("ROS_DOMAIN_ID", None)  # one per run, from its pid
     p = subprocess.run([sys.executable, "-m", "prsm_ros.cli.demo", "--time-mode", "lockstep", "--duration", DURATION_S,
-                        "--model", "fu2018", "--record", str(record), "--json"],
+                        "--model", "fu2018", "--record", str(record), "--json",
+                        "--domain-id", str(domain_id(f"golden-{name}"))],  # one per run
                        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     data = record.read_bytes()

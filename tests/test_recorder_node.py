@@ -15,10 +15,11 @@ import pytest
 
 from prsm_ros.cli.bag import main as bag_main
 from prsm_ros.bag.reader import open_bag
+from ros_domains import domain_id
 
 BIN = Path(sys.executable).parent
 RERUN = shutil.which("rerun") or str(BIN / "rerun")
-ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": str(os.getpid() % 100 + 100),
+ENV = {**os.environ, "RERUN": "off", "PYTHONUNBUFFERED": "1", "ROS_DOMAIN_ID": str(domain_id("test_recorder_node")),
        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
 # A controller under test: waits for the node's joint states, then for ~1.5 s sends a PD torque
