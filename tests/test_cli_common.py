@@ -80,14 +80,16 @@ def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(t
     from prsm_ros.cli import demo
     bag = tmp_path / "run.mcap"
     stopped = tmp_path / "node-stopped"
-    # the handler first, then the bag that tells the test the node is up (else SIGINT can come between)
-    node_code = ("import signal, sys, time, pathlib\n"
-                 f"signal.signal(signal.SIGINT, lambda *a: (pathlib.Path({str(stopped)!r}).touch(), sys.exit(0)))\n"
+    # SIGINT blocked before the bag tells the test the node is up, then taken with sigtimedwait: the
+    # stand-in neither dies of a SIGINT that comes early nor depends on a handler interrupting a sleep
+    node_code = ("import signal, pathlib\n"
+                 "signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])\n"
                  f"pathlib.Path({str(bag)!r}).write_bytes(b'bag')\n"
-                 "time.sleep(120)\n")
+                 "got = signal.sigtimedwait([signal.SIGINT], 600)\n"
+                 f"pathlib.Path({str(stopped)!r}).write_text(repr(got and got.si_signo))\n")
 
     def start_module(module, args, env, **kw):
-        code = node_code if module == "prsm_ros.cli.node" else "import time; time.sleep(120)"
+        code = node_code if module == "prsm_ros.cli.node" else "import time; time.sleep(600)"
         return subprocess.Popen([sys.executable, "-c", code], env={**os.environ, **env}, **kw)
 
     def ctrl_c(ctl, node):
@@ -96,13 +98,15 @@ def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(t
                 raise AssertionError("the stand-in node died")
         raise KeyboardInterrupt
 
+    stop, node_rc = demo._stop, []
     monkeypatch.setattr(demo, "start_module", start_module)
     monkeypatch.setattr(demo, "wait_for_controller", ctrl_c)
+    monkeypatch.setattr(demo, "_stop", lambda node: node_rc.append(stop(node)) or node_rc[-1])
     assert demo.main(["--record", str(bag), "--domain-id", "7"]) == 130
     err = capsys.readouterr().err
     assert f"prsm-demo: interrupted: the bag so far is in {bag}" in err
-    assert stopped.exists(), "the node was not stopped with SIGINT"
-
+    assert node_rc == [0] and stopped.read_text() == str(int(signal.SIGINT)), \
+        f"the node was not stopped with SIGINT: exit code {node_rc}, it took {stopped.exists() and stopped.read_text()}"
 
 DEPRECATED = {"prsm_ros.cli.json_out": "prsm_ros.json_out", "prsm_ros.cli.param_files": "prsm_ros.param_files"}
 
