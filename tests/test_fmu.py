@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -507,6 +508,35 @@ def test_damaged_states_give_an_error_never_a_crash_and_never_print_the_blob(fmu
     assert refused == [FMI_ERROR] * 16
     assert all(s < 4 for s, _ in out["messages"]), "no fatal status"
     assert all("SECRET" * 3 not in m and len(m) <= MAX_LOG_CHARS + 60 for _, m in out["messages"])
+
+
+EXIT_SCRIPT = r"""
+import sys
+from prsm_ros.fmu import core
+from prsm_ros.fmu.driver import FmuDriver
+if sys.argv[2] == "kept":  # the binary's static reference left as pythonfmu has it
+    core.release_static_interpreter_handle = lambda resources: None
+with FmuDriver(sys.argv[1]) as drv:
+    assert drv.do_step(0.0, float(sys.argv[3])) == 0, drv.messages
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("valgrind") is None, reason="needs valgrind's memcheck")
+@pytest.mark.parametrize(("fmi", "handle", "reads_freed"), [(2, "released", False), (3, "released", False),
+                                                            (3, "kept", True)])
+def test_a_python_importer_exits_without_the_binary_reading_freed_memory(fmus, fmi, handle, reads_freed):
+    """Under valgrind's memcheck, a Python importer instantiates the FMU, steps it, frees it and exits. The
+    binary's unload function (`finalizePythonInterpreter`, run after the C++ exit handlers) reads no freed
+    memory; with the slave's release of the static reference undone ("kept") the same run shows the read
+    that made glibc abort importers at exit now and then (so the check sees the defect it guards)."""
+    path, _ = fmus(fmi, "ideal", "bare")
+    r = subprocess.run(["valgrind", "--trace-children=yes", "--error-limit=no", "--num-callers=40", sys.executable,
+                        "-c", EXIT_SCRIPT, str(path), handle, repr(DT)], capture_output=True, text=True, timeout=1200,
+                       env={**os.environ, "PYTHONMALLOC": "malloc"})
+    assert r.returncode == 0, r.stderr[-2000:]
+    # valgrind names a function only in the stack of an error it reports
+    assert ("finalizePythonInterpreter" in r.stderr) == reads_freed, r.stderr[-3000:]
 
 
 @pytest.mark.parametrize("fmi", [2, 3])

@@ -31,8 +31,11 @@ The FMI contract as kept here:
 
 from __future__ import annotations
 
+import ctypes
 import json
 import math
+import os
+import sys
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -446,11 +449,42 @@ def attach(slave, statuses: dict, experiment) -> SlaveCore:
     "warning", "error" to its status enum), with the slave's description and default experiment
     (`experiment`: its DefaultExperiment class) set from the FMU's configuration."""
     core = SlaveCore(slave.resources, lambda msg, status: slave.log(msg, statuses[status]))
+    release_static_interpreter_handle(slave.resources)
     slave.author = "prsm"
     slave.version = core.config["prsm_version"]  # the model description's version: the prsm that built it
     slave.description = describe(core.config)
     slave.default_experiment = experiment(start_time=0.0, step_size=core.dt_s)
     return core
+
+
+def release_static_interpreter_handle(resources: str) -> None:
+    """Drop the reference the FMU binary's static keeps to its interpreter handle, where the importer is a
+    Python command line on Linux; each instance keeps its own.
+
+    pythonfmu's and pythonfmu3's exported binaries hold that handle (a shared pointer) in a static and also
+    reset it from a library destructor (`finalizePythonInterpreter`, run by `onLibraryUnload`). At the
+    importer's exit the static's own destructor runs first (C++ exit handlers, then the libraries' fini
+    functions), so the reset reads, and may release again, the block the first freed: valgrind shows an
+    invalid read in `finalizePythonInterpreter` of a block freed by the exit handlers, and now and then
+    glibc aborts the importer at exit ("corrupted double-linked list", exit status -6) after a run that
+    passed. With the static already empty neither exit path has anything to free.
+
+    Only where `sys.orig_argv` is set (a `python` command started the interpreter): where the binary
+    started it itself (a host that is not Python), the handle's end finalises the interpreter, which has
+    to wait for the library's unload. `RTLD_NOLOAD` only finds the FMU's binary already loaded in this
+    process (the one calling this); it never loads anything.
+    """
+    if not sys.platform.startswith("linux") or not getattr(sys, "orig_argv", None):
+        return
+    # FMI 2.0 puts the binary in binaries/linux64, FMI 3.0 in binaries/<arch>-linux
+    for binary in sorted((Path(resources).parent / "binaries").glob("*/*.so")):
+        try:
+            library = ctypes.CDLL(str(binary), mode=os.RTLD_NOLOAD)
+        except OSError:  # not loaded here
+            continue
+        release = getattr(library, "finalizePythonInterpreter", None)
+        if release is not None:
+            release()
 
 
 def describe(config: dict) -> str:
