@@ -110,7 +110,7 @@ def resolve_params(preset_name: str | None, params_file: str | None, overrides: 
 ACTUATOR_PREFIX = "actuator."
 FAULTS_PREFIX = "faults."
 FAULT_FIELDS = tuple(f.name for f in fields(Fault))  # faults.<name>.<field>
-# the groups of the actuator, each a frozen dataclass of prsm_sim.actuator (drive.mode is `command_interface`)
+# the groups of the actuator, each a frozen dataclass of prsm_sim.actuator (the drive runs in the session's `command_interface`)
 ACTUATOR_GROUPS: dict[str, type] = {"motor": MotorParams, "drive": DriveParams, "sensors": SensorParams,
                                     "stops": StopParams, "brake": BrakeParams}
 # What a fault's value may be, like a command's bound: a larger one is a mistake or an attack,
@@ -208,9 +208,9 @@ def _actuator_from(data: Any, values: dict[str, Any], given: frozenset[str]) -> 
 
 
 def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str] = frozenset()) -> ActuatorParams:
-    """ActuatorParams from the `actuator` (YAML mapping), the actuator.* names `given`, `faults` and
-    `command_interface` values (the node's parameters, the FMU's build options); a given nested name
-    overrides the same field of the mapping. ParamError naming the parameter."""
+    """ActuatorParams from the `actuator` (YAML mapping), the actuator.* names `given` and `faults` values (the
+    node's parameters, the FMU's build options); a given nested name overrides the same field of the mapping.
+    ParamError naming the parameter. Its drive runs in the session's `command_interface` (`Session`)."""
     from dataclasses import replace
 
     from prsm_sim.actuator.faults import check_fault
@@ -226,4 +226,5 @@ def actuator_config(values: dict[str, Any], params: Params, given: frozenset[str
         except ParamError as e:
             raise ParamError(f"parameter {label}: {e}") from None
     faults += tuple(named.values())
-    return replace(a, faults=faults, drive=replace(a.drive, mode=values["command_interface"]))
+    # `command_interface` is the session's (`Session` runs the drive in it, whatever drive.mode says)
+    return replace(a, faults=faults)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from prsm_sim.actuator import ACTUATOR_QUANTITIES, Actuator, ActuatorParams, ActuatorState, Fault, FaultEvent
+from prsm_sim.actuator.drive import warn_if_ringing
 from prsm_sim.actuator.stops import ThreadEndEvent
 from prsm_sim.checks import check_typed, is_finite_number
 from prsm_sim.command_gate import INTERFACE_UNIT, CommandGate, GateCounters
@@ -59,6 +60,21 @@ def state_is_finite(out: Outputs) -> bool:
         return out[1] * 0.0 + out[2] * 0.0 + out[3] * 0.0 + out[4] * 0.0 + out[NUT_FORCE_ITEM] * 0.0 == 0.0
     return (out.screw_angle_rad * 0.0 + out.screw_speed_rad_s * 0.0 + out.carrier_angle_rad * 0.0
             + out.carrier_speed_rad_s * 0.0 + out.nut_force_n * 0.0 == 0.0) and bool(np.isfinite(out.internal).all())
+
+
+def _drive_in(actuator: ActuatorParams | None, interface: str) -> ActuatorParams | None:
+    """`actuator` with its drive in the session's `interface`: the actuator is built in that mode, so the loop
+    its build checks (`DriveLoopWarning`) is the one that runs, whatever `drive.mode` it was given."""
+    if isinstance(actuator, ActuatorParams) and actuator.drive.mode != interface:
+        return replace(actuator, drive=replace(actuator.drive, mode=interface))
+    return actuator
+
+
+def _warn_if_ringing(act: Actuator, mode: str) -> None:
+    """`DriveLoopWarning` where the drive's loop of `mode` does not settle at its loop rate (as building says
+    it for the mode it starts in: `actuator.drive.tuned_drive`)."""
+    warn_if_ringing(act.drive, mode, act.drive_loop_radius(mode), act.J_drive, act.h_sub * act.hold_steps, act.dt_s,
+                    stacklevel=4)
 
 
 @dataclass(frozen=True)
@@ -152,10 +168,10 @@ class Session:
                 raise InputError(f"{name} = {v!r}: must be a finite number")
         self.model_name = model
         self.kernel = kernel
-        self.actuator_params = actuator
+        self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
+        self.actuator_params = actuator = _drive_in(actuator, interface)
         self.simulator = Simulator(params, model, dt_s, nut_position_m, actuator=actuator, kernel=kernel,
                                    initial_load_n=initial_load_n)
-        self.gate = CommandGate(max_effort_nm, cmd_timeout_s, timeout_behaviour, interface)
         self.nut_position_m = float(nut_position_m)
         self.initial_load_n = None if initial_load_n is None else float(initial_load_n)
         self.load_n = float(load_n) if initial_load_n is None or load_n != 0.0 else float(initial_load_n)
@@ -294,7 +310,7 @@ class Session:
             raise self._non_finite(out.time_s, command)
         if act is not None and before is not None:
             self._events += act.events(before, sim.state)
-            at_end = bool(out.internal[act.block_at + _THREAD_END]) if self._thread_ends else False
+            at_end = bool(out.internal[act.block_at + _THREAD_END]) if self.params.geometry.thread_ends else False
             end_force = out.internal[act.block_at + _STOP_FORCE] if at_end else 0.0
         else:
             at_end = (end_force := sim.thread_end_force_n) != 0.0
@@ -324,10 +340,6 @@ class Session:
                       f"(command {command:g} {self.gate.interface}, load {self.load_n:g} N); "
                       "stepping stopped until reset")
         return NonFiniteStateError(self.fault, time_s)
-
-    @property
-    def _thread_ends(self) -> bool:
-        return self.simulator.params.geometry.thread_ends
 
     def take_edge_events(self) -> list:
         """The plant's edge events since the last call: `ThreadEndEvent` (the nut reached or left an end) and
@@ -366,6 +378,8 @@ class Session:
             state = act.set_mode(self.simulator.state, interface)
         except PrsmError as e:
             return str(e)
+        if interface != self.gate.interface:  # a switch to a loop that does not settle at the loop rate says so
+            _warn_if_ringing(act, interface)
         meas = act.measured(self._last) if self._last is not None else None
         present = {"effort": 0.0,
                    "velocity": meas.screw_speed_rad_s if meas else 0.0,
@@ -459,7 +473,8 @@ class Session:
     def rebuild(self, params: Params) -> None:
         """New parameters for the same model, keeping the state and the step count (a runtime change)."""
         sim = Simulator(params, self.model_name, self.simulator.dt_s, self.nut_position_m,
-                        actuator=self.actuator_params, kernel=self.kernel, initial_load_n=self.initial_load_n)
+                        actuator=_drive_in(self.actuator_params, self.gate.interface), kernel=self.kernel,
+                        initial_load_n=self.initial_load_n)
         sim.restore(self.simulator.state, self.simulator.nstep)
         self.simulator = sim
         self._screw_model = None

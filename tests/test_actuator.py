@@ -685,3 +685,34 @@ def test_the_sampled_loop_settles_below_the_jury_bound_and_rings_above_it(mode, 
         else:
             y = w if mode == "velocity" else np.array([o.nut_position_m for o in outs]) - command
             assert np.abs(y[-20:]).max() < 1e-3 * command
+
+
+def test_a_session_checks_the_loop_of_the_interface_it_runs_and_of_each_switch():
+    """The session's interface, not `drive.mode`, is the loop that runs, so it is the one checked: built in
+    `velocity` with a drive given `effort`, and switched from `effort` to `velocity` or `position`, a step 10 %
+    above the Jury bound ω_b h < 4(√2 − 1) (the test above) says `DriveLoopWarning`; effort closes no loop,
+    and a step 10 % below the bound settles, so neither says anything. Oracle: the Jury bound."""
+    from prsm_sim import Session
+    from prsm_sim.errors import DriveLoopWarning
+    p, bound = s30(**LOSSLESS), 4 * (math.sqrt(2) - 1) / (2 * math.pi * 30.0)
+    given = ActuatorParams(motor=MotorParams(), drive=DriveParams(mode="effort"))
+
+    def said(make) -> list[str]:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            make()
+        return [str(w.message) for w in caught if issubclass(w.category, DriveLoopWarning)]
+
+    for factor, rings in ((1.1, True), (0.9, False)):
+        dt = factor * bound
+        built = said(lambda h=dt: Session(p, "ideal", h, given, interface="velocity"))
+        assert len(built) == rings and all("the velocity loop" in m for m in built)
+        s = Session(p, "ideal", dt, given)
+        assert said(lambda: s.set_interface("effort")) == []
+        for mode in ("velocity", "position", "position"):  # the last: a switch to the mode in force says nothing
+            before = s.interface
+            switched = said(lambda m=mode: s.set_interface(m))
+            assert len(switched) == (rings and mode != before) and s.interface == mode
+            assert all(f"the {mode} loop" in m for m in switched)
+        # new parameters rebuild the actuator in the mode it runs in: its build checks that loop
+        assert len(said(lambda: s.rebuild(s.params))) == rings and s.actuator.drive.mode == "position"

@@ -103,8 +103,11 @@ def test_node_actuator_parameters_build_the_actuator():
                                   "actuator": "{motor: {gear_ratio: 2}, stops: {max_position_m: 0.3}}",
                                   "faults": "kind=jam,start_s=1,value=5; kind=drive_fault,start_s=2,duration_s=0.1"})
     a = cfg.actuator
-    assert a.drive.mode == "position" and a.motor.gear_ratio == 2.0 and a.stops.max_position_m == 0.3
+    assert a.motor.gear_ratio == 2.0 and a.stops.max_position_m == 0.3
     assert [f.kind for f in a.faults] == ["jam", "drive_fault"]
+    # the session the node builds runs its drive in the node's command_interface
+    from prsm_sim import Session
+    assert Session(cfg.params, cfg.model, cfg.dt_s, a, interface="position").actuator.drive.mode == "position"
     assert NodeConfig.from_values(values).actuator.motor is None
 
 

@@ -8,7 +8,6 @@ model is looked up in `prsm_sim.MODELS`, every value is validated by the library
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 from prsm_sim import ParamError, Params, Session, SessionConfig, __version__
@@ -52,8 +51,6 @@ def session_from_config(config: dict[str, Any]):
     params = Params.from_dict(config["params"])
     s = config["session"]
     act = None if config["actuator"] is None else actuator_params_from_dict(config["actuator"])
-    if act is not None:  # the drive's loops are those of the FMU's one interface (as prsm-node's of its own)
-        act = replace(act, drive=replace(act.drive, mode=s["interface"]))
     # starts in equilibrium at its load, as prsm-node does at its load_force: an FMU built with a
     # load sits still under it from the first step instead of ringing in from an unloaded chain
     return Session.from_config(SessionConfig(

@@ -164,11 +164,17 @@ def tuned_drive(drive: DriveParams, inertia_kgm2: float, h_loop_s: float, dt_s: 
     tuned = drive.tuned(inertia_kgm2)
     radius = partial(sampled_loop_radius, tuned, inertia_kgm2=inertia_kgm2, h_s=h_loop_s,
                      speed_from_angles=sensors.encoder_counts_per_rev != 0)
-    r = radius(drive.mode)
-    if r >= 1.0:
-        warnings.warn(f"drive: the {drive.mode} loop updated at {1.0 / h_loop_s:g} Hz (drive.loop_rate_hz = "
+    warn_if_ringing(drive, drive.mode, radius(drive.mode), inertia_kgm2, h_loop_s, dt_s, stacklevel=6)
+    return tuned, radius
+
+
+def warn_if_ringing(drive: DriveParams, mode: str, radius: float, inertia_kgm2: float, h_loop_s: float, dt_s: float,
+                    stacklevel: int = 5) -> None:
+    """`DriveLoopWarning` where the loop of `mode` does not settle (`sampled_loop_radius` `radius` ≥ 1), with the
+    rate and bandwidth to change; nothing otherwise. `stacklevel` points the warning at the user's call."""
+    if radius >= 1.0:
+        warnings.warn(f"drive: the {mode} loop updated at {1.0 / h_loop_s:g} Hz (drive.loop_rate_hz = "
                       f"{drive.loop_rate_hz!r}, dt_s = {dt_s!r}) with drive.speed_bandwidth_hz = "
                       f"{drive.speed_bandwidth_hz!r} does not settle on the {inertia_kgm2:.4g} kg·m² it drives "
-                      f"(sampled-loop pole |z| = {r:.3f} >= 1): it rings at the loop's rate; raise the loop rate or "
-                      "lower the bandwidth", DriveLoopWarning, stacklevel=5)
-    return tuned, radius
+                      f"(sampled-loop pole |z| = {radius:.3f} >= 1): it rings at the loop's rate; raise the loop rate "
+                      "or lower the bandwidth", DriveLoopWarning, stacklevel=stacklevel)
