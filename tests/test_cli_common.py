@@ -108,6 +108,7 @@ def test_ctrl_c_in_prsm_demo_stops_the_node_so_it_closes_its_bag_and_exits_130(t
     assert node_rc == [0] and stopped.read_text() == str(int(signal.SIGINT)), \
         f"the node was not stopped with SIGINT: exit code {node_rc}, it took {stopped.exists() and stopped.read_text()}"
 
+
 DEPRECATED = {"prsm_ros.cli.json_out": "prsm_ros.json_out", "prsm_ros.cli.param_files": "prsm_ros.param_files"}
 
 
