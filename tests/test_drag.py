@@ -5,7 +5,8 @@ circumference acting at the screw radius); the idle flanks' friction against the
 docs/model.md §4.2, T = 2 P_i (L/2π)(1/η_f − 1); the preload drag torque against the ball-screw vendors'
 published formula T_p = K F_p P_h/(2π), K = 0.05 (tan λ)^−½ (NSK "Precision Machine Components" catalogue,
 ball screws, "preload dynamic torque"); the carrier's kinematic ratio (docs/model.md §2); conservation (the
-ledger); the needle bearing's coefficient 0.0020 (SKF "Rolling bearings" 2016, table 1).
+ledger); the needle bearing's coefficient 0.0020 (SKF "Rolling bearings" 2016, table 1); the limit v → 0⁺
+of steady running for the torque the drag holds at rest.
 """
 
 from __future__ import annotations
@@ -91,6 +92,36 @@ def test_stick_and_breakaway_at_rest_with_no_load():
         out = sim.step(1.5 * drag.ideal_no_load_torque_nm(p, 0.9), 0.0)
     assert out.screw_speed_rad_s > 1.0  # broken away
     assert abs(out.energy_residual_j) <= 1e-4 * out.energy_flow_j
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_the_drag_holds_the_screw_at_rest_up_to_the_torque_it_runs_with(direction):
+    """All of the drag is Coulomb friction (seals, idle flanks, the pin and rolling friction their forces drive),
+    so at rest it holds the screw up to its sliding value, and a screw breaks away at no less than it runs with.
+    Oracles: the limit v → 0⁺ of steady running, measured by the speed loop at 10 rad/s with the viscous terms
+    off (`QUIET`; the regularised laws within 5e-5 of Coulomb there), which the hold must equal; the seals'
+    closed form T_s, all the hold is without the idle flanks; T_s plus the idle flanks' closed form
+    2 P_i (L/2π)(1/η_f − 1), a lower bound (the pins and the carrier's drive add to it). Before, only the
+    seals held: s30 crept at 0.12 N·m, under half of the 0.26 N·m it runs with."""
+    p = s30()
+    k = Simulator(p, "fu2018", 1e-3).model.constants
+    hold = k.hold_forward if direction > 0 else k.hold_backward
+    _, running, _ = _no_load(s30(QUIET), "fu2018", 10.0 * direction, seconds=0.5)
+    assert hold == pytest.approx(abs(running), rel=1e-3)
+    eta_f = sliding_efficiencies(p.geometry, p.friction.mu_screw_roller)[0]
+    assert hold >= drag.ideal_no_load_torque_nm(p, eta_f) > 2.0 * drag.seal_torque_nm(p)
+    seals_only = Simulator(s30({"drag.internal_preload_n": 0.0}), "fu2018", 1e-3).model.constants
+    for seals_hold in (seals_only.hold_forward, seals_only.hold_backward):
+        assert seals_hold == pytest.approx(drag.seal_torque_nm(p), rel=1e-4)
+    for frac, held in ((0.98, True), (1.02, False)):
+        sim = Simulator(p, "fu2018", 1e-3)
+        for _ in range(300):
+            out = sim.step(direction * frac * hold, 0.0)
+        if held:  # no creep at all
+            assert out.screw_speed_rad_s == 0.0 and out.screw_angle_rad == 0.0
+        else:
+            assert direction * out.screw_speed_rad_s > 0.0 and direction * out.screw_angle_rad > 0.0
+            assert abs(out.energy_residual_j) <= 1e-4 * out.energy_flow_j
 
 
 def test_ideal_has_the_equivalent_no_load_torque():

@@ -49,6 +49,7 @@ from prsm_sim.models.kernels import FlankConstants, Fu2018Constants, ScrewRoller
 from prsm_sim.params import Params
 from prsm_sim.physics.contact import ContactPoint, contact_for
 from prsm_sim.physics.inertia import mass_matrix
+from prsm_sim.physics.kinematics import ideal_carrier_ratio
 from prsm_sim.stepping.model import Model
 from prsm_sim.stepping.records import InternalBlock, InternalLayout, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_columns
@@ -93,6 +94,9 @@ HALVING_BASE_S = 1e-3
 MIN_REGULARISATION_M_S = 1e-5  # smallest ε fu2018 accepts (`Fu2018.check_params`)
 ZONE_HALVINGS = 4  # slow slip alone refines to dt/16
 SLIP_ZONE = 10.0
+# the drag's hold (`drag_holds_nm`) is its running torque where every regularised Coulomb law is within
+# 1/(2·HOLD_SATURATION²) = 5e-5 of its Coulomb value: slip, seal speed and carrier speed ≥ HOLD_SATURATION ε
+HOLD_SATURATION = 100.0
 SUBSTEP_TOL = 0.05  # step-doubling agreement in the transition zone, in regularisation speeds ε of slip
 SUBSTEP_TOL_FLOOR_M_S = 1e-5  # ... but never tighter than this (≈ 0.01 rad/s of screw speed on s30): below a
 # regularisation of 2e-4 m/s the layer is too thin and stiff to resolve, and the L-stable step's quasi-static
@@ -215,6 +219,72 @@ class Forces(NamedTuple):
                 + math.sqrt(self.p2r * self.p2r + self.p2t * self.p2t))
 
 
+def _torque_and_carrier(ref, k: tuple, sides: tuple, w: float, wc: float, sign: float, pin: float,
+                        gear: float) -> tuple[float, float]:
+    """(τ with the screw's acceleration zero, the carrier's acceleration then) at speeds (w, wc) and no load;
+    NaNs where τ does not act. `kernels.solve` is affine in τ, so one pair of evaluations solves it exactly."""
+    a0 = ref.solve(w, wc, 0.0, 0.0, sign, pin, gear, False, False, 0.0, 0.0, 0.0, 0.0, 0.0, k, sides)
+    a1 = ref.solve(w, wc, 1.0, 0.0, sign, pin, gear, False, False, 0.0, 0.0, 0.0, 0.0, 0.0, k, sides)
+    if not a1[0] != a0[0]:
+        return math.nan, math.nan
+    tau = -a0[0] / (a1[0] - a0[0])
+    return tau, a0[1] + tau * (a1[1] - a0[1])
+
+
+def _steady_carrier_speed(ref, k: tuple, sides: tuple, ratio: float, w: float, sign: float, pin: float,
+                          gear: float) -> float:
+    """The carrier speed of steady no-load running (its acceleration zero) at screw speed w: bracketed outward
+    from the kinematic ratio, then Brent's method. Where the carrier's acceleration does not change sign (the
+    contacts carry nothing, so nothing drives it and the screw's torque does not depend on it) the speed where
+    it is smallest of those tried."""
+    from scipy.optimize import brentq  # scipy-heavy: kept off `import prsm_sim`, taken when a screw has drag
+
+    def accel(x: float) -> float:
+        return _torque_and_carrier(ref, k, sides, w, x, sign, pin, gear)[1]
+
+    x0 = ratio * w
+    g0 = accel(x0)
+    best = (abs(g0), x0) if math.isfinite(g0) else (math.inf, x0)
+    step = 1e-3 * abs(x0)
+    for _ in range(60):
+        for x in (x0 - step, x0 + step):
+            g = accel(x)
+            if not math.isfinite(g):
+                continue
+            if math.isfinite(g0) and g * g0 <= 0.0:
+                a, b = sorted((x0, x))
+                return brentq(accel, a, b, xtol=1e-15 * abs(w), rtol=1e-14, maxiter=200)
+            best = min(best, (abs(g), x))
+        step *= 2.0
+    return best[1]
+
+
+def steady_no_load(k: Fu2018Constants, sides: tuple, ratio: float, w: float) -> tuple[float, float]:
+    """(screw torque N·m, slip speed m/s) of steady running at no load at screw speed w (rad/s) with the step's
+    constants `k` and flank constants `sides`: the carrier speed where both accelerations vanish
+    (`_steady_carrier_speed`), the pin force sum and the flank and gear force signs iterated to the forces they
+    give, from the ones a run in that direction takes (at no load either flank pair solves: the run's history
+    picks it). NaN torque where no steady running solves."""
+    ref = kernels.load("reference")
+    kk = tuple(k)
+    d = math.copysign(1.0, w)
+    sign, pin, gear = d, 0.0, -d
+    tau, slip = math.nan, 0.0
+    for _ in range(20):  # the pin force sum and the signs settle in two or three rounds
+        wc = _steady_carrier_speed(ref, kk, sides, ratio, w, sign, pin, gear)
+        tau = _torque_and_carrier(ref, kk, sides, w, wc, sign, pin, gear)[0]
+        if not math.isfinite(tau):
+            break
+        f = ref.solve_forces(w, wc, tau, 0.0, sign, pin, gear, kk, sides)
+        slip = math.sqrt(f[8] ** 2 + f[9] ** 2 + f[10] ** 2)
+        new_pin = ref._pin_sum(f)
+        settled = f[28] == sign and (f[12] >= 0.0) == (gear > 0.0) and abs(new_pin - pin) <= 1e-12 * new_pin
+        sign, pin, gear = f[28], new_pin, 1.0 if f[12] >= 0.0 else -1.0
+        if settled:
+            break
+    return tau, slip
+
+
 class Fu2018(Model):
     name = "fu2018"
     compiled_kernel = True
@@ -281,7 +351,9 @@ class Fu2018(Model):
             InternalBlock("per_tooth", ("roller", "tooth", "quantity"), (nr, nt, 2), PER_TOOTH_QUANTITIES),
             InternalBlock("carrier", ("quantity",), (len(CARRIER_QUANTITIES),), CARRIER_QUANTITIES),
         ))
-        self.constants = self._step_constants()
+        constants = self._step_constants()
+        forward, backward = self.drag_holds_nm(constants)
+        self.constants = constants._replace(hold_forward=forward, hold_backward=backward)
         # the step's constants (`kernels.Fu2018Constants`, `kernels.FlankConstants` per flank pair): float arrays
         # for numba, tuples of Python floats for the interpreter (numpy scalars would slow every operation)
         k_arr: tuple | np.ndarray = tuple(self.constants)
@@ -332,7 +404,41 @@ class Fu2018(Model):
             slip_zone=SLIP_ZONE, balance_tol=STEP_BALANCE_TOL, balance_floor=STEP_BALANCE_FLOOR_J, p=p,
             drag_on=float(self.params.drag.enabled), seal_torque=drag.seal_torque_nm(self.params),
             eps_ws=self.eps_v / geo.screw_radius_m, film_nt=drag.film_traction_n_s_per_m(self.params) * geo.n_teeth,
-            idle_axial=2.0 * drag.idle_flank_force_n(self.params) / nr)
+            idle_axial=2.0 * drag.idle_flank_force_n(self.params) / nr, hold_forward=0.0,
+            hold_backward=0.0)
+
+    def drag_holds_nm(self, k: Fu2018Constants) -> tuple[float, float]:
+        """The screw torques the load-independent drag holds at rest (`kernels._drag_holds`), forward and
+        backward (magnitudes), N·m: the screw torque of steady running at no load as the speed goes to 0⁺ in each
+        direction (`steady_no_load`), i.e. with every regularised Coulomb law saturated (`HOLD_SATURATION`) and
+        the viscous terms, which vanish at rest, left out (the film, the carrier's Couette drag, a viscous
+        screw–roller law). The seals, the idle flanks and the pin and rolling friction their forces drive are
+        all Coulomb friction, which holds at rest up to its sliding value; without this hold only the seals
+        held, and a screw whose no-load torque is mostly its idle flanks' crept, in the regularised laws' band,
+        under a third of the torque it runs with (`s30`: 0.090 of 0.263 N·m). Each direction has its own (equal
+        on the presets: the mechanism is its own mirror image there). Zero with the drag off or all its
+        magnitudes zero (the papers' screw).
+        """
+        if not self.params.drag.enabled or (k.seal_torque == 0.0 and k.idle_axial == 0.0):
+            return 0.0, 0.0
+        kk = k._replace(film_nt=0.0, k_drag=0.0, c_nt=0.0)
+        sides = (self._side_k[1], self._side_k[-1])
+        ratio = ideal_carrier_ratio(self.geo)
+        held = []
+        for direction in (1.0, -1.0):
+            w = HOLD_SATURATION * max(k.eps_ws, math.sqrt(k.eps_w2) / ratio)
+            tau, slip = steady_no_load(kk, sides, ratio, direction * w)
+            # the idle flanks press the contacts: raise the speed until their slip is saturated too (without them
+            # the contacts carry nothing at no load, whatever their slip)
+            for _ in range(8):
+                if k.idle_axial == 0.0 or slip >= HOLD_SATURATION * k.eps_v:
+                    break
+                w *= 2.0 * HOLD_SATURATION * k.eps_v / max(slip, 1e-2 * HOLD_SATURATION * k.eps_v)
+                tau, slip = steady_no_load(kk, sides, ratio, direction * w)
+            # no steady no-load running found (a design whose force system does not solve there): the seals hold
+            # what they exactly do, the rest of the drag creeps as the regularised laws let it
+            held.append(abs(tau) if math.isfinite(tau) else k.seal_torque)
+        return held[0], held[1]
 
     def initial_state(self, nut_position_m: float = 0.0, load_n: float = 0.0) -> State:
         """At rest; under a nut load the friction state (flank pair, pin forces, gear force) is the static

@@ -96,6 +96,8 @@ class Fu2018Constants(NamedTuple):
     eps_ws: float  # the Coulomb regularisation ε as a screw speed at the seal radius (ε / r_S), rad/s
     film_nt: float  # film shear traction coefficient × N_T (all contacts of one roller), N·s/m
     idle_axial: float  # axial force of the idle-flank contacts per roller, 2 P_i / N_R, N
+    hold_forward: float  # the screw torque (> 0) the load-independent drag holds at rest (`Fu2018.drag_holds_nm`), N·m
+    hold_backward: float  # ... and in the other direction (its magnitude), N·m
 
 
 class FlankConstants(NamedTuple):
@@ -595,16 +597,20 @@ def _halves(ws, wc, sign, pin_abs, gear, tau, load, hs, f1, K, S):
 
 
 @_inlined
-def _seal_holds(tau, load, K):
-    """At rest the seals alone hold the screw: the net torque τ − (L/2π) F of the frictionless mechanism lies
-    within their static torque T_s (the drag on)."""
-    return K[FU.drag_on] != 0.0 and K[FU.seal_torque] > 0.0 and abs(tau - K[FU.p] * load) <= K[FU.seal_torque]
+def _drag_holds(tau, load, K):
+    """At rest the load-independent drag alone holds the screw: the net torque τ − (L/2π) F of the frictionless
+    mechanism lies within the torque the drag holds in its direction (`hold_forward`, `hold_backward`: the seals,
+    the idle flanks and the pin and rolling friction their forces drive, as they run at v → 0⁺). Every part of it is Coulomb friction, so at
+    rest it holds up to its sliding value: the screw breaks away at the no-load torque it runs with."""
+    d = tau - K[FU.p] * load
+    return K[FU.drag_on] != 0.0 and (0.0 <= d <= K[FU.hold_forward] if d >= 0.0 else -d <= K[FU.hold_backward]) \
+        and K[FU.hold_forward] + K[FU.hold_backward] > 0.0
 
 
 @_compiled
-def _seal_rest(tau, load, sign, pin_abs, gear, K, S):
-    """The forces at rest where the seals hold the screw: the mechanism carries the load with the
-    frictionless holding torque (L/2π) F, the seals the rest of τ."""
+def _drag_rest(tau, load, sign, pin_abs, gear, K, S):
+    """The forces at rest where the drag holds the screw (`_drag_holds`): the mechanism carries the load with
+    the frictionless holding torque (L/2π) F, the drag the rest of τ."""
     return solve_forces(0.0, 0.0, K[FU.p] * load, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
 
 
@@ -618,9 +624,9 @@ def _captured(w0s, w0c, w1s, w1c, g1, sign, pin_abs, gear, tau, load, zone2, K, 
         if ok and r < 1.0 and (w0s * w1s < 0.0 or w0c * w1c < 0.0 or
                                v2 <= (2.0 * K[FU.eps_v] * (1.0 + r / math.sqrt(1.0 - r * r))) ** 2):
             return True, st
-    # the seals' regularised law creeps within a few ε_ws of rest: where they can hold, they do
-    if (w0s * w1s < 0.0 or abs(w1s) < 2.0 * K[FU.eps_ws]) and _seal_holds(tau, load, K):
-        return True, _seal_rest(tau, load, sign, pin_abs, gear, K, S)
+    # the drag's regularised laws creep within a few ε_ws of rest: where the drag can hold, it does
+    if (w0s * w1s < 0.0 or abs(w1s) < 2.0 * K[FU.eps_ws]) and _drag_holds(tau, load, K):
+        return True, _drag_rest(tau, load, sign, pin_abs, gear, K, S)
     return False, _NAN29
 
 
@@ -641,8 +647,8 @@ def _controlled_step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
     while left > 1e-9 * h:
         if ws == 0.0 and wc == 0.0:
             ok, st, r = stick_forces(tau, load, sign, pin_abs, 1.0 if gear >= 0.0 else -1.0, K, S)
-            if not (ok and r <= 1.0) and _seal_holds(tau, load, K):
-                ok, st, r = True, _seal_rest(tau, load, sign, pin_abs, gear, K, S), 0.0
+            if not (ok and r <= 1.0) and _drag_holds(tau, load, K):
+                ok, st, r = True, _drag_rest(tau, load, sign, pin_abs, gear, K, S), 0.0
             if ok and r <= 1.0:  # inputs are held over the step: it stays stuck
                 f_end, sign, gear, pin_abs = st, st[28], st[12], _pin_sum(st)
                 break
