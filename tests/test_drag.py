@@ -124,6 +124,24 @@ def test_the_drag_holds_the_screw_at_rest_up_to_the_torque_it_runs_with(directio
             assert abs(out.energy_residual_j) <= 1e-4 * out.energy_flow_j
 
 
+@pytest.mark.parametrize("model", ["fu2018", "elastic"])
+def test_a_nut_preloaded_to_hold_above_the_inertia_probe_still_has_its_inertia_probed(model):
+    """The actuator probes the screw's inertia with two torques from rest (`actuator.implicit.probe_inertia`).
+    A nut preloaded to 100 kN holds the screw up to 21.7 N·m, above both of the probe's first torques (10 and
+    20 N·m), and the probe divided by zero there (envelope seeds 302 and 839); it raises its torques until the
+    screw turns. Oracle: the inertia reflected to the screw by the mass matrix (docs/model.md §2), which the
+    probe sees up to the friction that grows with the acceleration (pins, 3 % and 8 % here)."""
+    from prsm_sim.actuator.implicit import PROBE_TORQUE_NM, probe_inertia
+    from prsm_sim.physics.inertia import reflected_inertia
+    over = ({"drag.internal_preload_n": 100e3} if model == "fu2018"
+            else {"elastic.preload_n": 100e3, "elastic.preload_kind": "oversize_rollers"})
+    p = s30(over)
+    sim = Simulator(p, model, 1e-3)
+    core = getattr(sim.model, "core", sim.model)
+    assert core.constants.hold_forward > 2.0 * PROBE_TORQUE_NM
+    assert probe_inertia(sim.model, 1e-3) == pytest.approx(reflected_inertia(p), rel=0.1)
+
+
 def test_ideal_has_the_equivalent_no_load_torque():
     p = s30()
     eta_f = sliding_efficiencies(p.geometry, p.friction.mu_screw_roller)[0]

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import math
 
+from prsm_sim.errors import ModelError
 from prsm_sim.stepping.model import Model
 from prsm_sim.stepping.packed import PackedOutputs
 from prsm_sim.stepping.records import State
 
 
-PROBE_TORQUE_NM = 10.0  # the inertia probe's torque step, N·m: well above a screw's no-load torque
+PROBE_TORQUE_NM = 10.0  # the inertia probe's torque step, N·m: well above an unpreloaded screw's no-load torque
+PROBE_RAISES = 24  # doublings of the probe torque at most (10 N·m × 2²⁴ ≈ 1.7e8 N·m)
 
 
 def probe_inertia(model: Model, h_s: float) -> float:
@@ -22,14 +24,28 @@ def probe_inertia(model: Model, h_s: float) -> float:
 
     Exact for the linear models; for `fu2018` its value at rest. Used only to solve the
     implicit stop, coupling and dry-friction torques; the step itself is the model's. The two probe
-    torques both lie above any no-load torque (a real screw's seals and idle flanks, docs/model.md §4.5,
-    hold a screw at rest up to a few tenths of a N·m and take a constant torque once it turns), so their
-    difference sees the inertia alone.
+    torques must both lie well above the no-load torque (the seals and idle flanks of docs/model.md §4.5
+    hold a screw at rest up to the torque it runs with, and take a constant torque once it turns), so their
+    difference sees the inertia alone: from PROBE_TORQUE_NM, they are doubled until a quarter of the smaller
+    turns the screw (a heavily preloaded nut holds tens of N·m; an unpreloaded one a few tenths).
+
+    Raises
+    ------
+    ModelError
+        The screw does not turn from rest under any probe torque up to PROBE_TORQUE_NM · 2^PROBE_RAISES.
     """
     s0 = model.initial_state(0.0)
-    w2 = model.step(s0, 2.0 * PROBE_TORQUE_NM, 0.0)[0].screw_speed_rad_s
-    w1 = model.step(s0, PROBE_TORQUE_NM, 0.0)[0].screw_speed_rad_s
-    return h_s * PROBE_TORQUE_NM / (w2 - w1)
+    tau = PROBE_TORQUE_NM
+    for _ in range(PROBE_RAISES):
+        if model.step(s0, 0.25 * tau, 0.0)[0].screw_speed_rad_s > 0.0:
+            break
+        tau *= 2.0
+    else:
+        raise ModelError(f"the screw does not turn from rest under {0.25 * tau:.3g} N·m: no inertia to probe "
+                         f"(model {model.name}; its no-load torque holds it)")
+    w2 = model.step(s0, 2.0 * tau, 0.0)[0].screw_speed_rad_s
+    w1 = model.step(s0, tau, 0.0)[0].screw_speed_rad_s
+    return h_s * tau / (w2 - w1)
 
 
 def linear_response(model: Model, x: tuple, tau_nm: float, load_n: float, h_s: float,
