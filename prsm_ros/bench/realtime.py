@@ -367,7 +367,8 @@ def batch_figures(quick: bool) -> list[dict]:
             core, (core_wall, core_spread) = cores[name], _median_spread(times[name, "core"])
             subs = round(DT / core.dt_s)
             note += (f"; {wall / core_wall:.2f}× the time of its core's {subs} sub-steps per step alone "
-                     f"({core.name} at {core.dt_s * 1e3:g} ms on the same inputs, same rounds: {sim_s / core_wall:.0f}×)")
+                     f"({core.name} at {core.dt_s * 1e3:g} ms on the same inputs, same rounds: "
+                     f"{sim_s / core_wall:.0f}×)")
         figs.append(figure(f"{name} batch (Simulator.run) simulated s per wall s", sim_s / wall, "×",
                            f"≥ {tgt:g}" if tgt else "(info)", (sim_s / wall >= tgt) if tgt else None, spread, note))
         if name in cores:

@@ -96,7 +96,7 @@ class Fu2018Constants(NamedTuple):
     eps_ws: float  # the Coulomb regularisation ε as a screw speed at the seal radius (ε / r_S), rad/s
     film_nt: float  # film shear traction coefficient × N_T (all contacts of one roller), N·s/m
     idle_axial: float  # axial force of the idle-flank contacts per roller, 2 P_i / N_R, N
-    hold_forward: float  # the screw torque (> 0) the load-independent drag holds at rest (`Fu2018.drag_holds_nm`), N·m
+    hold_forward: float  # the screw torque the load-independent drag holds at rest (`Fu2018.drag_holds_nm`), N·m
     hold_backward: float  # ... and in the other direction (its magnitude), N·m
 
 
@@ -599,12 +599,14 @@ def _halves(ws, wc, sign, pin_abs, gear, tau, load, hs, f1, K, S):
 @_inlined
 def _drag_holds(tau, load, K):
     """At rest the load-independent drag alone holds the screw: the net torque τ − (L/2π) F of the frictionless
-    mechanism lies within the torque the drag holds in its direction (`hold_forward`, `hold_backward`: the seals,
-    the idle flanks and the pin and rolling friction their forces drive, as they run at v → 0⁺). Every part of it is Coulomb friction, so at
-    rest it holds up to its sliding value: the screw breaks away at the no-load torque it runs with."""
+    mechanism lies within the torque the drag holds in its direction (`hold_forward`, `hold_backward`: the
+    seals, the idle flanks and the pin and rolling friction their forces drive, as they run at v → 0⁺). Every
+    part of it is Coulomb friction, so at rest it holds up to its sliding value: the screw breaks away at the
+    no-load torque it runs with."""
+    if K[FU.drag_on] == 0.0 or K[FU.hold_forward] + K[FU.hold_backward] == 0.0:
+        return False
     d = tau - K[FU.p] * load
-    return K[FU.drag_on] != 0.0 and (0.0 <= d <= K[FU.hold_forward] if d >= 0.0 else -d <= K[FU.hold_backward]) \
-        and K[FU.hold_forward] + K[FU.hold_backward] > 0.0
+    return d <= K[FU.hold_forward] if d >= 0.0 else -d <= K[FU.hold_backward]
 
 
 @_compiled
