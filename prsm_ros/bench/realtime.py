@@ -346,12 +346,13 @@ def batch_figures(quick: bool) -> list[dict]:
     # reversals about the start, on the threads, above the no-load torque
     torque = TORQUE_AMPLITUDE_NM * np.cos(2 * math.pi * 1.0 * DT * np.arange(n))
     targets = {"fu2018": 1000.0, "elastic": 300.0}
-    runs: dict[str, tuple] = {name: (Simulator(params, name, DT), torque) for name in MODELS}
+    sims = {name: Simulator(params, name, DT) for name in MODELS}
+    runs: dict[str | tuple[str, str], tuple] = {name: (sim, torque) for name, sim in sims.items()}
     # a model that sub-steps a core (`elastic`) is timed beside that core's steps alone
-    cores = {name: sim.model.core for name, (sim, _) in runs.items() if hasattr(sim.model, "core")}
+    cores = {name: sim.model.core for name, sim in sims.items() if hasattr(sim.model, "core")}
     for name, core in cores.items():
         runs[name, "core"] = (Simulator(params, core.name, core.dt_s), np.repeat(torque, round(DT / core.dt_s)))
-    times: dict = {key: [] for key in runs}
+    times: dict[str | tuple[str, str], list[float]] = {key: [] for key in runs}
     for _ in range(2 if quick else 3):
         for key, (sim, inputs) in runs.items():
             sim.reset()
