@@ -67,6 +67,28 @@ def test_tooth_loads_sum_to_the_axial_load(profile):
         assert teeth[0, 0, 1] > teeth[0, -1, 1] * 5
 
 
+def test_the_step_path_expands_the_internal_loads_as_the_batch_does():
+    # The node reads each step's internal vector from `Simulator.step` (`Fu2018.expand_one`: one gather and one
+    # product on the kernel's forces); the batch path builds it block by block (`Fu2018.expand`). Oracles: the
+    # batch's vectors, bit for bit, through stick, reversals and an exponential load distribution, and
+    # Σ per-tooth nut normal force × c_z = the axial force (docs/model.md §5 item 9) on the step path itself.
+    p = preset("s30").with_overrides({"friction.load_distribution": "exponential",
+                                       "friction.load_distribution_decay": 0.1})
+    n = 400
+    load = np.full(n, 20_000.0)  # held by the lead's torque, with ±8 N·m on top: stick, break-away, reversals
+    tau = load * p.geometry.lead_per_rad_m + 8.0 * np.sin(2 * np.pi * 3.0 * 1e-3 * np.arange(n))
+    sim = Simulator(p, "fu2018", 1e-3)
+    rows = [sim.step(float(t), float(f)) for t, f in zip(tau, load, strict=True)]
+    batch = Simulator(p, "fu2018", 1e-3).run(tau, load)
+    np.testing.assert_array_equal(np.array([r.internal for r in rows]), batch.internal)
+    speeds = [r.screw_speed_rad_s for r in rows]
+    assert 0.0 in speeds and min(speeds) < -1.0 < 1.0 < max(speeds)
+    n_z = solve_contact(p.geometry, "nut", 1).normal_on_roller[2]
+    for r in rows[::50]:
+        teeth = sim.layout.view(r.internal, "per_tooth")
+        assert np.sum(teeth[:, :, 1]) * n_z == pytest.approx(abs(r.nut_force_n), rel=1e-9, abs=1e-9)
+
+
 def test_uniform_tooth_load_at_20kn_matches_model_md():
     # docs/model.md §4.3 reference magnitude: s30, 20 kN, uniform → about 94 N normal load per contact
     p = preset("s30")

@@ -340,8 +340,7 @@ class Fu2018(Model):
             * fr.drag_width_m * fr.drag_radius(geo)**3 / fr.drag_gap_m
         self.eps_v = fr.coulomb_regularisation_m_s
         self.screw_roller_law = ScrewRollerLaw.from_name(fr.screw_roller_law)
-        self._zeta_share = self.zeta / geo.n_teeth
-        self._gather = self._gather_index()
+        self._expand_index, self._expand_scale = self._expansion()
         self._side_k = {sg: flank_constants(side, self.a) for sg, side in self.sides.items()}
         M = mass_matrix(params)
         self.kinetic = (float(M[0, 0]), float(M[0, 1]), float(M[1, 1]))  # energy guard
@@ -509,15 +508,15 @@ class Fu2018(Model):
     def _make_step(self):
         """The step: `kernels.step` and the ledger. The record keeps the end forces as its aux, from which the slip
         speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
-        the nut force. The aux is the kernel's plain tuple: a `Forces` is built only when read (it would cost a
-        tenth of the step otherwise). The packed state holds this model's part as the kernel takes and returns
+        the nut force. The aux is the kernel's plain tuple, read by `Forces`' field order (`slip_speed`,
+        `expand_one`): building a `Forces` would cost a tenth of the step. The packed state holds this model's part as the kernel takes and returns
         it (`packed_part`), so a step converts nothing: the floats come from the kernel's previous step or from
         `pack_state`, the inputs from the caller's checks (`Simulator.step`, `Model.step`).
         """
         stored, expand_one, kernel_step = self.stored_energy_j, self.expand_one, self._step_kernel
         k_arr, s_arr = self.kernel_constants
-        finish = self.finisher(lambda w_s, w_c, f1: slip_speed(Forces(*f1)),
-                               lambda w_s, w_c, f1: expand_one(Forces(*f1).compact))
+        finish = self.finisher(lambda w_s, w_c, f1: slip_speed(f1),
+                               lambda w_s, w_c, f1: expand_one(f1))
 
         def step_packed(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem = x[11]
@@ -563,22 +562,27 @@ class Fu2018(Model):
 
     _compact_size = len(PER_ROLLER_QUANTITIES) + len(CARRIER_QUANTITIES)
 
-    def expand_one(self, compact: tuple) -> np.ndarray:
-        """`expand` for one step, as a single gather from [compact, ζ/N_T·N_S, ζ/N_T·N_N] (the node's path)."""
-        row = np.array(compact)
-        src = np.concatenate((row, self._zeta_share * compact[0], self._zeta_share * compact[1]))
-        return src[self._gather]
+    def expand_one(self, forces: tuple) -> np.ndarray:
+        """`expand` for one step's end forces (a `Forces`, or the kernel's 29 floats in its order): each element of
+        the layout is one force times its scale, 1 or ζ_T,k/N_T (`_expansion`), so the node's path builds the
+        vector in one gather and one product, with the products `expand` forms."""
+        out = np.array(forces).take(self._expand_index)
+        return np.multiply(out, self._expand_scale, out=out)
 
-    def _gather_index(self) -> np.ndarray:
-        """Positions in `expand_one`'s source vector of every element of the layout."""
+    def _expansion(self) -> tuple[np.ndarray, np.ndarray]:
+        """(position in `Forces` of each element of the layout, its scale): per roller the compact row as it is
+        (scale 1); per tooth and flank side ζ_T,k/N_T times the roller's screw (side 0) or nut (side 1) normal
+        force; the carrier's quantities as they are."""
         geo = self.geo
         nr, nt, nq = geo.n_rollers, geo.n_teeth, len(PER_ROLLER_QUANTITIES)
-        ncomp = self._compact_size
+        first = len(Forces._fields) - self._compact_size  # `Forces.compact` starts here
+        share = self.zeta / nt
         per_roller = np.tile(np.arange(nq), nr)
-        teeth = np.arange(nt)[:, None] + ncomp + nt * np.arange(2)[None, :]  # (tooth, side)
-        per_tooth = np.tile(teeth.ravel(), nr)
-        carrier = np.arange(nq, ncomp)
-        return np.concatenate([per_roller, per_tooth, carrier])
+        per_tooth = np.tile(np.tile(np.arange(2), nt), nr)  # (tooth, side) rows: N_S, N_N
+        carrier = np.arange(nq, self._compact_size)
+        index = first + np.concatenate([per_roller, per_tooth, carrier])
+        scale = np.concatenate([np.ones(nr * nq), np.tile(np.repeat(share, 2), nr), np.ones(len(carrier))])
+        return index, scale
 
     def expand(self, compact: np.ndarray) -> np.ndarray:
         """Compact rows (steps × 26) → the full labelled internal vectors (steps × layout.size).
@@ -602,9 +606,13 @@ class Fu2018(Model):
 _AXIAL = Forces._fields.index("axial")  # the nut force's place in a Forces or the kernel's tuple
 
 
-def slip_speed(f: Forces) -> float:
-    """|v_s|, m/s: the screw–roller sliding speed of an evaluation (the `slip_speed_m_s` output)."""
-    return math.sqrt(f.vx**2 + f.vy**2 + f.vz**2)
+_VX, _VY, _VZ = (Forces._fields.index(name) for name in ("vx", "vy", "vz"))
+
+
+def slip_speed(f: tuple) -> float:
+    """|v_s|, m/s: the screw–roller sliding speed of an evaluation (the `slip_speed_m_s` output); `f` a `Forces` or
+    the kernel's 29 floats in its order."""
+    return math.sqrt(f[_VX] ** 2 + f[_VY] ** 2 + f[_VZ] ** 2)
 
 
 JACOBIAN_REFRESH_STEPS = 2  # 10 lost stability in the stiff carrier mode at μ = 0.1 under 20 kN
