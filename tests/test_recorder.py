@@ -625,3 +625,49 @@ def test_steps_queued_around_a_new_channel_are_written_in_order(tmp_path):
     with open(tmp_path / "order.mcap", "rb") as f:
         got = [(c.topic, m.log_time) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
     assert got == sent
+
+
+def test_a_deterministic_file_writes_late_messages_where_their_stamps_put_them(tmp_path):
+    """A lockstep bag holds each message until the log times have moved `REORDER_WINDOW_NS` past it, then writes
+    in (log time, channel, sequence) order, whatever order the batches came in. Oracle: Python's sort of what was
+    sent by that key, against the file's records in file order as mcap's own reader gives them; a message later
+    than the window is still written (never lost), after those already out."""
+    from mcap.reader import make_reader
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64
+
+    from prsm_ros.mcap.recorder import REORDER_WINDOW_NS, McapFile
+    rng = np.random.default_rng(11)
+    path = tmp_path / "late.mcap"
+    f = McapFile(path, deterministic=True, chunk_size=16 << 10)  # several chunks closed by size
+    topics = ["/state", "/ref", "/cmd"]
+    ids = {t: f.add_channel(t, Float64, TOPICS["screw_torque"].qos) for t in topics}
+    sent = []  # (log time, channel id, sequence, value)
+    seq = dict.fromkeys(ids.values(), 0)
+    step_ns = 1_000_000
+    for k in range(10, 1500):
+        batch = [("/state", k * step_ns), ("/cmd", k * step_ns)]
+        if k % 3:  # a reference answers the state of one to five steps before
+            batch.insert(int(rng.integers(0, 3)), ("/ref", (k - int(rng.integers(1, 6))) * step_ns))
+        items = []
+        for topic, t in batch:
+            cid = ids[topic]
+            seq[cid] += 1
+            value = float(len(sent))
+            sent.append((t, cid, seq[cid], value))
+            items.append((cid, serialize_message(Float64(data=value)), t))
+        f.write_many(items)
+    too_late = (1499 * step_ns - REORDER_WINDOW_NS - 5 * step_ns, ids["/ref"])
+    seq[too_late[1]] += 1
+    sent_late = (*too_late, seq[too_late[1]], -1.0)
+    f.write_many([(too_late[1], serialize_message(Float64(data=-1.0)), too_late[0])])
+    f.finish()
+    with open(path, "rb") as fh:
+        got = [(m.log_time, m.channel_id, m.sequence, deserialize_message(m.data, Float64).data)
+               for _, _, m in make_reader(fh).iter_messages(log_time_order=False)]
+    assert len(got) == len(sent) + 1
+    # written before the late one: every message whose hold ended by then, in key order
+    released = sorted(m for m in sent if m[0] <= 1499 * step_ns - REORDER_WINDOW_NS)
+    assert got[:len(released)] == released
+    assert got[len(released)] == sent_late  # written as soon as it came: its hold had already ended
+    assert got[len(released) + 1:] == sorted(m for m in sent if m[0] > 1499 * step_ns - REORDER_WINDOW_NS)

@@ -35,7 +35,7 @@ _U32 = struct.Struct("<I")
 class Layout:
     """One shape of one type: its length fields (offset, the 4 bytes there), padding and decisive spans."""
 
-    __slots__ = ("lengths", "padding", "decisive", "end", "size", "_probe", "_expected")
+    __slots__ = ("lengths", "padding", "decisive", "end", "size", "_probe", "_expected", "_zero")
 
     def __init__(self, size: int) -> None:
         self.size = size  # the message's bytes, trailing ones included
@@ -45,6 +45,7 @@ class Layout:
         self.end = ENCAPSULATION
         self._probe: Callable[[bytes], tuple] | None = None
         self._expected: tuple = ()
+        self._zero: Callable[[bytes], bytes] | None = None  # `zero_padding`, built at its first use
 
     def fits(self, data: bytes) -> bool:
         """Whether `data` has this shape: the same size and the same bytes in every length field."""
@@ -62,12 +63,29 @@ class Layout:
         return b"".join([data[a:b] for a, b in self.decisive]) + data[self.end:]
 
     def zero_padding(self, data: bytes) -> bytes:
-        """`data` with its alignment padding and trailing bytes zero."""
-        buf = bytearray(data)
-        for a, b in self.padding:
-            buf[a:b] = bytes(b - a)
-        buf[self.end:] = bytes(len(buf) - self.end)
-        return bytes(buf)
+        """`data` (of this shape: `fits`) with its alignment padding and trailing bytes zero."""
+        zero = self._zero
+        if zero is None:
+            zero = self._zero = self._zeroing()
+        return zero(data)
+
+    def _zeroing(self) -> Callable[[bytes], bytes]:
+        """`zero_padding` as two native calls: the spans between the padding taken by one `itemgetter`, and
+        packed back by one `Struct` whose format puts pad bytes (zero) where the padding and the trailing bytes
+        were (a deterministic bag's every message passes here: a slice assignment per span cost twice as much)."""
+        keep: list[slice] = []
+        fmt = ["<"]
+        at = 0
+        for a, b in sorted(self.padding) + [(self.end, self.size)]:
+            if a > at:
+                keep.append(slice(at, a))
+                fmt.append(f"{a - at}s")
+            if b > max(a, at):
+                fmt.append(f"{b - max(a, at)}x")
+            at = max(at, b)
+        take = itemgetter(*keep, slice(0, 0))  # one more, empty: always a tuple
+        pack = struct.Struct("".join(fmt) + "0s").pack
+        return lambda data: pack(*take(data))
 
 
 class Layouts:
