@@ -509,9 +509,10 @@ class Fu2018(Model):
         """The step: `kernels.step` and the ledger. The record keeps the end forces as its aux, from which the slip
         speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
         the nut force. The aux is the kernel's plain tuple, read by `Forces`' field order (`slip_speed`,
-        `expand_one`): building a `Forces` would cost a tenth of the step. The packed state holds this model's part as the kernel takes and returns
-        it (`packed_part`), so a step converts nothing: the floats come from the kernel's previous step or from
-        `pack_state`, the inputs from the caller's checks (`Simulator.step`, `Model.step`).
+        `expand_one`): building a `Forces` would cost a tenth of the step. The packed state holds this model's
+        part as the kernel takes and returns it (`packed_part`), so a step converts nothing: the floats come from
+        the kernel's previous step or from `pack_state`, the inputs from the caller's checks (`Simulator.step`,
+        `Model.step`).
         """
         stored, expand_one, kernel_step = self.stored_energy_j, self.expand_one, self._step_kernel
         k_arr, s_arr = self.kernel_constants
