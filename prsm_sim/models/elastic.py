@@ -34,7 +34,10 @@ sub-step is redone with the
 discrete gradient (V₁ − V₀ + nsf Δx)/Δδ, whose work is ΔV exactly (Gonzalez 1996), then by secant
 steps (at most IMPACT_ITERATIONS times, the best attempt kept). Where the path jumps with the force
 (a flank impact reversing the screw into static friction), the attempt kept creates no energy and
-its miss is booked as the contact's loss (Armero & Petőcz 1998; docs/model.md §4.3, Impacts).
+its miss is booked as the contact's loss (Armero & Petőcz 1998; docs/model.md §4.3, Impacts). Where every
+attempt would create energy (the screw breaks away from static friction and the force its turning builds would
+hold it again inside the sub-step), the output step is taken again at twice its sub-steps, up to the finest
+refinement level (REFINE_LEVELS).
 The damping force and the Stribeck torque, held over the sub-step, are booked as dissipated with
 exactly the work they did, so the ledger closes to the integration error of the core.
 
