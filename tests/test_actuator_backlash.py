@@ -135,9 +135,9 @@ def test_position_mode_around_elastic_holds_the_nut_against_a_load():
     5.79), where the screw's friction holds it while the speed loop's integrator slowly unwinds.
     """
     # breakaway = running friction: with a Stribeck breakaway above it the loop sticks where the static band
-    # stops it (3.0 µm past the command here), which the stiction tests cover; this oracle is the encoder's
+    # stops it (0.7 µm past the command here), which the stiction tests cover; this oracle is the loop's
     # and so is the papers' screw: `s30`'s seals (docs/model.md §4.5) hold the nut where the overshoot leaves it
-    # (seen 14 µm past the command)
+    # (seen 15 µm past the command)
     p = elastic_params(50e-6, zeta=0.3, **{"stiction.breakaway_ratio": 1.0, "drag.enabled": False})
     # the loop alone (no shaped reference): where a quantised loop comes to rest depends on how it arrived, and
     # this oracle is the loop's own stand-still (the shaped approach ends in a 2 µm two-count cycle instead)
