@@ -158,6 +158,39 @@ def test_fast_mode_and_sigterm(tmp_path):
     assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks)
 
 
+def test_a_bag_records_the_internal_loads_at_its_own_rate_and_reports(tmp_path, capsys):
+    """record_internal_loads_rate 100 Hz at 1 kHz: the bag holds the internal loads of every 10th step (stamps on
+    the 10 ms grid), every other topic every step, the rate in its node parameters, and `prsm-bag report`
+    reads it (the efficiency from the recorded powers). Oracle: the rate's arithmetic."""
+    import json
+
+    import yaml
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from prsm_ros.bag.reader import open_bag
+    from prsm_ros.cli.bag import main as bag_main
+    bag = tmp_path / "decimated.mcap"
+    params = {"time_mode": "fast", "diagnostics_rate": 10.0, "record_path": str(bag), "model": "fu2018",
+              "load_force": 2000.0, "record_internal_loads_rate": 100.0}
+    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
+        diag = cli.subscribe("/diagnostics", DiagnosticArray)
+        cli.wait_for_node(proc)
+        cli.spin_until(lambda: len(diag) >= 3, 10.0, "diagnostics")
+        assert proc.stop(signal.SIGINT) == 0, proc.stderr
+    topics = read_bag(bag)
+    clocks = [clock_ns(m) for _, m in topics["/clock"]]
+    assert clocks == [1_000_000 * (k + 1) for k in range(len(clocks))] and len(clocks) > 1000
+    assert len(topics["/joint_states"]) == len(clocks)
+    loads = [ts for ts, _ in topics["/prsm_actuator/internal_loads"]]
+    assert loads == [c for c in clocks if c % 10_000_000 == 0]
+    b = open_bag(bag)
+    assert yaml.safe_load(b.run_metadata["node_parameters_yaml"])["record_internal_loads_rate"] == 100.0
+    assert bag_main(["report", str(bag), "-o", str(tmp_path / "report"), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert "power_in_w" in r["efficiency"]["source"] and r["peak_loads"]
+    assert (tmp_path / "report" / "internal_loads.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_rerun_save_writes_an_rrd_that_the_rerun_cli_verifies(tmp_path):
     """rerun = save: the node's .rrd holds every step's scalar series (checked with the `rerun` CLI)."""
     from sensor_msgs.msg import JointState

@@ -277,3 +277,76 @@ def test_simulation_report_levels_from_the_session_status():
     assert simulation_report(s.status(), {}, [], [])[:2] == (ERROR, "publishing step 5 failed")
     text, details = energy_fault_event(0.5, 10.0, 0.02, "ideal")
     assert "residual 0.02 J of 10 J that flowed (limit 0.001)" in text and details["flow_j"] == 10.0
+
+
+def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at_its_own():
+    """`Outlets.publish_loads` and `Sinks.write_step`, without DDS: over 40 steps at 1 kHz, DDS and a live view
+    get the internal loads at `internal_loads_rate` (100 Hz: steps 10, 20, 30, 40), the bag at
+    `record_internal_loads_rate` (250 Hz: every 4th step), and every other message of a step goes to both.
+    Oracle: the rates' own arithmetic (steps k with k mod n = 0)."""
+    from types import SimpleNamespace
+
+    from rclpy.qos import QoSProfile
+
+    from prsm_ros.messages import MessageMapper, time_ns
+    from prsm_ros.node.outlets import Outlets
+    from prsm_ros.node.sinks import Sinks
+
+    class Pub:  # a volatile publisher with `readers` matched readers; what it sends is kept
+        def __init__(self, readers):
+            self.readers, self.sent, self.qos_profile, self.handle = readers, [], QoSProfile(depth=10), self
+
+        def get_subscription_count(self):
+            return self.readers
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def publish_raw(self, data):
+            self.sent.append(data)
+
+    class MessageSink:  # the bag (keeps_record) or a live view; what it is handed is kept, per step
+        takes_messages, takes_outputs, error = True, False, None
+
+        def __init__(self, keeps_record):
+            self.keeps_record, self.steps = keeps_record, []
+
+        def write_many(self, items):
+            self.steps.append([topic for topic, _, _ in items])
+
+    session = Session(preset("s30"), "fu2018", 1e-3)
+    cfg = SimpleNamespace(joint_states_rate=0.0, update_rate=1000.0, time_mode="realtime", internal_loads_rate=100.0,
+                          record_internal_loads_rate=250.0)
+    names = {"internal_loads": "/il", "clock": "/clock"}
+    for readers, live in ((1, True), (0, False)):
+        pubs = {k: Pub(readers) for k in names}
+        bag, view = MessageSink(True), MessageSink(False)
+        mapper = MessageMapper(session.layout, "fu2018")
+        node = SimpleNamespace(session=session, mapper=mapper, config=cfg)
+        outlets = Outlets(node, pubs, names, Sinks([bag, view] if live else [bag]), frozenset(), warn=None)
+        built = []
+        encode = outlets.encoder.internal_loads
+        outlets.encoder = SimpleNamespace(internal_loads=lambda out: built.append(out) or encode(out))
+        outlets.count_readers()
+        for k in range(1, 41):
+            out = session.step()
+            outlets.begin_step()
+            outlets.publish("clock", b"\0" * 8, time_ns(out.time_s))
+            outlets.publish_loads(out, k, time_ns(out.time_s))
+            outlets.end_step()
+        every = {n: [k for k in range(1, 41) if k % n == 0] for n in (4, 10)}
+        assert [k for k, s in enumerate(bag.steps, 1) if "/il" in s] == every[4]
+        assert all(s[0] == "/clock" for s in bag.steps) and len(bag.steps) == 40
+        assert len(pubs["internal_loads"].sent) == (len(every[10]) if readers else 0)
+        assert len(pubs["clock"].sent) == (40 if readers else 0)
+        if live:
+            assert [k for k, s in enumerate(view.steps, 1) if "/il" in s] == every[10]
+            assert all(s[0] == "/clock" for s in view.steps) and len(view.steps) == 40
+        # the bytes are built only for a step someone gets them at
+        assert len(built) == len(set(every[4]) | (set(every[10]) if readers or live else set()))
+    # the node's own sinks: the bag is the record, the Foxglove server a live view
+    from prsm_ros.node.sinks import FoxgloveSink, RecorderSink
+    assert RecorderSink.keeps_record and not FoxgloveSink.keeps_record

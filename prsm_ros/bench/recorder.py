@@ -13,7 +13,8 @@
   messages (as the node does) and records them, against the same loop without recording; the
   difference in CPU time per wall second (this process and its writer process) is the recorder's
   cost (% of one core), and the loop's lateness percentiles show whether the writer disturbs the
-  step loop; the same with the thread recorder beside it.
+  step loop; the same with the thread recorder beside it, and with the internal loads recorded at
+  100 Hz (the node's `record_internal_loads_rate:=100`: every topic but those every step).
 
 Figures are printed, never asserted (`prsm-bench` aggregates them).
 """
@@ -30,6 +31,7 @@ from prsm_ros.bench.common import BenchError, area_main, cpu_with_children_s, fi
 
 THROUGHPUT_TARGET = 100_000.0  # messages/s
 CPU_TARGET_PCT = 5.0  # % of a core at 1 kHz
+DECIMATED_LOADS_EVERY = 10  # steps between two recorded internal loads in the decimated run (100 Hz at 1 kHz)
 
 
 def _run_outputs(model: str, steps: int):
@@ -196,24 +198,31 @@ def foxglove_peer(model: str, steps: int) -> float | None:
         return len(prepared) * len(channels) / (time.process_time() - t0)
 
 
-def loop_cost(model: str, seconds: float, record: str | None) -> dict:
+def loop_cost(model: str, seconds: float, record: str | None, loads_every: int = 1) -> dict:
     """A 1 kHz loop mapping (and optionally recording: `record` "process" or "thread") each step's messages,
-    as the node does."""
+    as the node does; the internal loads only every `loads_every`-th step (`record_internal_loads_rate`)."""
+    from prsm_ros.messages import STEP_TOPICS
     steps = int(seconds * 1000)
     prepared = _prepared(model, steps)
+    loads = 1 + STEP_TOPICS.index("internal_loads")  # its place in a prepared step (the command first)
     with tempfile.TemporaryDirectory() as d:
-        rec = _recorder(record)(Path(d) / "loop.mcap") if record else None
+        path = Path(d) / "loop.mcap"
+        rec = _recorder(record)(path) if record else None
         topics, cmd_topic = _channels(rec) if rec is not None else ([], "")
 
         def step(k: int) -> None:
             stamp, msgs = prepared[k]
             if rec is not None:
-                rec.write_many([(cmd_topic, msgs[0], stamp), *zip(topics, msgs[1:], [stamp] * len(topics), strict=True)])
+                items = [(cmd_topic, msgs[0], stamp), *zip(topics, msgs[1:], [stamp] * len(topics), strict=True)]
+                if k % loads_every:
+                    del items[loads]
+                rec.write_many(items)
 
         result = paced_loop(steps, step)
         if rec is not None:
             rec.close()  # after the measurement: the tail's flush is not part of the steady-state cost
-    result.update(written=rec.messages_written if rec else 0, dropped=rec.messages_dropped if rec else 0)
+        result.update(written=rec.messages_written if rec else 0, dropped=rec.messages_dropped if rec else 0,
+                      file_bytes=path.stat().st_size if rec else 0)
     return result
 
 
@@ -230,7 +239,9 @@ def measure(quick: bool = False) -> list[dict]:
     base = loop_cost(model, seconds, record=None)
     rec = loop_cost(model, seconds, record="process")
     thread = loop_cost(model, seconds, record="thread")
+    decimated = loop_cost(model, seconds, record="process", loads_every=DECIMATED_LOADS_EVERY)
     cost = (rec["cpu_per_wall"] - base["cpu_per_wall"]) * 100
+    decimated_cost = (decimated["cpu_per_wall"] - base["cpu_per_wall"]) * 100
     thread_cost = (thread["cpu_per_wall"] - base["cpu_per_wall"]) * 100
     per_s = rec["written"] / seconds
     _prepared.cache_clear()
@@ -250,6 +261,12 @@ def measure(quick: bool = False) -> list[dict]:
                      f"with the node's recorder {rec['cpu_per_wall'] * 100:.1f} % (this process and its writer "
                      f"process); dropped {rec['dropped']}; the native floor (zstd + CRC) at this rate "
                      f"{per_s / floor * 100:.1f} % of a core; the thread recorder {thread_cost:.1f} %"),
+        figure(f"MCAP recorder CPU at 1 kHz, internal loads every {DECIMATED_LOADS_EVERY}th step", decimated_cost,
+               "% core", f"≤ {CPU_TARGET_PCT:g}", decimated_cost <= CPU_TARGET_PCT, None,
+               f"the node's record_internal_loads_rate:={1000 / DECIMATED_LOADS_EVERY:g} (every other topic every "
+               f"step); {decimated['written'] / seconds:.0f} msg/s recorded, the file "
+               f"{decimated['file_bytes'] / max(rec['file_bytes'], 1):.2f}× the size of the one with every step's; "
+               f"dropped {decimated['dropped']}; same loop alone as above"),
         figure("1 kHz loop lateness p99 with recorder", rec["late_p99_ms"], "ms", "≤ 1", rec["late_p99_ms"] <= 1.0, None,
                f"without recorder p99 {base['late_p99_ms']:.3f} ms; p50 {rec['late_p50_ms']:.3f} vs {base['late_p50_ms']:.3f} ms; "
                f"max {rec['late_max_ms']:.2f} vs {base['late_max_ms']:.2f} ms (OS scheduling on a shared machine shows here too); "

@@ -3,7 +3,9 @@
 `Outlets` publishes and records the same bytes (a message is serialised once; per-step messages
 come as CDR bytes from the encoder), hands a step's messages to the sinks in one batch, decimates
 joint_states and internal loads, and skips per-step topics nobody reads (the node's module doc
-says why that loses nothing). All its methods run with the node's lock held.
+says why that loses nothing). The internal loads have two rates: DDS's and the live views'
+(`internal_loads_rate`: what a subscriber gets) and the bag's (`record_internal_loads_rate`, every
+step by default). All its methods run with the node's lock held.
 """
 
 from __future__ import annotations
@@ -62,6 +64,8 @@ class Outlets:
         self.encoder = node.mapper.encoder()  # per-step messages straight to CDR bytes
         self.publish_failures = 0
         self.batch: list | None = None  # a step's messages for the sinks, handed over at once (`end_step`)
+        # the step's internal loads for the sinks, (item, to the record, to live views), or None (`end_step`)
+        self.loads: tuple | None = None
         self.unread: frozenset[str] = frozenset()  # per-step topics with no matched reader at the last count
         # every time mode (lockstep too): a publish to nobody holds the GIL for 8-16 µs, a reader count 1 µs
         self.skippable = tuple(
@@ -70,17 +74,23 @@ class Outlets:
 
     def set_decimation(self, cfg) -> None:
         self.js_every = every_n_steps(cfg.joint_states_rate, cfg.update_rate)
-        # heavy outputs are decimated on DDS only in realtime and fast mode; the bag records every step
+        # heavy outputs are decimated on DDS only in realtime and fast mode (a lockstep controller may read every
+        # step); the bag at its own rate, every step unless asked
         self.il_every = 1 if cfg.time_mode == "lockstep" else every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
+        self.il_record_every = every_n_steps(cfg.record_internal_loads_rate, cfg.update_rate)
+        self.il_recorded = self.sinks.keeps_record and "internal_loads" not in self.unrecorded
 
     def publish(self, key: str, msg, stamp_ns: int | None = None) -> None:
         """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
         if type(msg) is not bytes:
             msg = serialize_message(msg)
+        if not self.no_reader(key):  # else DDS would deliver it to nobody (volatile): the sinks only
+            self.send(key, msg)
+        self.record(key, msg, stamp_ns)
+
+    def send(self, key: str, msg: bytes) -> None:
+        """On DDS only; a sample the middleware refuses is counted and warned of, never raised."""
         pub = self.pub[key]
-        if self.no_reader(key):  # DDS would deliver it to nobody (volatile): the bag only
-            self.record(key, msg, stamp_ns)
-            return
         try:
             handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
             with handle:
@@ -91,7 +101,6 @@ class Outlets:
             self.publish_failures += 1
             self.warn(f"publish:{key}", f"publishing on {self.topic_names[key]} failed "
                                         f"({self.publish_failures} so far): {e}")
-        self.record(key, msg, stamp_ns)
 
     def no_reader(self, key: str) -> bool:
         """True when `key` had no matched reader at the last count and still has none (asked again
@@ -102,10 +111,6 @@ class Outlets:
             return True
         self.unread = self.unread - {key}
         return False
-
-    def wanted(self, key: str) -> bool:
-        """Whether a message on `key` would reach anyone, a sink or a reader; False spares building it."""
-        return (self.sinks.takes_messages and key not in self.unrecorded) or not self.no_reader(key)
 
     def record(self, key: str, data, stamp_ns: int | None = None) -> None:
         """To the sinks: with the step's batch when a step is being published, else at once."""
@@ -123,7 +128,10 @@ class Outlets:
 
     def end_step(self) -> None:
         batch, self.batch = self.batch, None
-        if batch:
+        loads, self.loads = self.loads, None
+        if loads is not None:
+            self.sinks.write_step(batch or [], *loads)
+        elif batch:
             self.sinks.write_many(batch)
 
     def await_readers(self, timeout_s: float) -> bool:
@@ -173,12 +181,23 @@ class Outlets:
             echo.record_latency(cmd_ns, time.time_ns())
         if "clock" in self.pub:
             self.publish("clock", enc.clock(ns), ns)
-        if k % self.il_every == 0:
-            if self.wanted("internal_loads"):  # its bytes (7 KB for fu2018) only when someone gets them
-                self.publish("internal_loads", enc.internal_loads(out), ns)
-        elif self.sinks.takes_messages:  # decimated on DDS, every step in the bag
-            self.record("internal_loads", enc.internal_loads(out), ns)
+        self.publish_loads(out, k, ns)
         self.sinks.submit(out)
+
+    def publish_loads(self, out, k: int, ns: int) -> None:
+        """Step `k`'s internal loads to DDS and the live views at their rate, to the bag at its own; their
+        bytes (7 KB for fu2018) are built only for a step someone gets them at."""
+        live = k % self.il_every == 0
+        to_record = self.il_recorded and k % self.il_record_every == 0
+        to_live = live and self.sinks.live_takes_messages
+        to_dds = live and not self.no_reader("internal_loads")
+        if not (to_dds or to_record or to_live):
+            return
+        data = self.encoder.internal_loads(out)
+        if to_dds:
+            self.send("internal_loads", data)
+        if (to_record or to_live) and self.batch is not None:
+            self.loads = ((self.topic_names["internal_loads"], data, ns), to_record, to_live)
 
     def publish_state(self, out, ns: int) -> None:
         """joint_states and the wrench; with an actuator joint_states carries what the sensors

@@ -34,6 +34,9 @@ class Sink(Protocol):
 
     takes_messages: bool
     takes_outputs: bool
+    # the run's record (the bag): the internal loads at the record's rate; otherwise a live view, which gets
+    # them at their DDS rate, as a subscriber would
+    keeps_record: bool
     error: str | None
 
     def write(self, topic: str, data: Any, stamp_ns: int) -> None: ...
@@ -59,7 +62,7 @@ class RecorderSink:
     """The MCAP recording (`McapProcessRecorder`; `McapRecorder` in fast mode: `open_recorder`) as a sink of
     messages."""
 
-    takes_messages, takes_outputs = True, False
+    takes_messages, takes_outputs, keeps_record = True, False, True
 
     def __init__(self, recorder) -> None:
         self.recorder = recorder
@@ -92,7 +95,7 @@ class LiveViewSink:
     """A live view (Rerun, Foxglove) as a sink: it drops and counts rather than slowing the simulation,
     reports its own figures under `prefix`, and takes nothing it is not given a method for."""
 
-    takes_messages, takes_outputs = False, False
+    takes_messages, takes_outputs, keeps_record = False, False, False
 
     def __init__(self, view, prefix: str) -> None:
         self.view, self.prefix = view, prefix
@@ -142,6 +145,8 @@ class Sinks:
         self.message_sinks = [s for s in self.all if s.takes_messages]
         self.output_sinks = [s for s in self.all if s.takes_outputs]
         self.takes_messages = bool(self.message_sinks)
+        self.keeps_record = any(s.keeps_record for s in self.message_sinks)
+        self.live_takes_messages = any(not s.keeps_record for s in self.message_sinks)
 
     def __iter__(self):
         return iter(self.all)
@@ -157,6 +162,17 @@ class Sinks:
     def write_many(self, items: list[tuple[str, Any, int]]) -> None:
         for s in self.message_sinks:
             s.write_many(items)
+
+    def write_step(self, items: list[tuple[str, Any, int]], loads: tuple[str, Any, int], to_record: bool,
+                   to_live: bool) -> None:
+        """A step's messages, then its internal loads (`loads`) to the record when `to_record` and to the
+        live views when `to_live` (their two rates: `Outlets.publish_loads`)."""
+        items.append(loads)
+        for s in self.message_sinks:
+            if to_record if s.keeps_record else to_live:
+                s.write_many(items)
+            elif len(items) > 1:
+                s.write_many(items[:-1])
 
     def submit(self, out: Any) -> None:
         for s in self.output_sinks:
