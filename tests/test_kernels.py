@@ -192,3 +192,13 @@ def test_import_prsm_sim_does_not_import_numba():
     code = "import prsm_sim, sys; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_the_compiled_record_step_is_cached_with_the_ledger_it_was_built_from():
+    """`kernels.step_record` inlines the energy ledger from `stepping.ledger`; numba keys its disk cache on
+    kernels.py alone, so kernels.py names the ledger's fingerprint and `load` skips the cache when they differ.
+    Oracle: the fingerprint of the ledger's source and constants as they are now. On a change of the ledger,
+    set `kernels.LEDGER_FINGERPRINT` to `kernels.ledger_fingerprint()`."""
+    from prsm_sim.models import kernels
+
+    assert kernels.ledger_fingerprint() == kernels.LEDGER_FINGERPRINT

@@ -218,6 +218,31 @@ def test_fu2018_per_step_path_adds_no_rounding_to_its_kernel(kernel, n):
     assert type(part.flank_sign) is int
 
 
+@pytest.mark.parametrize("kernel,n", [("compiled", 600), ("reference", 150)])
+def test_fu2018_compiled_record_is_the_generic_ledgers_bit_for_bit(kernel, n):
+    """fu2018 makes its per-step record in one compiled call (`kernels.step_record`: the step, the books and the
+    rigid nut); every other model makes it with the ledger's generic form (`Model.finisher`). Oracle: that
+    generic form fed the same kernel step gives the same record, every item and the end forces, bit for bit,
+    through stick, break-away, reversals and back-driving under ±5 kN."""
+    sim = Simulator(preset("s30"), "fu2018", 1e-3, kernel=kernel)
+    m = sim.model
+    k_arr, s_arr = m.kernel_constants
+    finish = m.finisher(lambda w_s, w_c, aux: 0.0, lambda w_s, w_c, aux: ())
+    hold = m.geo.lead_per_rad_m * 5000.0
+    x = sim._packed
+    for k in range(n):
+        load = 5000.0 if k < n // 2 else -5000.0
+        tau = math.copysign(hold, load) + 0.6 * math.sin(0.03 * k)
+        rec = m.step_packed(x, tau, load)
+        sign, pin_abs, gear, mem = x[11]
+        ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = m._kn.step(
+            x[2], x[4], sign, pin_abs, gear, mem, tau, load, k_arr, s_arr)
+        want = finish(x, x[1] + dth_s, ws1, x[3] + dth_c, wc1, tau, load, diss, m.stored_energy_j(ws1, wc1),
+                      (sign, pin_abs, gear, mem), f1, f1[27])
+        assert rec[:21] == want[:21] and rec[22] == want[22], k
+        x = rec
+
+
 @pytest.mark.parametrize("model", ["fu2018", "elastic"])
 def test_plain_state_round_trip_keeps_the_kernel_form_of_the_part(model):
     """get_state writes the part as `State` holds it (int flank sign, ``()`` for no solver memory); set_state

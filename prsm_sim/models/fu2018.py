@@ -51,6 +51,7 @@ from prsm_sim.physics.contact import ContactPoint, contact_for
 from prsm_sim.physics.inertia import mass_matrix
 from prsm_sim.physics.kinematics import ideal_carrier_ratio
 from prsm_sim.stepping.model import Model
+from prsm_sim.stepping.packed import PackedOutputs
 from prsm_sim.stepping.records import InternalBlock, InternalLayout, State
 from prsm_sim.stepping.trajectory import Trajectory, trajectory_from_columns
 
@@ -366,8 +367,10 @@ class Fu2018(Model):
             # the model is built, rather than in the first step of a realtime loop
             self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
         # the per-step path's kernel: the specialisation the warm-up step chose, entered without the dispatch
-        self._step_kernel = kernels.specialised(self._kn.step, 0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0,
-                                                *self.kernel_constants)
+        rest = (0.0,) * 11 + (1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
+        if kernel == "compiled":
+            self._kn.step_record(*rest)
+        self._record_kernel = kernels.specialised(self._kn.step_record, *rest)
 
     def _step_constants(self) -> Fu2018Constants:
         """The step's constants (`kernels.Fu2018Constants`) from the parameters."""
@@ -514,17 +517,15 @@ class Fu2018(Model):
         the kernel's previous step or from `pack_state`, the inputs from the caller's checks (`Simulator.step`,
         `Model.step`).
         """
-        stored, expand_one, kernel_step = self.stored_energy_j, self.expand_one, self._step_kernel
+        expand_one, kernel_record = self.expand_one, self._record_kernel
         k_arr, s_arr = self.kernel_constants
-        finish = self.finisher(lambda w_s, w_c, f1: slip_speed(f1),
-                               lambda w_s, w_c, f1: expand_one(f1))
+        k = self.packed_constants(lambda w_s, w_c, f1: slip_speed(f1), lambda w_s, w_c, f1: expand_one(f1))
 
         def step_packed(x, torque_nm: float, load_n: float):
             sign, pin_abs, gear, mem = x[11]
-            ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = kernel_step(
-                x[2], x[4], sign, pin_abs, gear, mem, torque_nm, load_n, k_arr, s_arr)
-            return finish(x, x[1] + dth_s, ws1, x[3] + dth_c, wc1, torque_nm, load_n, diss, stored(ws1, wc1),
-                          (sign, pin_abs, gear, mem), f1, f1[_AXIAL])
+            items, f1 = kernel_record(x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], sign, pin_abs,
+                                      gear, mem, torque_nm, load_n, k_arr, s_arr)
+            return PackedOutputs(items + (k, f1))
         return step_packed
 
     def packed_part(self, part: Fu2018Part) -> tuple:
@@ -602,9 +603,6 @@ class Fu2018(Model):
         np.multiply((self.zeta / nt)[None, None, :, None], compact[:, None, None, :2], out=teeth)
         out[:, start + nr * nt * 2:] = compact[:, nq:]
         return out
-
-
-_AXIAL = Forces._fields.index("axial")  # the nut force's place in a Forces or the kernel's tuple
 
 
 _VX, _VY, _VZ = (Forces._fields.index(name) for name in ("vx", "vy", "vz"))

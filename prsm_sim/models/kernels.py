@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from prsm_sim.errors import ParamError
+from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL, ledger_step
 
 KERNELS = ("compiled", "reference")
 
@@ -229,6 +230,25 @@ def _inlined(fn):
     return _compiled(fn)
 
 
+# The energy ledger (`stepping.ledger`, every model's) runs compiled in `step_record`, from its one source. Its
+# guard's constants are named here too: the reference functions run on a copy of this module's globals. numba keys
+# a function's disk cache on its own file only, and a cached `step_record` would outlive a change of the ledger's:
+# so the ledger's fingerprint is written here (a change of it changes this file, which renews the cache), and
+# `load` compiles `step_record` without its cache when the ledger no longer matches it (tests/test_kernels.py
+# keeps the two equal).
+_inlined(ledger_step)
+LEDGER_FINGERPRINT = "96a7aea5f770c45680c73cb9401a08878f279c780a275436f579d72ca4a26f36"
+
+
+def ledger_fingerprint() -> str:
+    """SHA-256 of `ledger_step`'s source and the guard's constants (what `step_record` compiles in)."""
+    import hashlib
+    import inspect
+
+    text = inspect.getsource(getattr(ledger_step, "py_func", ledger_step))
+    return hashlib.sha256(f"{text}{ENERGY_GUARD_REL!r}{ENERGY_GUARD_MIN_FLOW_J!r}".encode()).hexdigest()
+
+
 _REFERENCE: list[types.SimpleNamespace] = []  # the uncompiled functions, bound to one another (made once)
 
 
@@ -255,7 +275,8 @@ def load(kernel: str):
         from numba import njit  # here, on first use: `import prsm_sim` stays light
 
         # every dispatcher made before any is published (one dict update): a caller never sees a mix
-        g.update({name: njit(cache=True, inline="always" if name in _INLINED else "never")(
+        uncached = set() if ledger_fingerprint() == LEDGER_FINGERPRINT else {"step_record"}
+        g.update({name: njit(cache=name not in uncached, inline="always" if name in _INLINED else "never")(
             getattr(g[name], "py_func", g[name])) for name in _COMPILED})
     return sys.modules[__name__]
 
@@ -580,6 +601,28 @@ def step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S):
             return (ws1, wc1, 0.5 * h * (ws + ws1), 0.5 * h * (wc + wc1), 0.5 * h * (f0[2] + f1[2]), f1, f1[28],
                     _pin_sum(f1), f1[12], m1)
     return _controlled_step(ws, wc, sign, pin_abs, gear, mem, tau, load, K, S)
+
+
+@_compiled
+def step_record(t0, th_s0, ws, th_c0, wc, w_in0, w_out0, diss0, flow0, res0, stored0, sign, pin_abs, gear, mem, tau,
+                load, K, S):
+    """`step` and the ledger's per-step record around it, in one call (`Fu2018`'s per-step path): from the packed
+    state's first eleven items (`stepping.packed`: time, θ_S, ω_S, θ_C, ω_C, W_in, W_out, W_diss, flow,
+    residual, stored energy) and its part, the record's first 21 items in `PackedOutputs` order and the end
+    forces (the record's aux). The nut rides the threads: x = p θ_S, W_out = F p Δθ_S, the nut force the
+    axial thread force; the books are `ledger_step`'s, the stored energy `_stored`'s. The same arithmetic in
+    the same order as `stepping.packed.make_finisher`, so the record is the same bits."""
+    ws1, wc1, dth_s, dth_c, diss, f1, sign, pin_abs, gear, mem = step(ws, wc, sign, pin_abs, gear, mem, tau, load,
+                                                                      K, S)
+    th_s = th_s0 + dth_s
+    dtheta = th_s - th_s0  # as the ledger's generic form takes it: from the angles it records
+    p = K[FU.p]
+    w_out = load * p * dtheta
+    stored1 = _stored(ws1, wc1, K)
+    w_in, flow, residual, fault = ledger_step(flow0, res0, tau, dtheta, w_out, diss, stored0, stored1)
+    return ((t0 + K[FU.h], th_s, ws1, th_c0 + dth_c, wc1, w_in0 + w_in, w_out0 + w_out, diss0 + diss, flow, residual,
+             stored1, (sign, pin_abs, gear, mem), tau, load, diss, w_in, w_out, f1[27], p * th_s, p * ws1,
+             1.0 if fault else 0.0), f1)
 
 
 @_compiled

@@ -4,7 +4,8 @@ Every step's port work (screw torque × screw angle, load × nut travel), its di
 change of the stored energy must balance (docs/model.md §4, "The energy ledger"). `ledger_step`
 is that balance and the guard's verdict for one step; it takes floats (the per-step path,
 `stepping.packed.make_finisher`) or arrays of per-step values (the batch path, `ledger_columns`,
-which accumulates it with cumulative sums in the per-step path's order).
+which accumulates it with cumulative sums in the per-step path's order). `fu2018`'s compiled
+per-step record (`models.kernels.step_record`) runs the same source compiled.
 
 Energy guard (every model): the cumulative residual and the energy that has flowed through the
 mechanism (each step's larger port work: the screw's while it drives, the load's while it drives the

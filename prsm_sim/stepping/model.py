@@ -200,8 +200,12 @@ class Model:
     def finisher(self, slip_speed, internal):
         """The ledger's per-step form for this model (`stepping.packed.make_finisher`), with the model's
         own slip speed and internal vector as functions of (ω_S, ω_C at the step's end, the step's aux)."""
-        return make_finisher(self.dt_s, self.geo.lead_per_rad_m, self.params.mass.moved_mass_kg, self.geo.gear_ratio,
-                             slip_speed, internal, self.static_rating_n)
+        return make_finisher(self.packed_constants(slip_speed, internal), self.geo.lead_per_rad_m,
+                             self.params.mass.moved_mass_kg)
+
+    def packed_constants(self, slip_speed, internal) -> PackedConstants:
+        """What this model's packed records derive their other outputs with (`finisher`'s arguments)."""
+        return PackedConstants(self.dt_s, self.geo.gear_ratio, slip_speed, internal, self.static_rating_n)
 
     @cached_property
     def static_rating_n(self) -> float:

@@ -53,8 +53,7 @@ class PackedConstants:
         self.static_rating_n = static_rating_n
 
 
-def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear_ratio: float, slip_speed,
-                  internal, static_rating_n: float = math.inf):
+def make_finisher(k: PackedConstants, lead_per_rad_m: float, moved_mass_kg: float):
     """The ledger's per-step form for one model: a function
     ``finish(x, θ_S, ω_S, θ_C, ω_C, command, load, dissipated, stored, part=(), aux=None,
     nut_force=None, nut=None) -> PackedOutputs``
@@ -64,12 +63,13 @@ def make_finisher(dt_s: float, lead_per_rad_m: float, moved_mass_kg: float, gear
     velocity: by default (L/2π) θ_S and its rate, and the load plus the moved mass's acceleration;
     a model that knows better passes `nut_force`, and a nut with an axial state of its own
     (`elastic`) passes `nut` = (x_N, v_N, the load's work over the step). The record derives the
-    other outputs when read, with `slip_speed` and `internal` (functions of ω_S, ω_C at the step's
-    end and the step's `aux`) for the model's own, and flags a load past `static_rating_n` (N).
+    other outputs when read with `k` (the step, the model's own slip speed and internal vector as
+    functions of ω_S, ω_C at the step's end and the step's `aux`, the static rating a load is flagged
+    past). `fu2018` makes its records in its compiled step (`models.kernels.step_record`), the same
+    arithmetic in the same order.
     """
-    h, p = dt_s, lead_per_rad_m
+    h, p = k.dt_s, lead_per_rad_m
     mp = moved_mass_kg * p
-    k = PackedConstants(h, gear_ratio, slip_speed, internal, static_rating_n)
     ledger = ledger_step  # a local name: one look-up less per step
 
     def finish(x, th_s, w_s, th_c, w_c, command, load_n, dissipated_j, stored_j, part=(), aux=None,
