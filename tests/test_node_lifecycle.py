@@ -139,20 +139,30 @@ def test_realtime_run_services_and_sigint(tmp_path):
     assert len(topics["/prsm_actuator/internal_loads/labels"]) == 1 and "/diagnostics" in topics
 
 
-def test_fast_mode_and_sigterm(tmp_path):
+def fast_run(tmp_path, name: str, params: dict, stop_signal) -> tuple[dict, list[int], dict]:
+    """A fast-mode node recording to `name` until a /diagnostics report counts more than 1,000 steps (the third
+    report at least), stopped by `stop_signal`: (the bag's topics as `read_bag` gives them, the /clock stamps
+    checked one per step, the last report's values)."""
     from diagnostic_msgs.msg import DiagnosticArray
-    bag = tmp_path / "fast.mcap"
-    params = {"time_mode": "fast", "diagnostics_rate": 10.0, "record_path": str(bag), "model": "ideal",
-              "joint_states_rate": 100.0, "internal_loads_rate": 10.0}
+    bag = tmp_path / name
+    params = {"time_mode": "fast", "diagnostics_rate": 10.0, "record_path": str(bag), **params}
     with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
         diag = cli.subscribe("/diagnostics", DiagnosticArray)
         cli.wait_for_node(proc)
-        cli.spin_until(lambda: len(diag) >= 3, 10.0, "diagnostics")
-        assert float(diagnostics_of(diag[-1])[2]["achieved_real_time_factor"]) > 1.0
-        assert proc.stop(signal.SIGTERM) == 0, proc.stderr
+        cli.spin_until(lambda: len(diag) >= 3 and int(diagnostics_of(diag[-1])[2]["steps"]) > 1000, 60.0,
+                       "a diagnostics report past 1,000 steps")
+        report = diagnostics_of(diag[-1])[2]
+        assert proc.stop(stop_signal) == 0, proc.stderr
     topics = read_bag(bag)
     clocks = [clock_ns(m) for _, m in topics["/clock"]]
     assert clocks == [1_000_000 * (k + 1) for k in range(len(clocks))] and len(clocks) > 1000
+    return topics, clocks, report
+
+
+def test_fast_mode_and_sigterm(tmp_path):
+    topics, clocks, report = fast_run(tmp_path, "fast.mcap", {"model": "ideal", "joint_states_rate": 100.0,
+                                                              "internal_loads_rate": 10.0}, signal.SIGTERM)
+    assert float(report["achieved_real_time_factor"]) > 1.0
     # decimated: joint_states every 10th step; internal loads every 100th on DDS but every step in the bag
     assert len(topics["/joint_states"]) == len(clocks) // 10
     assert len(topics["/prsm_actuator/internal_loads"]) == len(clocks)
@@ -165,21 +175,12 @@ def test_a_bag_records_the_internal_loads_at_its_own_rate_and_reports(tmp_path, 
     import json
 
     import yaml
-    from diagnostic_msgs.msg import DiagnosticArray
 
     from prsm_ros.bag.reader import open_bag
     from prsm_ros.cli.bag import main as bag_main
+    topics, clocks, _ = fast_run(tmp_path, "decimated.mcap", {"model": "fu2018", "load_force": 2000.0,
+                                                              "record_internal_loads_rate": 100.0}, signal.SIGINT)
     bag = tmp_path / "decimated.mcap"
-    params = {"time_mode": "fast", "diagnostics_rate": 10.0, "record_path": str(bag), "model": "fu2018",
-              "load_force": 2000.0, "record_internal_loads_rate": 100.0}
-    with NodeProcess(ENV, params, workdir=tmp_path) as proc, RosClient(ENV) as cli:
-        diag = cli.subscribe("/diagnostics", DiagnosticArray)
-        cli.wait_for_node(proc)
-        cli.spin_until(lambda: len(diag) >= 3, 10.0, "diagnostics")
-        assert proc.stop(signal.SIGINT) == 0, proc.stderr
-    topics = read_bag(bag)
-    clocks = [clock_ns(m) for _, m in topics["/clock"]]
-    assert clocks == [1_000_000 * (k + 1) for k in range(len(clocks))] and len(clocks) > 1000
     assert len(topics["/joint_states"]) == len(clocks)
     loads = [ts for ts, _ in topics["/prsm_actuator/internal_loads"]]
     assert loads == [c for c in clocks if c % 10_000_000 == 0]

@@ -362,11 +362,9 @@ class Fu2018(Model):
             k_arr, s_arr = np.array(k_arr, dtype=float), np.array(s_arr, dtype=float)
         # (K, S) as the kernels take them: the contract a model built on this core (`elastic`) passes on
         self.kernel_constants = (k_arr, s_arr)
-        if kernel == "compiled":
-            # one step at rest with no inputs: numba compiles (a fresh install) or loads its disk cache here, when
-            # the model is built, rather than in the first step of a realtime loop
-            self._kn.step(0.0, 0.0, 1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
-        # the per-step path's kernel: the specialisation the warm-up step chose, entered without the dispatch
+        # the per-step path's kernel (`kernels.step_record`: the step and its record) at the specialisation a
+        # warm-up step at rest chose, entered without the dispatch; numba compiles (a fresh install) or loads its
+        # disk cache in that step, when the model is built, rather than in the first step of a realtime loop
         rest = (0.0,) * 11 + (1.0, 0.0, 0.0, kernels.NO_MEMORY, 0.0, 0.0, *self.kernel_constants)
         if kernel == "compiled":
             self._kn.step_record(*rest)
@@ -509,13 +507,13 @@ class Fu2018(Model):
         return (Forces(*f) if ok else None), r
 
     def _make_step(self):
-        """The step: `kernels.step` and the ledger. The record keeps the end forces as its aux, from which the slip
-        speed and the internal vector (`expand_one`) are derived when read, and their axial thread force as
-        the nut force. The aux is the kernel's plain tuple, read by `Forces`' field order (`slip_speed`,
-        `expand_one`): building a `Forces` would cost a tenth of the step. The packed state holds this model's
-        part as the kernel takes and returns it (`packed_part`), so a step converts nothing: the floats come from
-        the kernel's previous step or from `pack_state`, the inputs from the caller's checks (`Simulator.step`,
-        `Model.step`).
+        """The step: `kernels.step_record`, the kernel's step and the ledger's record in one compiled call. The
+        record keeps the end forces as its aux, from which the slip speed and the internal vector (`expand_one`)
+        are derived when read, and their axial thread force as the nut force. The aux is the kernel's plain tuple,
+        read by `Forces`' field order (`slip_speed`, `expand_one`): building a `Forces` would cost a tenth of the
+        step. The packed state holds this model's part as the kernel takes and returns it (`packed_part`), so a
+        step converts nothing: the floats come from the kernel's previous step or from `pack_state`, the inputs
+        from the caller's checks (`Simulator.step`, `Model.step`).
         """
         expand_one, kernel_record = self.expand_one, self._record_kernel
         k_arr, s_arr = self.kernel_constants
