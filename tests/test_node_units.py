@@ -290,7 +290,7 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
 
     from prsm_ros.messages import MessageMapper, time_ns
     from prsm_ros.node.outlets import Outlets
-    from prsm_ros.node.sinks import Sinks
+    from prsm_ros.node.sinks import FoxgloveSink, RecorderSink, Sinks
 
     class Pub:  # a volatile publisher with `readers` matched readers; what it sends is kept
         def __init__(self, readers):
@@ -348,5 +348,4 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
         # the bytes are built only for a step someone gets them at
         assert len(built) == len(set(every[4]) | (set(every[10]) if readers or live else set()))
     # the node's own sinks: the bag is the record, the Foxglove server a live view
-    from prsm_ros.node.sinks import FoxgloveSink, RecorderSink
     assert RecorderSink.keeps_record and not FoxgloveSink.keeps_record

@@ -196,7 +196,7 @@ class Outlets:
         data = self.encoder.internal_loads(out)
         if to_dds:
             self.send("internal_loads", data)
-        if (to_record or to_live) and self.batch is not None:
+        if to_record or to_live:  # either needs a message sink, so a step's batch is open (`begin_step`)
             self.loads = ((self.topic_names["internal_loads"], data, ns), to_record, to_live)
 
     def publish_state(self, out, ns: int) -> None:
