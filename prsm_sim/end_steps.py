@@ -75,9 +75,9 @@ class EndSteps:
         lim = engaged(self.limits, nut(free))
         assert lim is not None  # the free step ran past a finite end (non-finite ones were refused above)
         compliance = m.geo.lead_per_rad_m**2 * 0.5 * m.dt_s**2 / self._contact_inertia()
-        x0 = m.nut_motion(before)[0]  # the nut's position at the step's start
+        x0, v0 = m.nut_motion(before)  # the nut's position and velocity at the step's start
         with m.in_contact(before.screw_speed_rad_s * speed(free) < 0.0):
-            f, res = solve_stop(lim, m.dt_s, x0, free, advance, nut, compliance)
+            f, res = solve_stop(lim, m.dt_s, x0, free, advance, nut, compliance, v0)
         if not math.isfinite(nut(res)):
             raise non_finite_error(self.model.name, end_time_s)
         self.force_n = f

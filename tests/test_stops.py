@@ -64,6 +64,36 @@ class DryFrictionNut:
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_nut_at_rest_on_the_stop_law_is_solved_at_the_first_trial_and_stays(sign):
+    """Limit case: a nut held at rest in the stop, at δ₀ with k δ₀ inside its static friction's band (push 5 kN,
+    static 500 N: any stop force within 4.5-5.5 kN holds it), has the law's own force k δ₀ as its root: held,
+    it does not move, so the law at the step's end asks what the step held. The solve's first trial is that
+    force (the nut starts at rest), so one plant step solves it, and the nut stays where it was; from the
+    compliance's estimate (the nut's speed unknown) the free slide's h²/M misjudges the held nut and the same
+    root took more trials. A nut arriving at speed is still tried from the compliance's estimate."""
+    k = 1e7
+    lim = Limit(0.0, sign, k, 2e5, False, math.inf)
+    nut = DryFrictionNut(lim)
+    x0 = sign * 4800.0 / k
+    for v0, first_trial in ((0.0, True), (math.inf, False), (sign * 0.05, False)):
+        trials = []
+        step = nut.advance(x0, v0 if math.isfinite(v0) else 0.0)
+
+        def counted(f, step=step, trials=trials):
+            trials.append(f)
+            return step(f)
+
+        f, (x1, v1) = solve(lim, H_S, x0, step(0.0), counted, lambda r: r[0], H_S * H_S / nut.m, v0)
+        if first_trial:
+            assert trials == [-sign * 4800.0] and f == -sign * 4800.0  # k δ₀, at the first trial
+            assert (x1, v1) == (x0, 0.0)
+        elif math.isinf(v0):
+            assert len(trials) > 1 and f == pytest.approx(-sign * 4800.0, rel=1e-9)  # the same root, later
+        else:
+            assert trials[0] != -sign * 4800.0  # moving: the compliance's estimate first
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
 @pytest.mark.parametrize("pressed_by", ["stop", "drive"])
 def test_a_hold_off_the_stop_law_gives_way_until_at_rest_f_equals_k_delta(sign, pressed_by):
     """Held at rest δ0 into a stop whose law k δ0 is past what the hold takes (the stop over-presses a drive of

@@ -17,6 +17,8 @@
   extra): one slide joint for the nut, the rotating inertia reflected as armature, which is
   exact for a rigid lead (a hinge and a slide tied by an equality constraint is a stiff
   spring, ~20,000× too soft at a 1 ms step). Batch `Simulator.run` in simulated s per wall s.
+  Each model's `Simulator.step` with the nut held on a thread end (`held_end_figures`), beside its
+  free step: what a controller pressing into an end costs each period.
   All paths are timed in interleaved rounds in one run, in this thread's CPU time (wall time on a
   shared machine also counts the other processes' turns); medians with spread.
 
@@ -49,6 +51,8 @@ from prsm_ros.ros_env import isolated_env, start_module
 DT = 1e-3
 TORQUE_AMPLITUDE_NM = 0.4  # the step-cost and batch workloads: a turning screw (s30 needs 0.22 N·m unloaded)
 PRESET = "s30"  # the node's default preset
+HOLD_TORQUE_NM = 2.0  # `held_end_figures`: drives s30's nut onto its upper thread end (~0.5 s unloaded) and holds it
+HOLD_STEPS_TO_END = 1500  # steps at that torque before the held steps are timed (it rests on the end by ~500)
 
 
 # -- the loop, node and controller over DDS ------------------------------------------------------
@@ -330,7 +334,37 @@ def step_cost_figures(quick: bool) -> list[dict]:
         figs.append(figure(f"{name} per-step path through Session.step (the node's)", s_cost * 1e6, "µs", "(info)", None,
                            s_spread, f"{s_cost / cost:.2f}× Simulator.step; the command through the gate, the load "
                            "held, the state checked finite; same run"))
+    figs.extend(held_end_figures(quick, {name: per[name][0] for name in MODELS}))
     figs.extend(batch_figures(quick))
+    return figs
+
+
+def held_end_figures(quick: bool, free_step_s: dict[str, float]) -> list[dict]:
+    """Per-step cost of `Simulator.step` with the nut held at rest on a thread end (a controller pressing into
+    the end, a press holding its force there): each step is the free step that runs past the end and the
+    end's contact solve (`actuator.stops.solve`, its trials whole model steps), beside the model's free step
+    (`free_step_s`, s, from the same run)."""
+    n = 300 if quick else 2000
+    params = preset(PRESET)
+    figs = []
+    for name in MODELS:
+        sim = Simulator(params, name, DT)
+        for _ in range(HOLD_STEPS_TO_END):
+            sim.step(HOLD_TORQUE_NM, 0.0)
+        held = sim.thread_end_force_n
+        t0 = time.thread_time()
+        for _ in range(n):
+            sim.step(HOLD_TORQUE_NM, 0.0)
+        cost = (time.thread_time() - t0) / n
+        if held == 0.0 or sim.thread_end_force_n == 0.0:
+            figs.append(figure(f"{name} per step with the nut held on a thread end", math.nan, "µs", "(info)", None,
+                               None, f"the nut was not on its thread end after {HOLD_STEPS_TO_END} steps at "
+                                     f"{HOLD_TORQUE_NM:g} N·m"))
+            continue
+        figs.append(figure(f"{name} per step with the nut held on a thread end", cost * 1e6, "µs", "(info)", None,
+                           None, f"{cost / free_step_s[name]:.1f}× its free step in this run; {cost / DT * 100:.0f} % "
+                                 f"of a 1 ms realtime period; {PRESET} pushed by {HOLD_TORQUE_NM:g} N·m, the end's "
+                                 f"force {abs(sim.thread_end_force_n):,.0f} N; thread CPU time"))
     return figs
 
 

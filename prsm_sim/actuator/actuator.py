@@ -551,7 +551,7 @@ class Actuator(Model):
             if lim is not None:
                 with model.in_contact(screw.screw_speed_rad_s * res[0].screw_speed_rad_s < 0.0):
                     f_stop, res = solve_stop(lim, h, self._nut_x(screw), res, advance, lambda r: self._nut_x(r[0]),
-                                             p * p * s_th)
+                                             p * p * s_th, self._nut_v(screw))
         w.new, w.out, w.tau_st, w.tau_c, w.tau_in = res
         w.f_stop = f_stop
         return lim

@@ -150,16 +150,23 @@ R = TypeVar("R")  # what a step gives (a model's or the simulator's result), as 
 
 
 def solve(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable[[float], R],
-          nut_position: Callable[[R], float], compliance_m_n: float) -> tuple[float, R]:
+          nut_position: Callable[[R], float], compliance_m_n: float, v0_m_s: float = math.inf) -> tuple[float, R]:
     """The stop force held over the step (N, signed along +x_nut) and the step's result under it.
 
     `free`: the step's result without a stop force; `advance(F)`: the step with the stop force F
-    (signed along +x_nut) added to what pushes the nut; `x0_m`: the nut's position at the step's
-    start; `nut_position(result)`: its end position; `compliance_m_n`: an estimate of −∂x₁/∂F (the
-    first guess; exact for linear models). A limit with a finite `hard_depth_m` that the law's force
-    would let the nut pass is hard there (`_solve_hard`).
+    (signed along +x_nut) added to what pushes the nut; `x0_m`, `v0_m_s`: the nut's position and
+    velocity at the step's start (the velocity: inf when unknown); `nut_position(result)`: its end
+    position; `compliance_m_n`: an estimate of −∂x₁/∂F (the first guess; exact for linear models). A
+    nut that starts at rest pressed into the stop (at its start speed it would move less than REST_TOL_M
+    over the step), at a step that resolves the contact's period (k · compliance = (ω h)²/2 ≤ 1), is first
+    tried with the law's force there, k δ₀, which held it over the step before: a nut held against an end
+    meets the law at the first trial or within a few, where the compliance's estimate took three
+    (`fu2018`, whose stick band it does not see) to nine (`elastic`, whose chain the screw's inertia does
+    not describe) whole model steps. Either way the force found meets the law to the solve's tolerance.
+    A limit with a finite `hard_depth_m` that the law's force would let the nut pass is hard there
+    (`_solve_hard`).
     """
-    f, res = _solve_law(limit, h_s, x0_m, free, advance, nut_position, compliance_m_n)
+    f, res = _solve_law(limit, h_s, x0_m, v0_m_s, free, advance, nut_position, compliance_m_n)
     if penetration(limit, nut_position(res)) > limit.hard_depth_m:
         return _solve_hard(limit, abs(f), res, advance, nut_position, compliance_m_n)
     return f, res
@@ -195,7 +202,7 @@ def _solve_hard(limit: Limit, f_lo: float, res_lo: R, advance: Callable[[float],
     return -sgn * hi, res_hi
 
 
-def _solve_law(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable[[float], R],
+def _solve_law(limit: Limit, h_s: float, x0_m: float, v0_m_s: float, free: R, advance: Callable[[float], R],
                nut_position: Callable[[R], float], compliance_m_n: float) -> tuple[float, R]:
     """`solve` by the contact law alone (module doc)."""
     k, c = limit.stiffness_n_m, limit.damping_n_s_m
@@ -211,7 +218,12 @@ def _solve_law(limit: Limit, h_s: float, x0_m: float, free: R, advance: Callable
         return 0.0, free
     lo, hi = 0.0, math.inf
     res_lo = res_hi = free
-    f = t0 / (1.0 + (k + c / h_s) * max(compliance_m_n, 0.0))
+    # at rest against it, at a step that resolves the contact's period ((ω h)²/2 = k · compliance ≤ 1): the force
+    # that held it there. A longer step rings about the static balance within the solve's tolerance from there.
+    if d0 > 0.0 and abs(v0_m_s) * h_s <= REST_TOL_M and k * compliance_m_n <= 1.0:
+        f = k * d0
+    else:
+        f = t0 / (1.0 + (k + c / h_s) * max(compliance_m_n, 0.0))
     best = (math.inf, 0.0, free)
     prev = (0.0, -t0)
     last_width = math.inf
