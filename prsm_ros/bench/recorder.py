@@ -23,6 +23,7 @@ Figures are printed, never asserted (`prsm-bench` aggregates them).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import statistics
 import tempfile
@@ -165,50 +166,60 @@ def _chunk_records(record: bytes) -> bytes:
     return record[at + 8:at + 8 + records_len]
 
 
-def _foxglove_writer(path: Path):
-    """`foxglove-sdk`'s native MCAP writer on the recorded topics (same CDR bytes, channels, zstd, 1 MiB chunks):
-    (writer, channels in a prepared step's order, their context), or None when the package is not installed.
-    The caller holds the context while it logs: once it is collected, its channels are closed and drop what
-    they are given."""
+@contextlib.contextmanager
+def _foxglove_writing():
+    """`foxglove-sdk`'s native MCAP writer on the recorded topics (same CDR bytes, channels, zstd, 1 MiB chunks) in a
+    temporary directory: yields (writer, channels in a prepared step's order), or None when the package is not
+    installed. Their context is held until the block ends: once it is collected, its channels are closed and
+    drop what they are given."""
     try:
         import foxglove
         from foxglove.mcap import MCAPCompression, MCAPWriteOptions
     except ImportError:
-        return None
+        yield None
+        return
     from std_msgs.msg import Float64
 
     from prsm_ros.mcap import schema as mcap_schema
     from prsm_ros.messages import STEP_TOPICS, TOPICS
     topics = [(TOPICS["screw_torque"].resolved(), Float64, TOPICS["screw_torque"].qos)]
     topics += [(TOPICS[k].resolved(), TOPICS[k].msg_class, TOPICS[k].qos) for k in STEP_TOPICS]
-    ctx = foxglove.Context()
-    options = MCAPWriteOptions(compression=MCAPCompression.Zstd, profile=mcap_schema.PROFILE, chunk_size=1 << 20,
-                               compression_threads=0)
-    writer = foxglove.open_mcap(path, context=ctx, writer_options=options)
-    channels = []
-    for topic, cls, qos in topics:
-        name = mcap_schema.type_name(cls)
-        schema = foxglove.Schema(name=name, encoding=mcap_schema.SCHEMA_ENCODING,
-                                 data=mcap_schema.full_definition(name).encode())
-        channels.append(foxglove.Channel(topic, schema=schema, message_encoding=mcap_schema.MESSAGE_ENCODING,
-                                         context=ctx,
-                                         metadata={"offered_qos_profiles": mcap_schema.offered_qos_profiles_yaml(qos)}))
-    return writer, channels, ctx
+    with tempfile.TemporaryDirectory() as d:
+        ctx = foxglove.Context()
+        options = MCAPWriteOptions(compression=MCAPCompression.Zstd, profile=mcap_schema.PROFILE,
+                                   chunk_size=1 << 20, compression_threads=0)
+        writer = foxglove.open_mcap(Path(d) / "fox.mcap", context=ctx, writer_options=options)
+        channels = []
+        for topic, cls, qos in topics:
+            name = mcap_schema.type_name(cls)
+            schema = foxglove.Schema(name=name, encoding=mcap_schema.SCHEMA_ENCODING,
+                                     data=mcap_schema.full_definition(name).encode())
+            channels.append(foxglove.Channel(
+                topic, schema=schema, message_encoding=mcap_schema.MESSAGE_ENCODING, context=ctx,
+                metadata={"offered_qos_profiles": mcap_schema.offered_qos_profiles_yaml(qos)}))
+        try:
+            yield writer, channels
+        finally:
+            writer.close()
+
+
+def _log_step(channels, stamp: int, msgs: list[bytes]) -> None:
+    """One prepared step's messages through the native writer's channels."""
+    for channel, data in zip(channels, msgs, strict=True):
+        channel.log(data, log_time=stamp)
 
 
 def foxglove_peer(model: str, steps: int) -> float | None:
-    """Messages per CPU second through `foxglove-sdk`'s native MCAP writer (`_foxglove_writer`, one
-    `Channel.log` per message); None when the package is not installed."""
+    """Messages per CPU second through `foxglove-sdk`'s native MCAP writer (`_foxglove_writing`, one
+    `Channel.log` per message, the summary written); None when the package is not installed."""
     prepared = _prepared(model, steps)
-    with tempfile.TemporaryDirectory() as d:
-        opened = _foxglove_writer(Path(d) / "fox.mcap")
+    with _foxglove_writing() as opened:
         if opened is None:
             return None
-        writer, channels, _ctx = opened
+        writer, channels = opened
         t0 = time.process_time()
         for stamp, msgs in prepared:
-            for channel, data in zip(channels, msgs, strict=True):
-                channel.log(data, log_time=stamp)
+            _log_step(channels, stamp, msgs)
         writer.close()
         return len(prepared) * len(channels) / (time.process_time() - t0)
 
@@ -221,22 +232,17 @@ def foxglove_loop_cost(model: str, seconds: float) -> dict | None:
     steps = int(seconds * 1000)
     flush_every = max(int(round(FLUSH_INTERVAL_S * 1000)), 1)
     prepared = _prepared(model, steps)
-    with tempfile.TemporaryDirectory() as d:
-        opened = _foxglove_writer(Path(d) / "fox.mcap")
+    with _foxglove_writing() as opened:
         if opened is None:
             return None
-        writer, channels, _ctx = opened
+        writer, channels = opened
 
         def step(k: int) -> None:
-            stamp, msgs = prepared[k]
-            for channel, data in zip(channels, msgs, strict=True):
-                channel.log(data, log_time=stamp)
+            _log_step(channels, *prepared[k])
             if k % flush_every == flush_every - 1:
                 writer.flush()
 
-        result = paced_loop(steps, step)
-        writer.close()
-    return result
+        return paced_loop(steps, step)
 
 
 def loop_cost(model: str, seconds: float, record: str | None, loads_every: int = 1) -> dict:
