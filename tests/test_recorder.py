@@ -627,11 +627,13 @@ def test_steps_queued_around_a_new_channel_are_written_in_order(tmp_path):
     assert got == sent
 
 
-def test_a_deterministic_file_writes_late_messages_where_their_stamps_put_them(tmp_path):
+@pytest.mark.parametrize("steps_per_write", [1, 16])
+def test_a_deterministic_file_writes_late_messages_where_their_stamps_put_them(tmp_path, steps_per_write):
     """A lockstep bag holds each message until the log times have moved `REORDER_WINDOW_NS` past it, then writes
     in (log time, channel, sequence) order, whatever order the batches came in. Oracle: Python's sort of what was
     sent by that key, against the file's records in file order as mcap's own reader gives them; a message later
-    than the window is still written (never lost), after those already out."""
+    than the window is still written (never lost), after those already out. Batches of one step, and of 16 (the
+    writer process's hand-over: a batch whose references reach back into the messages already held)."""
     from mcap.reader import make_reader
     from rclpy.serialization import deserialize_message, serialize_message
     from std_msgs.msg import Float64
@@ -645,18 +647,20 @@ def test_a_deterministic_file_writes_late_messages_where_their_stamps_put_them(t
     sent = []  # (log time, channel id, sequence, value)
     seq = dict.fromkeys(ids.values(), 0)
     step_ns = 1_000_000
+    items = []
     for k in range(10, 1500):
         batch = [("/state", k * step_ns), ("/cmd", k * step_ns)]
         if k % 3:  # a reference answers the state of one to five steps before
             batch.insert(int(rng.integers(0, 3)), ("/ref", (k - int(rng.integers(1, 6))) * step_ns))
-        items = []
         for topic, t in batch:
             cid = ids[topic]
             seq[cid] += 1
             value = float(len(sent))
             sent.append((t, cid, seq[cid], value))
             items.append((cid, serialize_message(Float64(data=value)), t))
-        f.write_many(items)
+        if k % steps_per_write == 0 or k == 1499:
+            f.write_many(items)
+            items = []
     too_late = (1499 * step_ns - REORDER_WINDOW_NS - 5 * step_ns, ids["/ref"])
     seq[too_late[1]] += 1
     sent_late = (*too_late, seq[too_late[1]], -1.0)

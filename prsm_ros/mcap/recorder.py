@@ -279,35 +279,51 @@ class McapFile:
 
     def write_many(self, items: list[tuple[int, object, int]]) -> None:
         """`write(channel_id, msg, stamp_ns)` for each item, in order, handed to the writer as one batch."""
+        if self.deterministic:
+            self._hold(items)
+            return
         sequence, serialize = self._sequence, self._serialize
         batch = []
         for channel_id, msg, stamp_ns in items:
             seq = sequence[channel_id] = sequence[channel_id] + 1
             batch.append((channel_id, stamp_ns, msg if type(msg) is bytes else serialize(msg), stamp_ns, seq))
         self.messages_written += len(batch)  # counted once handed over: a stalled disk blocks inside the writer
-        if not self.deterministic:
-            self._add_many(batch)
-            return
-        pending, normalise, type_of = self._pending, self._normalise, self._type_of
+        self._add_many(batch)
+
+    def _hold(self, items: list[tuple[int, object, int]]) -> None:
+        """A deterministic file's `write_many`: the items, padding zeroed, put in order among the held messages,
+        then those `REORDER_WINDOW_NS` behind the newest released.
+
+        The held messages stay a sorted list of (log time, channel, sequence, bytes). A batch arrives almost
+        in order and after nearly all of them (a reference one step behind the state it answers), so only the
+        batch is sorted and, where it reaches back, merged with the held messages from its first one on:
+        the work is the batch's, not the window's (sorting the whole window at each batch was a tenth of the
+        lockstep writer's CPU). The order is a full sort's: (channel, sequence) is unique, so the messages'
+        bytes are never compared."""
+        sequence, serialize, normalise, type_of = self._sequence, self._serialize, self._normalise, self._type_of
+        self.messages_written += len(items)  # counted once handed over: a stalled disk blocks inside the writer
+        held = []
         latest = self._latest_ns
-        for cid, t, data, _, seq in batch:
-            pending.append((t, cid, seq, normalise(type_of[cid], data)))
+        for cid, msg, t in items:
+            seq = sequence[cid] = sequence[cid] + 1
+            held.append((t, cid, seq, normalise(type_of[cid], msg if type(msg) is bytes else serialize(msg))))
             if t > latest:
                 latest = t
         self._latest_ns = latest
+        held.sort()
+        pending = self._pending
+        if held and pending and held[0] < pending[-1]:
+            first = bisect.bisect_left(pending, held[0])
+            held += pending[first:]
+            del pending[first:]
+            held.sort()  # two sorted runs: one merge
+        pending += held
         self._release(latest - REORDER_WINDOW_NS)
 
     def _release(self, up_to_ns: int | None) -> None:
-        """Write the held messages with log time <= up_to_ns (all when None), in (log time, channel, sequence) order.
-
-        The held messages are kept as a list sorted when released: they arrive almost in order (a reference
-        one step behind the state it answers), so the sort finds the list's runs and merges them in about one
-        comparison per message, where a heap paid a logarithmic push and pop for each in Python calls. The
-        order is the same: (channel, sequence) is unique, so the messages' bytes are never compared."""
+        """Write the held messages (kept in (log time, channel, sequence) order by `_hold`) with log time
+        <= up_to_ns (all when None)."""
         pending = self._pending
-        if not pending:
-            return
-        pending.sort()
         n = len(pending) if up_to_ns is None else bisect.bisect_right(pending, up_to_ns, key=_LOG_TIME)
         if n:
             self._add_many([(cid, t, data, t, seq) for t, cid, seq, data in pending[:n]])
