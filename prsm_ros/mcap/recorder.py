@@ -301,6 +301,7 @@ class McapFile:
         lockstep writer's CPU). The order is a full sort's: (channel, sequence) is unique, so the messages'
         bytes are never compared."""
         sequence, serialize, normalise, type_of = self._sequence, self._serialize, self._normalise, self._type_of
+        assert normalise is not None  # a deterministic file makes one (`__init__`)
         self.messages_written += len(items)  # counted once handed over: a stalled disk blocks inside the writer
         held = []
         latest = self._latest_ns
