@@ -297,8 +297,8 @@ class McapFile:
         The held messages stay a sorted list of (log time, channel, sequence, bytes). A batch arrives almost
         in order and after nearly all of them (a reference one step behind the state it answers), so only the
         batch is sorted and, where it reaches back, merged with the held messages from its first one on:
-        the work is the batch's, not the window's (sorting the whole window at each batch was a tenth of the
-        lockstep writer's CPU). The order is a full sort's: (channel, sequence) is unique, so the messages'
+        the work is the batch's, not the window's (a sort of the whole window at each batch costs about a tenth
+        of the lockstep writer's CPU). The order is a full sort's: (channel, sequence) is unique, so the messages'
         bytes are never compared."""
         sequence, serialize, normalise, type_of = self._sequence, self._serialize, self._normalise, self._type_of
         assert normalise is not None  # a deterministic file makes one (`__init__`)
