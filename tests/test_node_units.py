@@ -282,12 +282,14 @@ def test_simulation_report_levels_from_the_session_status():
 def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at_its_own():
     """`Outlets.publish_loads` and `Sinks.write_step`, without DDS: over 40 steps at 1 kHz, DDS and a live view
     get the internal loads at `internal_loads_rate` (100 Hz: steps 10, 20, 30, 40), the bag at
-    `record_internal_loads_rate` (250 Hz: every 4th step), and every other message of a step goes to both.
+    `record_internal_loads_rate` (250 Hz: every 4th step), and every other message of a step goes to both; where
+    the bag alone gets them it gets them unbuilt (`Deferred`), which build to the encoder's bytes.
     Oracle: the rates' own arithmetic (steps k with k mod n = 0)."""
     from types import SimpleNamespace
 
     from rclpy.qos import QoSProfile
 
+    from prsm_ros.mcap.recorder import Deferred
     from prsm_ros.messages import MessageMapper, time_ns
     from prsm_ros.node.outlets import Outlets
     from prsm_ros.node.sinks import FoxgloveSink, RecorderSink, Sinks
@@ -312,10 +314,11 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
         takes_messages, takes_outputs, error = True, False, None
 
         def __init__(self, keeps_record):
-            self.keeps_record, self.steps = keeps_record, []
+            self.keeps_record, self.steps, self.deferred = keeps_record, [], []
 
         def write_many(self, items):
             self.steps.append([topic for topic, _, _ in items])
+            self.deferred += [m for _, m, _ in items if type(m) is Deferred]
 
     session = Session(preset("s30"), "fu2018", 1e-3)
     cfg = SimpleNamespace(joint_states_rate=0.0, update_rate=1000.0, time_mode="realtime", internal_loads_rate=100.0,
@@ -345,7 +348,12 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
         if live:
             assert [k for k, s in enumerate(view.steps, 1) if "/il" in s] == every[10]
             assert all(s[0] == "/clock" for s in view.steps) and len(view.steps) == 40
-        # the bytes are built only for a step someone gets them at
-        assert len(built) == len(set(every[4]) | (set(every[10]) if readers or live else set()))
+        # the bytes are built only for a step someone gets them at: on the step thread where DDS or a live view
+        # gets them, by the recorder (a `Deferred`, built here as its thread would) where the bag alone does
+        now = set(every[10]) if readers or live else set()
+        assert len(built) == len(now) and not view.deferred
+        assert len(bag.deferred) == len(set(every[4]) - now)
+        assert [d.encode(d.arg) for d in bag.deferred] == [encode(out) for out in built[len(now):]]
+        assert len(built) == len(set(every[4]) | now)
     # the node's own sinks: the bag is the record, the Foxglove server a live view
     assert RecorderSink.keeps_record and not FoxgloveSink.keeps_record

@@ -603,6 +603,41 @@ def test_fast_message_path_writes_the_same_bytes(tmp_path, chunk_size):
     assert (tmp_path / "batched.mcap").read_bytes() == plain
 
 
+@RECORDERS
+def test_a_deferred_message_is_built_by_the_writer_side_as_the_bytes_it_stands_for(tmp_path, Recorder):
+    """A `Deferred` (the node's internal loads when only the bag takes them) is written as `encode(arg)`, built
+    by the recorder's emptying thread, never the caller's, and the file is byte for byte the one the same
+    bytes handed over at once give. Oracle: the encoder's own bytes, and the file written from them."""
+    import threading
+
+    from mcap.reader import make_reader
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64
+
+    from prsm_ros.mcap.recorder import Deferred
+    caller = threading.get_ident()
+    built_on = set()
+
+    def encode(value: float) -> bytes:
+        built_on.add(threading.get_ident())
+        return serialize_message(Float64(data=value))
+
+    for how in ("bytes", "deferred"):
+        with Recorder(tmp_path / f"{how}.mcap", deterministic=True) as rec:
+            rec.add_channel("/loads", Float64, TOPICS["screw_torque"].qos)
+            rec.add_channel("/state", Float64, TOPICS["screw_torque"].qos)
+            for k in range(300):
+                v = 0.5 * k
+                loads = serialize_message(Float64(data=v)) if how == "bytes" else Deferred(encode, v)
+                rec.write_many([("/state", serialize_message(Float64(data=-v)), k), ("/loads", loads, k)])
+        assert rec.error is None and rec.messages_written == 600 and rec.messages_dropped == 0
+    assert built_on and caller not in built_on
+    assert (tmp_path / "deferred.mcap").read_bytes() == (tmp_path / "bytes.mcap").read_bytes()
+    with open(tmp_path / "deferred.mcap", "rb") as f:
+        loads = [m.data for _, c, m in make_reader(f).iter_messages() if c.topic == "/loads"]
+    assert loads == [serialize_message(Float64(data=0.5 * k)) for k in range(300)]
+
+
 def test_steps_queued_around_a_new_channel_are_written_in_order(tmp_path):
     """The writer takes several queued steps as one batch, but never across a channel declared between
     them: every message comes back, in order, on its channel, whatever the writer thread's timing.

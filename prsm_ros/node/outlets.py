@@ -18,6 +18,7 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.qos import DurabilityPolicy
 from rclpy.serialization import serialize_message
 
+from prsm_ros.mcap.recorder import Deferred
 from prsm_ros.messages import time_ns
 from prsm_ros.node.pacing import every_n_steps
 from prsm_ros.node.sinks import Sinks
@@ -186,16 +187,20 @@ class Outlets:
 
     def publish_loads(self, out, k: int, ns: int) -> None:
         """Step `k`'s internal loads to DDS and the live views at their rate, to the bag at its own; their
-        bytes (7 KB for fu2018) are built only for a step someone gets them at."""
+        bytes (7 KB for fu2018) are built only for a step someone gets them at, and by the recorder when
+        the bag alone does."""
         live = k % self.il_every == 0
         to_record = self.il_recorded and k % self.il_record_every == 0
         to_live = live and self.sinks.live_takes_messages
         to_dds = live and not self.no_reader("internal_loads")
         if not (to_dds or to_record or to_live):
             return
-        data = self.encoder.internal_loads(out)
-        if to_dds:
-            self.send("internal_loads", data)
+        if to_dds or to_live:
+            data = self.encoder.internal_loads(out)
+            if to_dds:
+                self.send("internal_loads", data)
+        else:  # the bag's only: its recorder builds them, in a batch of steps off this thread (`Deferred`)
+            data = Deferred(self.encoder.internal_loads, out)
         if to_record or to_live:  # either needs a message sink, so a step's batch is open (`begin_step`)
             self.loads = ((self.topic_names["internal_loads"], data, ns), to_record, to_live)
 
