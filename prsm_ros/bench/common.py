@@ -24,6 +24,32 @@ from prsm_ros.json_out import dumps
 Measure = Callable[..., list]
 
 
+# glibc's malloc hands an array above its mmap threshold (128 KB at a process's start) fresh pages from the OS,
+# and gives them back at its free: a batch run's column arithmetic (`Simulator.run`, 40,000 rows at `fu2018`'s
+# 0.125 ms) then pays a page fault for every page of every temporary, each run (measured with `perf stat`: 88,000
+# faults against 35,000 for the same 20 runs; 200× against 260× simulated s per wall s, and `jones2016`'s batch
+# 2,144× against 5,310×). glibc raises the threshold on its own once the process frees a larger mapped block, whoever
+# allocated it: building MuJoCo's model did, so a figure moved with the areas run before it. The bench sets both
+# thresholds at its start (`steady_allocator`), as a long-running process ends up, so every figure sees one allocator.
+MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's own ceiling for the threshold it raises by itself (64-bit)
+TRIM_THRESHOLD_BYTES = 64 << 20  # free memory at the heap's top kept, not given back (twice the above, as glibc does)
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt's parameter numbers (glibc's malloc.h)
+
+
+def steady_allocator() -> str:
+    """Fix glibc malloc's mmap and trim thresholds for this process (see MMAP_THRESHOLD_BYTES); what was done, in
+    words (the run's metadata). Elsewhere (another C library) nothing is changed."""
+    import ctypes
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return "left as it is (no mallopt: not glibc)"
+    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    if mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) != 1 or mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) != 1:
+        return "left as it is (mallopt refused the thresholds)"
+    return f"glibc malloc: mmap threshold {MMAP_THRESHOLD_BYTES >> 20} MB, trim threshold {TRIM_THRESHOLD_BYTES >> 20} MB"
+
+
 class BenchError(PrsmError, RuntimeError):
     """A benchmark run failed (a process exited early, messages were lost, no summary came back)."""
 
@@ -163,6 +189,7 @@ def main(areas: Mapping[str, Measure], argv: list[str] | None = None, *, prog: s
     ap.add_argument("--only", action="append", choices=list(areas), help="measure only these areas (repeatable)")
     a = ap.parse_args(argv)
     chosen = {k: areas[k] for k in (a.only or areas)}
+    allocator = steady_allocator()
     figures: list[dict] = []
     interrupted = False
     try:
@@ -170,7 +197,7 @@ def main(areas: Mapping[str, Measure], argv: list[str] | None = None, *, prog: s
     except KeyboardInterrupt:
         interrupted = True
     meta = {"machine": platform.machine(), "python": platform.python_version(), "quick": a.quick,
-            "cpus": os.cpu_count()}
+            "cpus": os.cpu_count(), "allocator": allocator}
     if interrupted:
         done = list(dict.fromkeys(f["area"] for f in figures))
         meta["interrupted"] = True
