@@ -102,6 +102,25 @@ def test_lockstep_bag_is_byte_identical_to_the_thread_recorders(tmp_path):
     assert bag.complete and bag.topics["/cmd"].count == 3000 - 60 and bag.topics["/cmd"].malformed == 0
 
 
+def test_a_hand_over_wakes_the_forwarder_once_its_time_has_come_not_its_clock(tmp_path, monkeypatch):
+    """After a drain the forwarding thread is woken by the first `write_many` `FORWARD_NUDGE_AFTER_S` later (a
+    paced caller's step has just ended then), not only by its clock. With the clock at an hour and the nudge at
+    once, a step handed over is taken from the queue and written: only the nudge can have woken the forwarder.
+    Oracle: the queue emptied within the ceiling, and the file read back (mcap's reader) holds the message."""
+    from std_msgs.msg import Float64
+
+    from prsm_ros.mcap import recorder_process
+    monkeypatch.setattr(recorder_process, "FORWARD_WAKE_S", 3600.0)
+    monkeypatch.setattr(recorder_process, "FORWARD_NUDGE_AFTER_S", 0.0)
+    path = tmp_path / "n.mcap"
+    rec = McapProcessRecorder(path, flush_interval_s=7200.0)  # its clock: min(flush interval / 2, FORWARD_WAKE_S)
+    rec.add_channel("/a", Float64, TOPICS["screw_torque"].qos)
+    rec.write_many([("/a", Float64(data=1.5), 7)])
+    _wait_until(lambda: rec.queue_length == 0, 30, "the forwarder took the step")
+    assert rec.close() and rec.messages_written == 1 and rec.messages_dropped == 0
+    assert [m.msg.data for m in open_bag(path).messages(["/a"])] == [1.5]
+
+
 def test_writer_killed_mid_run_sets_error_the_caller_runs_on_and_counts_stay_exact(tmp_path):
     from std_msgs.msg import Float64
 

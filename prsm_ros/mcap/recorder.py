@@ -373,13 +373,21 @@ class Deferred:
 _PREPARED = (bytes, Deferred)  # what a queue takes on any topic besides the topic's own message class
 
 
+def built(entry: list) -> list:
+    """`entry` (a batch of `(topic, message, stamp)`) with each `Deferred` message built into its bytes."""
+    if not any(type(item[1]) is Deferred for item in entry):
+        return entry
+    return [(topic, msg.encode(msg.arg), stamp) if type(msg) is Deferred else (topic, msg, stamp)
+            for topic, msg, stamp in entry]
+
+
 class RecorderQueue:
     """The caller's side of a recorder: a bounded queue that never blocks, and exact counts.
 
     The caller appends entries (a channel declaration, a tuple; or a step's messages, a list of
     `(topic, message, stamp)`, a message being CDR bytes, a message object of the topic's class, or
-    a `Deferred`); a thread of the subclass empties it with `_take_batch`, which builds the deferred
-    ones. `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
+    a `Deferred`, which the emptying thread builds); a thread of the subclass empties it with
+    `_take_batch`. `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
     append. The caller holds it for a check and an append; the emptying thread takes it only to stop admission and to count
     what it discards. So a message is either queued before admission stops (and then written or
     counted by whoever empties the queue) or counted at once: the counts are exact whatever the
@@ -401,6 +409,10 @@ class RecorderQueue:
         self._queue_size = queue_size
         self._classes: dict[str, type] = {}
         self._stop = threading.Event()
+        # set to wake the emptying thread at once: at close, and by the first `write_many` at or after the monotonic
+        # time `_nudge_after` (None: never; the emptying thread sets it after each drain)
+        self._wake = threading.Event()
+        self._nudge_after: float | None = None
         self._closed = False
         self._writing = True
 
@@ -468,6 +480,9 @@ class RecorderQueue:
             if batch:
                 self._queued += len(batch)
                 self._queue.append(batch)
+        nudge = self._nudge_after
+        if nudge is not None and not self._wake.is_set() and time.monotonic() >= nudge:
+            self._wake.set()
 
     def _discard_queued(self) -> int:
         """Empty the queue, counting the messages in it as dropped; returns how many (either thread)."""
@@ -494,9 +509,6 @@ class RecorderQueue:
                 if not queue or type(queue[0]) is not list:
                     break
                 entry += queue.popleft()
-        if any(type(item[1]) is Deferred for item in entry):
-            entry = [(topic, msg.encode(msg.arg), stamp) if type(msg) is Deferred else (topic, msg, stamp)
-                     for topic, msg, stamp in entry]
         with self._lock:
             self._queued -= len(entry)
             return self._taken(entry)
@@ -523,6 +535,7 @@ class RecorderQueue:
             self._writing = False
         atexit.unregister(self.close)
         self._stop.set()
+        self._wake.set()
         if thread is None:
             return
         thread.join(timeout=timeout_s)
@@ -644,7 +657,7 @@ class McapRecorder(RecorderQueue):
                         if untrusted:
                             checked[topic] = cls
                         continue
-                    entry = self._take_batch(queue)
+                    entry = built(self._take_batch(queue))
                     if checked:
                         entry = self._well_formed(f, entry, checked)
                     f.write_many([(ids[topic], msg, stamp) for topic, msg, stamp in entry])

@@ -34,7 +34,7 @@ from typing import Any
 
 from prsm_ros.mcap import schema as mcap_schema
 from prsm_ros.mcap.recorder import (CLOSE_TIMEOUT_S, DEFAULT_CHUNK_SIZE, FLUSH_INTERVAL_S, MAX_WAKE_S,
-                                    RecorderQueue)
+                                    Deferred, RecorderQueue)
 from prsm_ros.mcap.writer_process import FRAME, MESSAGE
 
 # The forwarding thread's sleep between hand-overs. Each wake-up costs CPU in both processes (~0.1 ms
@@ -43,6 +43,14 @@ from prsm_ros.mcap.writer_process import FRAME, MESSAGE
 # and hand-overs, 25 ms ~1.5 %. The step thread waits at most one pack of this many steps' messages
 # (~3 µs a step) for the interpreter lock.
 FORWARD_WAKE_S = 0.025
+# After a drain, the forwarding thread is woken by the first hand-over (`write_many`) this long after, rather than by
+# its clock (FORWARD_WAKE_S): a paced caller's hand-over ends its step, and the step thread then sleeps until its next
+# period, so the forwarder's work (the pack, the bag's deferred internal loads: ~0.1-0.2 ms for 20 steps at 1 kHz)
+# holds the interpreter lock while nobody waits for it. Woken by its clock at a random moment, it held the lock
+# as the step thread woke, which waited up to the switch interval (`fu2018` realtime, 20 s, jitter p99: 106-192 µs
+# woken by the clock with the loads built there, 39-142 µs without them, 37-48 µs woken by the hand-over). By time,
+# not by a count of steps: a fast producer (lockstep) wakes it no more often than the clock did.
+FORWARD_NUDGE_AFTER_S = 0.02
 OPEN_TIMEOUT_S = 60.0  # the child's start (interpreter, mcap, rclpy) and the file opened, on a busy machine
 PIPE_BYTES = 1 << 20  # asked of the kernel for the pipe to the child (a full pipe blocks the forwarder only)
 KILL_WAIT_S = 0.5  # reaping a child killed after a close that timed out (SIGKILL acts at once)
@@ -67,6 +75,7 @@ class McapProcessRecorder(RecorderQueue):
                  flush_interval_s: float = FLUSH_INTERVAL_S, deterministic: bool = False) -> None:
         super().__init__(path, queue_size)
         self._wake_s = min(float(flush_interval_s) / 2, FORWARD_WAKE_S)
+        self._nudge_after = time.monotonic() + FORWARD_NUDGE_AFTER_S
         self._index: dict[str, int] = {}  # topic → channel index in the order the child was told
         self._taken_count = 0  # messages taken from the queue for the child (under `_lock`)
         self._written = self._malformed = 0  # the child's last report (under `_lock`)
@@ -194,7 +203,10 @@ class McapProcessRecorder(RecorderQueue):
         """Hand what is queued to the child every wake-up; after close, the finish frame and the child's answer."""
         queue = self._queue
         while True:
-            stopping = self._stop.wait(self._wake_s)
+            self._wake.wait(self._wake_s)
+            self._nudge_after = time.monotonic() + FORWARD_NUDGE_AFTER_S
+            self._wake.clear()  # a nudge from here on is for what comes after this drain
+            stopping = self._stop.is_set()
             self._read_status()
             if self._child_done or self._eof or self._settled_now():
                 return
@@ -217,7 +229,9 @@ class McapProcessRecorder(RecorderQueue):
         index, pack = self._index, MESSAGE.pack
         parts = []
         for topic, msg, stamp in entry:
-            if type(msg) is not bytes:
+            if type(msg) is Deferred:
+                msg = msg.encode(msg.arg)
+            elif type(msg) is not bytes:
                 msg = self._serializer()(msg)
             parts.append(pack(index[topic], stamp, len(msg)))
             parts.append(msg)
