@@ -2,8 +2,9 @@
 
 In the node, the thread recorder's Python (records, chunk indexes, the untrusted-bytes check) held
 the interpreter lock the step thread waits for. Here the caller's side is the same bounded queue
-(`RecorderQueue`: O(1), never blocks, exact counts); a forwarding thread packs what is queued into
-one blob per wake-up (`writer_process.MESSAGE` headers and the CDR bytes) and writes it to a pipe
+(`RecorderQueue`: O(1), never blocks, exact counts); a forwarding thread, woken by a hand-over once
+FORWARD_NUDGE_AFTER_S has passed since its last drain (or by its clock), builds the deferred messages and
+packs what is queued into one blob (`writer_process.MESSAGE` headers and the CDR bytes) and writes it to a pipe
 (`os.write` releases the lock while the bytes move); the child (`python -P -m
 prsm_ros.mcap.writer_process`, started by exec, never by fork: the node has DDS threads) runs the
 same `McapFile` code, so the same messages give the same bytes (a lockstep bag is still a golden
