@@ -38,19 +38,18 @@ from prsm_ros.mcap.recorder import (CLOSE_TIMEOUT_S, DEFAULT_CHUNK_SIZE, FLUSH_I
                                     Deferred, RecorderQueue)
 from prsm_ros.mcap.writer_process import FRAME, MESSAGE
 
-# The forwarding thread's sleep between hand-overs. Each wake-up costs CPU in both processes (~0.1 ms
-# each on the bench machine, before any work), and the child flushes when data comes, so a chunk
-# closes every flush interval plus at most this: at 1 kHz, 10 ms cost ~4 % of a core in wake-ups
-# and hand-overs, 25 ms ~1.5 %. The step thread waits at most one pack of this many steps' messages
-# (~3 µs a step) for the interpreter lock.
+# The forwarding thread's longest sleep between hand-overs (a producer that writes goes first:
+# FORWARD_NUDGE_AFTER_S). Each wake-up costs CPU in both processes (~0.1 ms each on the bench machine,
+# before any work), and the child flushes when data comes, so a chunk closes every flush interval plus
+# at most this: at 1 kHz, 10 ms cost ~4 % of a core in wake-ups and hand-overs, 25 ms ~1.5 %.
 FORWARD_WAKE_S = 0.025
 # After a drain, the forwarding thread is woken by the first hand-over (`write_many`) this long after, rather than by
 # its clock (FORWARD_WAKE_S): a paced caller's hand-over ends its step, and the step thread then sleeps until its next
 # period, so the forwarder's work (the pack, the bag's deferred internal loads: ~0.1-0.2 ms for 20 steps at 1 kHz)
 # holds the interpreter lock while nobody waits for it. Woken by its clock at a random moment, it held the lock
-# as the step thread woke, which waited up to the switch interval (`fu2018` realtime, 20 s, jitter p99: 106-192 µs
-# woken by the clock with the loads built there, 39-142 µs without them, 37-48 µs woken by the hand-over). By time,
-# not by a count of steps: a fast producer (lockstep) wakes it no more often than the clock did.
+# as the step thread woke, which waited up to the switch interval (`fu2018` realtime, 20 s, jitter p99: 94-192 µs
+# woken by the clock with the loads built there, 39-142 µs without them, 23-48 µs woken by the hand-over). By time,
+# not by a count of steps: a fast producer (lockstep) wakes it about as often as the clock does.
 FORWARD_NUDGE_AFTER_S = 0.02
 OPEN_TIMEOUT_S = 60.0  # the child's start (interpreter, mcap, rclpy) and the file opened, on a busy machine
 PIPE_BYTES = 1 << 20  # asked of the kernel for the pipe to the child (a full pipe blocks the forwarder only)
