@@ -166,25 +166,32 @@ def loop_figures(quick: bool) -> list[dict]:
             err = abs(100 * (s["rate_hz"] * s["period_s"] - 1))
             figs.append(figure(f"long-run rate error ({cond})", err, "%", "< 0.1", err < 0.1, None,
                                f"slope of state stamps over receipt wall time: {s['rate_hz']:.3f} Hz"))
-        what = ("all threads of the node process (step loop, executor, middleware, recorder) and its MCAP writer "
-                "process over the measured window")
         if not loaded:
             floor, pairs = cpu_pairs(s["node_cpu_pct"], seconds)
-            cpu = statistics.fmean(n for n, _ in pairs) if pairs else s["node_cpu_pct"]
-            ratios = [n / f if f > 0 else math.nan for n, f in pairs]
-            ratio = statistics.fmean(ratios) if ratios else math.nan
-            how = (f"; the mean of {len(pairs)} runs alternated with the rclpy floor ("
-                   + ", ".join(f"{n:.1f} % = {r:.2f}× its floor's {f:.1f} %" for (n, f), r in zip(pairs, ratios))
-                   + f"): {ratio:.2f}× the floor (aim ≤ 1.5×)")
-        else:
-            cpu = s["node_cpu_pct"]
-            mean_floor = statistics.fmean(f for _, f in pairs) if pairs else math.nan
-            ratio = cpu / mean_floor if mean_floor > 0 else math.nan
-            how = f"; {ratio:.2f}× the unloaded rclpy floor of this run, {mean_floor:.1f} % (aim ≤ 1.5×)"
-        figs.append(figure(f"node CPU share of one core ({cond})", cpu, "%", "≤ 15", cpu <= 15, None, what + how))
+        figs.append(node_cpu_figure(cond, loaded, s["node_cpu_pct"], pairs))
     figs.append(floor if floor is not None else floor_figure([], seconds))
     figs.extend(model_cpu_figures(quick))
     return figs
+
+
+def node_cpu_figure(cond: str, loaded: bool, node_cpu_pct: float, pairs: list[tuple[float, float]]) -> dict:
+    """The node's CPU figure for condition `cond`: unloaded, the mean of the node runs of `pairs` (node %, floor %)
+    and of their ratios to the floor beside each; loaded, this run's `node_cpu_pct` over the pairs' mean floor."""
+    what = ("all threads of the node process (step loop, executor, middleware, recorder) and its MCAP writer "
+            "process over the measured window")
+    if not loaded:
+        cpu = statistics.fmean(n for n, _ in pairs) if pairs else node_cpu_pct
+        ratios = [n / f if f > 0 else math.nan for n, f in pairs]
+        ratio = statistics.fmean(ratios) if ratios else math.nan
+        how = (f"; the mean of {len(pairs)} runs alternated with the rclpy floor ("
+               + ", ".join(f"{n:.1f} % = {r:.2f}× its floor's {f:.1f} %" for (n, f), r in zip(pairs, ratios))
+               + f"): {ratio:.2f}× the floor (aim ≤ 1.5×)")
+    else:
+        cpu = node_cpu_pct
+        mean_floor = statistics.fmean(f for _, f in pairs) if pairs else math.nan
+        ratio = cpu / mean_floor if mean_floor > 0 else math.nan
+        how = f"; {ratio:.2f}× the unloaded rclpy floor of this run, {mean_floor:.1f} % (aim ≤ 1.5×)"
+    return figure(f"node CPU share of one core ({cond})", cpu, "%", "≤ 15", cpu <= 15, None, what + how)
 
 
 def cpu_pairs(node_cpu_pct: float, seconds: float) -> tuple[dict, list[tuple[float, float]]]:
