@@ -353,7 +353,7 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
         now = set(every[10]) if readers or live else set()
         assert len(built) == len(now) and not view.deferred
         assert len(bag.deferred) == len(set(every[4]) - now)
-        assert [d.encode(d.arg) for d in bag.deferred] == [encode(out) for out in built[len(now):]]
+        assert [d.build() for d in bag.deferred] == [encode(out) for out in built[len(now):]]
         assert len(built) == len(set(every[4]) | now)
     # the node's own sinks: the bag is the record, the Foxglove server a live view
     assert RecorderSink.keeps_record and not FoxgloveSink.keeps_record

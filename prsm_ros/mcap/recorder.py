@@ -357,8 +357,8 @@ class McapFile:
 class Deferred:
     """A message whose CDR bytes the recorder's own thread builds when it takes it: `encode(arg)`.
 
-    For a message the caller has no other use for (the node's internal loads at steps DDS does not
-    get them): built in the emptying thread's batch, its Python runs with warm caches and off the
+    For a message the caller has no other use for (a realtime node's internal loads at steps DDS does
+    not get them): built in the emptying thread's batch, its Python runs with warm caches and off the
     caller's path (the node's step thread, which wakes every millisecond with cold ones: the
     internal loads' bytes took 11 µs of its CPU a step there, 3 µs in a loop). `encode` must be
     pure, `arg` immutable: they are read later, from another thread.
@@ -369,6 +369,9 @@ class Deferred:
     def __init__(self, encode, arg) -> None:
         self.encode, self.arg = encode, arg
 
+    def build(self) -> bytes:
+        return self.encode(self.arg)
+
 
 _PREPARED = (bytes, Deferred)  # what a queue takes on any topic besides the topic's own message class
 
@@ -377,8 +380,7 @@ def built(entry: list) -> list:
     """`entry` (a batch of `(topic, message, stamp)`) with each `Deferred` message built into its bytes."""
     if not any(type(item[1]) is Deferred for item in entry):
         return entry
-    return [(topic, msg.encode(msg.arg), stamp) if type(msg) is Deferred else (topic, msg, stamp)
-            for topic, msg, stamp in entry]
+    return [(topic, msg.build(), stamp) if type(msg) is Deferred else (topic, msg, stamp) for topic, msg, stamp in entry]
 
 
 class RecorderQueue:
@@ -387,9 +389,9 @@ class RecorderQueue:
     The caller appends entries (a channel declaration, a tuple; or a step's messages, a list of
     `(topic, message, stamp)`, a message being CDR bytes, a message object of the topic's class, or
     a `Deferred`, which the emptying thread builds); a thread of the subclass empties it with
-    `_take_batch`. `_lock` guards the admission state: `_writing`, both drop counters, and the decision to
-    append. The caller holds it for a check and an append; the emptying thread takes it only to stop admission and to count
-    what it discards. So a message is either queued before admission stops (and then written or
+    `_take_batch`. `_lock` guards the admission state: `_writing`, both drop counters, and the
+    decision to append. The caller holds it for a check and an append; the emptying thread takes it
+    only to stop admission and to count what it discards. So a message is either queued before admission stops (and then written or
     counted by whoever empties the queue) or counted at once: the counts are exact whatever the
     threads do.
     """

@@ -230,7 +230,7 @@ class McapProcessRecorder(RecorderQueue):
         parts = []
         for topic, msg, stamp in entry:
             if type(msg) is Deferred:
-                msg = msg.encode(msg.arg)
+                msg = msg.build()
             elif type(msg) is not bytes:
                 msg = self._serializer()(msg)
             parts.append(pack(index[topic], stamp, len(msg)))
