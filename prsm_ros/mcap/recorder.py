@@ -391,9 +391,9 @@ class RecorderQueue:
     a `Deferred`, which the emptying thread builds); a thread of the subclass empties it with
     `_take_batch`. `_lock` guards the admission state: `_writing`, both drop counters, and the
     decision to append. The caller holds it for a check and an append; the emptying thread takes it
-    only to stop admission and to count what it discards. So a message is either queued before admission stops (and then written or
-    counted by whoever empties the queue) or counted at once: the counts are exact whatever the
-    threads do.
+    only to stop admission and to count what it discards. So a message is either queued before
+    admission stops (and then written or counted by whoever empties the queue) or counted at once:
+    the counts are exact whatever the threads do.
     """
 
     def __init__(self, path, queue_size: int) -> None:

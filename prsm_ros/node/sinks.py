@@ -27,9 +27,9 @@ class Sink(Protocol):
     """One output of the node besides DDS.
 
     `takes_messages`: `write`/`write_many` get every published and received message as
-    (topic name, CDR bytes or message, stamp ns), and a sink that `keeps_record` also the bag's
-    internal loads as a `prsm_ros.mcap.recorder.Deferred` at steps nobody else gets them; `takes_outputs`: `submit` gets each step's
-    `Outputs`. Every call is O(1) on the step thread (queue and return); a sink never raises into
+    (topic name, CDR bytes or message, stamp ns), and a sink that `keeps_record` also a realtime
+    node's internal loads as a `prsm_ros.mcap.recorder.Deferred` at steps nobody else gets them;
+    `takes_outputs`: `submit` gets each step's `Outputs`. Every call is O(1) on the step thread (queue and return); a sink never raises into
     the node, it sets `error` and counts what it lost.
     """
 
