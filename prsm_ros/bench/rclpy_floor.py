@@ -1,6 +1,6 @@
 """The floor under the node's CPU figure: a bare rclpy loop with the node's realtime DDS traffic and nothing else.
 
-    python -m prsm_ros.bench.rclpy_floor [--rate 1000]     # run by `prsm-bench --only realtime`
+    python -m prsm_ros.bench.rclpy_floor [--rate 1000] [--record [--record-to FILE]]   # `prsm-bench --only realtime`
 
 It stands where `prsm-node` stands for the reference controller (`prsm_ros.bench.rt_controller`):
 node name `prsm_actuator`, paced by the node's `DeadlinePacer` at 1 kHz, it takes the commands
@@ -22,9 +22,11 @@ round trips a Python node can give that controller with no model, no gate and no
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
+from pathlib import Path
 from types import SimpleNamespace
 
 
@@ -33,10 +35,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=1000.0, help="loop rate in Hz (the node's default update rate)")
     ap.add_argument("--lockstep", action="store_true",
                     help="answer each command with a state at once (the lockstep round trip's floor)")
+    ap.add_argument("--record", action="store_true",
+                    help="also write the node's recorded messages with foxglove-sdk's native MCAP writer")
+    ap.add_argument("--record-to", type=Path, metavar="FILE",
+                    help="with --record: the MCAP file to write (default: one in a temporary directory)")
     a = ap.parse_args(argv)
     if a.lockstep:
         return lockstep_floor()
+    if a.record:
+        with native_recording(a.record_to) as log:
+            return realtime_floor(a.rate, log)
+    return realtime_floor(a.rate, None)
 
+
+def realtime_floor(rate_hz: float, log) -> int:
+    """The paced loop (module doc); `log(k, stamp_ns, command, state, echo)` writes period k's messages (or None)."""
     import rclpy
     from sensor_msgs.msg import JointState, TimeReference
     from std_msgs.msg import Float64
@@ -62,15 +75,16 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
     reduce_timer_slack()
-    period_s = 1.0 / a.rate
+    period_s = 1.0 / rate_hz
     pacer = DeadlinePacer(period_s)
     state = SimpleNamespace(screw_angle_rad=0.0, nut_position_m=0.0, screw_speed_rad_s=0.0, nut_velocity_m_s=0.0,
                             screw_torque_nm=0.0, nut_force_n=0.0)
-    command = SimpleNamespace(ns=None)  # the DDS stamp of the last command taken this period
+    command = SimpleNamespace(ns=None, data=None)  # the DDS stamp and bytes of the last command taken this period
 
     def on_command(_key: str, data: bytes, info: dict) -> None:
         state.screw_torque_nm = float64_data(data)
         command.ns = stamp_of(None, info.get("source_timestamp"))
+        command.data = data
     poller = CommandPoller()
     poller.add("screw_torque", sub, on_command)
     k = 0
@@ -79,16 +93,53 @@ def main(argv: list[str] | None = None) -> int:
         pacer.wait()
         k += 1
         stamp_ns = round(k * period_s * 1e9)
-        command.ns = None
+        command.ns = command.data = None
         poller.poll()
+        js_data = encoder.joint_state(state, stamp_ns)
         with js_handle:
-            js_handle.publish_raw(encoder.joint_state(state, stamp_ns))
+            js_handle.publish_raw(js_data)
+        echo_data = None
         if command.ns is not None:
+            echo_data = encoder.time_reference(stamp_ns, command.ns, source)
             with echo_handle:
-                echo_handle.publish_raw(encoder.time_reference(stamp_ns, command.ns, source))
+                echo_handle.publish_raw(echo_data)
+        if log is not None:
+            log(k, stamp_ns, command.data, js_data, echo_data)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
+
+
+@contextlib.contextmanager
+def native_recording(path: Path | None = None):
+    """`realtime_floor`'s `log` for `--record` (module doc), its file at `path` or in a temporary directory."""
+    from prsm_ros.bench.recorder import foxglove_writing, prepared_steps
+    from prsm_ros.interface import STEP_TOPICS
+    from prsm_ros.mcap.recorder import FLUSH_INTERVAL_S
+
+    steps = prepared_steps("jones2016", 1000)  # [command, *STEP_TOPICS] per step
+    at = {key: 1 + STEP_TOPICS.index(key) for key in ("wrench", "internal_loads", "clock")}
+    flush_every = max(int(round(FLUSH_INTERVAL_S * 1000)), 1)
+    with foxglove_writing(echo=True, path=path) as opened:
+        if opened is None:
+            raise SystemExit("--record needs foxglove-sdk (pip install -e '.[bag]')")
+        writer, channels = opened
+        by_topic = dict(zip(("screw_torque", *STEP_TOPICS, "command_echo"), channels, strict=True))
+        torque, js, echo = by_topic["screw_torque"], by_topic["joint_states"], by_topic["command_echo"]
+        rest = [(by_topic[key], i) for key, i in at.items()]
+
+        def log(k: int, stamp_ns: int, command: bytes | None, state: bytes, echoed: bytes | None) -> None:
+            if command is not None:
+                torque.log(command, log_time=stamp_ns)
+            js.log(state, log_time=stamp_ns)
+            if echoed is not None:
+                echo.log(echoed, log_time=stamp_ns)
+            msgs = steps[k % len(steps)][1]
+            for channel, i in rest:
+                channel.log(msgs[i], log_time=stamp_ns)
+            if k % flush_every == 0:
+                writer.flush()
+        yield log
 
 
 def lockstep_floor() -> int:

@@ -11,7 +11,8 @@
   node has no echo, the controller's own publish time to the first state carrying that torque),
   states delivered to the reliable reader, the long-run rate error as the reader sees it, and
   the node process's CPU (all its threads) over the measured window, beside the rclpy floor's
-  (`rclpy_floor`: two node and floor pairs alternated, `cpu_pairs`); then the node's CPU with
+  (`rclpy_floor`: two node and floor pairs alternated, `cpu_pairs`) and beside the same floor writing
+  what the node records with a native MCAP writer (`rclpy_floor --record`); then the node's CPU with
   each other model (unloaded, shorter runs), since the CPU target holds for every model.
 - Step cost: one `Simulator.step` per model, and the same through `Session.step` (gate, load,
   finiteness check: the path the node calls each tick), in the same Python loop form as MuJoCo's `mj_step` on the rigid screw–nut (`mujoco` from the `bench`
@@ -74,16 +75,17 @@ NODE_MODULE = "prsm_ros.cli.node"
 FLOOR_MODULE = "prsm_ros.bench.rclpy_floor"  # the node's DDS traffic and nothing else (its module doc)
 
 
-def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, module: str = NODE_MODULE) -> dict:
-    """The node (or `module` in its place) at its defaults and the reference controller; the controller's
-    summary plus the node process's CPU."""
+def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, module: str = NODE_MODULE,
+             module_args: tuple[str, ...] = ()) -> dict:
+    """The node (or `module` in its place, given `module_args`) at its defaults and the reference controller;
+    the controller's summary plus the node process's CPU."""
     from prsm_ros.ros_env import ros_args
     env = isolated_env(respect_user=False, RERUN="off")
     hogs = start_hogs() if loaded else []
     try:
         with tempfile.TemporaryDirectory(prefix="prsm_bench_rt_") as tmp:
             with open(Path(tmp) / "node.log", "wb") as log:
-                args = ros_args(node_params) if node_params else []
+                args = (ros_args(node_params) if node_params else []) + list(module_args)
                 node = start_module(module, args, env, cwd=tmp, stdout=log,
                                     stderr=subprocess.STDOUT)
                 try:
@@ -129,10 +131,10 @@ def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, m
 def loop_figures(quick: bool) -> list[dict]:
     seconds = 5.0 if quick else 30.0
     figs = []
-    # the floor runs right after the unloaded node, and a second node and floor pair after that, so each node run
-    # has a floor beside it on the same machine (the ratio is the figure: `cpu_pairs`)
-    floor = None
-    pairs: list[tuple[float, float]] = []
+    # the floors run right after the unloaded node, and a second node and floors after that, so each node run
+    # has its floors beside it on the same machine (the ratios are the figures: `cpu_pairs`)
+    floor: list[dict] | None = None
+    pairs: list[tuple[float, float, float]] = []
     for loaded in (False, True):
         cond = "loaded" if loaded else "unloaded"
         try:
@@ -169,71 +171,98 @@ def loop_figures(quick: bool) -> list[dict]:
         if not loaded:
             floor, pairs = cpu_pairs(s["node_cpu_pct"], seconds)
         figs.append(node_cpu_figure(cond, loaded, s["node_cpu_pct"], pairs))
-    figs.append(floor if floor is not None else floor_figure([], seconds))
+        if not loaded:
+            figs.append(recording_ratio_figure(pairs))
+    figs.extend(floor if floor is not None else [floor_figure([], seconds), floor_figure([], seconds, recorded=True)])
     figs.extend(model_cpu_figures(quick))
     return figs
 
 
-def node_cpu_figure(cond: str, loaded: bool, node_cpu_pct: float, pairs: list[tuple[float, float]]) -> dict:
-    """The node's CPU figure for condition `cond`: unloaded, the mean of the node runs of `pairs` (node %, floor %)
-    and of their ratios to the floor beside each; loaded, this run's `node_cpu_pct` over the pairs' mean floor."""
+def node_cpu_figure(cond: str, loaded: bool, node_cpu_pct: float, pairs: list[tuple[float, float, float]]) -> dict:
+    """The node's CPU figure for condition `cond`: unloaded, the mean of the node runs of `pairs` (node %, floor %,
+    recording floor %) and of their ratios to the floor beside each; loaded, this run's `node_cpu_pct` over the
+    pairs' mean floor."""
     what = ("all threads of the node process (step loop, executor, middleware, recorder) and its MCAP writer "
             "process over the measured window")
     if not loaded:
-        cpu = statistics.fmean(n for n, _ in pairs) if pairs else node_cpu_pct
-        ratios = [n / f if f > 0 else math.nan for n, f in pairs]
+        cpu = statistics.fmean(n for n, _, _ in pairs) if pairs else node_cpu_pct
+        ratios = [n / f if f > 0 else math.nan for n, f, _ in pairs]
         ratio = statistics.fmean(ratios) if ratios else math.nan
         how = (f"; the mean of {len(pairs)} runs alternated with the rclpy floor ("
-               + ", ".join(f"{n:.1f} % = {r:.2f}× its floor's {f:.1f} %" for (n, f), r in zip(pairs, ratios))
+               + ", ".join(f"{n:.1f} % = {r:.2f}× its floor's {f:.1f} %" for (n, f, _), r in zip(pairs, ratios))
                + f"): {ratio:.2f}× the floor (aim ≤ 1.5×)")
     else:
         cpu = node_cpu_pct
-        mean_floor = statistics.fmean(f for _, f in pairs) if pairs else math.nan
+        mean_floor = statistics.fmean(f for _, f, _ in pairs) if pairs else math.nan
         ratio = cpu / mean_floor if mean_floor > 0 else math.nan
         how = f"; {ratio:.2f}× the unloaded rclpy floor of this run, {mean_floor:.1f} % (aim ≤ 1.5×)"
     return figure(f"node CPU share of one core ({cond})", cpu, "%", "≤ 15", cpu <= 15, None, what + how)
 
 
-def cpu_pairs(node_cpu_pct: float, seconds: float) -> tuple[dict, list[tuple[float, float]]]:
-    """The floor's figure and (node CPU %, floor CPU %) pairs: the unloaded node's run given, the floor right after,
-    then a second node run and floor (`seconds` / 2 each: CPU only).
+def recording_ratio_figure(pairs: list[tuple[float, float, float]]) -> dict:
+    """The unloaded node's CPU over the floor that also records (`rclpy_floor --record`), the mean of the ratios of
+    the runs of `pairs` side by side."""
+    name = "node CPU over the rclpy floor with native recording (unloaded)"
+    ratios = [n / r for n, _, r in pairs if r > 0]
+    if not ratios:
+        return figure(name, math.nan, "×", "≤ 1.5", None, None, "no recording floor measured")
+    ratio = statistics.fmean(ratios)
+    return figure(name, ratio, "×", "≤ 1.5", ratio <= 1.5, None,
+                  "the node records every message it takes and publishes; the floor under that is the rclpy floor "
+                  "writing the same messages with a native writer in its loop: "
+                  + ", ".join(f"{n:.1f} % over {r:.1f} %" for n, _, r in pairs))
+
+
+def cpu_pairs(node_cpu_pct: float, seconds: float) -> tuple[list[dict], list[tuple[float, float, float]]]:
+    """The floors' figures and (node CPU %, floor CPU %, recording floor CPU %) triples: the unloaded node's run given,
+    the floor and the recording floor right after, then a second node run and floors (`seconds` / 2 each: CPU only).
 
     The floor alone moved by 40 % between runs of one bench on a quiet machine (7.1–9.8 % of a core), which a ratio
-    to one floor run carries whole. Two pairs, each a node run and a floor run side by side, halve the variance
-    one pair's timing puts into the ratio's mean. A pair whose run fails is left out (the notes say so).
+    to one floor run carries whole. Two sets, each a node run and its floors side by side, halve the variance
+    one set's timing puts into the ratios' mean. A set whose run fails is left out (the notes say so).
     """
-    floors, pairs, errors = [], [], []
+    runs: dict[bool, list[dict]] = {False: [], True: []}
+    pairs, errors = [], []
     node = node_cpu_pct
     for i, secs in enumerate((seconds, seconds / 2)):
-        if i:  # the second pair's node run
+        if i:  # the second set's node run
             try:
                 node = loop_run(secs, loaded=False)["node_cpu_pct"]
             except Exception as e:
                 errors.append(f"node: {type(e).__name__}: {e}")
                 break
         try:
-            f = loop_run(secs, loaded=False, module=FLOOR_MODULE)
+            f, r = (loop_run(secs, loaded=False, module=FLOOR_MODULE, module_args=("--record",) if rec else ())
+                    for rec in (False, True))
         except Exception as e:
             errors.append(f"{type(e).__name__}: {e}")
             continue
-        floors.append(f)
-        pairs.append((node, f["node_cpu_pct"]))
-    return floor_figure(floors, seconds, errors), pairs
+        runs[False].append(f)
+        runs[True].append(r)
+        pairs.append((node, f["node_cpu_pct"], r["node_cpu_pct"]))
+    return [floor_figure(runs[rec], seconds, errors, recorded=rec) for rec in (False, True)], pairs
 
 
-def floor_figure(runs: list[dict], seconds: float, errors: list[str] | None = None) -> dict:
-    """The peer of the node's CPU figure: `rclpy_floor` (the node's realtime DDS traffic, nothing else)
-    with the same controller, unloaded: the mean of `runs` (`loop_run` summaries). The node cannot cost
-    less than this with rclpy in Python."""
-    name = "rclpy floor: CPU of a bare loop with the node's DDS traffic (unloaded)"
+def floor_figure(runs: list[dict], seconds: float, errors: list[str] | None = None, *, recorded: bool = False) -> dict:
+    """The peer of the node's CPU figure: `rclpy_floor` (the node's realtime DDS traffic, nothing else; with
+    `recorded`, the same and the node's recorded messages written by a native MCAP writer) with the same
+    controller, unloaded: the mean of `runs` (`loop_run` summaries). The node cannot cost less than this
+    with rclpy in Python."""
+    name = ("rclpy floor with native recording: CPU of a bare loop with the node's DDS traffic, recording what the "
+            "node records (unloaded)" if recorded else
+            "rclpy floor: CPU of a bare loop with the node's DDS traffic (unloaded)")
     if not runs:
         return figure(name, math.nan, "%", "(peer)", None, None, "; ".join(errors or ["not run"]))
     cpu = [r["node_cpu_pct"] for r in runs]
     delivered = ", ".join(f"{100 * r['states_received'] / max(r['states_expected'], 1):.2f} %" for r in runs)
+    what = ("python -m prsm_ros.bench.rclpy_floor --record: the floor below, and each period the commands taken, "
+            "joint_states, the echo and a jones2016 step's wrench, internal loads and /clock written by foxglove-sdk's "
+            "MCAP writer (native), its chunk finished every 50 ms" if recorded else
+            "python -m prsm_ros.bench.rclpy_floor: paced at 1 kHz, takes ~/screw_torque, publishes "
+            "joint_states and ~/command_echo (reliable) with the node's encoder; no model, no recording, "
+            "no other topic")
     return figure(name, statistics.fmean(cpu), "%", "(peer)", None, None,
-                  "python -m prsm_ros.bench.rclpy_floor: paced at 1 kHz, takes ~/screw_torque, publishes "
-                  "joint_states and ~/command_echo (reliable) with the node's encoder; no model, no recording, "
-                  f"no other topic; with the reference controller; the mean of {len(runs)} runs alternated with the "
+                  f"{what}; with the reference controller; the mean of {len(runs)} runs alternated with the "
                   f"node's ({', '.join(f'{c:.1f}' for c in cpu)} %; {seconds:g} s, then {seconds / 2:g} s); "
                   f"states delivered {delivered}" + (f"; failed: {'; '.join(errors)}" if errors else ""))
 

@@ -62,7 +62,7 @@ def _channels(rec):
 
 
 @functools.lru_cache(maxsize=2)
-def _prepared(model: str, steps: int) -> list[tuple[int, list[bytes]]]:
+def prepared_steps(model: str, steps: int) -> list[tuple[int, list[bytes]]]:
     """`_step_bytes` of a `steps`-step run, built once per measurement (`measure` clears it)."""
     _, traj = _run_outputs(model, steps)
     return _step_bytes(traj, model)
@@ -101,7 +101,7 @@ def throughput(model: str, steps: int, repeats: int, kind: str = "process") -> t
     Messages per CPU second (all threads, and the writer process) is what a busy machine changes
     least: the wall-clock rate there measures the share of a core the run got as much as the writer."""
     Recorder = _recorder(kind)
-    prepared = _prepared(model, steps)
+    prepared = prepared_steps(model, steps)
     rates, sizes, cpu_rates = [], [], []
     n_msgs = 0
     with tempfile.TemporaryDirectory() as d:
@@ -135,7 +135,7 @@ def native_floor(model: str, steps: int) -> float:
 
     from prsm_ros.mcap.recorder import McapRecorder
 
-    prepared = _prepared(model, steps)
+    prepared = prepared_steps(model, steps)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "floor.mcap"
         with McapRecorder(path, queue_size=10 * len(prepared) + 10) as rec:
@@ -167,11 +167,11 @@ def _chunk_records(record: bytes) -> bytes:
 
 
 @contextlib.contextmanager
-def _foxglove_writing():
-    """`foxglove-sdk`'s native MCAP writer on the recorded topics (same CDR bytes, channels, zstd, 1 MiB chunks) in a
-    temporary directory: yields (writer, channels in a prepared step's order), or None when the package is not
-    installed. Their context is held until the block ends: once it is collected, its channels are closed and
-    drop what they are given."""
+def foxglove_writing(echo: bool = False, path: Path | None = None):
+    """`foxglove-sdk`'s native MCAP writer on the recorded topics (same CDR bytes, channels, zstd, 1 MiB chunks) at
+    `path`, or in a temporary directory: yields (writer, channels in a prepared step's order, then
+    ~/command_echo's if `echo`), or None when the package is not installed. Their context is held until the block
+    ends: once it is collected, its channels are closed and drop what they are given."""
     try:
         import foxglove
         from foxglove.mcap import MCAPCompression, MCAPWriteOptions
@@ -183,12 +183,14 @@ def _foxglove_writing():
     from prsm_ros.mcap import schema as mcap_schema
     from prsm_ros.messages import STEP_TOPICS, TOPICS
     topics = [(TOPICS["screw_torque"].resolved(), Float64, TOPICS["screw_torque"].qos)]
-    topics += [(TOPICS[k].resolved(), TOPICS[k].msg_class, TOPICS[k].qos) for k in STEP_TOPICS]
+    topics += [(TOPICS[k].resolved(), TOPICS[k].msg_class, TOPICS[k].qos)
+               for k in STEP_TOPICS + (("command_echo",) if echo else ())]
     with tempfile.TemporaryDirectory() as d:
         ctx = foxglove.Context()
         options = MCAPWriteOptions(compression=MCAPCompression.Zstd, profile=mcap_schema.PROFILE,
                                    chunk_size=1 << 20, compression_threads=0)
-        writer = foxglove.open_mcap(Path(d) / "fox.mcap", context=ctx, writer_options=options)
+        writer = foxglove.open_mcap(path if path is not None else Path(d) / "fox.mcap", context=ctx,
+                                    writer_options=options)
         channels = []
         for topic, cls, qos in topics:
             name = mcap_schema.type_name(cls)
@@ -210,10 +212,10 @@ def _log_step(channels, stamp: int, msgs: list[bytes]) -> None:
 
 
 def foxglove_peer(model: str, steps: int) -> float | None:
-    """Messages per CPU second through `foxglove-sdk`'s native MCAP writer (`_foxglove_writing`, one
+    """Messages per CPU second through `foxglove-sdk`'s native MCAP writer (`foxglove_writing`, one
     `Channel.log` per message, the summary written); None when the package is not installed."""
-    prepared = _prepared(model, steps)
-    with _foxglove_writing() as opened:
+    prepared = prepared_steps(model, steps)
+    with foxglove_writing() as opened:
         if opened is None:
             return None
         writer, channels = opened
@@ -231,8 +233,8 @@ def foxglove_loop_cost(model: str, seconds: float) -> dict | None:
     from prsm_ros.mcap.recorder import FLUSH_INTERVAL_S
     steps = int(seconds * 1000)
     flush_every = max(int(round(FLUSH_INTERVAL_S * 1000)), 1)
-    prepared = _prepared(model, steps)
-    with _foxglove_writing() as opened:
+    prepared = prepared_steps(model, steps)
+    with foxglove_writing() as opened:
         if opened is None:
             return None
         writer, channels = opened
@@ -250,7 +252,7 @@ def loop_cost(model: str, seconds: float, record: str | None, loads_every: int =
     as the node does; the internal loads only every `loads_every`-th step (`record_internal_loads_rate`)."""
     from prsm_ros.messages import STEP_TOPICS
     steps = int(seconds * 1000)
-    prepared = _prepared(model, steps)
+    prepared = prepared_steps(model, steps)
     loads = 1 + STEP_TOPICS.index("internal_loads")  # its place in a prepared step (the command first)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "loop.mcap"
@@ -296,7 +298,7 @@ def measure(quick: bool = False) -> list[dict]:
     decimated_cost = (decimated["cpu_per_wall"] - base["cpu_per_wall"]) * 100
     thread_cost = (thread["cpu_per_wall"] - base["cpu_per_wall"]) * 100
     per_s = rec["written"] / seconds
-    _prepared.cache_clear()
+    prepared_steps.cache_clear()
     fox_note = "not installed" if fox is None else f"{fox:,.0f}"
     return [
         figure(f"MCAP recorder throughput ({model} topics, 5 per step)", rate, "msg/s", f"≥ {THROUGHPUT_TARGET:.0f}",
