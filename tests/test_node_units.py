@@ -279,6 +279,26 @@ def test_simulation_report_levels_from_the_session_status():
     assert "residual 0.02 J of 10 J that flowed (limit 0.001)" in text and details["flow_j"] == 10.0
 
 
+class _VolatilePub:
+    """A volatile publisher with `readers` matched readers, as `Outlets` uses one; what it sends is kept."""
+
+    def __init__(self, readers):
+        from rclpy.qos import QoSProfile
+        self.readers, self.sent, self.qos_profile, self.handle = readers, [], QoSProfile(depth=10), self
+
+    def get_subscription_count(self):
+        return self.readers
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def publish_raw(self, data):
+        self.sent.append(data)
+
+
 def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at_its_own():
     """`Outlets.publish_loads` and `Sinks.write_step`, without DDS: over 40 steps at 1 kHz, DDS and a live view
     get the internal loads at `internal_loads_rate` (100 Hz: steps 10, 20, 30, 40), the bag at
@@ -287,28 +307,11 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
     Oracle: the rates' own arithmetic (steps k with k mod n = 0)."""
     from types import SimpleNamespace
 
-    from rclpy.qos import QoSProfile
 
     from prsm_ros.mcap.recorder import Deferred
     from prsm_ros.messages import MessageMapper, time_ns
     from prsm_ros.node.outlets import Outlets
     from prsm_ros.node.sinks import FoxgloveSink, RecorderSink, Sinks
-
-    class Pub:  # a volatile publisher with `readers` matched readers; what it sends is kept
-        def __init__(self, readers):
-            self.readers, self.sent, self.qos_profile, self.handle = readers, [], QoSProfile(depth=10), self
-
-        def get_subscription_count(self):
-            return self.readers
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return False
-
-        def publish_raw(self, data):
-            self.sent.append(data)
 
     class MessageSink:  # the bag (keeps_record) or a live view; what it is handed is kept, per step
         takes_messages, takes_outputs, error = True, False, None
@@ -325,7 +328,7 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
                           record_internal_loads_rate=250.0)
     names = {"internal_loads": "/il", "clock": "/clock"}
     for readers, live in ((1, True), (0, False)):
-        pubs = {k: Pub(readers) for k in names}
+        pubs = {k: _VolatilePub(readers) for k in names}
         bag, view = MessageSink(True), MessageSink(False)
         mapper = MessageMapper(session.layout, "fu2018")
         node = SimpleNamespace(session=session, mapper=mapper, config=cfg)
@@ -357,3 +360,51 @@ def test_internal_loads_go_to_dds_and_live_views_at_their_rate_and_to_the_bag_at
         assert len(built) == len(set(every[4]) | now)
     # the node's own sinks: the bag is the record, the Foxglove server a live view
     assert RecorderSink.keeps_record and not FoxgloveSink.keeps_record
+
+
+def test_a_message_only_the_bag_gets_is_built_by_the_recorder_in_realtime_and_at_once_otherwise():
+    """`Outlets.publish_built` on the wrench: where DDS has a reader, a live view takes messages or the node is not
+    in realtime, the bytes are built on the step thread, sent and recorded; in realtime with none of those the bag
+    gets a `Deferred` and DDS nothing. Oracle: the encoder's own bytes for the same step, and the rules above."""
+    from types import SimpleNamespace
+
+
+    from prsm_ros.mcap.recorder import Deferred
+    from prsm_ros.messages import MessageMapper, time_ns
+    from prsm_ros.node.outlets import Outlets
+    from prsm_ros.node.sinks import Sinks
+
+    class MessageSink:  # the bag (keeps_record) or a live view: what it is handed is kept
+        takes_messages, takes_outputs, error = True, False, None
+
+        def __init__(self, keeps_record):
+            self.keeps_record, self.items = keeps_record, []
+
+        def write_many(self, items):
+            self.items += items
+
+    session = Session(preset("s30"), "jones2016", 1e-3)
+    out = session.step()
+    ns = time_ns(out.time_s)
+    mapper = MessageMapper(session.layout, "jones2016")
+    expected = mapper.encoder().wrench(out, ns)
+    for mode, readers, live, deferred in (("realtime", 0, False, True), ("realtime", 1, False, False),
+                                          ("realtime", 0, True, False), ("fast", 0, False, False),
+                                          ("lockstep", 0, False, False)):
+        cfg = SimpleNamespace(joint_states_rate=0.0, update_rate=1000.0, time_mode=mode, internal_loads_rate=100.0,
+                              record_internal_loads_rate=0.0)
+        pubs = {"wrench": _VolatilePub(readers)}
+        bag, view = MessageSink(True), MessageSink(False)
+        node = SimpleNamespace(session=session, mapper=mapper, config=cfg)
+        outlets = Outlets(node, pubs, {"wrench": "/wrench"}, Sinks([bag, view] if live else [bag]), frozenset(),
+                          warn=None)
+        outlets.count_readers()
+        outlets.begin_step()
+        outlets.publish_built("wrench", ns, outlets.encoder.wrench, out, ns)
+        outlets.end_step()
+        (topic, data, stamp), = bag.items
+        assert (topic, stamp) == ("/wrench", ns)
+        assert (type(data) is Deferred) == deferred, (mode, readers, live)
+        assert (data.build() if deferred else data) == expected
+        assert pubs["wrench"].sent == ([expected] if readers else [])
+        assert view.items == ([("/wrench", expected, ns)] if live else [])

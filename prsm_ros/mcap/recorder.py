@@ -355,22 +355,22 @@ class McapFile:
 
 
 class Deferred:
-    """A message whose CDR bytes the recorder's own thread builds when it takes it: `encode(arg)`.
+    """A message whose CDR bytes the recorder's own thread builds when it takes it: `encode(*args)`.
 
-    For a message the caller has no other use for (a realtime node's internal loads at steps DDS does
-    not get them): built in the emptying thread's batch, its Python runs with warm caches and off the
-    caller's path (the node's step thread, which wakes every millisecond with cold ones: the
-    internal loads' bytes took 11 µs of its CPU a step there, 3 µs in a loop). `encode` must be
-    pure, `arg` immutable: they are read later, from another thread.
+    For a message the caller has no other use for (a realtime node's internal loads, wrench and /clock
+    at steps nobody reads them on DDS): built in the emptying thread's batch, its Python runs with warm
+    caches and off the caller's path (the node's step thread, which wakes every millisecond with cold
+    ones: the internal loads' bytes took 11 µs of its CPU a step there, 3 µs in a loop). `encode` must
+    be pure, `args` immutable: they are read later, from another thread.
     """
 
-    __slots__ = ("encode", "arg")
+    __slots__ = ("encode", "args")
 
-    def __init__(self, encode, arg) -> None:
-        self.encode, self.arg = encode, arg
+    def __init__(self, encode, *args) -> None:
+        self.encode, self.args = encode, args
 
     def build(self) -> bytes:
-        return self.encode(self.arg)
+        return self.encode(*self.args)
 
 
 _PREPARED = (bytes, Deferred)  # what a queue takes on any topic besides the topic's own message class

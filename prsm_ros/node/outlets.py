@@ -80,10 +80,11 @@ class Outlets:
         self.il_every = 1 if cfg.time_mode == "lockstep" else every_n_steps(cfg.internal_loads_rate, cfg.update_rate)
         self.il_record_every = every_n_steps(cfg.record_internal_loads_rate, cfg.update_rate)
         self.il_recorded = self.sinks.keeps_record and "internal_loads" not in self.unrecorded
-        # realtime: the bag's loads are built by the recorder (`publish_loads`), in the idle part of a period; lockstep
-        # and fast have no idle part (the next command or step follows at once), and the recorder's thread building
-        # them there competes for the interpreter lock (lockstep round trips: 5,917-6,154 /s against 6,130-6,748)
-        self.il_deferred = cfg.time_mode == "realtime"
+        # realtime: the bag's own messages are built by the recorder (`publish_built`), in the idle part of a period;
+        # lockstep and fast have no idle part (the next command or step follows at once), and the recorder's thread
+        # building them there competes for the interpreter lock (lockstep round trips: 5,917-6,154 /s against
+        # 6,130-6,748)
+        self.deferred = cfg.time_mode == "realtime"
 
     def publish(self, key: str, msg, stamp_ns: int | None = None) -> None:
         """Serialise once (per-step messages come as CDR bytes already), publish and record the same bytes."""
@@ -92,6 +93,14 @@ class Outlets:
         if not self.no_reader(key):  # else DDS would deliver it to nobody (volatile): the sinks only
             self.send(key, msg)
         self.record(key, msg, stamp_ns)
+
+    def publish_built(self, key: str, stamp_ns: int, encode, *args) -> None:
+        """`publish(key, encode(*args), stamp_ns)`, save that a message only the bag gets is handed to it as a
+        `Deferred`, built by its recorder off this thread (realtime: `deferred`)."""
+        if self.deferred and not self.sinks.live_takes_messages and self.no_reader(key):
+            self.record(key, Deferred(encode, *args), stamp_ns)
+        else:
+            self.publish(key, encode(*args), stamp_ns)
 
     def send(self, key: str, msg: bytes) -> None:
         """On DDS only; a sample the middleware refuses is counted and warned of, never raised."""
@@ -185,7 +194,7 @@ class Outlets:
             self.publish("command_echo", enc.time_reference(ns, cmd_ns, source), ns)
             echo.record_latency(cmd_ns, time.time_ns())
         if "clock" in self.pub:
-            self.publish("clock", enc.clock(ns), ns)
+            self.publish_built("clock", ns, enc.clock, ns)
         self.publish_loads(out, k, ns)
         self.sinks.submit(out)
 
@@ -199,7 +208,7 @@ class Outlets:
         to_dds = live and not self.no_reader("internal_loads")
         if not (to_dds or to_record or to_live):
             return
-        if to_dds or to_live or not self.il_deferred:
+        if to_dds or to_live or not self.deferred:
             data = self.encoder.internal_loads(out)
             if to_dds:
                 self.send("internal_loads", data)
@@ -215,7 +224,7 @@ class Outlets:
         if act is not None:
             self.publish("ground_truth", enc.joint_state(out, ns), ns)
         self.publish("joint_states", enc.joint_state(act.measured(out) if act is not None else out, ns), ns)
-        self.publish("wrench", enc.wrench(out, ns), ns)
+        self.publish_built("wrench", ns, enc.wrench, out, ns)
 
     def publish_rest_state(self) -> None:
         """The state just set (reset) on the state topics at once, though no step ran."""
