@@ -232,8 +232,8 @@ def cpu_pairs(node_cpu_pct: float, seconds: float) -> tuple[list[dict], list[tup
                 errors.append(f"node: {type(e).__name__}: {e}")
                 break
         try:
-            f, r = (loop_run(secs, loaded=False, module=FLOOR_MODULE, module_args=("--record",) if rec else ())
-                    for rec in (False, True))
+            f = loop_run(secs, loaded=False, module=FLOOR_MODULE)
+            r = loop_run(secs, loaded=False, module=FLOOR_MODULE, module_args=("--record",))
         except Exception as e:
             errors.append(f"{type(e).__name__}: {e}")
             continue
