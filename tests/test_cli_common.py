@@ -145,3 +145,37 @@ def test_the_demo_controller_shows_the_simulated_time_as_the_run_goes(capsys):
     updates = err.split("\r")[1:]
     assert len(updates) == round(2.0 / PROGRESS_EVERY_S) + 1
     assert updates[0] == "prsm-demo: 0.00 of 2 s simulated" and updates[-1] == "prsm-demo: 2.00 of 2 s simulated\n"
+
+
+_EXEC_INTERRUPTED = '''
+import sys
+def main(handled):
+    try:  # source text run by exec, as numba's compilation and dataclasses run theirs
+        exec("import sys, time\\nprint('ready', flush=True)\\nwhile True: time.sleep(0.001)\\n")
+    except KeyboardInterrupt:
+        if handled:
+            from prsm_ros.interrupts import interrupt_handled
+            interrupt_handled()
+        print("interrupted", file=sys.stderr)
+        return 130
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1] == "handled"))
+'''
+
+
+def test_a_ctrl_c_handled_inside_exec_code_exits_130_under_python_m_once_marked_handled(tmp_path):
+    """A `python -m` command whose Ctrl-C lands in code run by `exec` and is handled outside it, marked handled
+    (`interrupt_handled`), exits with the 130 it returns. Oracle: the exit status the OS reports for a real SIGINT.
+    Without the mark, CPython 3.11 reports death by SIGINT (-2) for the same run (checked by hand: 3 of 3); that
+    control is not asserted here, since it is the interpreter's behaviour, not ours."""
+    (tmp_path / "exec_interrupted.py").write_text(_EXEC_INTERRUPTED, encoding="utf-8")
+    proc = subprocess.Popen([sys.executable, "-m", "exec_interrupted", "handled"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"  # inside the exec'd loop
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert "interrupted" in err
+    assert proc.returncode == 130, err

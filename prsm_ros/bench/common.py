@@ -20,6 +20,7 @@ import numpy as np
 from prsm_sim import PrsmError, __version__
 
 from prsm_ros.json_out import dumps
+from prsm_ros.interrupts import interrupt_handled
 
 Measure = Callable[..., list]
 
@@ -195,6 +196,7 @@ def main(areas: Mapping[str, Measure], argv: list[str] | None = None, *, prog: s
     try:
         run(chosen, a.quick, figures)
     except KeyboardInterrupt:
+        interrupt_handled()
         interrupted = True
     meta = {"machine": platform.machine(), "python": platform.python_version(), "quick": a.quick,
             "cpus": os.cpu_count(), "allocator": allocator}

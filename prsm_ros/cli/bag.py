@@ -29,6 +29,7 @@ from prsm_ros.bag.reader import BagError, open_bag
 from prsm_ros.interface import NUT_JOINT, SCREW_JOINT
 from prsm_ros.json_out import dumps
 from prsm_ros.live.serve_bag import add_parser as add_serve_parser
+from prsm_ros.interrupts import interrupt_handled
 
 EXIT_ERROR = 2  # a user error: a bad argument, file or bag (the one exit status of every prsm tool)
 INFO_CHECK_MAX_MESSAGES = 100_000  # info decodes every message of a bag up to this size (~20 s) unless told
@@ -429,6 +430,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"prsm-bag {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
+        interrupt_handled()
         print(f"prsm-bag {args.command}: interrupted", file=sys.stderr)
         return 130
 

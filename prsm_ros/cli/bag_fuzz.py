@@ -33,6 +33,7 @@ from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 from prsm_sim.errors import InputError
+from prsm_ros.interrupts import interrupt_handled
 
 KINDS = ("flip", "set64", "set32", "truncate", "zero", "dup", "header")
 # values a damaged length, size, count or offset takes
@@ -313,6 +314,7 @@ def fuzz(bags: list[Path], cases: int, *, seed: int = 1, verbs=VERBS, memory_mib
         done = _cases(originals, cases, rng, verbs, failures, t0, memory_mib=memory_mib, timeout_s=timeout_s,
                       plots=plots, keep=keep, progress=progress)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the figures of the cases run so far
+        interrupt_handled()
         done = len(_DONE)
     by_verb: dict[str, int] = {}
     for f in failures:

@@ -40,6 +40,7 @@ from collections.abc import Callable
 from typing import Any
 
 from prsm_sim.errors import PrsmError
+from prsm_ros.interrupts import interrupt_handled
 
 PROG = "prsm-ctl"
 DEFAULT_NODE = "/prsm_actuator"
@@ -692,6 +693,7 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        interrupt_handled()
         print(f"{PROG}: interrupted (what was printed above is complete)", file=sys.stderr)
         return 130
     except BrokenPipeError:

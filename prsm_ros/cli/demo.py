@@ -33,6 +33,7 @@ from pathlib import Path
 
 from prsm_ros.json_out import dumps
 from prsm_ros.ros_env import isolated_env, ros_args, start_module
+from prsm_ros.interrupts import interrupt_handled
 
 # How long the controller waits for the node to come up. A first start on a fresh install compiles the
 # numba kernels (tens of seconds on a busy two-core machine); the wait ends early if the node process dies.
@@ -164,6 +165,7 @@ def _run(args, env: dict, record: Path | None) -> tuple[bytes, int | None, int |
             try:
                 out = wait_for_controller(ctl, node)
             except KeyboardInterrupt:
+                interrupt_handled()
                 ctl.kill()
                 out, interrupted = b"", True
             finally:
@@ -181,6 +183,7 @@ def _stop(node: subprocess.Popen) -> int | None:
         try:
             return node.wait(timeout=30)
         except KeyboardInterrupt:
+            interrupt_handled()
             continue
         except subprocess.TimeoutExpired:
             node.kill()

@@ -35,6 +35,7 @@ from prsm_ros.cli import sim_datasheet
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
 from prsm_ros.limits import run_memory, run_steps
+from prsm_ros.interrupts import interrupt_handled
 
 PROGRESS_MIN_STEPS = 20_000
 PROBE_STEPS = 400  # a run longer than this first measures what a step of it holds (`bytes_per_step`)
@@ -216,6 +217,7 @@ def cmd_run(args) -> None:
             bar = tqdm(total=n, unit="step", file=sys.stderr, desc=f"{args.model} {args.scenario}")
         traj = runner(sim, spec, args.duration, progress)
     except KeyboardInterrupt:
+        interrupt_handled()
         _interrupted(f"at step {done[0]} of {n}: nothing written (a run's outputs are written when it ends; "
                      "a shorter --duration ends sooner)")
     finally:
@@ -248,6 +250,7 @@ def _write_outputs(args, traj, p: Params, n: int) -> dict:
         try:
             _write_csv(args.csv, traj)
         except KeyboardInterrupt:
+            interrupt_handled()
             _interrupted(f"while writing {args.csv}: the run ended ({len(traj)} steps) but the CSV is incomplete")
         written["csv"] = args.csv
     if args.mcap:
@@ -258,6 +261,7 @@ def _write_outputs(args, traj, p: Params, n: int) -> dict:
         except OSError as e:
             raise CliError(f"cannot write MCAP {args.mcap}: {e.strerror or e}") from None
         except KeyboardInterrupt:
+            interrupt_handled()
             kept = f"{args.csv} is complete; " if args.csv else ""
             _interrupted(f"while writing {args.mcap}: {kept}the MCAP holds the steps written so far, without its "
                          f"index (prsm-bag repair {args.mcap} rebuilds it)")
@@ -561,6 +565,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except KeyboardInterrupt:  # a Ctrl-C outside a command's own handler (parsing, a probe, writing)
+        interrupt_handled()
         print(f"prsm-sim: interrupted during {args.command}: outputs not written or incomplete", file=sys.stderr)
         return 130
     return 0

@@ -20,6 +20,7 @@ from prsm_sim.errors import PrsmError
 
 from prsm_ros.json_out import dumps
 from prsm_ros.limits import read_text_file
+from prsm_ros.interrupts import interrupt_handled
 
 PROG = "prsm-sweep"
 
@@ -41,6 +42,7 @@ def cmd_run(args) -> int:
                              runs_per_task=args.runs_per_task or ex["runs_per_task"], decimate=ex["decimate"],
                              retry_failed=args.retry_failed, progress=not args.no_progress, source_text=text)
     except KeyboardInterrupt:
+        interrupt_handled()
         done = len(runner.recorded_rows(out)) if (out / runner.STUDY_JSON).exists() else 0
         print(f"{PROG}: interrupted: {done} runs recorded in {out}; run the same command again to resume",
               file=sys.stderr)

@@ -22,6 +22,7 @@ from typing import Any
 from prsm_sim import ParamError, preset
 from prsm_sim.calibration import Calibration, calibrate, predict
 from prsm_sim.datasheet import Datasheet
+from prsm_ros.interrupts import interrupt_handled
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "validation" / "data" / "srs_c_roller_screws.csv"
@@ -224,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"validation: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        interrupt_handled()
         print("\nvalidation: interrupted; nothing written", file=sys.stderr)
         return 130
     print(f"wrote {args.output} and {image_dir / 'srs_c.png'}")

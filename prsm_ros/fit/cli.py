@@ -27,6 +27,7 @@ from prsm_sim.presets import PRESETS
 
 from prsm_ros.fit.readers import BagTopics, read_source
 from prsm_ros.json_out import dumps
+from prsm_ros.interrupts import interrupt_handled
 
 PROG = "prsm-fit"
 
@@ -164,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        interrupt_handled()
         print(f"\n{PROG}: interrupted; nothing written", file=sys.stderr)
         return 130
     finally:

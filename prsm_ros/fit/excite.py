@@ -20,6 +20,7 @@ from pathlib import Path
 from prsm_sim.errors import PrsmError
 from prsm_sim.identify.excite import KINDS, excitation
 from prsm_sim.presets import PRESETS
+from prsm_ros.interrupts import interrupt_handled
 
 PROG = "prsm-fit excite"
 DEFAULT_EFFORT_LIMIT_NM = 50.0  # the node's max_effort default: the bound without an actuator
@@ -80,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        interrupt_handled()
         print(f"\n{PROG}: interrupted; nothing written", file=sys.stderr)
         return 130
     print(f"wrote {out}: {len(t)} samples, {args.kind} {args.signal}, peak {amp:g}")

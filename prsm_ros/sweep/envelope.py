@@ -23,6 +23,7 @@ import hashlib
 import json
 import os
 import time
+from prsm_ros.interrupts import interrupt_handled
 from pathlib import Path
 
 BATCH = 4  # cases per Ray task: seconds of work, and little lost to a Ctrl-C
@@ -146,6 +147,7 @@ def run_envelope(runs: int, out: Path, *, first_seed: int = 0, address: str | No
             finally:
                 disconnect(ray, owned, tmp)
     except KeyboardInterrupt:
+        interrupt_handled()
         interrupted = True
     finally:
         sink.close()
