@@ -23,6 +23,7 @@ import json
 import math
 import subprocess
 import sys
+import weakref
 
 import pytest
 
@@ -51,16 +52,18 @@ def set_one(cli, name: str, value):
     return call(cli, "set_parameters", SetParameters, req).results[0]
 
 
-_CLIENTS: dict = {}
+# per RosClient, held weakly: keyed by id(), a later test's client reusing a destroyed one's address got its
+# destroyed service clients ("cannot use Destroyable because destruction was requested")
+_CLIENTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def call(cli, name: str, srv, request=None, timeout: float = 10.0):
     """A service call through one client per service, kept for the test: a client made per call
     races the server matching its response reader (a busy node may answer into the void)."""
-    key = (id(cli), name)
-    client = _CLIENTS.get(key)
+    clients = _CLIENTS.setdefault(cli, {})
+    client = clients.get(name)
     if client is None:
-        client = _CLIENTS[key] = cli.node.create_client(srv, f"{NODE}/{name}")
+        client = clients[name] = cli.node.create_client(srv, f"{NODE}/{name}")
         cli.spin_until(client.service_is_ready, timeout, f"service ~/{name}")
     future = client.call_async(request if request is not None else srv.Request())
     cli.spin_until(future.done, timeout, f"the response of ~/{name}")
