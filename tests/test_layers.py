@@ -42,7 +42,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("prsm_sim",),
     # prsm_ros: all I/O
     ("prsm_ros.interface", "prsm_ros.cdr_read", "prsm_ros.ros_env", "prsm_ros.json_out",
-     "prsm_ros.param_files", "prsm_ros.limits", "prsm_ros.description"),  # the ROS interface as plain data, CDR reading, JSON, parameter files, input limits; the xacro macro (data)
+     "prsm_ros.param_files", "prsm_ros.limits", "prsm_ros.description",
+     "prsm_ros.interrupts"),  # the ROS interface as plain data, CDR reading, JSON, parameter files, input limits; the xacro macro (data); a handled Ctrl-C's exit
     ("prsm_ros.cdr_write",),  # per-step messages as CDR bytes (rclpy)
     ("prsm_ros.messages",),  # the interface bound to rclpy
     ("prsm_ros.mcap", "prsm_ros.ray_runner"),  # MCAP schema, codec, recorder, offline runs; joining or starting Ray
