@@ -33,6 +33,7 @@ from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 from prsm_sim.errors import InputError
+
 from prsm_ros.interrupts import interrupt_handled
 
 KINDS = ("flip", "set64", "set32", "truncate", "zero", "dup", "header")

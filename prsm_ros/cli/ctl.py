@@ -40,6 +40,7 @@ from collections.abc import Callable
 from typing import Any
 
 from prsm_sim.errors import PrsmError
+
 from prsm_ros.interrupts import interrupt_handled
 
 PROG = "prsm-ctl"

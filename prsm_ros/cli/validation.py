@@ -22,6 +22,7 @@ from typing import Any
 from prsm_sim import ParamError, preset
 from prsm_sim.calibration import Calibration, calibrate, predict
 from prsm_sim.datasheet import Datasheet
+
 from prsm_ros.interrupts import interrupt_handled
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -26,8 +26,8 @@ from prsm_sim.models.registry import MODELS, model_class
 from prsm_sim.presets import PRESETS
 
 from prsm_ros.fit.readers import BagTopics, read_source
-from prsm_ros.json_out import dumps
 from prsm_ros.interrupts import interrupt_handled
+from prsm_ros.json_out import dumps
 
 PROG = "prsm-fit"
 

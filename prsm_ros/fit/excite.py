@@ -20,6 +20,7 @@ from pathlib import Path
 from prsm_sim.errors import PrsmError
 from prsm_sim.identify.excite import KINDS, excitation
 from prsm_sim.presets import PRESETS
+
 from prsm_ros.interrupts import interrupt_handled
 
 PROG = "prsm-fit excite"

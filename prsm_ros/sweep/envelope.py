@@ -23,8 +23,9 @@ import hashlib
 import json
 import os
 import time
-from prsm_ros.interrupts import interrupt_handled
 from pathlib import Path
+
+from prsm_ros.interrupts import interrupt_handled
 
 BATCH = 4  # cases per Ray task: seconds of work, and little lost to a Ctrl-C
 RESULTS = "results.jsonl"
