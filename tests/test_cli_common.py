@@ -179,3 +179,50 @@ def test_a_ctrl_c_handled_inside_exec_code_exits_130_under_python_m_once_marked_
         proc.kill()
     assert "interrupted" in err
     assert proc.returncode == 130, err
+
+
+_NATIVE_INIT = '''
+import sys
+print("ready", flush=True)
+try:  # as a pybind11 extension's initialisation does with an exception it meets
+    sys.stdin.readline()  # the test sends SIGINT, then this line
+except KeyboardInterrupt as e:
+    raise ImportError("initialization failed") from e
+loaded = True
+'''
+
+_IMPORTS_NATIVE = '''
+import sys
+def main():
+    from prsm_ros.interrupts import import_native, interrupt_handled
+    try:
+        import_native("native_init")
+        print("not interrupted", file=sys.stderr)
+        return 0
+    except KeyboardInterrupt:
+        interrupt_handled()
+        print("interrupted; module loaded:", sys.modules["native_init"].loaded, file=sys.stderr)
+        return 130
+if __name__ == "__main__":
+    sys.exit(main())
+'''
+
+
+def test_a_ctrl_c_during_a_native_modules_import_reaches_the_commands_handler_once_the_module_is_loaded(tmp_path):
+    """`import_native` holds a SIGINT that lands in a module's initialisation and delivers it afterwards: the
+    module loads whole and the command's own Ctrl-C handler runs (exit 130), where the module, converting the
+    interrupt as a pybind11 extension does (scipy's `_highspy`), would otherwise end the command in an
+    ImportError. Oracle: the real signal's order against the module's own progress, and the exit status."""
+    (tmp_path / "native_init.py").write_text(_NATIVE_INIT, encoding="utf-8")
+    (tmp_path / "imports_native.py").write_text(_IMPORTS_NATIVE, encoding="utf-8")
+    proc = subprocess.Popen([sys.executable, "-m", "imports_native"], cwd=tmp_path, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])})
+    try:
+        assert proc.stdout.readline().strip() == "ready"  # inside the module's initialisation
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate("go\n", timeout=60)
+    finally:
+        proc.kill()
+    assert "interrupted; module loaded: True" in err, err
+    assert proc.returncode == 130, err

@@ -23,7 +23,7 @@ from prsm_sim import ParamError, preset
 from prsm_sim.calibration import Calibration, calibrate, predict
 from prsm_sim.datasheet import Datasheet
 
-from prsm_ros.interrupts import interrupt_handled
+from prsm_ros.interrupts import import_native, interrupt_handled
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "validation" / "data" / "srs_c_roller_screws.csv"
@@ -210,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"validation: error: {out.parent} is not a folder: the page goes into an existing folder", file=sys.stderr)
         return 2
     try:
+        import_native("scipy.optimize")  # the fit's solver loads where a Ctrl-C waits for it (`import_native`)
         source, rows = read_catalogue(args.data)
         progress = lambda k, n: print(f"\rpredicting {k}/{n}", end="", file=sys.stderr, flush=True)
         cal, records = fit_and_predict(rows, args.model, progress=progress)

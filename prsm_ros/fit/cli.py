@@ -26,7 +26,7 @@ from prsm_sim.models.registry import MODELS, model_class
 from prsm_sim.presets import PRESETS
 
 from prsm_ros.fit.readers import BagTopics, read_source
-from prsm_ros.interrupts import interrupt_handled
+from prsm_ros.interrupts import import_native, interrupt_handled
 from prsm_ros.json_out import dumps
 
 PROG = "prsm-fit"
@@ -109,6 +109,8 @@ def _inputs(args):
 
 def run(args, tmp: Path) -> dict:
     """The fit, its validation and its files in `tmp`; returns fit.json's content."""
+    # scipy's solvers, filters and statistics load here, where a Ctrl-C waits for them (`import_native`)
+    import_native("scipy.optimize", "scipy.signal", "scipy.stats")
     from tqdm import tqdm
 
     from prsm_ros.fit.plots import plot_recording

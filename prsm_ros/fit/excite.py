@@ -21,7 +21,7 @@ from prsm_sim.errors import PrsmError
 from prsm_sim.identify.excite import KINDS, excitation
 from prsm_sim.presets import PRESETS
 
-from prsm_ros.interrupts import interrupt_handled
+from prsm_ros.interrupts import import_native, interrupt_handled
 
 PROG = "prsm-fit excite"
 DEFAULT_EFFORT_LIMIT_NM = 50.0  # the node's max_effort default: the bound without an actuator
@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     out = Path(args.output)
     try:
+        import_native("scipy.signal")  # the chirp's module, which loads scipy's pybind11 solvers (`import_native`)
         from prsm_ros.param_files import load_actuator_file
         actuator = load_actuator_file(args.actuator) if args.actuator else None
         limit = limit_of(args.signal, actuator)
