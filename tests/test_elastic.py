@@ -270,3 +270,32 @@ def test_breakaway_holds_without_creep_and_releases_beyond_it():
     assert moved_back < -1e-3 and moved_fwd > 1e-3
     creep, _ = final_motion(p.with_overrides({"stiction.breakaway_ratio": 1.0}), 1.02 * t * eta_b)
     assert creep < -1e-3
+
+
+@pytest.mark.parametrize("kernel", ["reference", "compiled"])
+def test_the_chain_laws_root_lies_within_a_rounding_of_a_50_digit_root(kernel):
+    """`kernels._power_root`: s with a s² + b s³ = d (the chain law δ = a F^(2/3) + b F in s = F^(1/3)), from the
+    pure-Hertz law (b = 0) through a linear share b s/a of 1e-6 to 1e4 to the pure-linear law (a = 0), at the
+    magnitudes of a screw's flank (a ~ 2e-8 m/N^(2/3), F from 1 N to 1 MN). Oracle: the root by bisection in
+    50-digit decimal arithmetic on the same (d, a, b); within two roundings (2 × 2.2e-16 relative)."""
+    from decimal import Decimal, localcontext
+
+    from prsm_sim.models import kernels
+
+    root = kernels.load(kernel)._power_root
+    a0 = 2e-8
+    for force_n in (1.0, 1e2, 1e4, 1e6):
+        s_true = force_n ** (1.0 / 3.0)
+        for share in (0.0, 1e-6, 1e-3, 0.3, 1.0, 30.0, 1e4, math.inf):
+            a, b = (0.0, a0 / s_true) if share == math.inf else (a0, share * a0 / s_true)
+            d = a * s_true ** 2 + b * s_true ** 3
+            with localcontext() as ctx:
+                ctx.prec = 50
+                da, db, dd = Decimal(a), Decimal(b), Decimal(d)
+                lo, hi = Decimal(0), Decimal(2 * s_true)
+                for _ in range(180):
+                    mid = (lo + hi) / 2
+                    lo, hi = (lo, mid) if da * mid * mid + db * mid ** 3 > dd else (mid, hi)
+                err = abs(float((Decimal(root(d, a, b)) - lo) / lo))
+            assert err <= 4.5e-16, (force_n, share, err)
+    assert root(0.0, a0, 1e-9) == 0.0 and root(-1e-9, a0, 1e-9) == 0.0  # no deflection past the clearance: no force

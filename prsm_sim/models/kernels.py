@@ -32,8 +32,6 @@ import types
 from enum import IntEnum
 from typing import NamedTuple
 
-import numpy as np
-
 from prsm_sim.errors import ParamError
 from prsm_sim.stepping.ledger import ENERGY_GUARD_MIN_FLOW_J, ENERGY_GUARD_REL, ledger_step
 
@@ -174,7 +172,7 @@ FU = Fu2018Constants(*range(len(Fu2018Constants._fields)))  # the kernels' indic
 FL = FlankConstants(*range(len(FlankConstants._fields)))
 EL = ElasticConstants(*range(len(ElasticConstants._fields)))
 NO_MEMORY = (0.0,) * 6  # the solver memory when there is none
-ROOT_STEP_TOL = 1e-9  # relative Newton step at which `_power_root` stops (its error is then below rounding)
+ROOT_STEP_TOL = 1e-6  # relative Halley step at which `_power_root` stops (its error is then below rounding)
 _NAN29 = (math.nan,) * 29  # a `Forces` tuple that holds nothing
 
 
@@ -276,7 +274,12 @@ def load(kernel: str):
 
         # every dispatcher made before any is published (one dict update): a caller never sees a mix
         uncached = set() if ledger_fingerprint() == LEDGER_FINGERPRINT else {"step_record"}
-        g.update({name: njit(cache=name not in uncached, inline="always" if name in _INLINED else "never")(
+        # without numba's reference-counted runtime (`_nrt=False`, numba's own switch; numba is pinned to one
+        # minor version): the kernels allocate nothing, and with the runtime every call of a kernel that takes an
+        # array (the constants E, K, S) counts each array in and out with atomic instructions, about half of
+        # `elastic`'s batch time (perf: numba's NRT_incref/NRT_decref). The arithmetic is the same.
+        runtime: dict = {"_nrt": False}  # (a keyword numba's type stubs do not list)
+        g.update({name: njit(cache=name not in uncached, inline="always" if name in _INLINED else "never", **runtime)(
             getattr(g[name], "py_func", g[name])) for name in _COMPILED})
     return sys.modules[__name__]
 
@@ -435,7 +438,6 @@ def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
     """The static state at rest for one pass (`Fu2018.stick_forces` describes it): (found, forces, r)."""
     mu, mu_pin_r, mu_rr_r, nr, a, r_g, s_1g = K[FU.mu], K[FU.mu_pin_r], K[FU.mu_rr_r], K[FU.nr], K[FU.a], K[FU.r_g], \
         K[FU.s_1g]
-    cands = np.empty(5)
     for sg in (sign, -sign):
         row = S[0] if sg > 0.0 else S[1]
         g00, g01, g10, g11, g20, g21 = row[FL.g00], row[FL.g01], row[FL.g10], row[FL.g11], row[FL.g20], row[FL.g21]
@@ -468,18 +470,14 @@ def _stick(tau, load, sign, pin_abs, gear_sign, K, S):
         q11 = q10 * q10 + q11_ * q11_ + q12 * q12
         qa = q11 - mu2 * x10 * x10
         qb = 2.0 * (d01 - mu2 * x00 * x10)
-        cands[0], cands[1], cands[2] = -1.0, 1.0, 0.0
-        nc = 3
-        if q11 > 0.0:
-            cands[nc] = max(-1.0, min(1.0, -d01 / q11))
-            nc += 1
-        if qa > 0.0:
-            cands[nc] = max(-1.0, min(1.0, -qb / (2.0 * qa)))
-            nc += 1
+        # the candidates in order: the ends, the middle, then each stationary point that exists (NaN: none)
+        c_q = max(-1.0, min(1.0, -d01 / q11)) if q11 > 0.0 else math.nan
+        c_a = max(-1.0, min(1.0, -qb / (2.0 * qa))) if qa > 0.0 else math.nan
         best = math.inf
         sig = n_s = qq0 = qq1 = qq2 = 0.0
-        for i in range(nc):
-            s_ = cands[i]
+        for s_ in (-1.0, 1.0, 0.0, c_q, c_a):
+            if math.isnan(s_):
+                continue
             n_ = x00 + s_ * x10
             if n_ > 0.0:
                 t0, t1, t2 = q00 + s_ * q10, q01 + s_ * q11_, q02 + s_ * q12
@@ -763,16 +761,18 @@ def _power_root(d, a, b):
     """s = F^(1/3) with δ = a F^(2/3) + b F, i.e. a s² + b s³ = d (0 for d ≤ 0): the inverse of the power law
     (`elastic.power_law_root`).
 
-    In s the law is a polynomial, convex and increasing for s > 0, so Newton from an upper bound
-    (the smaller of the pure-Hertz root √(d/a) and the pure-linear root ∛(d/b), picked by comparing
-    a³ with d b² so that only one root is taken) converges monotonically, with no fractional power
-    inside the loop. The stiffness and energy then follow from s without powers either (`law_evaluate`).
+    In s the law is a polynomial g(s) = a s² + b s³ − d, convex and increasing for s > 0. The iteration starts
+    from an upper bound (the smaller of the pure-Hertz root √(d/a) and the pure-linear root ∛(d/b), picked by
+    comparing a³ with d b² so that only one root is taken) and takes Halley's steps,
+    s ← s − 2 g g' / (2 g'² − g g''), one division each, with no fractional power inside the loop. The
+    stiffness and energy then follow from s without powers either (`law_evaluate`).
 
-    Stopping: Newton's error after a step of relative size r is at most about r² (the relative curvature
-    term g''/(2g') s of this polynomial lies in [1/2, 1]), so a step below ROOT_STEP_TOL = 1e-9 leaves an
-    error under 1e-17 of s, below double rounding: the iteration stops there instead of taking one more
-    step only to see it vanish (3.1 iterations on average instead of 3.75; the root is taken about twice
-    per sub-step).
+    Stopping: Halley's relative error after a step of relative size r is about C r³, with
+    C = b s/(2a + 3bs) − ((a + 3bs)/(2a + 3bs))², so |C| ≤ 1 for this polynomial; a step below
+    ROOT_STEP_TOL = 1e-6 leaves an error under 1e-18 of s, below double rounding. On `s30`'s chain
+    (the shaft's compliance in series, b s/a about 0.3) that is 3.0 steps a root where Newton's took 4.5
+    (the root is taken about twice per sub-step); both land within one rounding of a 50-digit root
+    (tests/test_elastic.py).
     """
     if d <= 0.0:
         return 0.0
@@ -780,8 +780,10 @@ def _power_root(d, a, b):
         return (d / b) ** (1.0 / 3.0)
     s = math.sqrt(d / a) if b == 0.0 or a * a * a >= d * b * b else (d / b) ** (1.0 / 3.0)
     for _ in range(60):
-        r = a * s * s + b * s * s * s - d
-        s_new = s - r / (2.0 * a * s + 3.0 * b * s * s)
+        s2 = s * s
+        r = a * s2 + b * s2 * s - d
+        g1 = 2.0 * a * s + 3.0 * b * s2
+        s_new = s - 2.0 * r * g1 / (2.0 * g1 * g1 - r * (2.0 * a + 6.0 * b * s))
         if abs(s_new - s) <= ROOT_STEP_TOL * s:
             return s_new
         s = s_new
@@ -877,6 +879,10 @@ def _excess(direction, thread_force_n, g, E):
     return t * (1.0 / eta_f - 1.0 / E[EL.eta_rf]) if direction * thread_force_n >= 0.0 else t * (E[EL.eta_rb] - eta_b)
 
 
+# (v/v_s)² above which exp(−(v/v_s)²) < 1e-12 whatever its rounding: ln(1e12) = 27.631, with a margin
+STRIBECK_NEGLIGIBLE_R2 = 27.7
+
+
 @_compiled
 def _stribeck_torque(ws, thread_force_n, E):
     """Excess friction torque (N m, resisting ω_S) of the Stribeck law over `fu2018`'s running friction at the
@@ -885,6 +891,8 @@ def _stribeck_torque(ws, thread_force_n, E):
     if E[EL.breakaway] == 0.0 or ws == 0.0:
         return 0.0
     r = ws * E[EL.p_sb_vs]
+    if r * r > STRIBECK_NEGLIGIBLE_R2:  # g < 1e-12 for certain: no exp, whose underflow takes libm's slow path
+        return 0.0
     g = math.exp(-r * r)
     if g < 1e-12:
         return 0.0
