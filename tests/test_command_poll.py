@@ -1,7 +1,7 @@
 """The step thread's command poller (prsm_ros.node.command_poll): which subscriptions each step takes from.
 
-Pure Python: stand-in subscriptions with the three calls the poller makes (the handle's
-`take_message`, `get_publisher_count`, `raw`), so what is taken, when, and in which order is
+Pure Python: stand-in subscriptions with what the poller uses (`raw`, `msg_type` and the handle's `take_message`
+and `get_publisher_count`, as rclpy's bindings have them), so what is taken, when, and in which order is
 checked exactly; tests/test_node_realtime.py checks the same path over DDS.
 """
 
@@ -26,6 +26,9 @@ class FakeHandle:
         self.sub.takes += 1
         return (self.sub.queue.popleft(), {"source_timestamp": 0}) if self.sub.queue else None
 
+    def get_publisher_count(self) -> int:
+        return self.sub.publishers
+
 
 class FakeSub:
     """A raw subscription: a queue of messages and a matched-publisher count the test sets."""
@@ -39,9 +42,6 @@ class FakeSub:
         self.publishers = 0
         self.takes = 0
         self.handle = FakeHandle(self)
-
-    def get_publisher_count(self) -> int:
-        return self.publishers
 
 
 def make(sweep_every=10):

@@ -65,15 +65,17 @@ class CommandPoller:
     """
 
     def __init__(self, sweep_every: int = SWEEP_EVERY) -> None:
-        self._subs: list[tuple[str, object, Handler]] = []
-        self._active: list[tuple[str, object, Handler]] = []  # the ones with a publisher at the last sweep
+        # (topic key, rclpy's bindings' subscription, message type, handler): `Subscription.handle` is a Python
+        # property, taken once here rather than per take
+        self._subs: list[tuple[str, object, type, Handler]] = []
+        self._active: list[tuple[str, object, type, Handler]] = []  # the ones with a publisher at the last sweep
         self._sweep_every = sweep_every
         self._until_sweep = 0
 
     def add(self, key: str, subscription, handler: Handler) -> None:
         if not subscription.raw:
             raise InputError(f"subscription {subscription.topic_name}: polled subscriptions are raw (CDR bytes)")
-        self._subs.append((key, subscription, handler))
+        self._subs.append((key, subscription.handle, subscription.msg_type, handler))
         self._until_sweep = 0  # the next poll sweeps
 
     def poll(self) -> int:
@@ -95,7 +97,7 @@ class CommandPoller:
             taken = _take_all(*entry)
             n += taken
             try:
-                if taken or entry[1].get_publisher_count() > 0:
+                if taken or _publisher_count(entry[1]) > 0:
                     active.append(entry)
             except InvalidHandle:  # destroyed (shutdown)
                 pass
@@ -103,9 +105,13 @@ class CommandPoller:
         return n
 
 
-def _take_all(key: str, sub, handler: Handler) -> int:
-    """Hand every message waiting on `sub` to `handler`; returns how many."""
-    handle, msg_type = sub.handle, sub.msg_type
+def _publisher_count(handle) -> int:
+    with handle:
+        return handle.get_publisher_count()
+
+
+def _take_all(key: str, handle, msg_type: type, handler: Handler) -> int:
+    """Hand every message waiting on the subscription `handle` (of `msg_type`) to `handler`; returns how many."""
     n = 0
     while True:
         try:

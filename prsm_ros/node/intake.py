@@ -61,6 +61,7 @@ class CommandIntake:
         self.await_controller = cfg.wait_for_controller
         self.readers_awaited = False  # lockstep: the first command waits for its state's readers (Outlets.await_readers)
         self.rerun = node.rerun  # the live Rerun sink or None: the node's sinks are fixed once it is built
+        self.lockstep = cfg.time_mode == "lockstep"  # a read-only parameter
 
     def on_command(self, key: str, raw: bytes, info: dict) -> None:
         """One command message as CDR bytes.
@@ -145,7 +146,7 @@ class CommandIntake:
     def after_command(self, who: bytes | None) -> None:
         """Lockstep: a command advances time (a long request on the jobs thread, its backlog bounded)."""
         node = self.node
-        if node.config.time_mode != "lockstep" or self.session.paused or node.stopping:
+        if not self.lockstep or self.session.paused or node.stopping:
             return
         if not self.readers_awaited:  # once: the first state must reach the controller that asked for it
             self.readers_awaited = True

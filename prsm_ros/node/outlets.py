@@ -31,10 +31,12 @@ PER_STEP_TOPICS = ("joint_states", "ground_truth", "wrench", "internal_loads", "
 FIRST_COMMAND_READER_WAIT_S = 5.0
 
 
-def unmatched(pub) -> bool:
-    """True when `pub` has no matched reader (or is destroyed, at shutdown: nobody to publish to either)."""
+def unmatched(handle) -> bool:
+    """True when the publisher behind `handle` (rclpy's `Publisher.handle`) has no matched reader (or is destroyed,
+    at shutdown: nobody to publish to either)."""
     try:
-        return pub.get_subscription_count() == 0
+        with handle:
+            return handle.get_subscription_count() == 0
     except InvalidHandle:
         return True
 
@@ -59,6 +61,8 @@ class Outlets:
     def __init__(self, node, pub: dict, topic_names: dict[str, str], sinks: Sinks, unrecorded: frozenset[str],
                  warn: WarnThrottle) -> None:
         self.node, self.pub, self.topic_names, self.sinks = node, pub, topic_names, sinks
+        # rclpy's bindings' publishers, taken once: `Publisher.handle` is a Python property, read per publish
+        self.handles = {key: p.handle for key, p in pub.items()}
         self.unrecorded = unrecorded  # lockstep: wall-clock topics stay out of the bag (its bytes repeat)
         self.warn = warn
         self.session = node.session
@@ -104,9 +108,8 @@ class Outlets:
 
     def send(self, key: str, msg: bytes) -> None:
         """On DDS only; a sample the middleware refuses is counted and warned of, never raised."""
-        pub = self.pub[key]
-        try:
-            handle = pub.handle  # rclpy's Publisher.publish minus its type dispatch: always bytes here
+        handle = self.handles[key]
+        try:  # rclpy's Publisher.publish minus its type dispatch: always bytes here
             with handle:
                 handle.publish_raw(msg)
         except Exception as e:  # the middleware refused one sample (e.g. a stalled reliable reader): count it
@@ -121,7 +124,7 @@ class Outlets:
         now: a publish to nobody is dearer); a reader matched since gets every message from now on."""
         if key not in self.unread:
             return False
-        if unmatched(self.pub[key]):
+        if unmatched(self.handles[key]):
             return True
         self.unread = self.unread - {key}
         return False
@@ -168,14 +171,14 @@ class Outlets:
 
     def _matched(self, key: str) -> int:
         pub = self.pub.get(key)
-        return 0 if pub is None or unmatched(pub) else pub.get_subscription_count()
+        return 0 if pub is None or unmatched(self.handles[key]) else pub.get_subscription_count()
 
     def _on_graph(self, key: str) -> int:
         return self.node.count_subscribers(self.topic_names[key]) if key in self.pub else 0
 
     def count_readers(self) -> None:
         """Note which per-step topics have no matched reader now (`publish` skips them on DDS)."""
-        self.unread = frozenset(key for key in self.skippable if unmatched(self.pub[key]))
+        self.unread = frozenset(key for key in self.skippable if unmatched(self.handles[key]))
 
     def publish_step(self, out, reporter, echo, force_state: bool = False) -> None:
         """A step's messages: the state first (a lockstep controller computes its next command while
