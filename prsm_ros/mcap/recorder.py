@@ -367,8 +367,6 @@ class Deferred(functools.partial):
     making one (three a step in a realtime node) runs no Python.
     """
 
-    __slots__ = ()
-
     def build(self) -> bytes:
         return self()
 

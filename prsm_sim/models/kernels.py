@@ -771,7 +771,7 @@ def _power_root(d, a, b):
     C = b s/(2a + 3bs) − ((a + 3bs)/(2a + 3bs))², so |C| ≤ 1 for this polynomial; a step below
     ROOT_STEP_TOL = 1e-6 leaves an error under 1e-18 of s, below double rounding. On `s30`'s chain
     (the shaft's compliance in series, b s/a about 0.3) that is 3.0 steps a root where Newton's took 4.5
-    (the root is taken about twice per sub-step); both land within one rounding of a 50-digit root
+    (the root is taken about twice per sub-step); both land within two roundings of a 50-digit root
     (tests/test_elastic.py).
     """
     if d <= 0.0:
