@@ -35,7 +35,7 @@ from prsm_ros.cli import sim_datasheet
 from prsm_ros.json_out import dumps
 from prsm_ros.param_files import load_actuator_file, params_to_yaml, resolve_params
 from prsm_ros.limits import run_memory, run_steps
-from prsm_ros.interrupts import interrupt_handled
+from prsm_ros.interrupts import import_native, interrupt_handled
 
 PROGRESS_MIN_STEPS = 20_000
 PROBE_STEPS = 400  # a run longer than this first measures what a step of it holds (`bytes_per_step`)
@@ -554,6 +554,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"prsm-sim: error: --torque applies to --model {takers} only (the others take --speed)", file=sys.stderr)
         return 2
     try:
+        # every command's models and parameters load scipy's root finders (the drag law, Hertz contact, load sharing):
+        # here, where a Ctrl-C waits for them (`import_native`), not as an ImportError read as a missing extra below
+        import_native("scipy.optimize")
         args.func(args)
     except (PrsmError, ValueError) as e:  # every deliberate error (ModelError included) is one line, exit 2
         print(f"prsm-sim: error: {e}", file=sys.stderr)
