@@ -196,7 +196,7 @@ class AxialLaw:
         # the law's constants as the step's kernels read them (the rest of `ElasticConstants` is the model's)
         self.constants = ElasticConstants(*(math.nan,) * len(ElasticConstants._fields))._replace(
             clearance=self.clearance, preload=self.preload, law_a=self.side.a, law_b=self.side.b, ea=self.ea,
-            x_bearing=self.x_bearing, c_housing=self.c_housing, d0=self.d0, v0=self.v0)
+            x_bearing=self.x_bearing, c_housing=self.c_housing, d0=self.d0, v0=self.v0, inv_ea=1.0 / self.ea)
 
     def external_compliance(self, x_n: float) -> tuple[float, float]:
         """(ℓ/EA + 1/K_h, its derivative in x_N)."""
@@ -340,9 +340,9 @@ class ElasticModel(Model):
         law = self.law
         m_core = self._m_core
         self.constants = law.constants._replace(
-            p=self.p, m=self.m, mu=self.mu, zeta=self.zeta, substeps=float(self.substeps), hs=self.core.dt_s,
-            breakaway=float(self.breakaway), eta_sf=self.eta_static[0], eta_sb=self.eta_static[1], w_stick=self.w_stick,
-            czs=self.czs, sin_beta=self.sin_beta, mu_c=self.mu_c, eta_rf=self.eta_running[0],
+            p=self.p, m=self.m, inv_m=1.0 / self.m, mu=self.mu, zeta=self.zeta, substeps=float(self.substeps),
+            hs=self.core.dt_s, breakaway=float(self.breakaway), eta_sf=self.eta_static[0], eta_sb=self.eta_static[1],
+            w_stick=self.w_stick, czs=self.czs, sin_beta=self.sin_beta, mu_c=self.mu_c, eta_rf=self.eta_running[0],
             eta_rb=self.eta_running[1], d_mu=self.d_mu, p_sb_vs=self.p_over_sin_beta_per_vs, m00=m_core[0][0],
             m01=m_core[0][1], m11=m_core[1][1], impact_tol=IMPACT_TOL, impact_floor=IMPACT_FLOOR,
             impact_iter=float(IMPACT_ITERATIONS), c_side=self._side_compliance(), wh_refine=OMEGA_H_REFINE)

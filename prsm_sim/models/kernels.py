@@ -166,6 +166,9 @@ class ElasticConstants(NamedTuple):
     impact_iter: float
     c_side: float  # compliance of the flank set(s) at the static rating (the stiffest the nut gets), m/N
     wh_refine: float  # ω h above which a step's sub-steps are halved (`_refinement`)
+    # reciprocals the sub-step multiplies by where it would divide (two to eight divisions a sub-step fewer)
+    inv_ea: float  # 1/(E A), 1/N
+    inv_m: float  # 1/m, 1/kg
 
 
 FU = Fu2018Constants(*range(len(Fu2018Constants._fields)))  # the kernels' indices into a constants array
@@ -792,7 +795,8 @@ def _power_root(d, a, b):
 
 @_compiled
 def _stiffness_at_root(s, a, b):
-    return 1.0 / ((2.0 / 3.0) * a / max(s, 1e-100) + b)
+    s = max(s, 1e-100)
+    return s / ((2.0 / 3.0) * a + b * s)
 
 
 @_compiled
@@ -807,7 +811,7 @@ def law_evaluate(delta, x_n, extra, E):
     the clearance widened by `extra`. Unpreloaded: a dead zone of the clearance, then δ = a F^(2/3) + (b + c_ext) F.
     Preloaded pair: shift x_p with δ = x_p + F c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
     ell = x_n - E[EL.x_bearing]
-    c_ext = max(abs(ell), 1e-6) / E[EL.ea] + E[EL.c_housing]
+    c_ext = max(abs(ell), 1e-6) * E[EL.inv_ea] + E[EL.c_housing]
     a, b = E[EL.law_a], E[EL.law_b]
     if E[EL.preload] > 0:
         d0 = E[EL.d0]
@@ -849,7 +853,7 @@ def law_evaluate(delta, x_n, extra, E):
 @_compiled
 def _nut_side_force(force_n, x_n, E):
     s = 1.0 if x_n - E[EL.x_bearing] >= 0 else -1.0
-    return 0.5 * force_n * force_n * (s / E[EL.ea])
+    return 0.5 * force_n * force_n * (s * E[EL.inv_ea])
 
 
 @_compiled
@@ -939,7 +943,7 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
     ΔV, the Stribeck torque applied, stuck, the core's end forces, ω_S, ω_C, Δθ_S, Δθ_C, the core's dissipation,
     flank sign, pin force, gear force, solver memory, v_N, Δx_N, Δδ, the chain's F, K, V, lost motion, δ and
     damping at the end, the thread force held)."""
-    hs, m, p = K[FU.h], E[EL.m], E[EL.p]  # the sub-step: the core's step
+    hs, p = K[FU.h], E[EL.p]  # the sub-step: the core's step
     f_mid = f_el + c * rate
     stuck = E[EL.breakaway] != 0.0 and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
     if stuck:  # static friction holds the screw: no creep below breakaway
@@ -952,7 +956,7 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
         ws1, wc1, dth_s, dth_c, d_core, ff, sign1, pin1, gear1, mem1 = step(
             ws, wc, sign, pin_abs, gear, mem, torque_nm - f_str, f_mid, K, S)
     nsf = _nut_side_force(f_el, x_mid, E)
-    v1 = v_n + hs * (f_mid - load_n + nsf) / m
+    v1 = v_n + hs * (f_mid - load_n + nsf) * E[EL.inv_m]
     dx = 0.5 * hs * (v_n + v1)
     d_delta = p * dth_s - dx
     _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E)
@@ -1035,7 +1039,7 @@ def _refinement(x_n, E, levels):
     stiff as it gets at the nut's position x_N: its flank set(s) at the static rating (`c_side`) in series with
     the shaft between the bearing and the nut and the housing. The stiffness grows as the nut nears the fixed
     bearing (the shaft shortens) far more than with the load (Hertz: K ∝ F^(1/3), bounded by the linear terms)."""
-    c_ext = max(abs(x_n - E[EL.x_bearing]), 1e-6) / E[EL.ea] + E[EL.c_housing]
+    c_ext = max(abs(x_n - E[EL.x_bearing]), 1e-6) * E[EL.inv_ea] + E[EL.c_housing]
     wh = E[EL.hs] / math.sqrt((E[EL.c_side] + c_ext) * E[EL.mu])
     j = 0
     while wh > E[EL.wh_refine] and j < levels - 1:
@@ -1090,7 +1094,7 @@ def _advance_at(j, th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, 
     f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
     f1 = _NAN29
     for _ in range(int(E[EL.substeps]) << j):
-        a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) / m
+        a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) * E[EL.inv_m]
         x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
         _, f_el, k_mid, _, _, _, c = _el_force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
                                                x_mid, v_n + 0.5 * hs * a_n, extra, E)
