@@ -277,12 +277,15 @@ def test_the_chain_laws_root_lies_within_a_rounding_of_a_50_digit_root(kernel):
     """`kernels._power_root`: s with a s² + b s³ = d (the chain law δ = a F^(2/3) + b F in s = F^(1/3)), from the
     pure-Hertz law (b = 0) through a linear share b s/a of 1e-6 to 1e4 to the pure-linear law (a = 0), at the
     magnitudes of a screw's flank (a ~ 2e-8 m/N^(2/3), F from 1 N to 1 MN). Oracle: the root by bisection in
-    50-digit decimal arithmetic on the same (d, a, b); within two roundings (2 × 2.2e-16 relative)."""
+    50-digit decimal arithmetic on the same (d, a, b); within two roundings (2 × 2.2e-16 relative). The same for
+    `_power_root_near`, the root started from a nearby law's root (the sub-step's last: here 0.1 % below and
+    above this one's) or from a start it must refuse (half the root: outside the band it trusts)."""
     from decimal import Decimal, localcontext
 
     from prsm_sim.models import kernels
 
-    root = kernels.load(kernel)._power_root
+    k = kernels.load(kernel)
+    root = k._power_root
     a0 = 2e-8
     for force_n in (1.0, 1e2, 1e4, 1e6):
         s_true = force_n ** (1.0 / 3.0)
@@ -296,6 +299,7 @@ def test_the_chain_laws_root_lies_within_a_rounding_of_a_50_digit_root(kernel):
                 for _ in range(180):
                     mid = (lo + hi) / 2
                     lo, hi = (lo, mid) if da * mid * mid + db * mid ** 3 > dd else (mid, hi)
-                err = abs(float((Decimal(root(d, a, b)) - lo) / lo))
-            assert err <= 4.5e-16, (force_n, share, err)
+                found = [root(d, a, b)] + [k._power_root_near(d, a, b, s_true * f) for f in (0.999, 1.001, 0.5)]
+                errs = [abs(float((Decimal(x) - lo) / lo)) for x in found]
+            assert max(errs) <= 4.5e-16, (force_n, share, errs)
     assert root(0.0, a0, 1e-9) == 0.0 and root(-1e-9, a0, 1e-9) == 0.0  # no deflection past the clearance: no force

@@ -502,7 +502,7 @@ class ElasticModel(Model):
         result stands)."""
         s = self.p * (self.dt_s * ws - (th_s - th_s0))
         th_s1, th_c1, x_n1 = th_s + s / self.p, th_c + self._carrier_ratio * s / self.p, x_n + s
-        f_th, f_el, k, v_el1, lost, delta, _ = _LAW._el_force(th_s1, ws, x_n1, v_n, extra, self._law_e)
+        f_th, f_el, k, v_el1, lost, delta, _, _ = _LAW._el_force(th_s1, ws, x_n1, v_n, extra, self._law_e, 0.0)
         d_v = v_el1 - v_el
         d_diss = torque_nm * s / self.p - load_n * s - d_v
         if not d_diss >= 0.0:

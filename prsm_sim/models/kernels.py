@@ -777,11 +777,22 @@ def _power_root(d, a, b):
     (the root is taken about twice per sub-step); both land within two roundings of a 50-digit root
     (tests/test_elastic.py).
     """
+    return _power_root_near(d, a, b, 0.0)
+
+
+@_compiled
+def _power_root_near(d, a, b, near):
+    """`_power_root`, started from `near` where it lies between half the upper bound and the bound: the root of
+    the same law a moment before (the sub-step's last), which the force moves by a fraction of a per cent, so
+    Halley's steps start within ~1e-3 and stop after two instead of three (2.1 steps a root on the bench's
+    inputs, the start trusted for 94 % of the roots; tests/test_elastic.py bounds the error as `_power_root`'s)."""
     if d <= 0.0:
         return 0.0
     if a == 0.0:
         return (d / b) ** (1.0 / 3.0)
     s = math.sqrt(d / a) if b == 0.0 or a * a * a >= d * b * b else (d / b) ** (1.0 / 3.0)
+    if 0.5 * s < near < s:
+        s = near
     for _ in range(60):
         s2 = s * s
         r = a * s2 + b * s2 * s - d
@@ -810,6 +821,14 @@ def law_evaluate(delta, x_n, extra, E):
     """The chain law (`elastic.AxialLaw`): (F, K = dF/dδ, V, lost motion) at deflection δ and nut position x_N,
     the clearance widened by `extra`. Unpreloaded: a dead zone of the clearance, then δ = a F^(2/3) + (b + c_ext) F.
     Preloaded pair: shift x_p with δ = x_p + F c_ext, F = Q_A(δ₀ + x_p) − Q_B(δ₀ − x_p) (Newton on x_p)."""
+    f, k, v, lost, _ = law_evaluate_near(delta, x_n, extra, E, 0.0)
+    return f, k, v, lost
+
+
+@_compiled
+def law_evaluate_near(delta, x_n, extra, E, near):
+    """`law_evaluate` and the unpreloaded law's root s = |F|^(1/3) (0 for a preloaded pair), its root started
+    from `near` (`_power_root_near`)."""
     ell = x_n - E[EL.x_bearing]
     c_ext = max(abs(ell), 1e-6) * E[EL.inv_ea] + E[EL.c_housing]
     a, b = E[EL.law_a], E[EL.law_b]
@@ -836,18 +855,18 @@ def law_evaluate(delta, x_n, extra, E):
         k = k_pair / (1.0 + k_pair * c_ext)
         va = qa * (d0 + x) - _complementary_at_root(ra, a, b)
         vb = (qb * (d0 - x) - _complementary_at_root(rb, a, b)) if qb > 0 else 0.0
-        return f, k, va + vb - 2 * E[EL.v0] + 0.5 * f * f * c_ext, 0.0
+        return f, k, va + vb - 2 * E[EL.v0] + 0.5 * f * f * c_ext, 0.0, 0.0
     half = 0.5 * (E[EL.clearance] + extra)
     mag = abs(delta) - half
     if mag <= 0.0:
-        return 0.0, 0.0, 0.0, delta
+        return 0.0, 0.0, 0.0, delta, 0.0
     bb = b + c_ext
-    r = _power_root(mag, a, bb)
+    r = _power_root_near(mag, a, bb, near)
     f = r * r * r
     k = _stiffness_at_root(r, a, bb)
     v = f * mag - _complementary_at_root(r, a, bb)
     sgn = 1.0 if delta > 0 else -1.0
-    return sgn * f, k, v, sgn * half
+    return sgn * f, k, v, sgn * half, r
 
 
 @_compiled
@@ -857,14 +876,15 @@ def _nut_side_force(force_n, x_n, E):
 
 
 @_compiled
-def _el_force(th_s, w_s, x_n, v_n, extra, E):
-    """The thread force with contact damping c = 2ζ√(K μ): (F + c δ̇, F, K, V, lost, δ, c)."""
+def _el_force(th_s, w_s, x_n, v_n, extra, E, near):
+    """The thread force with contact damping c = 2ζ√(K μ): (F + c δ̇, F, K, V, lost, δ, c, the law's root),
+    the root started from `near` (`law_evaluate_near`; 0: from its bound)."""
     p = E[EL.p]
     delta = p * th_s - x_n
-    f, k, v, lost = law_evaluate(delta, x_n, extra, E)
+    f, k, v, lost, r = law_evaluate_near(delta, x_n, extra, E, near)
     c = 2.0 * E[EL.zeta] * math.sqrt(k * E[EL.mu]) if k > 0 else 0.0
     rate = p * w_s - v_n
-    return f + c * rate, f, k, v, lost, delta, c
+    return f + c * rate, f, k, v, lost, delta, c, r
 
 
 @_compiled
@@ -937,12 +957,13 @@ def _core_kinetic(ws, wc, E):
 
 @_inlined
 def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra, torque_nm,
-             load_n, E, K, S):
+             load_n, E, K, S, near):
     """One try of a sub-step with the elastic force `f_el` (+ damping c · rate) held: the core steps (or stays
     held by static friction: `_holds`) and the nut moves under it. Returns (miss of the held force's work against
     ΔV, the Stribeck torque applied, stuck, the core's end forces, ω_S, ω_C, Δθ_S, Δθ_C, the core's dissipation,
     flank sign, pin force, gear force, solver memory, v_N, Δx_N, Δδ, the chain's F, K, V, lost motion, δ and
-    damping at the end, the thread force held)."""
+    damping at the end, the thread force held, the nut-side force, the law's root at the end (its next start))
+    with the end's root started from `near`."""
     hs, p = K[FU.h], E[EL.p]  # the sub-step: the core's step
     f_mid = f_el + c * rate
     stuck = E[EL.breakaway] != 0.0 and ws == 0.0 and wc == 0.0 and _holds(torque_nm, f_mid, E)
@@ -959,10 +980,10 @@ def _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, p
     v1 = v_n + hs * (f_mid - load_n + nsf) * E[EL.inv_m]
     dx = 0.5 * hs * (v_n + v1)
     d_delta = p * dth_s - dx
-    _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E)
+    _, f_el1, k1, v_el1, lost1, delta1, c1, r1 = _el_force(th_s + dth_s, ws1, x_n + dx, v1, extra, E, near)
     err = f_el * d_delta - nsf * dx - (v_el1 - v_el0)
     return (err, f_str, stuck, ff, ws1, wc1, dth_s, dth_c, d_core, sign1, pin1, gear1, mem1, v1, dx, d_delta, f_el1,
-            k1, v_el1, lost1, delta1, c1, f_mid, nsf)
+            k1, v_el1, lost1, delta1, c1, f_mid, nsf, r1)
 
 
 @_inlined
@@ -981,7 +1002,7 @@ def _settled(att, v_el0, torque_nm, E):
 
 @_inlined
 def _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, sign, pin_abs, gear, mem, extra,
-            torque_nm, load_n, E, K, S):
+            torque_nm, load_n, E, K, S, near):
     """A sub-step whose held elastic force does the work ΔV (`elastic_advance`): the attempt kept, its damping
     coefficient and rate, and the contact loss booked with it (J, ≥ 0).
 
@@ -997,7 +1018,7 @@ def _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, s
 
     Returns (the attempt kept, its damping coefficient and rate, the contact loss, resolved)."""
     best = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, f_str, sign, pin_abs, gear, mem, extra,
-                    torque_nm, load_n, E, K, S)
+                    torque_nm, load_n, E, K, S, near)
     last, b_c, b_rate = best, c, rate
     pos, p_c, p_rate, have_pos = best, c, rate, best[0] >= 0.0  # the best attempt that creates no energy
     f_a = g_a = 0.0  # the previous attempt's held force and its g (none yet: g_a = 0)
@@ -1020,7 +1041,7 @@ def _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str, s
         kk = max(k_mid, last[17])
         c = 2.0 * E[EL.zeta] * math.sqrt(kk * E[EL.mu]) if kk > 0 else 0.0
         last = _attempt(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, c, rate, last[1], sign, pin_abs, gear, mem, extra,
-                        torque_nm, load_n, E, K, S)
+                        torque_nm, load_n, E, K, S, near)
         l_c, l_rate = c, rate
         if abs(last[0]) < abs(best[0]):
             best, b_c, b_rate = last, c, rate
@@ -1091,22 +1112,23 @@ def _advance_at(j, th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, 
     resolved = True
     hs, m, p = K[FU.h], E[EL.m], E[EL.p]
     diss = w_out = 0.0
-    f_th, f_el0, k, v_el0, lost, delta, c0 = _el_force(th_s, ws, x_n, v_n, extra, E)
+    # the law's root (its last value starts the next: `_power_root_near`)
+    f_th, f_el0, k, v_el0, lost, delta, c0, root = _el_force(th_s, ws, x_n, v_n, extra, E, 0.0)
     f1 = _NAN29
     for _ in range(int(E[EL.substeps]) << j):
         a_n = (f_th - load_n + _nut_side_force(f_el0, x_n, E)) * E[EL.inv_m]
         x_mid = x_n + 0.5 * hs * v_n + 0.125 * hs * hs * a_n
-        _, f_el, k_mid, _, _, _, c = _el_force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc, ws + 0.5 * hs * acc,
-                                               x_mid, v_n + 0.5 * hs * a_n, extra, E)
+        _, f_el, k_mid, _, _, _, c, root = _el_force(th_s + 0.5 * hs * ws + 0.125 * hs * hs * acc,
+                                                     ws + 0.5 * hs * acc, x_mid, v_n + 0.5 * hs * a_n, extra, E, root)
         rate = p * (ws + 0.5 * hs * acc) - (v_n + 0.5 * hs * a_n)
         f_str = _stribeck_torque(ws, f_el + c * rate, E)
         best, b_c, b_rate, loss, settled = _settle(ws, wc, th_s, x_n, v_n, x_mid, v_el0, f_el, k_mid, c, rate, f_str,
-                                                   sign, pin_abs, gear, mem, extra, torque_nm, load_n, E, K, S)
+                                                   sign, pin_abs, gear, mem, extra, torque_nm, load_n, E, K, S, root)
         if not (settled or last_level):
             resolved = False
         f_str = best[1]  # the Stribeck torque of the attempt kept (at rest it follows the held force)
         (_, _, stuck, f1, ws1, wc1, dth_s, dth_c, d_core, sign, pin_abs, gear, mem, v1, dx, d_delta, f_el1, k1, v_el1,
-         lost1, delta1, c1, f_mid, _) = best
+         lost1, delta1, c1, f_mid, _, root) = best
         diss += d_core + b_c * b_rate * d_delta + f_str * dth_s + loss
         acc = (ws1 - ws) / hs
         th_s += dth_s
@@ -1118,7 +1140,7 @@ def _advance_at(j, th_s, ws, th_c, wc, x_n, v_n, sign, pin_abs, gear, mem, acc, 
             # carrier's) goes to friction, counted in the ledger
             diss += _core_kinetic(ws1, wc1, E)
             ws1 = wc1 = acc = 0.0
-            _, f_el1, k1, v_el1, lost1, delta1, c1 = _el_force(th_s, 0.0, x_n + dx, v1, extra, E)
+            _, f_el1, k1, v_el1, lost1, delta1, c1, root = _el_force(th_s, 0.0, x_n + dx, v1, extra, E, root)
         x_n += dx
         v_n = v1
         w_out += load_n * dx
