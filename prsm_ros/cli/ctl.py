@@ -49,6 +49,8 @@ COMMAND_KINDS = {"torque": ("effort", "screw_torque", "N·m"), "velocity": ("vel
                  "position": ("position", "position_command", "m")}
 INTERFACES = ("effort", "velocity", "position")
 APPLY_WAIT_S = 2.0  # `command`: how long to wait for the node to apply or refuse it
+# how long `brake` waits for the node's ~/brake_command reader to be discovered once its services are
+BRAKE_TOPIC_WAIT_S = 2.0
 EVENTS_SETTLE_S = 0.5  # `events` without --follow: the latched history is complete when nothing came for this long
 
 
@@ -142,12 +144,19 @@ class Ctl:
         rclpy.try_shutdown(context=self.context)
 
     # -- waiting -----------------------------------------------------------------------------
-    def spin_until(self, done: Callable[[], bool], what: str, timeout_s: float | None = None) -> None:
-        end = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+    def wait_until(self, done: Callable[[], bool], within_s: float) -> bool:
+        """Spin until `done()` holds or `within_s` wall seconds pass; returns whether it held."""
+        end = time.monotonic() + within_s
         while not done():
             if time.monotonic() > end:
-                raise CtlError(f"{what} within {self.timeout_s:g} s")
+                return False
             self.executor.spin_once(timeout_sec=0.02)
+        return True
+
+    def spin_until(self, done: Callable[[], bool], what: str, timeout_s: float | None = None) -> None:
+        within_s = self.timeout_s if timeout_s is None else timeout_s
+        if not self.wait_until(done, within_s):
+            raise CtlError(f"{what} within {within_s:g} s")
 
     def wait_for_node(self) -> None:
         """Until the node's `~/pause` service is ready (endpoint discovery: faster than the node list)."""
@@ -559,7 +568,10 @@ def brake(ctl: Ctl, engage: bool) -> dict:
     (the brake is owned like the commands), else through its `~/brake` service."""
     from std_msgs.msg import Bool
     topic = ctl.topic("brake_command")
-    if ctl.node.count_subscribers(topic) == 0:  # endpoints are discovered with the node's services
+    # DDS discovers a node's endpoints one by one: its services may be known before this reader (the owned
+    # command then went to the service, refused with another message), so the service is for a node that still
+    # shows no such reader after a while
+    if not ctl.wait_until(lambda: ctl.node.count_subscribers(topic) > 0, BRAKE_TOPIC_WAIT_S):
         return ctl.trigger("brake", engage)
     return send_owned(ctl, "brake_command", Bool(data=engage), f"brake {'on' if engage else 'off'}")
 
