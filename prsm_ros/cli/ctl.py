@@ -568,9 +568,8 @@ def brake(ctl: Ctl, engage: bool) -> dict:
     (the brake is owned like the commands), else through its `~/brake` service."""
     from std_msgs.msg import Bool
     topic = ctl.topic("brake_command")
-    # DDS discovers a node's endpoints one by one: its services may be known before this reader (the owned
-    # command then went to the service, refused with another message), so the service is for a node that still
-    # shows no such reader after a while
+    # DDS discovers a node's endpoints one by one, so its services may be known before this reader; the service
+    # is for a node that still shows no such reader after a while (the topic is where a command is owned)
     if not ctl.wait_until(lambda: ctl.node.count_subscribers(topic) > 0, BRAKE_TOPIC_WAIT_S):
         return ctl.trigger("brake", engage)
     return send_owned(ctl, "brake_command", Bool(data=engage), f"brake {'on' if engage else 'off'}")
