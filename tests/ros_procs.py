@@ -225,3 +225,19 @@ def diagnostics_of(msg) -> tuple[int, str, dict[str, str]]:
     st = msg.status[0]
     return int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level), st.message, \
         {kv.key: kv.value for kv in st.values}
+
+
+def thread_cpus(pid: int, tid: int) -> frozenset[int]:
+    """The CPUs a thread may run on, as the kernel lists them (/proc: an oracle beside what a process reports)."""
+    with open(f"/proc/{pid}/task/{tid}/status") as fh:
+        listed = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("Cpus_allowed_list"))
+    cpus: set[int] = set()
+    for part in listed.split(","):
+        lo, _, hi = part.partition("-")
+        cpus.update(range(int(lo), int(hi or lo) + 1))
+    return frozenset(cpus)
+
+
+def thread_ids(pid: int) -> list[int]:
+    """The ids of a process's threads (/proc)."""
+    return [int(t) for t in os.listdir(f"/proc/{pid}/task")]

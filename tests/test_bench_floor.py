@@ -8,13 +8,15 @@ the writer that made it.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
+import time
 
 import pytest
 
 from prsm_ros.ros_env import start_module
-from ros_procs import CEILING_FACTOR, NodeProcess, ros_test_env
+from ros_procs import CEILING_FACTOR, NodeProcess, ros_test_env, thread_cpus, thread_ids
 
 pytestmark = pytest.mark.slow
 
@@ -70,3 +72,34 @@ def test_the_recording_floor_writes_what_the_node_records_for_every_period_it_pu
     assert [list(m.data) for m in decoded] == [list(m.data) for m in expected]
     assert [[(d.label, d.size) for d in m.layout.dim] for m in decoded] == \
         [[(d.label, d.size) for d in m.layout.dim] for m in expected]
+
+
+def test_the_floor_and_the_controller_keep_off_the_loops_cpu_as_the_node_does(tmp_path):
+    """`rclpy_floor --step-thread-cpu N` and `rt_controller --cpus`: the floor's loop thread alone on CPU N, its
+    other threads (the middleware's) and every thread of the controller off it, read from the kernel's affinity
+    lists while the controller gets its states (the bench's pinned floor: the node's `step_thread_cpu`)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:  # the floor refuses it here, as the node does
+        pytest.skip(f"one CPU ({cpus}): a CPU of its own for the loop needs another for the rest")
+    cpu, rest = cpus[-1], cpus[:-1]
+    env = ros_test_env("bench_floor_cpu")
+    with NodeProcess(env, workdir=tmp_path / "floor", module="prsm_ros.bench.rclpy_floor",
+                     extra_args=["--step-thread-cpu", str(cpu)]) as floor:
+        ctl = start_module("prsm_ros.bench.rt_controller",
+                           ["--duration", "3", "--cpus", ",".join(map(str, rest))], env, cwd=tmp_path,
+                           stdout=subprocess.PIPE)
+        seen = None
+        deadline = time.monotonic() + 120 * CEILING_FACTOR
+        for raw in ctl.stdout:  # the controller says "measuring" once states flow: the loop is running by then
+            if raw.strip() == b"measuring":
+                seen = ({t: thread_cpus(floor.proc.pid, t) for t in thread_ids(floor.proc.pid)},
+                        {t: thread_cpus(ctl.pid, t) for t in thread_ids(ctl.pid)})
+            if time.monotonic() > deadline:
+                break
+        assert ctl.wait(timeout=120 * CEILING_FACTOR) == 0
+        assert floor.stop(signal.SIGINT) == 0, floor.stderr
+    assert seen is not None, "the controller never started measuring"
+    floor_threads, ctl_threads = seen
+    assert [t for t, c in floor_threads.items() if c == {cpu}] == [floor.proc.pid]  # the loop: the main thread
+    assert all(cpu not in c for t, c in floor_threads.items() if t != floor.proc.pid), floor_threads
+    assert ctl_threads and all(c == set(rest) for c in ctl_threads.values()), ctl_threads

@@ -32,6 +32,7 @@ BAD_STARTS = [
     ({"cmd_timeout": -0.5}, "parameter cmd_timeout = -0.5: must be a finite number in [0, 1e+06] (s)"),
     ({"time_mode": 5}, "parameter time_mode = 5: must be one of realtime, fast, lockstep"),
     ({"record": True, "record_path": "/nonexistent/dir/run.mcap"}, "parameter record_path = '/nonexistent/dir/run.mcap'"),
+    ({"step_thread_cpu": 1023}, "parameter step_thread_cpu = 1023: must be -1 "),
 ]
 
 
@@ -210,3 +211,23 @@ def test_nested_faults_are_checked_and_bounded_under_their_own_name():
     # a fault without a kind is refused, naming it
     with pytest.raises(ConfigError, match=r"^parameter faults.k: fault.kind = None: is required"):
         NodeConfig.from_values({"faults.k.value": 3.0})
+
+
+@pytest.mark.parametrize("allowed, cpu, refusal", [
+    ({0, 1, 2, 3}, 3, None),
+    ({0, 1, 2, 3}, -1, None),
+    ({0, 2}, 1, "parameter step_thread_cpu = 1: must be -1 or one of the CPUs this process may run on (0, 2)"),
+    ({0}, 0, "parameter step_thread_cpu = 0: must be -1 here: this process may run on CPU 0 only, and the node's "
+             "other threads need a CPU besides the step thread's"),
+    ({5}, -1, None),
+])
+def test_the_step_threads_cpu_is_one_this_process_may_use_with_another_left(monkeypatch, allowed, cpu, refusal):
+    """The OS's affinity mask stood in for (the node process test reads the real one: test_node_realtime)."""
+    from prsm_ros.node import scheduling
+    monkeypatch.setattr(scheduling, "allowed_cpus", lambda: frozenset(allowed))
+    if refusal is None:
+        assert NodeConfig.from_values({"step_thread_cpu": cpu}).step_thread_cpu == cpu
+    else:
+        with pytest.raises(ConfigError) as e:
+            NodeConfig.from_values({"step_thread_cpu": cpu})
+        assert str(e.value) == refusal

@@ -13,6 +13,7 @@ Waits are on events with generous ceilings (the machine may be loaded); no figur
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 
@@ -20,7 +21,7 @@ import pytest
 
 import rclpy  # noqa: F401  (the test extra installs it; a missing install must fail, not skip)
 
-from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env  # noqa: E402
+from ros_procs import NodeProcess, RosClient, diagnostics_of, ros_test_env, thread_cpus, thread_ids  # noqa: E402
 
 # the slow tier (.ci/run runs it after the README's test command): many node or Ray start-ups
 pytestmark = pytest.mark.slow
@@ -283,3 +284,39 @@ def test_a_stalled_reader_loses_nothing_within_the_queue_and_only_the_oldest_bey
 
 if __name__ == "__main__":
     raise SystemExit(pytest.main([__file__, "-q"]))
+
+
+
+def test_the_step_thread_runs_on_its_cpu_and_every_other_thread_and_the_writer_off_it(tmp_path):
+    """step_thread_cpu: the step thread alone on that CPU; the executor, the middleware's threads, the recorder and
+    its writer process on the others (read from the kernel's affinity lists), and /diagnostics says so."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:  # the node refuses it here: test_node_params covers that start
+        pytest.skip(f"one CPU ({cpus}): a CPU of its own for the step thread needs another for the rest")
+    cpu = cpus[-1]
+    params = {"time_mode": "realtime", "update_rate": 200, "diagnostics_rate": 10.0, "step_thread_cpu": cpu,
+              "record_path": str(tmp_path / "run.mcap")}
+    with NodeProcess(ENV, params, workdir=tmp_path / "node") as proc, RosClient(ENV) as cli:
+        diag = cli.subscribe("/diagnostics", DiagnosticArray)
+        js = cli.subscribe("/joint_states", JointState)
+        cli.wait_for_node(proc, timeout=60.0)
+        # a report made after the node's start-up moved its threads
+        cli.spin_until(lambda: js and any("middleware_threads_cpus" in diagnostics_of(m)[2] for m in diag), 60.0,
+                       "a state and a diagnostics report with the threads' CPUs")
+        report = next(diagnostics_of(m)[2] for m in reversed(diag) if "middleware_threads_cpus" in diagnostics_of(m)[2])
+        pid = proc.proc.pid
+        on_cpu = [t for t in thread_ids(pid) if thread_cpus(pid, t) == {cpu}]
+        others = [t for t in thread_ids(pid) if t not in on_cpu]
+        writers = [int(c) for t in thread_ids(pid)
+                   for c in open(f"/proc/{pid}/task/{t}/children").read().split()]
+        assert len(on_cpu) == 1, [(t, sorted(thread_cpus(pid, t))) for t in thread_ids(pid)]
+        assert others and all(cpu not in thread_cpus(pid, t) for t in others)
+        assert len(writers) == 1  # the MCAP writer process
+        assert all(cpu not in thread_cpus(w, t) for w in writers for t in thread_ids(w))
+        assert report["step_thread_cpus"] == f"CPU {cpu}"
+        assert report["other_threads_cpus"] == ("CPU" if len(cpus) == 2 else "CPUs") + " " + \
+            ", ".join(map(str, cpus[:-1]))
+        assert report["middleware_threads_cpus"].startswith(report["other_threads_cpus"] + " (")
+        assert proc.stop() == 0, proc.stderr

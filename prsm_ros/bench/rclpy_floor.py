@@ -1,6 +1,7 @@
 """The floor under the node's CPU figure: a bare rclpy loop with the node's realtime DDS traffic and nothing else.
 
-    python -m prsm_ros.bench.rclpy_floor [--rate 1000] [--record [--record-to FILE]]   # `prsm-bench --only realtime`
+    python -m prsm_ros.bench.rclpy_floor [--rate 1000] [--record [--record-to FILE]] [--step-thread-cpu N]
+                                                     # `prsm-bench --only realtime`
 
 It stands where `prsm-node` stands for the reference controller (`prsm_ros.bench.rt_controller`):
 node name `prsm_actuator`, paced by the node's `DeadlinePacer` at 1 kHz, it takes the commands
@@ -39,17 +40,25 @@ def main(argv: list[str] | None = None) -> int:
                     help="also write the node's recorded messages with foxglove-sdk's native MCAP writer")
     ap.add_argument("--record-to", type=Path, metavar="FILE",
                     help="with --record: the MCAP file to write (default: one in a temporary directory)")
+    ap.add_argument("--step-thread-cpu", type=int, default=-1, metavar="N",
+                    help="run the loop on CPU N and every other thread off it, as prsm-node's step_thread_cpu does")
     a = ap.parse_args(argv)
+    if a.step_thread_cpu >= 0:
+        from prsm_ros.node.scheduling import allowed_cpus
+        if a.step_thread_cpu not in allowed_cpus() or len(allowed_cpus()) < 2:
+            ap.error(f"--step-thread-cpu {a.step_thread_cpu}: must be one of the CPUs this process may run on "
+                     f"({', '.join(map(str, sorted(allowed_cpus())))}), with another left for the other threads")
     if a.lockstep:
         return lockstep_floor()
     if a.record:
         with native_recording(a.record_to) as log:
-            return realtime_floor(a.rate, log)
-    return realtime_floor(a.rate, None)
+            return realtime_floor(a.rate, log, a.step_thread_cpu)
+    return realtime_floor(a.rate, None, a.step_thread_cpu)
 
 
-def realtime_floor(rate_hz: float, log) -> int:
-    """The paced loop (module doc); `log(k, stamp_ns, command, state, echo)` writes period k's messages (or None)."""
+def realtime_floor(rate_hz: float, log, step_thread_cpu: int = -1) -> int:
+    """The paced loop (module doc); `log(k, stamp_ns, command, state, echo)` writes period k's messages (or None);
+    `step_thread_cpu` >= 0: the loop on that CPU and every other thread off it (`prsm_ros.node.scheduling`)."""
     import rclpy
     from sensor_msgs.msg import JointState, TimeReference
     from std_msgs.msg import Float64
@@ -75,6 +84,10 @@ def realtime_floor(rate_hz: float, log) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
     reduce_timer_slack()
+    if step_thread_cpu >= 0:  # every thread exists now (the middleware's, the native writer's)
+        from prsm_ros.node.scheduling import move_process_threads, other_cpus, pin_calling_thread
+        move_process_threads(other_cpus(step_thread_cpu), keep=frozenset({threading.get_native_id()}))
+        pin_calling_thread({step_thread_cpu})
     period_s = 1.0 / rate_hz
     pacer = DeadlinePacer(period_s)
     state = SimpleNamespace(screw_angle_rad=0.0, nut_position_m=0.0, screw_speed_rad_s=0.0, nut_velocity_m_s=0.0,

@@ -12,8 +12,10 @@
   states delivered to the reliable reader, the long-run rate error as the reader sees it, and
   the node process's CPU (all its threads) over the measured window, beside the rclpy floor's
   (`rclpy_floor`: two node and floor pairs alternated, `cpu_pairs`) and beside the same floor writing
-  what the node records with a native MCAP writer (`rclpy_floor --record`); then the node's CPU with
-  each other model (unloaded, shorter runs), since the CPU target holds for every model.
+  what the node records with a native MCAP writer (`rclpy_floor --record`); the same three with the
+  step thread (the floor's loop) on a CPU of its own and the rest, the controller included, on the
+  others (`step_thread_cpu`, `pinned_cpu_figures`); then the node's CPU with each other model
+  (unloaded, shorter runs), since the CPU target holds for every model.
 - Step cost: one `Simulator.step` per model, and the same through `Session.step` (gate, load,
   finiteness check: the path the node calls each tick), in the same Python loop form as MuJoCo's `mj_step` on the rigid screw–nut (`mujoco` from the `bench`
   extra): one slide joint for the nut, the rotating inertia reflected as armature, which is
@@ -76,11 +78,20 @@ FLOOR_MODULE = "prsm_ros.bench.rclpy_floor"  # the node's DDS traffic and nothin
 
 
 def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, module: str = NODE_MODULE,
-             module_args: tuple[str, ...] = ()) -> dict:
+             module_args: tuple[str, ...] = (), step_thread_cpu: int = -1) -> dict:
     """The node (or `module` in its place, given `module_args`) at its defaults and the reference controller;
-    the controller's summary plus the node process's CPU."""
+    the controller's summary plus the node process's CPU. `step_thread_cpu` >= 0: the node's step thread (the
+    floor's loop) on that CPU, its other threads and the controller on the others (`step_thread_cpu`)."""
+    from prsm_ros.node.scheduling import other_cpus
     from prsm_ros.ros_env import ros_args
     env = isolated_env(respect_user=False, RERUN="off")
+    ctl_args = ["--duration", repr(seconds)]
+    if step_thread_cpu >= 0:
+        if module == NODE_MODULE:
+            node_params = {**(node_params or {}), "step_thread_cpu": step_thread_cpu}
+        else:
+            module_args = (*module_args, "--step-thread-cpu", str(step_thread_cpu))
+        ctl_args += ["--cpus", ",".join(map(str, sorted(other_cpus(step_thread_cpu))))]
     hogs = start_hogs() if loaded else []
     try:
         with tempfile.TemporaryDirectory(prefix="prsm_bench_rt_") as tmp:
@@ -89,7 +100,7 @@ def loop_run(seconds: float, *, loaded: bool, node_params: dict | None = None, m
                 node = start_module(module, args, env, cwd=tmp, stdout=log,
                                     stderr=subprocess.STDOUT)
                 try:
-                    ctl = start_module("prsm_ros.bench.rt_controller", ["--duration", repr(seconds)], env,
+                    ctl = start_module("prsm_ros.bench.rt_controller", ctl_args, env,
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
                     # a hung controller is killed, which ends the reads below
                     watchdog = threading.Timer(180 + 3 * seconds, ctl.kill)
@@ -174,8 +185,52 @@ def loop_figures(quick: bool) -> list[dict]:
         if not loaded:
             figs.append(recording_ratio_figure(pairs))
     figs.extend(floor if floor is not None else [floor_figure([], seconds), floor_figure([], seconds, recorded=True)])
+    figs.extend(pinned_cpu_figures(seconds / 2))
     figs.extend(model_cpu_figures(quick))
     return figs
+
+
+def pinned_cpu_figures(seconds: float, sets: int = 2) -> list[dict]:
+    """The node's CPU with its step thread on a CPU of its own (`step_thread_cpu`: the machine's last CPU, the
+    node's other threads and the controller on the rest), beside both floors run the same way: `sets` sets of a
+    node run, the floor and the recording floor, alternated (`cpu_pairs`' reason), unloaded."""
+    from prsm_ros.node.scheduling import allowed_cpus
+    names = ("node CPU share of one core, step thread on a CPU of its own (unloaded)",
+             "node CPU over the rclpy floor, both with the loop on a CPU of its own (unloaded)",
+             "node CPU over the rclpy floor with native recording, both with the loop on a CPU of its own (unloaded)")
+    cpus = sorted(allowed_cpus())
+    if len(cpus) < 2:
+        why = f"not measured: this process may run on {len(cpus) or 'an unknown number of'} CPU(s), and a CPU of " \
+              "its own for the step thread needs another for the rest"
+        return [figure(n, math.nan, u, t, None, None, why) for n, u, t in zip(names, ("%", "×", "×"),
+                                                                                ("≤ 15", "≤ 1.5", "≤ 1.5"))]
+    cpu = cpus[-1]
+    runs: list[tuple[float, float, float]] = []
+    errors = []
+    for _ in range(sets):
+        try:
+            n = loop_run(seconds, loaded=False, step_thread_cpu=cpu)["node_cpu_pct"]
+            f = loop_run(seconds, loaded=False, module=FLOOR_MODULE, step_thread_cpu=cpu)["node_cpu_pct"]
+            r = loop_run(seconds, loaded=False, module=FLOOR_MODULE, module_args=("--record",),
+                         step_thread_cpu=cpu)["node_cpu_pct"]
+        except Exception as e:  # a failed set is left out; the notes say so
+            errors.append(f"{type(e).__name__}: {e}")
+            continue
+        runs.append((n, f, r))
+    failed = f"; failed: {'; '.join(errors)}" if errors else ""
+    if not runs:
+        return [figure(n, math.nan, u, t, False, None, "not measured" + failed)
+                for n, u, t in zip(names, ("%", "×", "×"), ("≤ 15", "≤ 1.5", "≤ 1.5"))]
+    how = (f"prsm-node -p step_thread_cpu:={cpu} (its other threads and the controller on "
+           f"{', '.join(map(str, cpus[:-1]))}); the floors with --step-thread-cpu {cpu}; {seconds:g} s each, "
+           f"{len(runs)} sets alternated: " + "; ".join(f"node {n:.1f} %, floor {f:.1f} %, recording floor {r:.1f} %"
+                                                       for n, f, r in runs) + failed)
+    cpu_pct = statistics.fmean(n for n, _, _ in runs)
+    bare = statistics.fmean(n / f for n, f, _ in runs if f > 0)
+    rec = statistics.fmean(n / r for n, _, r in runs if r > 0)
+    return [figure(names[0], cpu_pct, "%", "≤ 15", cpu_pct <= 15, None, how),
+            figure(names[1], bare, "×", "≤ 1.5", bare <= 1.5, None, "the mean of the sets' ratios; " + how),
+            figure(names[2], rec, "×", "≤ 1.5", rec <= 1.5, None, "the mean of the sets' ratios; " + how)]
 
 
 def node_cpu_figure(cond: str, loaded: bool, node_cpu_pct: float, pairs: list[tuple[float, float, float]]) -> dict:

@@ -128,6 +128,17 @@ class _Probe:
         }
 
 
+def _cpu_set(text: str) -> frozenset[int]:
+    """--cpus: CPU numbers separated by commas."""
+    try:
+        cpus = frozenset(int(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected CPU numbers separated by commas, e.g. 0,2") from None
+    if not cpus or min(cpus) < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected CPU numbers >= 0")
+    return cpus
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="rt_controller", description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=10.0, help="measured wall seconds (after the first state)")
@@ -135,7 +146,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--node", default="/prsm_actuator", help="the node's full name")
     ap.add_argument("--joint-states", default="/joint_states", help="the node's joint_states topic")
     ap.add_argument("--depth", type=int, default=1000, help="keep-last depth of the reliable state reader")
+    ap.add_argument("--cpus", type=_cpu_set, metavar="N[,N...]",
+                    help="run on these CPUs only (a deployment keeps its controller off the node's step thread CPU)")
     a = ap.parse_args(argv)
+    if a.cpus:  # before rclpy starts the middleware's threads, which then inherit it
+        from prsm_ros.node.scheduling import cpu_list, pin_calling_thread
+        applied = pin_calling_thread(a.cpus)
+        if applied != cpu_list(a.cpus):
+            ap.error(f"--cpus {','.join(map(str, sorted(a.cpus)))}: {applied}")
 
     import rclpy
     try:  # rclpy's C++ events executor: a small fraction of the per-callback cost of the Python one

@@ -117,6 +117,10 @@ NODE_PARAMETERS: tuple[NodeParam, ...] = (
               lo=0, hi=99, read_only=True),
     NodeParam("pacing_spin", 0.0, "s", "realtime: poll the clock for this long before each deadline instead "
               "of trusting the sleep's wake-up latency (CPU for jitter; 0: sleep only)", lo=0.0, hi=1e-2, read_only=True),
+    NodeParam("step_thread_cpu", -1, "", "realtime: the CPU the step thread runs on, the node's other threads "
+              "(executor, middleware, recorder and its writer process, Rerun) kept on the other CPUs the process may "
+              "use; a controller is best kept off it too (-1: the OS places every thread); reported on /diagnostics",
+              lo=-1, hi=1023, read_only=True),
     NodeParam("executor", "events", "", "what runs the callbacks (services, parameters, timers, lockstep "
               "commands): events, rclpy's C++ EventsExecutor (single where rclpy lacks it); single, rclpy's "
               "SingleThreadedExecutor in Python", choices=EXECUTORS, read_only=True),
@@ -300,6 +304,7 @@ class NodeConfig:
         params = _physics(base, values, out["model"])
         _check_on_threads(out["initial_nut_position"], params)
         _check_names(out)
+        _check_cpu(out["step_thread_cpu"])
         topics = {k[len("topics."):]: v for k, v in out.items() if k.startswith("topics.")}
         if given is None:
             given = {p.name for p in actuator_parameters() if not _same(out[p.name], p.default)}
@@ -354,6 +359,20 @@ def _check_names(out: dict[str, Any]) -> None:
                                   "quotes or <>&")
         if len(set(names)) != len(names):
             raise ConfigError(f"parameters {', '.join(group)} = {names}: must differ")
+
+
+def _check_cpu(cpu: int) -> None:
+    """step_thread_cpu: -1, or a CPU this process may run on, leaving another for the node's other threads."""
+    from prsm_ros.node.scheduling import allowed_cpus, cpu_list
+    allowed = allowed_cpus()
+    if cpu < 0 or not allowed:  # off, or an OS that does not say (the thread's pinning then says it was refused)
+        return
+    if len(allowed) < 2:
+        raise ConfigError(f"parameter step_thread_cpu = {cpu}: must be -1 here: this process may run on "
+                          f"{cpu_list(allowed)} only, and the node's other threads need a CPU besides the step thread's")
+    if cpu not in allowed:
+        raise ConfigError(f"parameter step_thread_cpu = {cpu}: must be -1 or one of the CPUs this process may run on "
+                          f"({', '.join(map(str, sorted(allowed)))})")
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -28,7 +28,7 @@ from prsm_ros.messages import NODE_NAME  # noqa: E402
 from prsm_ros.node.declare import check_unknown_overrides, declare_parameters, usage  # noqa: E402
 from prsm_ros.node.parameters import ConfigError, ParamSources, check_ros_args, param_sources, params_template  # noqa: E402
 from prsm_ros.node.ros_node import PrsmNode  # noqa: E402
-from prsm_ros.node.scheduling import raise_process_threads  # noqa: E402
+from prsm_ros.node.scheduling import move_process_threads, other_cpus, raise_process_threads  # noqa: E402
 from prsm_ros.node.urdf import urdf_for_node  # noqa: E402
 
 RCLError = _rclpy.RCLError  # rcl's refusal of an argument at init (rclpy exports it nowhere public)
@@ -124,6 +124,10 @@ def _run(sources: ParamSources) -> int:
         if node.config.time_mode == "realtime" and node.config.realtime_priority > 1:
             # our own process: the middleware's threads too (not done when PrsmNode is embedded elsewhere)
             node.scheduling["middleware_threads"] = raise_process_threads(node.config.realtime_priority - 1)
+        if node.config.time_mode == "realtime" and node.config.step_thread_cpu >= 0:
+            # the same for the CPU: the middleware's threads existed before the node moved its own (`scheduling`)
+            node.scheduling["middleware_threads_cpus"] = move_process_threads(
+                other_cpus(node.config.step_thread_cpu), keep=node.step_thread_ids())
         # Python runs signal handlers only between bytecodes, so spin in short slices. An external
         # shutdown ends the loop through the context's callback rather than an rclpy.ok() per wake-up:
         # in lockstep every command wakes the executor, and that check (a lock, the context's own) was

@@ -77,6 +77,7 @@ from prsm_ros.node.outlets import READER_COUNT_EVERY, Outlets, WarnThrottle
 from prsm_ros.node.owned_inputs import OWNED_INPUTS
 from prsm_ros.node.ownership import COMMAND_QUEUE_DEPTH, CommandOwnership
 from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack, request_realtime_priority
+from prsm_ros.node.scheduling import other_cpus, pin_calling_thread
 from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, ParamSources, runtime_change
 from prsm_ros.node.refusals import Refusals
 from prsm_ros.node.services import NodeServices
@@ -244,6 +245,10 @@ class PrsmNode(Node):
         prio = self.config.realtime_priority
         if prio > 1:
             self.scheduling["other_threads"] = request_realtime_priority(prio - 1)
+        cpu = self.config.step_thread_cpu
+        if cpu >= 0:  # the threads started from here on start off the step thread's CPU (`scheduling`)
+            self.scheduling["step_thread_cpus"] = "any CPU (the step loop not started)"
+            self.scheduling["other_threads_cpus"] = pin_calling_thread(other_cpus(cpu))
         sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
 
     # -- what an executor sees -------------------------------------------------------------------
@@ -380,6 +385,8 @@ class PrsmNode(Node):
         realtime = self.config.time_mode == "realtime"
         if realtime:  # never for fast mode: a busy SCHED_FIFO thread would starve the machine
             self.scheduling["step_thread"] = request_realtime_priority(self.config.realtime_priority)
+            if self.config.step_thread_cpu >= 0:
+                self.scheduling["step_thread_cpus"] = pin_calling_thread({self.config.step_thread_cpu})
         self.pacer.restart()
         was_running = False
         raw_lock = self.lock.raw
@@ -412,6 +419,11 @@ class PrsmNode(Node):
                     return
                 self.session.fail(f"step loop error: {type(e).__name__}: {e}")
                 self.get_logger().error(self.session.fault)
+
+    def step_thread_ids(self) -> frozenset[int]:
+        """The OS thread id of the step thread (realtime and fast mode), for what moves the other threads."""
+        native = self._thread.native_id if self._thread is not None else None
+        return frozenset() if native is None else frozenset({native})
 
     def _idle(self) -> None:
         """Paused or faulted: commands still count, own and reach the bag while nothing steps."""
