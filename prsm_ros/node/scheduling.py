@@ -11,9 +11,9 @@ block on sockets, conditions or timers, so they cannot starve the machine.
 to the other CPUs before it starts anything (`pin_calling_thread`), so every thread and process
 started after it (recorder, its writer process, Rerun, the step thread) starts there; the step thread
 then moves itself onto its CPU, and `move_process_threads` moves the middleware's threads, which exist
-before the node's set-up, off it. On the 2-core bench machine this kept the step thread's caches
-its own: the node's CPU fell from 14.6–16.0 % to 12.2–13.0 % of a core, the floor's from 7.1–9.6 % to
-6.4–7.0 % with the same treatment (`prsm-bench --only realtime`; docs/performance.md).
+before the node's set-up, off it. The step thread's CPU then serves it alone (nothing queued before
+it at a deadline, nothing else in its caches): on the 2-core bench machine, in four runs of `prsm-bench --only realtime` the
+node's CPU was 12.7–16.1 % of a core with it against 16.2–19.2 % without (docs/performance.md).
 """
 
 from __future__ import annotations
