@@ -79,10 +79,14 @@ def test_the_floor_and_the_controller_keep_off_the_loops_cpu_as_the_node_does(tm
     other threads (the middleware's) and every thread of the controller off it, read from the kernel's affinity
     lists while the controller gets its states (the bench's pinned floor: the node's `step_thread_cpu`)."""
     cpus = sorted(os.sched_getaffinity(0))
-    if len(cpus) < 2:  # the floor refuses it here, as the node does
-        pytest.skip(f"one CPU ({cpus}): a CPU of its own for the loop needs another for the rest")
     cpu, rest = cpus[-1], cpus[:-1]
     env = ros_test_env("bench_floor_cpu")
+    if not rest:  # one CPU: the floor refuses it, as the node does
+        with NodeProcess(env, workdir=tmp_path / "floor", module="prsm_ros.bench.rclpy_floor",
+                         extra_args=["--step-thread-cpu", str(cpu)]) as floor:
+            assert floor.wait(60) == 2
+            assert "--step-thread-cpu" in floor.stderr and "with another left for the other threads" in floor.stderr
+        return
     with NodeProcess(env, workdir=tmp_path / "floor", module="prsm_ros.bench.rclpy_floor",
                      extra_args=["--step-thread-cpu", str(cpu)]) as floor:
         ctl = start_module("prsm_ros.bench.rt_controller",

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 import time
@@ -150,9 +151,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="run on these CPUs only (a deployment keeps its controller off the node's step thread CPU)")
     a = ap.parse_args(argv)
     if a.cpus:  # before rclpy starts the middleware's threads, which then inherit it
-        from prsm_ros.node.scheduling import cpu_list, pin_calling_thread
+        from prsm_ros.node.scheduling import pin_calling_thread
         applied = pin_calling_thread(a.cpus)
-        if applied != cpu_list(a.cpus):
+        if os.sched_getaffinity(0) != a.cpus:
             ap.error(f"--cpus {','.join(map(str, sorted(a.cpus)))}: {applied}")
 
     import rclpy

@@ -77,9 +77,9 @@ from prsm_ros.node.outlets import READER_COUNT_EVERY, Outlets, WarnThrottle
 from prsm_ros.node.owned_inputs import OWNED_INPUTS
 from prsm_ros.node.ownership import COMMAND_QUEUE_DEPTH, CommandOwnership
 from prsm_ros.node.pacing import DeadlinePacer, reduce_timer_slack, request_realtime_priority
-from prsm_ros.node.scheduling import other_cpus, pin_calling_thread
 from prsm_ros.node.parameters import PHYSICS_PREFIX, ConfigError, ParamSources, runtime_change
 from prsm_ros.node.refusals import Refusals
+from prsm_ros.node.scheduling import other_cpus, pin_calling_thread
 from prsm_ros.node.services import NodeServices
 from prsm_ros.node.sinks import FoxgloveSink, RecorderSink, RerunOutputSink, Sinks, open_sinks
 from prsm_ros.node.status import StatusReporter

@@ -12,8 +12,9 @@ to the other CPUs before it starts anything (`pin_calling_thread`), so every thr
 started after it (recorder, its writer process, Rerun, the step thread) starts there; the step thread
 then moves itself onto its CPU, and `move_process_threads` moves the middleware's threads, which exist
 before the node's set-up, off it. The step thread's CPU then serves it alone (nothing queued before
-it at a deadline, nothing else in its caches): on the 2-core bench machine, in four runs of `prsm-bench --only realtime` the
-node's CPU was 12.7–16.1 % of a core with it against 16.2–19.2 % without (docs/performance.md).
+it at a deadline, nothing else in its caches): on the 2-core bench machine, in four runs of
+`prsm-bench --only realtime`, the node's CPU was 12.7–16.1 % of a core with it against 16.2–19.2 %
+without (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -21,12 +22,17 @@ from __future__ import annotations
 import os
 
 
+def _thread_ids() -> list[int]:
+    """The OS ids of this process's threads (Linux's /proc; OSError elsewhere)."""
+    return [int(t) for t in os.listdir("/proc/self/task")]
+
+
 def raise_process_threads(priority: int) -> str:
     """SCHED_FIFO `priority` for every thread of this process under SCHED_OTHER; what happened, in words."""
     if priority <= 0:
         return "normal (realtime_priority 0)"
     try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
+        tids = _thread_ids()
     except OSError as e:  # not Linux
         return f"normal (threads not listed: {e.strerror or e})"
     raised, refused = 0, ""
@@ -77,7 +83,7 @@ def pin_calling_thread(cpus) -> str:
 def move_process_threads(cpus, keep: frozenset[int] = frozenset()) -> str:
     """Every thread of this process but those whose ids are in `keep` onto `cpus`; what happened, in words."""
     try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
+        tids = _thread_ids()
     except OSError as e:  # not Linux
         return f"any CPU (threads not listed: {e.strerror or e})"
     moved = 0
