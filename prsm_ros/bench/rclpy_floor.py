@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -86,8 +87,11 @@ def realtime_floor(rate_hz: float, log, step_thread_cpu: int = -1) -> int:
     reduce_timer_slack()
     if step_thread_cpu >= 0:  # every thread exists now (the middleware's, the native writer's)
         from prsm_ros.node.scheduling import move_process_threads, other_cpus, pin_calling_thread
-        move_process_threads(other_cpus(step_thread_cpu), keep=frozenset({threading.get_native_id()}))
-        pin_calling_thread({step_thread_cpu})
+        moved = move_process_threads(other_cpus(step_thread_cpu), keep=frozenset({threading.get_native_id()}))
+        pinned = pin_calling_thread({step_thread_cpu})
+        if os.sched_getaffinity(0) != {step_thread_cpu} or moved.startswith("any CPU"):
+            # never a floor labelled pinned that is not: the bench would set it beside a pinned node
+            raise SystemExit(f"--step-thread-cpu {step_thread_cpu}: the loop {pinned}, the other threads {moved}")
     period_s = 1.0 / rate_hz
     pacer = DeadlinePacer(period_s)
     state = SimpleNamespace(screw_angle_rad=0.0, nut_position_m=0.0, screw_speed_rad_s=0.0, nut_velocity_m_s=0.0,
